@@ -1,0 +1,115 @@
+"""Random communication networks (paper subsection 'Random communication network').
+
+A network process gives, at each step k, the set of edges that are up. Every process here is i.i.d. over
+time: each edge e of a base graph is up with probability p_e, independently. A fixed graph is p_e = 1;
+an Erdos-Renyi graph drawn fresh each step is the complete base graph with p_e = p.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+
+from dgtd.errors import DgtdInputError
+from dgtd.graphs.topologies import Graph
+
+
+@dataclass(frozen=True, eq=False)
+class RandomEdges:
+    """Each edge of ``base`` is up with probability ``p`` (scalar or (E,)) at each step, i.i.d. over time."""
+
+    base: Graph
+    p: np.ndarray
+
+    @property
+    def n_nodes(self) -> int:
+        return self.base.n_nodes
+
+    @property
+    def n_edges(self) -> int:
+        return self.base.n_edges
+
+    @property
+    def fixed(self) -> bool:
+        """True when every edge is always up: no random draws are needed."""
+        return bool(np.all(self.p >= 1.0))
+
+    def mean_laplacian(self) -> np.ndarray:
+        """The mean Laplacian bold-L = E[L(k)] = sum_e p_e L_e."""
+        return self.base.laplacian(self.p)
+
+    def masks_from_uniforms(self, u: np.ndarray) -> np.ndarray:
+        """Edges up, (..., E) bool, from uniforms u (..., E): edge e is up when u_e < p_e."""
+        return u < self.p
+
+    def describe(self) -> str:
+        p = np.unique(self.p)
+        ps = f"p={p[0]:g}" if p.size == 1 else f"p in [{p.min():g}, {p.max():g}]"
+        return f"{self.base.name} on {self.n_nodes} agents, {self.n_edges} edges, each up with {ps}"
+
+
+def random_edges(base: Graph, p=1.0) -> RandomEdges:
+    """Build and validate a `RandomEdges` process, refusing a disconnected mean graph."""
+    p = np.broadcast_to(np.asarray(p, dtype=np.float64), (base.n_edges,)).copy()
+    if not np.all(np.isfinite(p)) or np.any((p < 0) | (p > 1)):
+        raise DgtdInputError(f"edge probabilities must lie in [0, 1], got {np.unique(p)[:5].tolist()}")
+    p.setflags(write=False)
+    process = RandomEdges(base, p)
+    check_mean_connected(process)
+    return process
+
+
+def check_mean_connected(process: RandomEdges) -> None:
+    """Assumption `assumption:connected`: the mean connectivity graph (edges with p_e > 0) is connected."""
+    N = process.n_nodes
+    if N == 1:
+        return
+    up = process.base.edges[process.p > 0]
+    A = np.zeros((N, N), dtype=bool)
+    A[up[:, 0], up[:, 1]] = True
+    n, labels = connected_components(A, directed=False)
+    if n > 1:
+        alone = np.flatnonzero(labels != labels[0])[:5].tolist()
+        raise DgtdInputError(
+            f"the mean communication graph is disconnected ({n} components; e.g. agents {alone} cannot reach agent 0); "
+            "add edges or raise the edge probability so that every agent is connected (assumption:connected)"
+        )
+
+
+def laplacian_pinv(L: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse of a connected graph's Laplacian, L^+ = (L + 11^T/N)^-1 - 11^T/N (`lemma:bound-lemma3`)."""
+    N = L.shape[0]
+    J = np.full((N, N), 1.0 / N)
+    return np.linalg.inv(L + J) - J
+
+
+class LaplacianOperator:
+    """Applies L(k) along the agent axis of (B, N, q) arrays from the edges up at step k, in O(|E| q).
+
+    (L(k) X)_i = sum over edges {i, j} up at step k of (X_i - X_j): the neighbour sums of Algorithm 1,
+    through a sparse signed incidence matrix, never a dense N x N product.
+    """
+
+    def __init__(self, graph: Graph):
+        from scipy.sparse import csr_matrix
+
+        self.u = graph.edges[:, 0]
+        self.v = graph.edges[:, 1]
+        E, N = graph.n_edges, graph.n_nodes
+        rows = np.concatenate([self.u, self.v])
+        cols = np.concatenate([np.arange(E), np.arange(E)])
+        vals = np.concatenate([np.ones(E), -np.ones(E)])
+        self.incidence = csr_matrix((vals, (rows, cols)), shape=(N, E))
+
+    def __call__(self, X: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+        B, N, q = X.shape
+        diff = X[:, self.u, :] - X[:, self.v, :]
+        if mask is not None:
+            diff = diff * mask[:, :, None]
+        E = diff.shape[1]
+        if E == 0:
+            return np.zeros_like(X)
+        out = self.incidence @ diff.transpose(1, 0, 2).reshape(E, B * q)
+        return np.ascontiguousarray(np.asarray(out).reshape(N, B, q).transpose(1, 0, 2))

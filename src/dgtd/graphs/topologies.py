@@ -1,0 +1,103 @@
+"""Base topologies as undirected edge lists: an (E, 2) int array with i < j, no self-loops, no repeats."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+
+
+@dataclass(frozen=True, eq=False)
+class Graph:
+    """An undirected graph on nodes 0..n_nodes-1; ``edges`` (E, 2) with edges[e, 0] < edges[e, 1]."""
+
+    n_nodes: int
+    edges: np.ndarray
+    name: str = "graph"
+
+    @property
+    def n_edges(self) -> int:
+        return self.edges.shape[0]
+
+    def laplacian(self, weights=None) -> np.ndarray:
+        """L = H - W (paper section 'Graph theory'), with edge weights (default 1), shape (N, N)."""
+        w = np.ones(self.n_edges) if weights is None else np.asarray(weights, dtype=np.float64)
+        L = np.zeros((self.n_nodes, self.n_nodes))
+        u, v = self.edges[:, 0], self.edges[:, 1]
+        np.add.at(L, (u, v), -w)
+        np.add.at(L, (v, u), -w)
+        np.add.at(L, (u, u), w)
+        np.add.at(L, (v, v), w)
+        return L
+
+
+def from_edges(n_nodes: int, edges, name: str = "edges") -> Graph:
+    """Graph from any iterable of (i, j) pairs; duplicates and orientation are normalised."""
+    if int(n_nodes) < 1:
+        raise DgtdInputError(f"a graph needs at least one node, got {n_nodes}")
+    e = np.asarray(list(edges) if not isinstance(edges, np.ndarray) else edges, dtype=np.int64).reshape(-1, 2)
+    if e.size and (e.min() < 0 or e.max() >= n_nodes):
+        raise DgtdInputError(f"edge endpoints must lie in 0..{n_nodes - 1}, got {e.min()}..{e.max()}")
+    if np.any(e[:, 0] == e[:, 1]):
+        raise DgtdInputError("self-loops are not allowed in a communication graph")
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    e.setflags(write=False)
+    return Graph(int(n_nodes), e, name)
+
+
+def path(n: int) -> Graph:
+    return from_edges(n, [(i, i + 1) for i in range(n - 1)], "path")
+
+
+def ring(n: int) -> Graph:
+    if n < 3:
+        return path(n)
+    return from_edges(n, [(i, (i + 1) % n) for i in range(n)], "ring")
+
+
+def star(n: int) -> Graph:
+    return from_edges(n, [(0, i) for i in range(1, n)], "star")
+
+
+def complete(n: int) -> Graph:
+    i, j = np.triu_indices(n, k=1)
+    return from_edges(n, np.stack([i, j], 1), "complete")
+
+
+def ring_with_chords(n: int, chord: int) -> Graph:
+    """Ring plus the edges i -- i + chord: a ring whose diameter shrinks by about ``chord``."""
+    ring_e = [(i, (i + 1) % n) for i in range(n)]
+    chords = [(i, (i + chord) % n) for i in range(n) if (i + chord) % n != i]
+    return from_edges(n, ring_e + chords, f"ring+chords{chord}")
+
+
+def from_networkx(G) -> Graph:
+    """Graph from a networkx graph; nodes are numbered in sorted order (or insertion order if unsortable)."""
+    nodes = list(G.nodes)
+    try:
+        nodes = sorted(nodes)
+    except TypeError:
+        pass
+    index = {v: k for k, v in enumerate(nodes)}
+    return from_edges(len(nodes), [(index[u], index[v]) for u, v in G.edges if u != v], "networkx")
+
+
+def read_edge_list(path_: str) -> Graph:
+    """Graph from a text file of 'i j' lines (0-based node numbers; '#' starts a comment)."""
+    import networkx as nx
+
+    try:
+        G = nx.read_edgelist(path_, nodetype=int, data=False)
+    except FileNotFoundError:
+        raise DgtdInputError(f"edge-list file {path_} does not exist") from None
+    except (TypeError, ValueError, IndexError) as e:
+        raise DgtdInputError(f"edge-list file {path_} is malformed ({e}); write one 'i j' pair per line") from None
+    if G.number_of_nodes() == 0:
+        raise DgtdInputError(f"edge-list file {path_} holds no edges")
+    n = max(G.nodes) + 1
+    return from_edges(n, list(G.edges), f"file:{path_}")
+
+
+TOPOLOGIES = {"path": path, "ring": ring, "star": star, "complete": complete, "erdos-renyi": complete}

@@ -1,0 +1,202 @@
+"""Exact quantities by linear algebra on the model: never by counting samples.
+
+Notation (one agent's block of the paper's stacked matrices; L is the mean Laplacian bold-L, N x N):
+    D = diag(d),  M = Phi^T D Phi,  A = Phi^T D (I - gamma P) Phi,  b_i = Phi^T D r_i.
+Stacked over agents the paper's bar-B is I_N kron A and bar-L is L kron I_q; here agents are the leading
+axis of (N, q) arrays, so bar-L x is ``L @ X`` and bar-B x is ``X @ A.T``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+from dgtd.graphs.random import laplacian_pinv
+from dgtd.problems.model import Problem
+
+
+def stationary_distribution(P: np.ndarray) -> np.ndarray:
+    """The unique d with d^T P = d^T, sum d = 1, of an irreducible chain (solved, not estimated)."""
+    S = P.shape[0]
+    lhs = np.vstack([P.T - np.eye(S), np.ones((1, S))])
+    rhs = np.zeros(S + 1)
+    rhs[-1] = 1.0
+    d, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
+    d = np.clip(d, 0.0, None)
+    return d / d.sum()
+
+
+@dataclass(frozen=True, eq=False)
+class Moments:
+    """The model's exact moments: d of the behaviour chain and the matrices M, A, b of the MSPBE."""
+
+    problem: Problem
+
+    @cached_property
+    def d(self) -> np.ndarray:
+        return stationary_distribution(self.problem.P_behaviour)
+
+    @cached_property
+    def M(self) -> np.ndarray:
+        Phi = self.problem.Phi
+        return Phi.T @ (self.d[:, None] * Phi)
+
+    @cached_property
+    def A(self) -> np.ndarray:
+        p = self.problem
+        return p.Phi.T @ (self.d[:, None] * (p.Phi - p.gamma * p.P @ p.Phi))
+
+    @cached_property
+    def b(self) -> np.ndarray:
+        """b_i = Phi^T D r_i for every agent, shape (N, q)."""
+        p = self.problem
+        return (p.R * self.d) @ p.Phi
+
+    @cached_property
+    def b_mean(self) -> np.ndarray:
+        return self.b.mean(axis=0)
+
+
+def w_star(m: Moments) -> np.ndarray:
+    """w* = (Phi^T D (I - gamma P) Phi)^-1 Phi^T D (1/N) sum_i r_i, eq. (solution) of `prop:equivalance`."""
+    try:
+        return np.linalg.solve(m.A, m.b_mean)
+    except np.linalg.LinAlgError:
+        raise DgtdInputError("Phi^T D (I - gamma P) Phi is singular; the projected Bellman equation has no unique solution") from None
+
+
+def theta_star(m: Moments) -> np.ndarray:
+    """theta*_i = M^-1 Phi^T D (r_i - r_mean), shape (N, q).
+
+    From the first KKT equation (eq. `KKT-points`): M theta_i - b_i + A w* = 0 and A w* = b_mean. The paper's
+    appendix (eq. appendix:eq13) has this sign; the statement of `prop:stationary-points` carries the opposite
+    sign, which does not satisfy the KKT equations. Tests check the KKT residuals to 1e-9.
+    """
+    return np.linalg.solve(m.M, (m.b - m.b_mean).T).T
+
+
+def mu_star(m: Moments, L: np.ndarray) -> np.ndarray:
+    """mu* = bar-L^+ bar-B^T theta*, `prop:saddle-point-mu`, with L^+ from `lemma:bound-lemma3`; shape (N, q)."""
+    return laplacian_pinv(L) @ (theta_star(m) @ m.A)
+
+
+@dataclass(frozen=True)
+class SaddlePoint:
+    """A saddle point of eq. (Lagrangian2): arrays (N, q)."""
+
+    theta: np.ndarray
+    v: np.ndarray
+    mu: np.ndarray
+    w: np.ndarray
+
+
+def saddle_point(m: Moments, L: np.ndarray, kappa: float = 0.0, rho: float = 0.0) -> SaddlePoint:
+    """The saddle point (theta*, v* = 0, mu*, 1 kron w*) of `prop:stationary-points`; any kappa >= 0.
+
+    With the regulariser rho > 0 (the modification after `prop:convergence-DGTD2`) the saddle point moves
+    and is unique; it is then found by solving the KKT equations as one linear system (small N q only).
+    """
+    N = m.b.shape[0]
+    if rho == 0.0:
+        th = theta_star(m)
+        return SaddlePoint(th, np.zeros_like(th), mu_star(m, L), np.tile(w_star(m), (N, 1)))
+    q = m.A.shape[0]
+    n = N * q
+    if 4 * n > 4000:
+        raise DgtdInputError(f"the regularised saddle point is solved densely; N*q = {n} is too large")
+    I_N, I_q, I_n = np.eye(N), np.eye(q), np.eye(n)
+    Lk = np.kron(L, I_q)
+    Z = np.zeros((n, n))
+    K = np.block(
+        [
+            [np.kron(I_N, m.M), Z, Z, np.kron(I_N, m.A)],
+            [Z, I_n, Z, -Lk],
+            [Z, Z, rho * I_n, -Lk],
+            [np.kron(I_N, m.A.T), -Lk, -Lk, -(kappa * Lk + rho * I_n)],
+        ]
+    )
+    rhs = np.concatenate([m.b.ravel(), np.zeros(3 * n)])
+    x = np.linalg.solve(K, rhs).reshape(4, N, q)
+    return SaddlePoint(*x)
+
+
+def lagrangian_gradient(m: Moments, L, kappa, rho, theta, v, mu, w):
+    """Gradient of eq. (Lagrangian2) plus (rho/2)|mu|^2 - (rho/2)|w|^2, at stacked (N, q) points.
+
+    Returns (dL/dtheta, dL/dv, dL/dmu, dL/dw); the KKT conditions (eq. `KKT-points`) are that all four vanish.
+    """
+    Lw = L @ w
+    g_theta = theta @ m.M - m.b + w @ m.A.T
+    g_v = v - Lw
+    g_mu = -Lw + rho * mu
+    g_w = theta @ m.A - L @ v - L @ mu - kappa * Lw - rho * w
+    return g_theta, g_v, g_mu, g_w
+
+
+def kkt_residuals(m: Moments, L, kappa, rho, point: SaddlePoint) -> dict[str, float]:
+    """Max-norm of each KKT equation (eq. `KKT-points`) at ``point``."""
+    g = lagrangian_gradient(m, L, kappa, rho, point.theta, point.v, point.mu, point.w)
+    return {k: float(np.abs(x).max()) for k, x in zip(("theta", "v", "mu", "w"), g, strict=True)}
+
+
+def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
+    """MSPBE(w) = 1/2 |Pi(r + gamma P Phi w) - Phi w|_D^2 = 1/2 (b - A w)^T M^-1 (b - A w), eq. (GDD(0)-loss).
+
+    ``b`` defaults to the average reward's b_mean; ``w`` may have any leading axes (..., q).
+    """
+    b = m.b_mean if b is None else b
+    e = b - w @ m.A.T
+    q = e.shape[-1]
+    Minv_e = np.linalg.solve(m.M, e.reshape(-1, q).T).T.reshape(e.shape)
+    return 0.5 * np.einsum("...i,...i->...", e, Minv_e)
+
+
+def value_function(m: Moments) -> np.ndarray:
+    """J^pi of the average reward: J = r_mean + gamma P J, solved exactly."""
+    p = m.problem
+    return np.linalg.solve(np.eye(p.n_states) - p.gamma * p.P, p.R.mean(axis=0))
+
+
+def consensus_error(W: np.ndarray) -> np.ndarray:
+    """sum_i |w_i - mean_j w_j|_2^2 over the agent axis (-2) of (..., N, q)."""
+    return ((W - W.mean(axis=-2, keepdims=True)) ** 2).sum(axis=(-2, -1))
+
+
+def relative_error(W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
+    """|w_i - w*|_inf / |w*|_inf for each agent, shape (..., N)."""
+    scale = max(float(np.abs(w_ref).max()), 1e-300)
+    return np.abs(W - w_ref).max(axis=-1) / scale
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Half-widths of the projection boxes C_theta, C_v, C_mu, C_w (max-norm balls)."""
+
+    theta: float
+    v: float
+    mu: float
+    w: float
+
+
+def lemma_bounds(m: Moments, L: np.ndarray, max_degree: int) -> Bounds:
+    """The bounds c of `lemma:bound-lemma3` (its alpha is the discount gamma, as in Bertsekas' Prop. 6.10).
+
+    c_v is free in the lemma (v* = 0); we take 2 * max_degree * c_w, the largest |L(k) w|_inf over boxes.
+    """
+    p = m.problem
+    S, N = p.n_states, p.n_agents
+    xi = float(m.d.min())
+    lam = float(np.linalg.eigvalsh(p.Phi.T @ p.Phi).min())
+    J = value_function(m)
+    PiJ = p.Phi @ np.linalg.solve(m.M, p.Phi.T @ (m.d * J))
+    proj_err = float(np.sqrt(np.sum(m.d * (PiJ - J) ** 2)))
+    c_w = np.sqrt(S / lam) * (proj_err / np.sqrt(xi) + p.sigma) / (1.0 - p.gamma)
+    c_theta = 2.0 * p.sigma * S * np.sqrt(N / (xi * lam))
+    phi_inf = float(np.abs(p.Phi).sum(axis=1).max())
+    L_pinv_inf = float(np.abs(laplacian_pinv(L)).sum(axis=1).max()) if N > 1 else 0.0
+    c_mu = L_pinv_inf * phi_inf**2 * 2.0 * p.sigma * S**2 * np.sqrt(N / (xi * lam))
+    c_v = 2.0 * max_degree * c_w
+    return Bounds(float(c_theta), float(c_v), float(c_mu), float(c_w))

@@ -1,0 +1,213 @@
+"""The canonical multi-agent policy-evaluation problem (paper section 'Distributed reinforcement learning overview').
+
+Every problem, whether given as a Markov reward process or as a multi-agent MDP, is reduced to one
+`Problem`: the target chain P^pi and the agents' expected rewards r_i^pi (what the exact solution needs),
+and a behaviour sampling model (what the agents see). On-policy, the sampling model is P itself with one
+dummy action and importance ratio 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+
+from dgtd.errors import DgtdInputError
+
+ROW_SUM_TOL = 1e-8
+REWARD_NOISES = ("none", "bernoulli", "uniform")
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """A multi-agent policy-evaluation problem in Markov reward process form.
+
+    Shapes (S states, N agents, q features, A joint actions of the behaviour sampling model):
+
+    - ``P`` (S, S): target-policy transition matrix P^pi.
+    - ``R`` (N, S): expected reward of each agent under the target policy, r_i^pi(s).
+    - ``Phi`` (S, q): features, full column rank; row s is phi(s).
+    - ``gamma``: discount factor in (0, 1).
+    - ``P_sample`` (S, A, S): behaviour probability of (a, s') given s, beta(a|s) P(s, a, s').
+    - ``ratio`` (S, A): importance ratio pi(a|s) / beta(a|s) (ones on-policy).
+    - ``R_sample`` (N, S, A): mean reward of agent i given (s, a). The updates use the reward only through
+      phi(s) and the ratio of (s, a), so this mean is all the sampler needs to be exact in expectation.
+    - ``sigma``: rewards lie in [0, sigma] (paper section 3); it sizes the projection boxes.
+    - ``reward_noise``: 'none' (deterministic), 'bernoulli' (sigma * Bernoulli(mean / sigma)) or
+      'uniform' (uniform on [m - h, m + h], h = min(m, sigma - m)); each has the stated mean and support.
+    """
+
+    P: np.ndarray
+    R: np.ndarray
+    Phi: np.ndarray
+    gamma: float
+    P_sample: np.ndarray
+    ratio: np.ndarray
+    R_sample: np.ndarray
+    sigma: float
+    reward_noise: str = "none"
+    name: str = "problem"
+    state_labels: tuple = field(default=())
+
+    @property
+    def n_states(self) -> int:
+        return self.P.shape[0]
+
+    @property
+    def n_agents(self) -> int:
+        return self.R.shape[0]
+
+    @property
+    def n_features(self) -> int:
+        return self.Phi.shape[1]
+
+    @property
+    def n_actions(self) -> int:
+        return self.P_sample.shape[1]
+
+    @property
+    def off_policy(self) -> bool:
+        return not np.all(self.ratio == 1.0)
+
+    @property
+    def P_behaviour(self) -> np.ndarray:
+        """Behaviour state chain sum_a beta(a|s) P(s, a, s'), shape (S, S)."""
+        return self.P_sample.sum(axis=1)
+
+
+def _as_float_array(name: str, x, ndim: int) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise DgtdInputError(f"{name} must be a numeric array ({e})") from None
+    if a.ndim != ndim:
+        raise DgtdInputError(f"{name} must have {ndim} dimensions, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise DgtdInputError(f"{name} contains NaN or infinite values; replace them with finite numbers")
+    return a
+
+
+def check_stochastic(name: str, P: np.ndarray) -> None:
+    """Refuse negative entries and rows that do not sum to one."""
+    if np.any(P < 0):
+        s = int(np.argwhere(P < 0)[0][0])
+        raise DgtdInputError(f"{name} has negative entries (first in row {s}); probabilities must be >= 0")
+    sums = P.reshape(P.shape[0], -1).sum(axis=1)
+    bad = np.flatnonzero(np.abs(sums - 1.0) > ROW_SUM_TOL)
+    if bad.size:
+        s = int(bad[0])
+        raise DgtdInputError(
+            f"row {s} of {name} sums to {sums[s]:.10g}, not 1; every row of a transition matrix must sum to 1"
+        )
+
+
+def chain_period(P: np.ndarray) -> int:
+    """Period of an irreducible chain: gcd of level(u) + 1 - level(v) over the edges u -> v of a BFS tree."""
+    S = P.shape[0]
+    level = np.full(S, -1)
+    level[0] = 0
+    frontier = [0]
+    while frontier:
+        nxt = []
+        for u in frontier:
+            for v in np.flatnonzero(P[u] > 0):
+                if level[v] < 0:
+                    level[v] = level[u] + 1
+                    nxt.append(v)
+        frontier = nxt
+    u, v = np.nonzero(P > 0)
+    return int(np.gcd.reduce(np.abs(level[u] + 1 - level[v])))
+
+
+def check_irreducible(name: str, P: np.ndarray) -> None:
+    """Refuse a chain with more than one communicating class: its stationary distribution is not unique."""
+    n, labels = connected_components(P > 0, directed=True, connection="strong")
+    if n > 1:
+        sizes = np.bincount(labels)
+        raise DgtdInputError(
+            f"{name} is not ergodic: its states form {n} separate communicating classes (sizes "
+            f"{sizes.tolist()[:6]}); make every state reachable from every other"
+        )
+
+
+def make_problem(
+    P,
+    R,
+    Phi,
+    gamma: float,
+    *,
+    P_sample=None,
+    ratio=None,
+    R_sample=None,
+    sigma: float | None = None,
+    reward_noise: str = "none",
+    name: str = "problem",
+    state_labels: tuple = (),
+) -> Problem:
+    """Validate and build a `Problem`; on-policy when no sampling model is given.
+
+    Every check raises `DgtdInputError` with a message naming what is wrong.
+    """
+    P = _as_float_array("P", P, 2)
+    R = _as_float_array("R", R, 2)
+    Phi = _as_float_array("Phi", Phi, 2)
+    try:
+        gamma = float(gamma)
+    except (TypeError, ValueError):
+        raise DgtdInputError(f"gamma must be a number, got {gamma!r}") from None
+    if not np.isfinite(gamma) or not 0.0 < gamma < 1.0:
+        raise DgtdInputError(f"gamma must lie strictly between 0 and 1, got {gamma}")
+    S = P.shape[0]
+    if P.shape != (S, S):
+        raise DgtdInputError(f"P must be square (S, S), got shape {P.shape}")
+    if R.shape[1] != S:
+        raise DgtdInputError(f"R must have shape (N, S) = (N, {S}) to match P, got {R.shape}")
+    if Phi.shape[0] != S:
+        raise DgtdInputError(f"Phi must have shape (S, q) = ({S}, q) to match P, got {Phi.shape}")
+    if R.shape[0] < 1:
+        raise DgtdInputError("R must hold at least one agent (one row)")
+    check_stochastic("P", P)
+    if np.linalg.matrix_rank(Phi) < Phi.shape[1]:
+        raise DgtdInputError(
+            f"Phi ({Phi.shape[0]} x {Phi.shape[1]}) does not have full column rank "
+            f"(rank {np.linalg.matrix_rank(Phi)}); remove features that are linear combinations of others"
+        )
+    if P_sample is None:
+        P_sample = P[:, None, :]
+        ratio = np.ones((S, 1))
+        R_sample = R[:, :, None]
+    P_sample = _as_float_array("P_sample", P_sample, 3)
+    ratio = _as_float_array("ratio", ratio, 2)
+    R_sample = _as_float_array("R_sample", R_sample, 3)
+    A = P_sample.shape[1]
+    if P_sample.shape != (S, A, S) or ratio.shape != (S, A) or R_sample.shape != (R.shape[0], S, A):
+        raise DgtdInputError(
+            f"sampling model shapes disagree: P_sample {P_sample.shape}, ratio {ratio.shape}, "
+            f"R_sample {R_sample.shape} for S={S}, N={R.shape[0]}"
+        )
+    check_stochastic("the behaviour sampling model", P_sample)
+    if np.any(ratio < 0):
+        raise DgtdInputError("importance ratios must be >= 0")
+    beta = P_sample.sum(axis=2)
+    if not np.allclose(np.einsum("sat,sa->st", P_sample, ratio), P, atol=1e-8):
+        raise DgtdInputError(
+            "the sampling model does not reproduce P: sum_a beta(a|s) P(s,a,s') ratio(s,a) must equal P(s,s')"
+        )
+    if not np.allclose(np.einsum("sa,nsa->ns", beta * ratio, R_sample), R, atol=1e-8 * max(1.0, np.abs(R).max())):
+        raise DgtdInputError("the sampling model does not reproduce R: sum_a pi(a|s) R_sample(i,s,a) must equal R(i,s)")
+    P_beh = P_sample.sum(axis=1)
+    check_irreducible("the behaviour chain" if A > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
+    if np.any(R < 0) or np.any(R_sample < 0):
+        raise DgtdInputError("rewards must be >= 0 (the paper's rewards lie in [0, sigma]); shift them by a constant")
+    r_max = float(max(R.max(), R_sample.max()))
+    if sigma is None:
+        sigma = r_max if r_max > 0 else 1.0
+    sigma = float(sigma)
+    if not np.isfinite(sigma) or sigma <= 0 or sigma < r_max - 1e-12:
+        raise DgtdInputError(f"sigma must be positive and at least the largest mean reward {r_max:g}, got {sigma}")
+    if reward_noise not in REWARD_NOISES:
+        raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
+    for a in (P, R, Phi, P_sample, ratio, R_sample):
+        a.setflags(write=False)
+    return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels))

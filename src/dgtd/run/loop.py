@@ -1,0 +1,189 @@
+"""The run loop: draws uniforms in blocks, advances a backend kernel, and records exact metrics at checkpoints."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dgtd.algorithms import dgtd as dgtd_alg
+from dgtd.algorithms.stepsizes import step_sizes
+from dgtd.errors import DgtdInputError
+from dgtd.graphs.random import LaplacianOperator, RandomEdges
+from dgtd.problems import exact
+from dgtd.problems.model import Problem, chain_period
+from dgtd.run.sampling import Sampling, SamplerTables, Streams
+
+BACKENDS = ("numpy", "numba")
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How long and how many: iterations T, seeds (B), base seed, checkpoints, averaging window, backend."""
+
+    iterations: int = 10_000
+    seeds: int = 1
+    seed: int = 0
+    checkpoints: int = 100
+    tail_fraction: float = 0.5
+    block_size: int = 2048
+    backend: str = "numpy"
+
+    def __post_init__(self):
+        if int(self.iterations) < 1:
+            raise DgtdInputError(f"iterations must be >= 1, got {self.iterations}")
+        if int(self.seeds) < 1:
+            raise DgtdInputError(f"seeds must be >= 1, got {self.seeds}")
+        if int(self.checkpoints) < 1:
+            raise DgtdInputError(f"checkpoints must be >= 1, got {self.checkpoints}")
+        if not 0.0 < self.tail_fraction <= 1.0:
+            raise DgtdInputError(f"tail_fraction must lie in (0, 1], got {self.tail_fraction}")
+        if int(self.block_size) < 1:
+            raise DgtdInputError(f"block_size must be >= 1, got {self.block_size}")
+        if self.backend not in BACKENDS:
+            raise DgtdInputError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+
+
+def checkpoint_steps(T: int, n: int) -> np.ndarray:
+    """About n steps in 1..T, half evenly spaced and half log-spaced (for linear and log plots), T included."""
+    lin = np.linspace(0, T, n // 2 + 1)[1:]
+    log = np.geomspace(1, T, n - n // 2)
+    return np.unique(np.concatenate([np.round(lin), np.round(log), [T]]).astype(np.int64).clip(1, T))
+
+
+@dataclass
+class Context:
+    """Everything a kernel reads: model arrays, sampler tables, network, boxes; built once per run."""
+
+    problem: Problem
+    network: RandomEdges
+    algorithm: object
+    sampling: Sampling
+    tables: SamplerTables
+    lap: LaplacianOperator
+    boxes: tuple
+    tail_start: int
+
+    def __post_init__(self):
+        p = self.problem
+        self.Phi, self.gamma, self.ratio, self.R_sample = p.Phi, p.gamma, p.ratio, p.R_sample
+        self.sigma, self.reward_noise = p.sigma, p.reward_noise
+        self.n_states, self.n_agents = p.n_states, p.n_agents
+
+
+@dataclass
+class RunResult:
+    """What a run produced; arrays are indexed [checkpoint, seed, agent, feature] where they have those axes."""
+
+    steps: np.ndarray
+    metrics: dict
+    agent_error_last: np.ndarray
+    agent_error_avg: np.ndarray
+    w_trace: np.ndarray | None
+    w_last: np.ndarray
+    w_avg: np.ndarray
+    w_tail: np.ndarray
+    tail_window: int
+    w_star: np.ndarray
+    saddle: exact.SaddlePoint
+    boxes: tuple
+    final_state: dict
+    kkt_last: dict
+    seconds: float
+    info: dict = field(default_factory=dict)
+
+
+def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges) -> tuple:
+    if algorithm.boxes is not None:
+        return tuple(float(b) for b in algorithm.boxes)
+    max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
+    c = exact.lemma_bounds(moments, network.mean_laplacian(), max_degree)
+    return tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
+
+
+def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling, settings: RunSettings):
+    """Check that the pieces fit and compute the exact reference quantities."""
+    if network.n_nodes != problem.n_agents:
+        raise DgtdInputError(
+            f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them agree"
+        )
+    if sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
+        raise DgtdInputError(
+            "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
+        )
+    moments = exact.Moments(problem)
+    L_mean = network.mean_laplacian()
+    saddle = exact.saddle_point(moments, L_mean, algorithm.kappa, algorithm.rho)
+    w_star = exact.w_star(moments)
+    boxes = resolve_boxes(algorithm, moments, network)
+    T = int(settings.iterations)
+    tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
+    ctx = Context(problem, network, algorithm, sampling, SamplerTables.build(problem, moments.d),
+                  LaplacianOperator(network.base), boxes, T - tail_window)
+    return ctx, moments, L_mean, saddle, w_star, tail_window
+
+
+def run(problem: Problem, network: RandomEdges, algorithm: dgtd_alg.DGTD, sampling: Sampling = Sampling(),
+        settings: RunSettings = RunSettings(), progress=None) -> RunResult:
+    """Run Algorithm 1 for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block."""
+    t_start = time.perf_counter()
+    ctx, moments, L_mean, saddle, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
+    T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
+    n_obs = 1 if sampling.shared else N
+    streams = Streams(settings.seed, range(B), n_obs, N, network.n_edges, mode=sampling.mode,
+                      reward_noise=problem.reward_noise != "none", random_edges=not network.fixed)
+    current = None
+    if sampling.mode == "markov":
+        from dgtd.backends.numpy_ref import pick_states  # s_0 ~ d from the state stream's first draws
+
+        u0 = streams.initial_uniforms()
+        current, _, _ = pick_states(ctx, np.stack([u0, u0], -1), None)
+    kernel = _kernel(settings.backend)
+    state = dgtd_alg.init(B, N, q)
+    sums = {"all": np.zeros((B, N, q)), "tail": np.zeros((B, N, q))}
+    steps = checkpoint_steps(T, int(settings.checkpoints))
+    C = len(steps)
+    names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg")
+    metrics = {m: np.zeros((C, B)) for m in names}
+    err_last, err_avg = np.zeros((C, B, N)), np.zeros((C, B, N))
+    keep_trace = B * N * q * C <= 2_000_000
+    w_trace = np.zeros((C, B, N, q)) if keep_trace else None
+    k, c = 0, 0
+    while k < T:
+        k1 = min(k + int(settings.block_size), int(steps[c]))
+        U = streams.draw(k1 - k)
+        alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
+        state, sums, current = kernel(ctx, state, sums, k, alphas, U, current)
+        if progress is not None:
+            progress(k1 - k)
+        k = k1
+        if k == steps[c]:
+            w, w_avg = state.w, sums["all"] / k
+            err_last[c], err_avg[c] = exact.relative_error(w, w_star), exact.relative_error(w_avg, w_star)
+            metrics["error_last"][c], metrics["error_avg"][c] = err_last[c].max(-1), err_avg[c].max(-1)
+            metrics["consensus"][c] = exact.consensus_error(w)
+            metrics["mspbe_last"][c] = exact.mspbe(moments, w).max(-1)
+            metrics["mspbe_avg"][c] = exact.mspbe(moments, w_avg).max(-1)
+            if keep_trace:
+                w_trace[c] = w
+            c += 1
+    final = state._asdict()
+    kkt = {name: float(np.abs(g).max()) for name, g in zip(
+        ("theta", "v", "mu", "w"),
+        exact.lagrangian_gradient(moments, L_mean, algorithm.kappa, algorithm.rho, *state))}
+    return RunResult(
+        steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
+        w_last=state.w, w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
+        w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
+        seconds=time.perf_counter() - t_start,
+        info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star))},
+    )
+
+
+def _kernel(backend: str):
+    if backend == "numba":
+        from dgtd.backends.numba_kernels import dgtd_block
+    else:
+        from dgtd.backends.numpy_ref import dgtd_block
+    return dgtd_block

@@ -1,0 +1,91 @@
+"""Results on disk: summary.json, metrics.csv and arrays, each written atomically (temporary file, then rename)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from dgtd.problems import exact
+from dgtd.run.loop import RunResult
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that a crash or Ctrl-C leaves either the old file or the new one, never half."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_json(path: Path, obj) -> None:
+    atomic_write(path, (json.dumps(obj, indent=2) + "\n").encode())
+
+
+def metrics_rows(result: RunResult, algorithm: str):
+    """Long format: (algorithm, seed, step, metric, value), one row per checkpoint, seed and metric."""
+    for name, values in result.metrics.items():
+        for c, step in enumerate(result.steps):
+            for b in range(values.shape[1]):
+                yield algorithm, b, int(step), name, float(values[c, b])
+
+
+def metrics_csv(result: RunResult, algorithm: str = "dgtd") -> bytes:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["algorithm", "seed", "step", "metric", "value"])
+    w.writerows(metrics_rows(result, algorithm))
+    return buf.getvalue().encode()
+
+
+def summary(result: RunResult, config: dict) -> dict:
+    """What summary.json holds: the exact solution, each seed's and agent's estimates and errors, the config."""
+    rel = lambda W: exact.relative_error(W, result.w_star).tolist()  # noqa: E731
+    return {
+        "w_star": result.w_star.tolist(),
+        "theta_star": result.saddle.theta.tolist(),
+        "mu_star": result.saddle.mu.tolist(),
+        "mspbe_w_star": result.info["mspbe_w_star"],
+        "w_last": result.w_last.tolist(),
+        "w_avg": result.w_avg.tolist(),
+        "w_tail": result.w_tail.tolist(),
+        "tail_window": result.tail_window,
+        "error_last": rel(result.w_last),
+        "error_avg": rel(result.w_avg),
+        "error_tail": rel(result.w_tail),
+        "max_error_last": float(np.max(rel(result.w_last))),
+        "max_error_avg": float(np.max(rel(result.w_avg))),
+        "max_error_tail": float(np.max(rel(result.w_tail))),
+        "consensus_last": exact.consensus_error(result.w_last).tolist(),
+        "kkt_residuals_last": result.kkt_last,
+        "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes, strict=True)),
+        "stationary_distribution": result.info["d"].tolist(),
+        "seconds": result.seconds,
+        "config": config,
+    }
+
+
+def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "dgtd") -> None:
+    """summary.json, metrics.csv and trajectory.npz in ``out``; summary.json is written last."""
+    out = Path(out)
+    atomic_write(out / "metrics.csv", metrics_csv(result, algorithm))
+    buf = io.BytesIO()
+    arrays = {"steps": result.steps, "agent_error_last": result.agent_error_last, "agent_error_avg": result.agent_error_avg}
+    if result.w_trace is not None:
+        arrays["w_trace"] = result.w_trace
+    np.savez_compressed(buf, **arrays)
+    atomic_write(out / "trajectory.npz", buf.getvalue())
+    atomic_write_json(out / "summary.json", summary(result, config))

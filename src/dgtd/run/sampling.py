@@ -1,0 +1,137 @@
+"""Sampling streams: every random quantity is a transform of uniforms drawn from one stream per seed.
+
+Per seed k there are three independent generators, children of ``SeedSequence(seed, spawn_key=(k,))``:
+states (which (s, a, s') are sampled), rewards (their noise) and edges (which links are up). Each draws a
+fixed number of uniform doubles per step, so a block of T steps is the concatenation of T single steps:
+results do not depend on the block size, and seed k's stream does not depend on how many seeds ran.
+Every backend turns the same uniforms into samples with the same arithmetic (`alias_pick`), so the
+NumPy reference and the compiled kernels see identical samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+from dgtd.problems.model import Problem
+
+SAMPLING_MODES = ("iid", "markov")
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """How the agents see the chain.
+
+    - ``mode``: 'iid' draws s ~ d afresh at every step, as Algorithm 1 states; 'markov' follows trajectories.
+    - ``shared``: True is the paper's scenario 1 (all agents observe one state trajectory, each its own
+      reward); False is scenario 2 (each agent runs its own independent copy of the chain).
+    """
+
+    mode: str = "iid"
+    shared: bool = False
+
+    def __post_init__(self):
+        if self.mode not in SAMPLING_MODES:
+            raise DgtdInputError(f"sampling mode must be one of {', '.join(SAMPLING_MODES)}, got {self.mode!r}")
+
+
+def alias_table(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Walker/Vose alias tables for each row of p (..., K): one uniform picks an outcome in O(1)."""
+    p = np.asarray(p, dtype=np.float64)
+    flat = p.reshape(-1, p.shape[-1])
+    K = flat.shape[1]
+    prob = np.ones_like(flat)
+    alias = np.tile(np.arange(K), (flat.shape[0], 1))
+    for r, row in enumerate(flat):
+        scaled = row / row.sum() * K
+        small = [j for j in range(K) if scaled[j] < 1.0]
+        large = [j for j in range(K) if scaled[j] >= 1.0]
+        while small and large:
+            j, l = small.pop(), large.pop()
+            prob[r, j] = scaled[j]
+            alias[r, j] = l
+            scaled[l] -= 1.0 - scaled[j]
+            (small if scaled[l] < 1.0 else large).append(l)
+        for j in small + large:  # numerical leftovers are certain outcomes
+            prob[r, j] = 1.0
+    return prob.reshape(p.shape), alias.reshape(p.shape)
+
+
+def alias_pick(prob: np.ndarray, alias: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Outcome for uniform u in [0, 1): column j = floor(u K), kept if the leftover fraction < prob[j].
+
+    ``prob`` and ``alias`` are (..., K) rows already gathered to u's shape (..., ) plus K.
+    """
+    K = prob.shape[-1]
+    x = u * K
+    j = np.minimum(x.astype(np.int64), K - 1)
+    frac = x - j
+    pj = np.take_along_axis(prob, j[..., None], axis=-1)[..., 0]
+    aj = np.take_along_axis(alias, j[..., None], axis=-1)[..., 0]
+    return np.where(frac < pj, j, aj)
+
+
+@dataclass(frozen=True, eq=False)
+class SamplerTables:
+    """Alias tables of a problem: s ~ d and (a, s') ~ beta(a|s) P(s, a, s') as flat index a * S + s'."""
+
+    d_prob: np.ndarray
+    d_alias: np.ndarray
+    sa_prob: np.ndarray
+    sa_alias: np.ndarray
+
+    @staticmethod
+    def build(problem: Problem, d: np.ndarray) -> "SamplerTables":
+        dp, da = alias_table(d)
+        S, A, _ = problem.P_sample.shape
+        sp, sa = alias_table(problem.P_sample.reshape(S, A * S))
+        return SamplerTables(dp, da, sp, sa)
+
+
+def reward_from_uniform(mean: np.ndarray, sigma: float, noise: str, u) -> np.ndarray:
+    """A reward in [0, sigma] with the given mean: deterministic, sigma * Bernoulli(mean / sigma), or uniform."""
+    if noise == "none":
+        return mean
+    if noise == "bernoulli":
+        return np.where(u < mean / sigma, sigma, 0.0)
+    h = np.minimum(mean, sigma - mean)
+    return mean + h * (2.0 * u - 1.0)
+
+
+class Streams:
+    """The uniform streams of B seeds; ``draw(T)`` returns the next T steps of every stream."""
+
+    def __init__(self, seed: int, seed_ids, n_obs: int, n_agents: int, n_edges: int, *, mode: str,
+                 reward_noise: bool, random_edges: bool):
+        self.seed = int(seed)
+        self.seed_ids = np.asarray(seed_ids, dtype=np.int64)
+        self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, n_edges
+        self.mode, self.reward_noise, self.random_edges = mode, reward_noise, random_edges
+        self.gens = []
+        for k in self.seed_ids:
+            ss = np.random.SeedSequence(self.seed, spawn_key=(int(k),))
+            self.gens.append([np.random.Generator(np.random.PCG64(c)) for c in ss.spawn(3)])
+
+    def initial_uniforms(self) -> np.ndarray:
+        """Uniforms (B, n_obs) for the initial states s_0 ~ d of Markovian trajectories (drawn once, first)."""
+        return np.stack([g[0].random(self.n_obs) for g in self.gens])
+
+    def draw(self, T: int) -> dict[str, np.ndarray]:
+        """Next T steps: 'state' (T, B, n_obs, 2 or 1), 'reward' (T, B, N) and 'edge' (T, B, E) when used."""
+        width = 2 if self.mode == "iid" else 1
+        out = {"state": np.stack([g[0].random((T, self.n_obs, width)) for g in self.gens], axis=1)}
+        if self.reward_noise:
+            out["reward"] = np.stack([g[1].random((T, self.n_agents)) for g in self.gens], axis=1)
+        if self.random_edges:
+            out["edge"] = np.stack([g[2].random((T, self.n_edges)) for g in self.gens], axis=1)
+        return out
+
+    def get_state(self) -> list:
+        return [[g.bit_generator.state for g in gs] for gs in self.gens]
+
+    def set_state(self, state: list) -> None:
+        for gs, st in zip(self.gens, state, strict=True):
+            for g, s in zip(gs, st, strict=True):
+                g.bit_generator.state = s
