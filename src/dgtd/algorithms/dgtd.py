@@ -37,6 +37,14 @@ class DGTD:
 
     name = "dgtd"
 
+    def init(self, n_seeds: int, n_agents: int, n_features: int) -> "DGTDState":
+        return init(n_seeds, n_agents, n_features)
+
+    @staticmethod
+    def estimate(state: "DGTDState") -> np.ndarray:
+        """The value-function weights the agents report: w, (B, N, q)."""
+        return state.w
+
     def __post_init__(self):
         check_schedule(self.schedule, self.alpha0, self.beta)
         if not (np.isfinite(self.kappa) and self.kappa >= 0):

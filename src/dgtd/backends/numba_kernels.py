@@ -1,14 +1,17 @@
 """Compiled kernels (numba): one fused loop per algorithm over a block of steps, seeds spread over the cores.
 
-Each kernel turns the block's uniforms into samples with exactly the arithmetic of the NumPy reference
-(`dgtd.run.sampling.alias_pick`, `reward_from_uniform`) and applies the same update, so for the same seed
-both backends give the same numbers up to floating-point summation order. Compiled once and cached on disk.
+The sampler turns uniforms into samples with exactly the arithmetic of the NumPy reference
+(`dgtd.run.sampling.alias_pick`, `reward_from_uniform`), and the update kernels apply the same updates, so
+for the same seed both backends give the same numbers up to floating-point summation order. Everything is
+compiled once and cached on disk (``cache=True``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+
+from dgtd.run.sampling import Block
 
 NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
 
@@ -38,72 +41,88 @@ def _clip(x, b):
     return -b if x < -b else (b if x > b else x)
 
 
-@njit(cache=True)
-def _sample_seed(b, t, u_state, markov, current, d_prob, d_alias, sa_prob, sa_alias, S, s_buf, a_buf, sn_buf):
-    n_obs = u_state.shape[2]
-    for o in range(n_obs):
-        if markov:
-            s = current[b, o]
-        else:
-            s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
-        idx = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, u_state.shape[3] - 1])
-        s_buf[o] = s
-        a_buf[o] = idx // S
-        sn_buf[o] = idx % S
-        if markov:
-            current[b, o] = idx % S
+@njit(cache=True, parallel=True)
+def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                   sigma, noise, p_edge, s_out, a_out, sn_out, r_out, up_out):
+    T, B, n_obs, width = u_state.shape
+    N = R_sample.shape[0]
+    S = R_sample.shape[1]
+    E = p_edge.shape[0]
+    for b in prange(B):
+        for t in range(T):
+            for o in range(n_obs):
+                if markov:
+                    s = current[b, o]
+                else:
+                    s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
+                idx = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, width - 1])
+                s_out[t, b, o] = s
+                a_out[t, b, o] = idx // S
+                sn_out[t, b, o] = idx % S
+                if markov:
+                    current[b, o] = idx % S
+            for i in range(N):
+                o = i if n_obs == N else 0
+                r = R_sample[i, s_out[t, b, o], a_out[t, b, o]]
+                r_out[t, b, i] = _reward(r, sigma, noise, u_reward[t, b, i]) if noise != 0 else r
+            if up_out.shape[0] > 0:
+                for e in range(E):
+                    up_out[t, b, e] = u_edge[t, b, e] < p_edge[e]
+
+
+def block_from_uniforms(problem, network, tables, U: dict, current):
+    """Compiled twin of `dgtd.run.sampling.block_from_uniforms`."""
+    T, B, n_obs, _ = U["state"].shape
+    N = problem.n_agents
+    markov = current is not None
+    cur = np.array(current, dtype=np.int64) if markov else np.zeros((1, 1), np.int64)
+    s, a, sn = (np.empty((T, B, n_obs), np.int64) for _ in range(3))
+    r = np.empty((T, B, N))
+    up = np.empty((T, B, network.n_edges), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
+    _sample_kernel(np.ascontiguousarray(U["state"]), U.get("reward", np.zeros((0, 0, 0))), U.get("edge", np.zeros((0, 0, 0))),
+                   markov, cur, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
+                   np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise],
+                   np.asarray(network.p, dtype=np.float64), s, a, sn, r, up)
+    return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
 
 @njit(cache=True)
-def _laplacian(X, up, indptr, nbr, eid, out):
-    """out_i = sum over edges {i, j} up of (X_i - X_j), node by node through CSR neighbour lists."""
+def _laplacian(X, up, t, b, has_up, indptr, nbr, eid, out):
+    """out_i = sum over edges {i, j} up at step t of (X_i - X_j), node by node through CSR neighbour lists."""
     N, q = X.shape
     for i in range(N):
         for f in range(q):
             out[i, f] = 0.0
         for p in range(indptr[i], indptr[i + 1]):
-            if up[eid[p]]:
+            if (not has_up) or up[t, b, eid[p]]:
                 j = nbr[p]
                 for f in range(q):
                     out[i, f] += X[i, f] - X[j, f]
 
 
 @njit(cache=True, parallel=True)
-def _dgtd_kernel(theta, v, mu, w, sum_all, sum_tail, k0, tail_start, alphas, u_state, u_reward, u_edge,
-                 markov, current, d_prob, d_alias, sa_prob, sa_alias, Phi, ratio_tab, R_sample, sigma, noise,
-                 gamma, kappa, rho, boxes, p_edge, indptr, nbr, eid):
+def _dgtd_kernel(theta, v, mu, w, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
+                 Phi, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid):
     B, N, q = w.shape
     T = alphas.shape[0]
-    S = Phi.shape[0]
-    n_obs = u_state.shape[2]
-    E = p_edge.shape[0]
-    has_edges = u_edge.shape[0] > 0
+    n_obs = s_blk.shape[2]
+    has_up = up.shape[0] > 0
     b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
     for b in prange(B):
-        s_buf = np.empty(n_obs, np.int64)
-        a_buf = np.empty(n_obs, np.int64)
-        sn_buf = np.empty(n_obs, np.int64)
-        up = np.ones(E, np.bool_)
         Lw = np.empty((N, q))
         Lv = np.empty((N, q))
         Lmu = np.empty((N, q))
         for t in range(T):
             k = k0 + t
             alpha = alphas[t]
-            _sample_seed(b, t, u_state, markov, current, d_prob, d_alias, sa_prob, sa_alias, S, s_buf, a_buf, sn_buf)
-            if has_edges:
-                for e in range(E):
-                    up[e] = u_edge[t, b, e] < p_edge[e]
-            _laplacian(w[b], up, indptr, nbr, eid, Lw)
-            _laplacian(v[b], up, indptr, nbr, eid, Lv)
-            _laplacian(mu[b], up, indptr, nbr, eid, Lmu)
+            _laplacian(w[b], up, t, b, has_up, indptr, nbr, eid, Lw)
+            _laplacian(v[b], up, t, b, has_up, indptr, nbr, eid, Lv)
+            _laplacian(mu[b], up, t, b, has_up, indptr, nbr, eid, Lmu)
             for i in range(N):
                 o = i if n_obs == N else 0
-                s, a, sn = s_buf[o], a_buf[o], sn_buf[o]
+                s, a, sn = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
                 ratio = ratio_tab[s, a]
-                r = R_sample[i, s, a]
-                if noise != 0:
-                    r = _reward(r, sigma, noise, u_reward[t, b, i])
+                r = r_blk[t, b, i]
                 phi_theta = 0.0
                 phi_w = 0.0
                 phin_w = 0.0
@@ -141,30 +160,32 @@ def csr_adjacency(edges: np.ndarray, n_nodes: int):
     return np.cumsum(indptr), others[order].astype(np.int64), ids[order].astype(np.int64)
 
 
-def _graph_arrays(ctx):
+def graph_arrays(ctx):
+    """CSR arrays of the base graph, computed once per run context."""
     cache = ctx.__dict__.setdefault("_numba_cache", {})
     if "csr" not in cache:
         cache["csr"] = csr_adjacency(ctx.network.base.edges, ctx.network.n_nodes)
     return cache["csr"]
 
 
-def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, U: dict, current):
+def _up(blk: Block):
+    return np.empty((0, 0, 0), np.bool_) if blk.up is None else np.ascontiguousarray(blk.up)
+
+
+def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk: Block):
     """Same contract as `dgtd.backends.numpy_ref.dgtd_block`, compiled."""
     from dgtd.algorithms.dgtd import DGTDState
 
     theta, v, mu, w = (np.array(x, dtype=np.float64, order="C") for x in state)
     sum_all, sum_tail = sums["all"].copy(), sums["tail"].copy()
-    markov = current is not None
-    cur = np.ascontiguousarray(current, dtype=np.int64) if markov else np.zeros((1, 1), np.int64)
-    indptr, nbr, eid = _graph_arrays(ctx)
-    t = ctx.tables
-    empty3 = np.zeros((0, 0, 0))
+    indptr, nbr, eid = graph_arrays(ctx)
     _dgtd_kernel(
         theta, v, mu, w, sum_all, sum_tail, k0, ctx.tail_start, np.ascontiguousarray(alphas),
-        np.ascontiguousarray(U["state"]), U.get("reward", empty3), U.get("edge", empty3), markov, cur,
-        t.d_prob, t.d_alias, t.sa_prob, t.sa_alias, np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
-        np.ascontiguousarray(ctx.R_sample), float(ctx.sigma), NOISE_CODES[ctx.reward_noise], float(ctx.gamma),
-        float(ctx.algorithm.kappa), float(ctx.algorithm.rho), np.asarray(ctx.boxes, dtype=np.float64),
-        np.asarray(ctx.network.p, dtype=np.float64), indptr, nbr, eid,
+        blk.s, blk.a, blk.s_next, blk.r, _up(blk), np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
+        float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho), np.asarray(ctx.boxes, dtype=np.float64),
+        indptr, nbr, eid,
     )
-    return DGTDState(theta, v, mu, w), {"all": sum_all, "tail": sum_tail}, (cur if markov else None)
+    return DGTDState(theta, v, mu, w), {"all": sum_all, "tail": sum_tail}
+
+
+BLOCKS = {"dgtd": dgtd_block}

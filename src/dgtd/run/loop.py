@@ -13,7 +13,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
-from dgtd.run.sampling import Sampling, SamplerTables, Streams
+from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
 
@@ -95,6 +95,9 @@ class RunResult:
 
 
 def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges) -> tuple:
+    """Projection half-widths (theta, v, mu, w): the algorithm's own, else box_scale x the lemma's bounds."""
+    if getattr(algorithm, "box_scale", None) is None:
+        return ()
     if algorithm.boxes is not None:
         return tuple(float(b) for b in algorithm.boxes)
     max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
@@ -114,7 +117,7 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
         )
     moments = exact.Moments(problem)
     L_mean = network.mean_laplacian()
-    saddle = exact.saddle_point(moments, L_mean, algorithm.kappa, algorithm.rho)
+    saddle = exact.saddle_point(moments, L_mean, getattr(algorithm, "kappa", 0.0), getattr(algorithm, "rho", 0.0))
     w_star = exact.w_star(moments)
     boxes = resolve_boxes(algorithm, moments, network)
     T = int(settings.iterations)
@@ -124,23 +127,21 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     return ctx, moments, L_mean, saddle, w_star, tail_window
 
 
-def run(problem: Problem, network: RandomEdges, algorithm: dgtd_alg.DGTD, sampling: Sampling = Sampling(),
-        settings: RunSettings = RunSettings(), progress=None) -> RunResult:
-    """Run Algorithm 1 for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block."""
+def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = Sampling(),
+        settings: RunSettings = RunSettings(), progress=None, source=None) -> RunResult:
+    """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
+
+    ``source`` supplies the samples (default: a `ModelSource` drawing from the problem's model); a simulator
+    with hidden state or position-dependent networks passes its own.
+    """
     t_start = time.perf_counter()
     ctx, moments, L_mean, saddle, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
-    n_obs = 1 if sampling.shared else N
-    streams = Streams(settings.seed, range(B), n_obs, N, network.n_edges, mode=sampling.mode,
-                      reward_noise=problem.reward_noise != "none", random_edges=not network.fixed)
-    current = None
-    if sampling.mode == "markov":
-        from dgtd.backends.numpy_ref import pick_states  # s_0 ~ d from the state stream's first draws
-
-        u0 = streams.initial_uniforms()
-        current, _, _ = pick_states(ctx, np.stack([u0, u0], -1), None)
-    kernel = _kernel(settings.backend)
-    state = dgtd_alg.init(B, N, q)
+    if source is None:
+        source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
+    source.start()
+    kernel = _kernel(settings.backend, algorithm.name)
+    state = algorithm.init(B, N, q)
     sums = {"all": np.zeros((B, N, q)), "tail": np.zeros((B, N, q))}
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
@@ -152,14 +153,14 @@ def run(problem: Problem, network: RandomEdges, algorithm: dgtd_alg.DGTD, sampli
     k, c = 0, 0
     while k < T:
         k1 = min(k + int(settings.block_size), int(steps[c]))
-        U = streams.draw(k1 - k)
+        blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
-        state, sums, current = kernel(ctx, state, sums, k, alphas, U, current)
+        state, sums = kernel(ctx, state, sums, k, alphas, blk)
         if progress is not None:
             progress(k1 - k)
         k = k1
         if k == steps[c]:
-            w, w_avg = state.w, sums["all"] / k
+            w, w_avg = algorithm.estimate(state), sums["all"] / k
             err_last[c], err_avg[c] = exact.relative_error(w, w_star), exact.relative_error(w_avg, w_star)
             metrics["error_last"][c], metrics["error_avg"][c] = err_last[c].max(-1), err_avg[c].max(-1)
             metrics["consensus"][c] = exact.consensus_error(w)
@@ -169,21 +170,26 @@ def run(problem: Problem, network: RandomEdges, algorithm: dgtd_alg.DGTD, sampli
                 w_trace[c] = w
             c += 1
     final = state._asdict()
-    kkt = {name: float(np.abs(g).max()) for name, g in zip(
-        ("theta", "v", "mu", "w"),
-        exact.lagrangian_gradient(moments, L_mean, algorithm.kappa, algorithm.rho, *state))}
+    kkt = {}
+    if isinstance(state, dgtd_alg.DGTDState):
+        kkt = {name: float(np.abs(g).max()) for name, g in zip(
+            ("theta", "v", "mu", "w"),
+            exact.lagrangian_gradient(moments, L_mean, algorithm.kappa, algorithm.rho, *state))}
     return RunResult(
         steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
-        w_last=state.w, w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
+        w_last=algorithm.estimate(state), w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
         seconds=time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star))},
     )
 
 
-def _kernel(backend: str):
+def _kernel(backend: str, algorithm: str):
+    """The block kernel of ``algorithm`` on ``backend``: each backend module has a BLOCKS registry."""
     if backend == "numba":
-        from dgtd.backends.numba_kernels import dgtd_block
+        from dgtd.backends import numba_kernels as mod
     else:
-        from dgtd.backends.numpy_ref import dgtd_block
-    return dgtd_block
+        from dgtd.backends import numpy_ref as mod
+    if algorithm not in mod.BLOCKS:
+        raise DgtdInputError(f"algorithm {algorithm!r} has no {backend} kernel; use --backend numpy")
+    return mod.BLOCKS[algorithm]

@@ -71,7 +71,7 @@ def summary(result: RunResult, config: dict) -> dict:
         "max_error_tail": float(np.max(rel(result.w_tail))),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "kkt_residuals_last": result.kkt_last,
-        "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes, strict=True)),
+        "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes)),
         "stationary_distribution": result.info["d"].tolist(),
         "seconds": result.seconds,
         "config": config,

@@ -11,6 +11,7 @@ NumPy reference and the compiled kernels see identical samples.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -135,3 +136,99 @@ class Streams:
         for gs, st in zip(self.gens, state, strict=True):
             for g, s in zip(gs, st, strict=True):
                 g.bit_generator.state = s
+
+
+class Block(NamedTuple):
+    """The samples of T steps for B seeds: what every kernel consumes.
+
+    ``s``, ``a``, ``s_next`` (T, B, n_obs) int64 with n_obs = N (independent copies) or 1 (shared
+    trajectory); ``r`` (T, B, N) rewards; ``up`` (T, B, E) bool, the edges up at each step, or None for a
+    fixed graph.
+    """
+
+    s: np.ndarray
+    a: np.ndarray
+    s_next: np.ndarray
+    r: np.ndarray
+    up: np.ndarray | None
+
+
+def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.ndarray | None):
+    """(s, a, s') from state uniforms (..., 2 or 1); i.i.d. uses u[..., 0] for s ~ d, else s = current."""
+    if current is None:
+        K = tables.d_prob.shape[0]
+        shape = u_state.shape[:-1]
+        s = alias_pick(np.broadcast_to(tables.d_prob, shape + (K,)),
+                       np.broadcast_to(tables.d_alias, shape + (K,)), u_state[..., 0])
+    else:
+        s = current
+    idx = alias_pick(tables.sa_prob[s], tables.sa_alias[s], u_state[..., -1])
+    return s, idx // S, idx % S
+
+
+def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, u_reward) -> np.ndarray:
+    """r (..., N): agent i's reward at its observation (s_i, a_i); shared observations broadcast."""
+    N = problem.n_agents
+    if s.shape[-1] == N:
+        mean = problem.R_sample[np.arange(N), s, a]
+    else:
+        mean = np.moveaxis(problem.R_sample[:, s[..., 0], a[..., 0]], 0, -1)
+    return reward_from_uniform(mean, problem.sigma, problem.reward_noise, u_reward)
+
+
+def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dict, current):
+    """NumPy reference: turn a block of uniforms into a `Block`; returns (block, current state or None)."""
+    S = problem.n_states
+    if current is None:
+        s, a, sn = pick_states(tables, S, U["state"], None)
+    else:
+        T = U["state"].shape[0]
+        s, a, sn = (np.empty(U["state"].shape[:-1], np.int64) for _ in range(3))
+        for t in range(T):
+            s[t], a[t], sn[t] = pick_states(tables, S, U["state"][t], current)
+            current = sn[t]
+    r = rewards(problem, s, a, U.get("reward"))
+    up = network.masks_from_uniforms(U["edge"]) if "edge" in U else None
+    return Block(s, a, sn, np.ascontiguousarray(r, dtype=np.float64), up), current
+
+
+class ModelSource:
+    """Samples drawn from the model: per-seed uniform streams turned into blocks by a backend's sampler.
+
+    A simulator (a world with hidden state, positions that set the network) can stand in for this class:
+    anything with ``start()``, ``next_block(T) -> Block``, ``get_state()`` and ``set_state()`` will do.
+    """
+
+    def __init__(self, problem: Problem, network, sampling: Sampling, tables: SamplerTables, seed: int, seed_ids,
+                 backend: str = "numpy"):
+        self.problem, self.network, self.tables = problem, network, tables
+        N = problem.n_agents
+        self.n_obs = 1 if sampling.shared else N
+        self.streams = Streams(seed, seed_ids, self.n_obs, N, network.n_edges, mode=sampling.mode,
+                               reward_noise=problem.reward_noise != "none", random_edges=not network.fixed)
+        self.markov = sampling.mode == "markov"
+        self.backend = backend
+        self.current = None
+
+    def start(self) -> None:
+        """Initial states s_0 ~ d of Markovian trajectories, from the state streams' first draws."""
+        if self.markov:
+            u0 = self.streams.initial_uniforms()
+            self.current, _, _ = pick_states(self.tables, self.problem.n_states, np.stack([u0, u0], -1), None)
+
+    def next_block(self, T: int) -> Block:
+        U = self.streams.draw(T)
+        if self.backend == "numba":
+            from dgtd.backends.numba_kernels import block_from_uniforms as fast
+
+            blk, self.current = fast(self.problem, self.network, self.tables, U, self.current)
+        else:
+            blk, self.current = block_from_uniforms(self.problem, self.network, self.tables, U, self.current)
+        return blk
+
+    def get_state(self) -> dict:
+        return {"streams": self.streams.get_state(), "current": None if self.current is None else self.current.copy()}
+
+    def set_state(self, state: dict) -> None:
+        self.streams.set_state(state["streams"])
+        self.current = state["current"]
