@@ -1,4 +1,4 @@
-"""The `dgtd` command line: run, solve, scenarios. Bad input prints one line and exits with code 2."""
+"""The `dgtd` command line: run, solve, scenarios, compare. Bad input prints one line and exits with code 2."""
 
 from __future__ import annotations
 
@@ -154,6 +154,11 @@ def scenarios():
 
     for name in SCENARIOS:
         click.echo(f"{name:<20} {get_scenario(name).description}")
+
+
+from dgtd.cli_compare import compare as _compare  # noqa: E402
+
+cli.add_command(_compare)
 
 
 def main(argv=None) -> None:

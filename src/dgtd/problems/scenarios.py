@@ -6,7 +6,7 @@ Scenarios are data: the CLI and experiment files refer to them by name, and flag
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -14,6 +14,7 @@ from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import RandomEdges, random_edges
+from dgtd.problems import tasks
 from dgtd.problems.features import gaussian_rbf
 from dgtd.problems.model import Problem, make_problem
 from dgtd.run.sampling import Sampling
@@ -29,6 +30,7 @@ class Scenario:
     sampling: Sampling
     iterations: int
     description: str
+    baselines: dict = field(default_factory=dict)  # name -> settings of the baselines `dgtd compare` runs beside DGTD
 
 
 PAPER_EXAMPLE_1_P = np.array(
@@ -64,8 +66,67 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
     )
 
 
+def _task(problem: Problem, edge_prob: float, dgtd: DGTD, iterations: int, description: str, baselines: dict,
+          sampling: Sampling = Sampling(mode="iid", shared=False)) -> Scenario:
+    """A benchmark task (`dgtd.problems.tasks`) on a ring whose links are each up with ``edge_prob``."""
+    return Scenario(problem, random_edges(topologies.ring(problem.n_agents), edge_prob), dgtd, sampling, iterations,
+                    description, baselines)
+
+
+def baird_scenario(edge_prob: float = 0.8) -> Scenario:
+    """Baird's counterexample, off-policy, 5 agents; off-policy TD(0) diverges here."""
+    return _task(tasks.baird(n_agents=5), edge_prob, DGTD(alpha0=0.1, beta=100.0), 100_000,
+                 "Baird's counterexample (7 states, 8 features, off-policy), 5 agents on a ring with link failures",
+                 BENCHMARK_STEPS["baird"])
+
+
+def boyan_scenario(edge_prob: float = 0.8) -> Scenario:
+    """The Boyan chain of Dann et al. (2014) with restart, 10 agents."""
+    return _task(tasks.boyan(n_agents=10), edge_prob, DGTD(alpha0=3.0, beta=100.0), 200_000,
+                 "Boyan chain (14 states, 4 features, restart), 10 agents on a ring with link failures",
+                 BENCHMARK_STEPS["boyan"])
+
+
+def random_mdp_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
+    """Dann et al.'s 400-state random MDP, on-policy, 10 agents."""
+    return _task(tasks.random_mdp(n_agents=10, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0), 100_000,
+                 "random MDP (400 states, 10 actions, 200 features), on-policy, 10 agents on a ring",
+                 BENCHMARK_STEPS["random-mdp"])
+
+
+def random_mdp_off_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
+    """Dann et al.'s 400-state random MDP, off-policy (random behaviour policy), 10 agents."""
+    return _task(tasks.random_mdp(n_agents=10, off_policy=True, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0),
+                 100_000, "random MDP (400 states, 10 actions, 200 features), off-policy, 10 agents on a ring",
+                 BENCHMARK_STEPS["random-mdp-off"])
+
+
+def garnet_scenario(edge_prob: float = 0.8, n_states: int = 30, branching: int = 3, n_agents: int = 10,
+                    n_features: int = 8, seed: int = 0) -> Scenario:
+    """A random ergodic Garnet chain (default 30 states, 3 successors, 10 agents, 8 features)."""
+    return _task(tasks.garnet(n_states, branching, n_agents, n_features, seed=seed), edge_prob,
+                 DGTD(alpha0=1.0, beta=100.0), 100_000,
+                 f"Garnet chain ({n_states} states, {branching} successors, {n_features} features), {n_agents} agents",
+                 BENCHMARK_STEPS["garnet"])
+
+
+# Step sizes of the baselines on each task (alpha_k = alpha0 / sqrt(k + beta), beta as DGTD's): picked by
+# `dgtd compare TASK --tune` from the grid alpha0 x (1/10, 1/3, 1, 3, 10) on seeds separate from the reported ones.
+BENCHMARK_STEPS: dict[str, dict] = {
+    "baird": {},
+    "boyan": {},
+    "random-mdp": {},
+    "random-mdp-off": {},
+    "garnet": {},
+}
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-example-1": paper_example_1,
+    "baird": baird_scenario,
+    "boyan": boyan_scenario,
+    "random-mdp": random_mdp_scenario,
+    "random-mdp-off": random_mdp_off_scenario,
+    "garnet": garnet_scenario,
 }
 
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from dgtd.algorithms import dgtd as dgtd_alg
+from dgtd.algorithms.registry import messages_per_edge
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
@@ -16,6 +18,7 @@ from dgtd.problems.model import Problem, chain_period
 from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
+DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
 
 
 @dataclass(frozen=True)
@@ -105,24 +108,38 @@ def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges) -> tu
     return tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
 
 
+_MODEL_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _model_tables(problem: Problem):
+    """The problem's `Moments` and sampler tables, built once per problem object and reused by every run on
+    it (comparisons run several algorithms on one problem; the tables of a 400-state MDP take seconds)."""
+    if problem not in _MODEL_CACHE:
+        moments = exact.Moments(problem)
+        _MODEL_CACHE[problem] = (moments, SamplerTables.build(problem, moments.d))
+    return _MODEL_CACHE[problem]
+
+
 def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling, settings: RunSettings):
     """Check that the pieces fit and compute the exact reference quantities."""
     if network.n_nodes != problem.n_agents:
         raise DgtdInputError(
             f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them agree"
         )
+    if problem.reward_noise != "none" and (problem.R_sample.min() < 0 or problem.R.min() < 0):
+        raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; use --reward-noise none")
     if sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
         raise DgtdInputError(
             "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
         )
-    moments = exact.Moments(problem)
+    moments, tables = _model_tables(problem)
     L_mean = network.mean_laplacian()
     saddle = exact.saddle_point(moments, L_mean, getattr(algorithm, "kappa", 0.0), getattr(algorithm, "rho", 0.0))
     w_star = exact.w_star(moments)
     boxes = resolve_boxes(algorithm, moments, network)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
-    ctx = Context(problem, network, algorithm, sampling, SamplerTables.build(problem, moments.d),
+    ctx = Context(problem, network, algorithm, sampling, tables,
                   LaplacianOperator(network.base), boxes, T - tail_window)
     return ctx, moments, L_mean, saddle, w_star, tail_window
 
@@ -142,33 +159,60 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     source.start()
     kernel = _kernel(settings.backend, algorithm.name)
     state = algorithm.init(B, N, q)
-    sums = {"all": np.zeros((B, N, q)), "tail": np.zeros((B, N, q))}
+    if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
+        state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
+    n_est = algorithm.estimate(state).shape[1]  # N agents' estimates, or 1 for a centralised learner
+    sums = {"all": np.zeros((B, n_est, q)), "tail": np.zeros((B, n_est, q))}
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
-    names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg")
+    names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg", "samples", "messages", "diverged")
     metrics = {m: np.zeros((C, B)) for m in names}
-    err_last, err_avg = np.zeros((C, B, N)), np.zeros((C, B, N))
-    keep_trace = B * N * q * C <= 2_000_000
-    w_trace = np.zeros((C, B, N, q)) if keep_trace else None
+    err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
+    keep_trace = B * n_est * q * C <= 2_000_000
+    w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
+    per_edge = messages_per_edge(algorithm)
+    messages, diverged_at = np.zeros(B), np.full(B, -1, dtype=np.int64)
+    w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
+    limit = DIVERGENCE_FACTOR * max(1.0, float(np.abs(w_star).max()), w0_norm)
     k, c = 0, 0
     while k < T:
         k1 = min(k + int(settings.block_size), int(steps[c]))
         blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
-        state, sums = kernel(ctx, state, sums, k, alphas, blk)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
+            state, sums = kernel(ctx, state, sums, k, alphas, blk)
+        messages += per_edge * ((k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2)))
         if progress is not None:
             progress(k1 - k)
         k = k1
+        state, sums = stop_diverged(state, sums, algorithm.estimate(state), limit, diverged_at, k)
         if k == steps[c]:
+            alive = diverged_at < 0
             w, w_avg = algorithm.estimate(state), sums["all"] / k
-            err_last[c], err_avg[c] = exact.relative_error(w, w_star), exact.relative_error(w_avg, w_star)
-            metrics["error_last"][c], metrics["error_avg"][c] = err_last[c].max(-1), err_avg[c].max(-1)
-            metrics["consensus"][c] = exact.consensus_error(w)
-            metrics["mspbe_last"][c] = exact.mspbe(moments, w).max(-1)
-            metrics["mspbe_avg"][c] = exact.mspbe(moments, w_avg).max(-1)
+            for name in names:
+                metrics[name][c] = np.nan
+            err_last[c], err_avg[c] = np.nan, np.nan
+            if alive.any():
+                wa, wv = w[alive], w_avg[alive]
+                err_last[c, alive], err_avg[c, alive] = exact.relative_error(wa, w_star), exact.relative_error(wv, w_star)
+                metrics["error_last"][c, alive], metrics["error_avg"][c, alive] = err_last[c, alive].max(-1), err_avg[c, alive].max(-1)
+                metrics["consensus"][c, alive] = exact.consensus_error(wa)
+                metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
+                metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
+                metrics["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
+                metrics["messages"][c, alive] = messages[alive]
+            metrics["diverged"][c] = ~alive
             if keep_trace:
                 w_trace[c] = w
             c += 1
+            if not alive.any():  # every seed has diverged: nothing left to run
+                for name in names:
+                    metrics[name][c:] = np.nan
+                metrics["diverged"][c:] = 1.0
+                err_last[c:], err_avg[c:] = np.nan, np.nan
+                if keep_trace:
+                    w_trace[c:] = np.nan
+                break
     final = state._asdict()
     kkt = {}
     if isinstance(state, dgtd_alg.DGTDState):
@@ -180,8 +224,24 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         w_last=algorithm.estimate(state), w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
         seconds=time.perf_counter() - t_start,
-        info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star))},
+        info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
+              "samples_per_step": N, "messages": messages},
     )
+
+
+def stop_diverged(state, sums, w: np.ndarray, limit: float, diverged_at: np.ndarray, k: int):
+    """Mark seeds whose estimate is not finite or exceeds ``limit`` as diverged at step k (in place in
+    ``diverged_at``) and stop them: their state and sums become NaN, which every kernel carries along."""
+    bad = ~np.all(np.isfinite(w), axis=(1, 2)) | (np.nan_to_num(np.abs(w), nan=np.inf).max(axis=(1, 2)) > limit)
+    for x in state:
+        bad |= ~np.all(np.isfinite(x.reshape(x.shape[0], -1)), axis=1)
+    new = bad & (diverged_at < 0)
+    if not new.any():
+        return state, sums
+    diverged_at[new] = k
+    state = type(state)(*(np.where(new[:, None, None], np.nan, x) for x in state))
+    sums = {key: np.where(new[:, None, None], np.nan, v) for key, v in sums.items()}
+    return state, sums
 
 
 def _kernel(backend: str, algorithm: str):
