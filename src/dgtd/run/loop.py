@@ -181,7 +181,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
             state, sums = kernel(ctx, state, sums, k, alphas, blk)
-        messages += per_edge * ((k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2)))
+        sent = (k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2))
+        messages += per_edge * sent * (diverged_at < 0)  # a stopped seed sends nothing
         if progress is not None:
             progress(k1 - k)
         k = k1
