@@ -79,7 +79,7 @@ def resolve(spec: RunSpec):
     algorithm = replace(algorithm, **over)
     sampling = Sampling(mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared)
     settings = RunSettings(
-        iterations=int(spec.iterations or iterations), seeds=spec.seeds, seed=spec.seed, checkpoints=spec.checkpoints,
+        iterations=int(iterations if spec.iterations is None else spec.iterations), seeds=spec.seeds, seed=spec.seed, checkpoints=spec.checkpoints,
         tail_fraction=spec.tail_fraction, block_size=spec.block_size, backend=spec.backend,
     )
     resolved = replace(
