@@ -52,13 +52,18 @@ CASES = {
     "markov-independent": dict(sampling=Sampling("markov", False)),
     "markov-shared-uniform-noise": dict(sampling=Sampling("markov", True), noise="uniform"),
     "off-policy-iid": dict(problem=random_mdp_problem(4, (2, 2, 1, 2), 3, np.random.default_rng(5))),
+    "tabular-sparse-features": dict(problem=random_problem(9, 3, 9, np.random.default_rng(4), reward_noise="bernoulli")),
     "off-policy-markov-rho": dict(problem=random_mdp_problem(4, (2, 2, 1, 2), 3, np.random.default_rng(5)),
                                   sampling=Sampling("markov"), rho=0.05),
 }
 
 
+@pytest.mark.parametrize("layout", ["seed", "agent"])
 @pytest.mark.parametrize("case", sorted(CASES))
-def test_numba_matches_numpy(case):
+def test_numba_matches_numpy(case, layout, monkeypatch):
+    from dgtd.backends import numba_kernels
+
+    monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     ref = small_run("numpy", **CASES[case])
     fast = small_run("numba", **CASES[case])
     scale = np.abs(ref.w_last).max()

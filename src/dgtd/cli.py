@@ -148,6 +148,26 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 
 @cli.command()
+@click.option("--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.bench.CASES).")
+@click.option("--backend", "backends", default="numba,numpy", show_default=True, help="Backends to measure.")
+@click.option("--repeats", type=int, default=3, show_default=True, help="Runs per measurement; the median is reported.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench", show_default=True)
+def bench(cases, backends, repeats, out):
+    """Measure agent-steps per second on the standard configurations; writes JSON and a Markdown table."""
+    from dgtd.bench import CASES, markdown, measure
+    from dgtd.run.results import atomic_write, atomic_write_json
+
+    keys = [k.strip().upper() for k in cases.split(",")]
+    unknown = [k for k in keys if k not in CASES]
+    if unknown:
+        raise DgtdInputError(f"unknown benchmark case(s) {', '.join(unknown)}; choose from {', '.join(CASES)}")
+    report = measure(keys, tuple(b.strip() for b in backends.split(",")), repeats, progress=click.echo)
+    atomic_write_json(Path(out) / "throughput.json", report)
+    atomic_write(Path(out) / "throughput.md", (markdown(report) + "\n").encode())
+    click.echo(markdown(report))
+
+
+@cli.command()
 def scenarios():
     """List the named scenarios."""
     from dgtd.problems.scenarios import SCENARIOS, get_scenario

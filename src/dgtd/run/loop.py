@@ -151,8 +151,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     keep_trace = B * N * q * C <= 2_000_000
     w_trace = np.zeros((C, B, N, q)) if keep_trace else None
     k, c = 0, 0
+    block = block_steps(settings.block_size, N, network.n_edges, B)
     while k < T:
-        k1 = min(k + int(settings.block_size), int(steps[c]))
+        k1 = min(k + block, int(steps[c]))
         blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         state, sums = kernel(ctx, state, sums, k, alphas, blk)
@@ -182,6 +183,13 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         seconds=time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star))},
     )
+
+
+def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budget: int = 1 << 21) -> int:
+    """Steps per block: at most ``block_size``, and few enough that a block's samples stay near ``budget``
+    numbers (tens of MB), whatever N and |E|. Results do not depend on it."""
+    per_step = n_seeds * (4 * n_agents + n_edges)
+    return int(max(1, min(int(block_size), budget // max(per_step, 1))))
 
 
 def _kernel(backend: str, algorithm: str):
