@@ -100,13 +100,13 @@ FAST = {"reassoc", "contract", "nsz"}  # lets LLVM vectorise sums; results move 
 def _laplacian_row(i, b, t, Z, up, has_up, indptr, nbr, eid, L):
     """L = (L(k) Z)_i = sum over edges {i, j} up at step t of (Z_i - Z_j), Z = (w, v, mu) packed as (3, q) rows."""
     m = Z.shape[2]
-    for f in range(m):
-        L[f] = 0.0
+    zi = Z[b, i]
+    L[:] = 0.0
     for p in range(indptr[i], indptr[i + 1]):
         if (not has_up) or up[t, b, eid[p]]:
-            j = nbr[p]
+            zj = Z[b, nbr[p]]
             for f in range(m):
-                L[f] += Z[b, i, f] - Z[b, j, f]
+                L[f] += zi[f] - zj[f]
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
@@ -120,51 +120,57 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, Z, Z_out, L, sum_a
     """
     q = theta.shape[2]
     b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
+    th, zi, zo = theta[b, i], Z[b, i], Z_out[b, i]
     phi_theta = 0.0
     phi_w = 0.0
     phin_w = 0.0
     if sparse:
         for p in range(ptr[s], ptr[s + 1]):
-            phi_theta += val[p] * theta[b, i, idx[p]]
-            phi_w += val[p] * Z[b, i, idx[p]]
+            phi_theta += val[p] * th[idx[p]]
+            phi_w += val[p] * zi[idx[p]]
         for p in range(ptr[sn], ptr[sn + 1]):
-            phin_w += val[p] * Z[b, i, idx[p]]
+            phin_w += val[p] * zi[idx[p]]
     else:
+        phi, phin = Phi[s], Phi[sn]
         for f in range(q):
-            phi_theta += Phi[s, f] * theta[b, i, f]
-            phi_w += Phi[s, f] * Z[b, i, f]
-            phin_w += Phi[sn, f] * Z[b, i, f]
+            phi_theta += phi[f] * th[f]
+            phi_w += phi[f] * zi[f]
+            phin_w += phin[f] * zi[f]
     # Line 7 (theta): phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta
     c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
     rt = ratio * phi_theta
+    sa = sum_all[b, i]
     for f in range(q):
-        wf = Z[b, i, f]
-        vf = Z[b, i, q + f]
-        muf = Z[b, i, 2 * q + f]
-        Lw, Lv, Lmu = L[f], L[q + f], L[2 * q + f]
-        sum_all[b, i, f] += wf
-        if in_tail:
-            sum_tail[b, i, f] += wf
-        # Line 7 (v), line 8 (mu), line 9 (projection)
-        Z_out[b, i, q + f] = _clip(vf - alpha * (vf - Lw), b_v)
-        Z_out[b, i, 2 * q + f] = _clip(muf - alpha * (-Lw + rho * muf), b_mu)
-        # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
-        g_w = -Lv - Lmu - kappa * Lw - rho * wf
-        if not sparse:
-            g_w += rt * (Phi[s, f] - gamma * Phi[sn, f])
-            theta[b, i, f] = _clip(theta[b, i, f] - alpha * (Phi[s, f] * c_theta), b_th)
-            Z_out[b, i, f] = _clip(wf + alpha * g_w, b_w)
-        else:
-            Z_out[b, i, f] = wf + alpha * g_w
-    if sparse:
+        sa[f] += zi[f]
+    if in_tail:
+        st = sum_tail[b, i]
+        for f in range(q):
+            st[f] += zi[f]
+    # Line 7 (v) and line 8 (mu), projected (line 9)
+    for f in range(q):
+        vf, muf, Lw = zi[q + f], zi[2 * q + f], L[f]
+        zo[q + f] = min(max(vf - alpha * (vf - Lw), -b_v), b_v)
+        zo[2 * q + f] = min(max(muf - alpha * (-Lw + rho * muf), -b_mu), b_mu)
+    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
+    if not sparse:
+        phi, phin = Phi[s], Phi[sn]
+        for f in range(q):
+            wf = zi[f]
+            g_w = rt * (phi[f] - gamma * phin[f]) - L[q + f] - L[2 * q + f] - kappa * L[f] - rho * wf
+            zo[f] = min(max(wf + alpha * g_w, -b_w), b_w)
+            th[f] = min(max(th[f] - alpha * (phi[f] * c_theta), -b_th), b_th)
+    else:
+        for f in range(q):
+            wf = zi[f]
+            zo[f] = wf + alpha * (-L[q + f] - L[2 * q + f] - kappa * L[f] - rho * wf)
         for p in range(ptr[s], ptr[s + 1]):
             f = idx[p]
-            theta[b, i, f] = _clip(theta[b, i, f] - alpha * (val[p] * c_theta), b_th)
-            Z_out[b, i, f] += alpha * (rt * val[p])
+            th[f] = min(max(th[f] - alpha * (val[p] * c_theta), -b_th), b_th)
+            zo[f] += alpha * (rt * val[p])
         for p in range(ptr[sn], ptr[sn + 1]):
-            Z_out[b, i, idx[p]] -= alpha * (rt * gamma * val[p])
+            zo[idx[p]] -= alpha * (rt * gamma * val[p])
         for f in range(q):
-            Z_out[b, i, f] = _clip(Z_out[b, i, f], b_w)
+            zo[f] = min(max(zo[f], -b_w), b_w)
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
