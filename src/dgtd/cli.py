@@ -56,7 +56,7 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
     """Run Algorithm 1 on a named SCENARIO (e.g. paper-example-1) or on --problem FILE.npz."""
     from tqdm import tqdm
 
-    from dgtd.config import RunSpec, resolve, spec_record
+    from dgtd.config import RunSpec, make_source, resolve, scenario_of, spec_record
     from dgtd.run.loop import run as run_loop
     from dgtd.run.results import write_results
 
@@ -76,16 +76,21 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
                f"{'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
     bar = tqdm(total=settings.iterations, unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
     try:
-        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update)
+        source = make_source(resolved, settings)
+        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update, source=source)
     finally:
         bar.close()
-    write_results(out, result, spec_record(resolved))
+    sc = scenario_of(resolved)
+    extra, text = sc.report(result, source, out, plots) if sc is not None and sc.report is not None else (None, "")
+    write_results(out, result, spec_record(resolved), extra=extra)
     if plots:
         from dgtd.plots import plot_errors, plot_iterates
 
         plot_iterates(result, out / "iterates.png")
         plot_errors(result, out / "errors.png")
     click.echo(final_table(result))
+    if text:
+        click.echo(text)
     click.echo(f"wrote {out}/summary.json, metrics.csv, trajectory.npz{', iterates.png, errors.png' if plots else ''} "
                f"({result.seconds:.1f} s)")
 
