@@ -91,3 +91,13 @@ def test_bad_radius_or_size_is_refused():
         ProximityNetwork(3, -1.0)
     with pytest.raises(DgtdInputError, match="at least one"):
         ProximityNetwork(0, 1.0)
+
+
+@pytest.mark.parametrize("N", [4, 9])  # 6 edges (masks read as integers) and 36 edges (tested one by one)
+def test_count_links_counts_connected_steps_like_is_connected(N):
+    rng = np.random.default_rng(N)
+    e = complete(N).edges
+    masks = rng.random((50, 4, e.shape[0])) < 0.3
+    stats = count_links(empty_stats(e.shape[0]), masks, e, N)
+    assert stats.connected == int(is_connected(masks, e, N).sum())
+    assert_array_equal(stats.up, masks.reshape(-1, e.shape[0]).sum(axis=0))

@@ -167,19 +167,17 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
     fig.subplots_adjust(left=0.05, right=0.99, bottom=0.08, top=0.84, wspace=0.18)
     axes = axes[0]
     ims, robots = [], []
+    for i, ax in enumerate(axes):
+        ims.append(draw_map(ax, world, result.w_trace[index[chosen[0]], 0, i], 0.0, vmax))
+        ax.set_title(f"agent {i + 1}", color=agent_colour(i), fontsize=9)
+        ax.set_xlim(0, world.size)
+        ax.set_ylim(0, world.size)
 
     def draw(frame):
         k = chosen[frame]
         trail, up = rec[k]
         for i in range(N):
-            ax = axes[i]
-            if frame == 0:
-                ims.append(draw_map(ax, world, result.w_trace[index[k], 0, i], 0.0, vmax))
-                ax.set_title(f"agent {i + 1}", color=agent_colour(i), fontsize=9)
-                ax.set_xlim(0, world.size)
-                ax.set_ylim(0, world.size)
-            else:
-                ims[i].set_data(result.w_trace[index[k], 0, i].reshape(world.grid, world.grid))
+            ims[i].set_data(result.w_trace[index[k], 0, i].reshape(world.grid, world.grid))
         for a in robots:
             a.remove()
         robots.clear()
@@ -188,7 +186,7 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
         fig.suptitle(f"k = {k:,}", fontsize=10)
         return ims + robots
 
-    anim = FuncAnimation(fig, draw, frames=len(chosen), blit=False)
+    anim = FuncAnimation(fig, draw, frames=len(chosen), init_func=lambda: [], blit=False)
     fd, tmp = tempfile.mkstemp(dir=Path(path).parent, prefix=f".{Path(path).name}.", suffix=".gif")
     os.close(fd)
     try:
@@ -200,19 +198,25 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
     return True
 
 
-def plot_curves(result, path: Path) -> bool:
-    """Against k: each agent's relative error and correlation with w* (median over seeds, band min-max), consensus."""
+def plot_curves(result, d: np.ndarray, path: Path) -> bool:
+    """Against k: each agent's relative errors and correlation with w* (median over seeds, band min-max), consensus.
+
+    The sup-norm error is set by the rarest cells; the D-weighted one, |w_i - w*|_D / |w*|_D with d the
+    stationary distribution, is the error where the robots actually are."""
     if result.w_trace is None:
         return False
     x = result.steps
     N = result.w_last.shape[1]
     corr = map_correlation(result.w_trace, result.w_star)  # (C, B, N)
+    err_d = np.sqrt((d * (result.w_trace - result.w_star) ** 2).sum(-1) / (d * result.w_star**2).sum())
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
     for i in range(N):
-        band(axes[0], x, result.agent_error_last[:, :, i], f"agent {i + 1}", color=agent_colour(i))
+        band(axes[0], x, result.agent_error_last[:, :, i], f"agent {i + 1}, sup norm", color=agent_colour(i))
+        axes[0].plot(x, np.median(err_d[:, :, i], axis=1), color=agent_colour(i), ls="--", lw=1.0,
+                     label=f"agent {i + 1}, D-weighted")
         band(axes[1], x, corr[:, :, i], f"agent {i + 1}", color=agent_colour(i))
     axes[0].set_yscale("log")
-    axes[0].set_title("|w_i - w*|_inf / |w*|_inf (last iterate)")
+    axes[0].set_title("relative error of the last iterate")
     axes[1].set_title("correlation of agent i's map with w*")
     axes[1].set_ylim(min(0.0, float(np.nanmin(corr))), 1.0)
     cons = result.metrics["consensus"]
@@ -239,6 +243,6 @@ def write_figures(world, network, reference, result, source, out) -> list[str]:
         names.append("snapshots.png")
     if write_gif(world, network, result, source, out / "patrol.gif"):
         names.append("patrol.gif")
-    if plot_curves(result, out / "curves.png"):
+    if plot_curves(result, reference.d, out / "curves.png"):
         names.append("curves.png")
     return names

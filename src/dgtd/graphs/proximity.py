@@ -124,9 +124,16 @@ def empty_stats(n_edges: int) -> LinkStats:
 
 def count_links(stats: LinkStats, masks: np.ndarray, edges: np.ndarray, n_nodes: int) -> LinkStats:
     """Add the masks (..., E) of more steps (any leading axes: time, seeds, teams) to ``stats``."""
-    m = np.asarray(masks, dtype=bool).reshape(-1, edges.shape[0])
+    E = edges.shape[0]
+    m = np.asarray(masks, dtype=bool).reshape(-1, E)
+    if E <= 30:  # few agents: few distinct graphs, each tested once (a mask is read as the bits of an integer)
+        bits = np.int64(1) << np.arange(E, dtype=np.int64)
+        codes, times = np.unique(m.astype(np.int64) @ bits, return_counts=True)
+        patterns = (codes[:, None] & bits) > 0
+    else:
+        patterns, times = m, np.ones(m.shape[0], np.int64)
     return LinkStats(
         stats.steps + m.shape[0],
         stats.up + m.sum(axis=0),
-        stats.connected + int(is_connected(m, edges, n_nodes).sum()),
+        stats.connected + int(times[is_connected(patterns, edges, n_nodes)].sum()),
     )

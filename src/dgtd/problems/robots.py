@@ -316,8 +316,7 @@ class PatrolReport:
         from dgtd.problems import exact
 
         d = self.reference.d
-        scale = float(np.abs(result.w_star).max())
-        err_d = np.sqrt((d * (result.w_last - result.w_star) ** 2).sum(-1)) / scale
+        err_d = np.sqrt((d * (result.w_last - result.w_star) ** 2).sum(-1) / (d * result.w_star**2).sum())
         return {
             "world": asdict(self.world),
             "communication_radius": self.network.radius,
@@ -325,7 +324,7 @@ class PatrolReport:
             "links_during_run": source.stats.as_dict(self.network.base),
             "correlation_last": map_correlation(result.w_last, result.w_star).tolist(),
             "correlation_tail": map_correlation(result.w_tail, result.w_star).tolist(),
-            "relative_error_d_weighted_last": err_d.tolist(),
+            "relative_error_d_weighted_last": err_d.tolist(),  # |w_i - w*|_D / |w*|_D
             "consensus_last": exact.consensus_error(result.w_last).tolist(),
             # sqrt(sum_i |w_i - mean w|^2 / N) / |w*|_2: the agents' typical distance from their mean, relative
             "consensus_relative_last": (np.sqrt(exact.consensus_error(result.w_last) / result.w_last.shape[1])
@@ -339,6 +338,9 @@ class PatrolReport:
         links = info["links_during_run"]
         text = (f"correlation of each agent's map with the reference (seed 0): "
                 f"{', '.join(f'agent {i + 1} {c:.4f}' for i, c in enumerate(corr[0]))}; worst over seeds {corr.min():.4f}\n"
+                f"final consensus error (seed 0) {info['consensus_last'][0]:.3g}: each agent's RMS distance from the "
+                f"agents' mean is {info['consensus_relative_last'][0]:.2%} of |w*|_2; D-weighted error |w_i - w*|_D / "
+                f"|w*|_D at most {max(info['relative_error_d_weighted_last'][0]):.2%}\n"
                 f"network during the run: connected at {links['connected_fraction']:.1%} of steps, link frequencies "
                 f"{', '.join(f'{p:.3f}' for p in links['link_frequency'])}; reference chain from "
                 f"{info['reference']['transitions']:,} transitions (w* standard error "
