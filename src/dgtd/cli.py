@@ -68,15 +68,16 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
                    checkpoints=checkpoints, tail_fraction=tail_fraction)
     problem, network, algorithm, samp, settings, resolved = resolve(spec)
     out = Path(out) if out else Path("runs") / problem.name
+    source = make_source(resolved, settings)  # None: samples from the model; else a simulator's own
+    links = getattr(source, "describe", network.describe)()
     click.echo(f"{problem.name}: {problem.n_states} states, {problem.n_agents} agents, {problem.n_features} features, "
-               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {network.describe()}")
+               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
     click.echo(f"Algorithm 1: alpha_k = {algorithm.alpha0:g}/{'sqrt(k+' if algorithm.schedule == 'sqrt' else '(k+'}"
                f"{algorithm.beta:g}){'' if algorithm.schedule != 'constant' else ' (constant)'}, kappa {algorithm.kappa:g}, "
                f"rho {algorithm.rho:g}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samp.mode} sampling, "
                f"{'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
     bar = tqdm(total=settings.iterations, unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
     try:
-        source = make_source(resolved, settings)
         result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update, source=source)
     finally:
         bar.close()

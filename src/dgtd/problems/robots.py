@@ -165,6 +165,10 @@ class PatrolSource:
         self.stats = empty_stats(network.n_edges)
         self.snapshots: list[tuple[int, np.ndarray, np.ndarray]] = []
 
+    def describe(self) -> str:
+        return (f"links between {self.world.n_robots} simulated robots whenever within {self.network.radius:g} m, "
+                "recomputed at every step")
+
     def start(self) -> None:
         N = self.world.n_robots
         self.x, self.r = initial(self.world, np.stack([g.random((N, 4)) for g in self.gens]))

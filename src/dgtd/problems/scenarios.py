@@ -83,7 +83,7 @@ def paper_example_2(edge_prob: float | None = None) -> Scenario:
     The paper gives no step sizes for this example; we keep its schedule alpha_k = alpha0 / sqrt(k + beta) with
     alpha0 = 10, beta = 1000 and kappa = 3. When all three robots are linked, L(k) has eigenvalue 3, and the
     consensus part of one step (v, mu, w along that eigenvector) is a contraction only for alpha_k below about
-    0.35 with kappa = 3 (0.19 with kappa = 1): alpha_0 = 10 / sqrt(1000) = 0.32 keeps every step stable, and
+    0.41 with kappa = 3 (0.18 with kappa = 1): alpha_0 = 10 / sqrt(1000) = 0.32 keeps every step stable, and
     alpha0 = 10 keeps the per-visit learning rate of a state visited once in 4000 steps from stalling.
     The reference chain is cached for the process (the simulation takes a few seconds).
     """
