@@ -56,7 +56,7 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
     """Run Algorithm 1 on a named SCENARIO (e.g. paper-example-1) or on --problem FILE.npz."""
     from tqdm import tqdm
 
-    from dgtd.config import RunSpec, resolve, spec_record
+    from dgtd.config import RunSpec, make_source, resolve, scenario_of, spec_record
     from dgtd.run.loop import run as run_loop
     from dgtd.run.results import write_results
 
@@ -68,24 +68,30 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
                    checkpoints=checkpoints, tail_fraction=tail_fraction)
     problem, network, algorithm, samp, settings, resolved = resolve(spec)
     out = Path(out) if out else Path("runs") / problem.name
+    source = make_source(resolved, settings)  # None: samples from the model; else a simulator's own
+    links = getattr(source, "describe", network.describe)()
     click.echo(f"{problem.name}: {problem.n_states} states, {problem.n_agents} agents, {problem.n_features} features, "
-               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {network.describe()}")
+               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
     click.echo(f"Algorithm 1: alpha_k = {algorithm.alpha0:g}/{'sqrt(k+' if algorithm.schedule == 'sqrt' else '(k+'}"
                f"{algorithm.beta:g}){'' if algorithm.schedule != 'constant' else ' (constant)'}, kappa {algorithm.kappa:g}, "
                f"rho {algorithm.rho:g}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samp.mode} sampling, "
                f"{'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
     bar = tqdm(total=settings.iterations, unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
     try:
-        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update)
+        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update, source=source)
     finally:
         bar.close()
-    write_results(out, result, spec_record(resolved))
+    sc = scenario_of(resolved)
+    extra, text = sc.report(result, source, out, plots) if sc is not None and sc.report is not None else (None, "")
+    write_results(out, result, spec_record(resolved), extra=extra)
     if plots:
         from dgtd.plots import plot_errors, plot_iterates
 
         plot_iterates(result, out / "iterates.png")
         plot_errors(result, out / "errors.png")
     click.echo(final_table(result))
+    if text:
+        click.echo(text)
     click.echo(f"wrote {out}/summary.json, metrics.csv, trajectory.npz{', iterates.png, errors.png' if plots else ''} "
                f"({result.seconds:.1f} s)")
 

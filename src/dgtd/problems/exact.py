@@ -45,6 +45,13 @@ class Moments:
         return Phi.T @ (self.d[:, None] * Phi)
 
     @cached_property
+    def M_factor(self):
+        """Cholesky factor of M (symmetric positive definite), computed once: MSPBE evaluations reuse it."""
+        from scipy.linalg import cho_factor
+
+        return cho_factor(self.M)
+
+    @cached_property
     def A(self) -> np.ndarray:
         p = self.problem
         return p.Phi.T @ (self.d[:, None] * (p.Phi - p.gamma * p.P @ p.Phi))
@@ -150,7 +157,9 @@ def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
     b = m.b_mean if b is None else b
     e = b - w @ m.A.T
     q = e.shape[-1]
-    Minv_e = np.linalg.solve(m.M, e.reshape(-1, q).T).T.reshape(e.shape)
+    from scipy.linalg import cho_solve
+
+    Minv_e = cho_solve(m.M_factor, e.reshape(-1, q).T).T.reshape(e.shape)
     return 0.5 * np.einsum("...i,...i->...", e, Minv_e)
 
 
