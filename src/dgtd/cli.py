@@ -56,7 +56,7 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
     """Run Algorithm 1 on a named SCENARIO (e.g. paper-example-1) or on --problem FILE.npz."""
     from tqdm import tqdm
 
-    from dgtd.config import RunSpec, resolve, spec_record
+    from dgtd.config import RunSpec, make_source, resolve, scenario_of, spec_record
     from dgtd.run.loop import run as run_loop
     from dgtd.run.results import write_results
 
@@ -68,24 +68,30 @@ def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds,
                    checkpoints=checkpoints, tail_fraction=tail_fraction)
     problem, network, algorithm, samp, settings, resolved = resolve(spec)
     out = Path(out) if out else Path("runs") / problem.name
+    source = make_source(resolved, settings)  # None: samples from the model; else a simulator's own
+    links = getattr(source, "describe", network.describe)()
     click.echo(f"{problem.name}: {problem.n_states} states, {problem.n_agents} agents, {problem.n_features} features, "
-               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {network.describe()}")
+               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
     click.echo(f"Algorithm 1: alpha_k = {algorithm.alpha0:g}/{'sqrt(k+' if algorithm.schedule == 'sqrt' else '(k+'}"
                f"{algorithm.beta:g}){'' if algorithm.schedule != 'constant' else ' (constant)'}, kappa {algorithm.kappa:g}, "
                f"rho {algorithm.rho:g}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samp.mode} sampling, "
                f"{'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
     bar = tqdm(total=settings.iterations, unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
     try:
-        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update)
+        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update, source=source)
     finally:
         bar.close()
-    write_results(out, result, spec_record(resolved))
+    sc = scenario_of(resolved)
+    extra, text = sc.report(result, source, out, plots) if sc is not None and sc.report is not None else (None, "")
+    write_results(out, result, spec_record(resolved), extra=extra)
     if plots:
         from dgtd.plots import plot_errors, plot_iterates
 
         plot_iterates(result, out / "iterates.png")
         plot_errors(result, out / "errors.png")
     click.echo(final_table(result))
+    if text:
+        click.echo(text)
     click.echo(f"wrote {out}/summary.json, metrics.csv, trajectory.npz{', iterates.png, errors.png' if plots else ''} "
                f"({result.seconds:.1f} s)")
 
@@ -148,12 +154,32 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 
 @cli.command()
+@click.option("--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.bench.CASES).")
+@click.option("--backend", "backends", default="numba,numpy", show_default=True, help="Backends to measure.")
+@click.option("--repeats", type=int, default=3, show_default=True, help="Runs per measurement; the median is reported.")
+@click.option("--out", type=click.Path(file_okay=False), default="bench", show_default=True)
+def bench(cases, backends, repeats, out):
+    """Measure agent-steps per second on the standard configurations; writes JSON and a Markdown table."""
+    from dgtd.bench import CASES, markdown, measure
+    from dgtd.run.results import atomic_write, atomic_write_json
+
+    keys = [k.strip().upper() for k in cases.split(",")]
+    unknown = [k for k in keys if k not in CASES]
+    if unknown:
+        raise DgtdInputError(f"unknown benchmark case(s) {', '.join(unknown)}; choose from {', '.join(CASES)}")
+    report = measure(keys, tuple(b.strip() for b in backends.split(",")), repeats, progress=click.echo)
+    atomic_write_json(Path(out) / "throughput.json", report)
+    atomic_write(Path(out) / "throughput.md", (markdown(report) + "\n").encode())
+    click.echo(markdown(report))
+
+
+@cli.command()
 def scenarios():
     """List the named scenarios."""
-    from dgtd.problems.scenarios import SCENARIOS, get_scenario
+    from dgtd.problems.scenarios import SCENARIOS
 
-    for name in SCENARIOS:
-        click.echo(f"{name:<20} {get_scenario(name).description}")
+    for name, builder in SCENARIOS.items():  # the builders' first doc lines: listing builds nothing
+        click.echo(f"{name:<20} {(builder.__doc__ or '').strip().splitlines()[0]}")
 
 
 from dgtd.cli_compare import compare as _compare  # noqa: E402

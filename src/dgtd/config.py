@@ -65,6 +65,9 @@ def resolve(spec: RunSpec):
         sc = get_scenario(spec.scenario, **({} if spec.edge_prob is None else {"edge_prob": spec.edge_prob}))
         problem, network, algorithm, sampling, iterations = sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations
         graph, edge_prob = sc.network.base.name, float(sc.network.p.max())
+        if sc.source is not None:
+            _refuse_model_overrides(spec, sc)
+            graph, edge_prob = None, None  # the scenario's source sets the links; nothing to record
         if spec.reward_noise not in (None, problem.reward_noise):
             problem = replace(problem, reward_noise=spec.reward_noise)
     else:
@@ -79,7 +82,7 @@ def resolve(spec: RunSpec):
     algorithm = replace(algorithm, **over)
     sampling = Sampling(mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared)
     settings = RunSettings(
-        iterations=int(spec.iterations or iterations), seeds=spec.seeds, seed=spec.seed, checkpoints=spec.checkpoints,
+        iterations=int(iterations if spec.iterations is None else spec.iterations), seeds=spec.seeds, seed=spec.seed, checkpoints=spec.checkpoints,
         tail_fraction=spec.tail_fraction, block_size=spec.block_size, backend=spec.backend,
     )
     resolved = replace(
@@ -88,6 +91,36 @@ def resolve(spec: RunSpec):
         sampling=sampling.mode, shared=sampling.shared, reward_noise=problem.reward_noise,
     )
     return problem, network, algorithm, sampling, settings, resolved
+
+
+def _refuse_model_overrides(spec: RunSpec, sc) -> None:
+    """A scenario with its own sample source sets the links, states and rewards itself: flags that would change
+    them could not apply, so they are refused (values equal to the scenario's own, as recorded, are accepted)."""
+    own = {"--graph": None, "--sampling": sc.sampling.mode, "--shared": sc.sampling.shared,
+           "--reward-noise": sc.problem.reward_noise}
+    given = [flag for flag, value in (("--graph", spec.graph), ("--sampling", spec.sampling), ("--shared", spec.shared),
+                                      ("--reward-noise", spec.reward_noise)) if value is not None and value != own[flag]]
+    if given:
+        raise DgtdInputError(f"scenario {spec.scenario} simulates its own samples and links; {', '.join(given)} "
+                             f"{'does' if len(given) == 1 else 'do'} not apply to it (leave {'it' if len(given) == 1 else 'them'} out)")
+
+
+def scenario_of(spec: RunSpec):
+    """The named `Scenario` of a spec (cached by its builder where building is costly), or None for a problem file."""
+    return None if spec.scenario is None else get_scenario(spec.scenario)
+
+
+def make_source(spec: RunSpec, settings: RunSettings):
+    """A fresh sample source for a run of ``spec``, or None when samples come from the model (`ModelSource`).
+
+    Scenarios that simulate a world (e.g. paper-example-2's robots and their proximity links) supply their own;
+    pass it as ``run(..., source=make_source(spec, settings))``. Each call starts the same streams again, so
+    two algorithms given fresh sources with one seed see identical samples and links.
+    """
+    sc = scenario_of(spec)
+    if sc is None or sc.source is None:
+        return None
+    return sc.source(settings.seed, range(settings.seeds))
 
 
 def spec_record(spec: RunSpec) -> dict:

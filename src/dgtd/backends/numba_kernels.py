@@ -44,30 +44,37 @@ def _clip(x, b):
 @njit(cache=True, parallel=True)
 def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
                    sigma, noise, p_edge, s_out, a_out, sn_out, r_out, up_out):
+    """Samples of a block: each (seed, observation) pair runs its own trajectory, so they are spread over the cores."""
     T, B, n_obs, width = u_state.shape
     N = R_sample.shape[0]
     S = R_sample.shape[1]
-    E = p_edge.shape[0]
-    for b in prange(B):
+    for flat in prange(B * n_obs):
+        b = flat // n_obs
+        o = flat % n_obs
         for t in range(T):
-            for o in range(n_obs):
-                if markov:
-                    s = current[b, o]
-                else:
-                    s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
-                idx = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, width - 1])
-                s_out[t, b, o] = s
-                a_out[t, b, o] = idx // S
-                sn_out[t, b, o] = idx % S
-                if markov:
-                    current[b, o] = idx % S
-            for i in range(N):
-                o = i if n_obs == N else 0
-                r = R_sample[i, s_out[t, b, o], a_out[t, b, o]]
+            if markov:
+                s = current[b, o]
+            else:
+                s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
+            j = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, width - 1])
+            a = j // S
+            s_out[t, b, o] = s
+            a_out[t, b, o] = a
+            sn_out[t, b, o] = j % S
+            if markov:
+                current[b, o] = j % S
+            # Rewards of the agents that see this observation: agent o, or all agents on a shared trajectory.
+            lo, hi = (o, o + 1) if n_obs == N else (0, N)
+            for i in range(lo, hi):
+                r = R_sample[i, s, a]
                 r_out[t, b, i] = _reward(r, sigma, noise, u_reward[t, b, i]) if noise != 0 else r
-            if up_out.shape[0] > 0:
-                for e in range(E):
-                    up_out[t, b, e] = u_edge[t, b, e] < p_edge[e]
+    E = p_edge.shape[0]
+    if up_out.shape[0] > 0:
+        for flat in prange(T * B):
+            t = flat // B
+            b = flat % B
+            for e in range(E):
+                up_out[t, b, e] = u_edge[t, b, e] < p_edge[e]
 
 
 def block_from_uniforms(problem, network, tables, U: dict, current):
@@ -86,66 +93,131 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
     return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
 
-@njit(cache=True)
-def _laplacian(X, up, t, b, has_up, indptr, nbr, eid, out):
-    """out_i = sum over edges {i, j} up at step t of (X_i - X_j), node by node through CSR neighbour lists."""
-    N, q = X.shape
-    for i in range(N):
+FAST = {"reassoc", "contract", "nsz"}  # lets LLVM vectorise sums; results move by rounding only (tested to 1e-9)
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _laplacian_row(i, b, t, Z, up, has_up, indptr, nbr, eid, L):
+    """L = (L(k) Z)_i = sum over edges {i, j} up at step t of (Z_i - Z_j), Z = (w, v, mu) packed as (3, q) rows."""
+    m = Z.shape[2]
+    zi = Z[b, i]
+    L[:] = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        if (not has_up) or up[t, b, eid[p]]:
+            zj = Z[b, nbr[p]]
+            for f in range(m):
+                L[f] += zi[f] - zj[f]
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, Z, Z_out, L, sum_all, sum_tail, Phi, sparse, ptr, idx,
+                val, gamma, kappa, rho, boxes):
+    """Algorithm 1 lines 7-9 for agent i of seed b; reads Z = (w, v, mu) at step k, writes Z_out at step k + 1.
+
+    Z[b, i] holds w in [0, q), v in [q, 2q), mu in [2q, 3q); L holds the matching rows of L(k) Z. theta only
+    depends on agent i's own variables, so it is updated in place. With sparse features (CSR rows ptr/idx/val
+    of Phi) the TD terms cost O(nnz(phi) + nnz(phi')) instead of O(q).
+    """
+    q = theta.shape[2]
+    b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
+    th, zi, zo = theta[b, i], Z[b, i], Z_out[b, i]
+    phi_theta = 0.0
+    phi_w = 0.0
+    phin_w = 0.0
+    if sparse:
+        for p in range(ptr[s], ptr[s + 1]):
+            phi_theta += val[p] * th[idx[p]]
+            phi_w += val[p] * zi[idx[p]]
+        for p in range(ptr[sn], ptr[sn + 1]):
+            phin_w += val[p] * zi[idx[p]]
+    else:
+        phi, phin = Phi[s], Phi[sn]
         for f in range(q):
-            out[i, f] = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            if (not has_up) or up[t, b, eid[p]]:
-                j = nbr[p]
-                for f in range(q):
-                    out[i, f] += X[i, f] - X[j, f]
+            phi_theta += phi[f] * th[f]
+            phi_w += phi[f] * zi[f]
+            phin_w += phin[f] * zi[f]
+    # Line 7 (theta): phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta
+    c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
+    rt = ratio * phi_theta
+    sa = sum_all[b, i]
+    for f in range(q):
+        sa[f] += zi[f]
+    if in_tail:
+        st = sum_tail[b, i]
+        for f in range(q):
+            st[f] += zi[f]
+    # Line 7 (v) and line 8 (mu), projected (line 9)
+    for f in range(q):
+        vf, muf, Lw = zi[q + f], zi[2 * q + f], L[f]
+        zo[q + f] = min(max(vf - alpha * (vf - Lw), -b_v), b_v)
+        zo[2 * q + f] = min(max(muf - alpha * (-Lw + rho * muf), -b_mu), b_mu)
+    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
+    if not sparse:
+        phi, phin = Phi[s], Phi[sn]
+        for f in range(q):
+            wf = zi[f]
+            g_w = rt * (phi[f] - gamma * phin[f]) - L[q + f] - L[2 * q + f] - kappa * L[f] - rho * wf
+            zo[f] = min(max(wf + alpha * g_w, -b_w), b_w)
+            th[f] = min(max(th[f] - alpha * (phi[f] * c_theta), -b_th), b_th)
+    else:
+        for f in range(q):
+            wf = zi[f]
+            zo[f] = wf + alpha * (-L[q + f] - L[2 * q + f] - kappa * L[f] - rho * wf)
+        for p in range(ptr[s], ptr[s + 1]):
+            f = idx[p]
+            th[f] = min(max(th[f] - alpha * (val[p] * c_theta), -b_th), b_th)
+            zo[f] += alpha * (rt * val[p])
+        for p in range(ptr[sn], ptr[sn + 1]):
+            zo[idx[p]] -= alpha * (rt * gamma * val[p])
+        for f in range(q):
+            zo[f] = min(max(zo[f], -b_w), b_w)
 
 
-@njit(cache=True, parallel=True)
-def _dgtd_kernel(theta, v, mu, w, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
-                 Phi, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid):
-    B, N, q = w.shape
+@njit(cache=True, parallel=True, fastmath=FAST)
+def _dgtd_by_seed(theta, Z, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
+                  Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid):
+    """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds)."""
+    B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs = s_blk.shape[2]
     has_up = up.shape[0] > 0
-    b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
     for b in prange(B):
-        Lw = np.empty((N, q))
-        Lv = np.empty((N, q))
-        Lmu = np.empty((N, q))
+        L = np.empty((N, m))
         for t in range(T):
-            k = k0 + t
-            alpha = alphas[t]
-            _laplacian(w[b], up, t, b, has_up, indptr, nbr, eid, Lw)
-            _laplacian(v[b], up, t, b, has_up, indptr, nbr, eid, Lv)
-            _laplacian(mu[b], up, t, b, has_up, indptr, nbr, eid, Lmu)
+            for i in range(N):
+                _laplacian_row(i, b, t, Z, up, has_up, indptr, nbr, eid, L[i])
             for i in range(N):
                 o = i if n_obs == N else 0
-                s, a, sn = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
-                ratio = ratio_tab[s, a]
-                r = r_blk[t, b, i]
-                phi_theta = 0.0
-                phi_w = 0.0
-                phin_w = 0.0
-                for f in range(q):
-                    phi_theta += Phi[s, f] * theta[b, i, f]
-                    phi_w += Phi[s, f] * w[b, i, f]
-                    phin_w += Phi[sn, f] * w[b, i, f]
-                c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
-                rt = ratio * phi_theta
-                for f in range(q):
-                    wf = w[b, i, f]
-                    sum_all[b, i, f] += wf
-                    if k >= tail_start:
-                        sum_tail[b, i, f] += wf
-                    # Algorithm 1 line 7 (theta, v), line 8 (mu, w), line 9 (projection)
-                    g_theta = Phi[s, f] * c_theta
-                    g_v = v[b, i, f] - Lw[i, f]
-                    g_mu = -Lw[i, f] + rho * mu[b, i, f]
-                    g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - Lv[i, f] - Lmu[i, f] - kappa * Lw[i, f] - rho * wf
-                    theta[b, i, f] = _clip(theta[b, i, f] - alpha * g_theta, b_th)
-                    v[b, i, f] = _clip(v[b, i, f] - alpha * g_v, b_v)
-                    mu[b, i, f] = _clip(mu[b, i, f] - alpha * g_mu, b_mu)
-                    w[b, i, f] = _clip(wf + alpha * g_w, b_w)
+                s, a = s_blk[t, b, o], a_blk[t, b, o]
+                # All Laplacians of step k are taken first, so in-place writes are safe (Jacobi form).
+                _agent_step(b, i, s, sn_blk[t, b, o], r_blk[t, b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
+                            theta, Z, Z, L[i], sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho, boxes)
+
+
+@njit(cache=True, parallel=True, fastmath=FAST)
+def _dgtd_by_agent(theta, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
+                   Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, n_chunks):
+    """Agents spread over the cores at every step (large N, few seeds): Z = (w, v, mu) is double-buffered so
+    that every agent reads step k's values of its neighbours while others write step k + 1's. Returns the
+    number of buffer swaps (odd: the result is in Z2)."""
+    B, N, m = Z.shape
+    T = alphas.shape[0]
+    n_obs = s_blk.shape[2]
+    has_up = up.shape[0] > 0
+    total = B * N
+    for t in range(T):
+        Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
+        for c in prange(n_chunks):
+            L = np.empty(m)
+            for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
+                b = flat // N
+                i = flat % N
+                o = i if n_obs == N else 0
+                s, a = s_blk[t, b, o], a_blk[t, b, o]
+                _laplacian_row(i, b, t, Zi, up, has_up, indptr, nbr, eid, L)
+                _agent_step(b, i, s, sn_blk[t, b, o], r_blk[t, b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
+                            theta, Zi, Zo, L, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho, boxes)
+    return T
 
 
 def csr_adjacency(edges: np.ndarray, n_nodes: int):
@@ -172,20 +244,55 @@ def _up(blk: Block):
     return np.empty((0, 0, 0), np.bool_) if blk.up is None else np.ascontiguousarray(blk.up)
 
 
+def feature_arrays(ctx):
+    """Phi dense and as CSR rows; sparse when rows hold at most a quarter of the features (tabular: one)."""
+    cache = ctx.__dict__.setdefault("_numba_cache", {})
+    if "phi" not in cache:
+        from scipy.sparse import csr_matrix
+
+        Phi = np.ascontiguousarray(ctx.Phi, dtype=np.float64)
+        csr = csr_matrix(Phi)
+        sparse = csr.nnz <= Phi.size // 4
+        cache["phi"] = (Phi, sparse, csr.indptr.astype(np.int64), csr.indices.astype(np.int64), csr.data.astype(np.float64))
+    return cache["phi"]
+
+
+LAYOUT = "auto"  # "seed" or "agent" force a layout (tests check both against the reference)
+
+
+def by_agent(B: int, N: int, q: int) -> bool:
+    """Spread agents rather than seeds over the cores when seeds are fewer than threads and agents are many."""
+    from numba import get_num_threads
+
+    if LAYOUT != "auto":
+        return LAYOUT == "agent"
+    return B < get_num_threads() and N * q >= 4096
+
+
 def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk: Block):
     """Same contract as `dgtd.backends.numpy_ref.dgtd_block`, compiled."""
+    from numba import get_num_threads
+
     from dgtd.algorithms.dgtd import DGTDState
 
-    theta, v, mu, w = (np.array(x, dtype=np.float64, order="C") for x in state)
+    theta = np.array(state.theta, dtype=np.float64, order="C")
+    Z = np.concatenate([state.w, state.v, state.mu], axis=2)  # packed rows: one contiguous read per neighbour
     sum_all, sum_tail = sums["all"].copy(), sums["tail"].copy()
     indptr, nbr, eid = graph_arrays(ctx)
-    _dgtd_kernel(
-        theta, v, mu, w, sum_all, sum_tail, k0, ctx.tail_start, np.ascontiguousarray(alphas),
-        blk.s, blk.a, blk.s_next, blk.r, _up(blk), np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
-        float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho), np.asarray(ctx.boxes, dtype=np.float64),
-        indptr, nbr, eid,
-    )
-    return DGTDState(theta, v, mu, w), {"all": sum_all, "tail": sum_tail}
+    Phi, sparse, ptr, idx, val = feature_arrays(ctx)
+    common = (np.ascontiguousarray(alphas), blk.s, blk.a, blk.s_next, blk.r, _up(blk), Phi, sparse, ptr, idx, val,
+              np.ascontiguousarray(ctx.ratio), float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
+              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid)
+    B, N, q = theta.shape
+    if by_agent(B, N, q):
+        Z2 = np.empty_like(Z)
+        if _dgtd_by_agent(theta, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:
+            Z = Z2
+    else:
+        _dgtd_by_seed(theta, Z, sum_all, sum_tail, k0, ctx.tail_start, *common)
+    w, v, mu = Z[:, :, :q], Z[:, :, q:2 * q], Z[:, :, 2 * q:]
+    return DGTDState(theta, np.ascontiguousarray(v), np.ascontiguousarray(mu), np.ascontiguousarray(w)), \
+        {"all": sum_all, "tail": sum_tail}
 
 
 BLOCKS = {"dgtd": dgtd_block}

@@ -10,8 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse.csgraph import connected_components
-
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.topologies import Graph
 
@@ -63,6 +61,8 @@ def random_edges(base: Graph, p=1.0) -> RandomEdges:
 
 def check_mean_connected(process: RandomEdges) -> None:
     """Assumption `assumption:connected`: the mean connectivity graph (edges with p_e > 0) is connected."""
+    from scipy.sparse.csgraph import connected_components  # imported here: keeps `dgtd` quick to start
+
     N = process.n_nodes
     if N == 1:
         return

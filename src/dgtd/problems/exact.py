@@ -45,6 +45,13 @@ class Moments:
         return Phi.T @ (self.d[:, None] * Phi)
 
     @cached_property
+    def M_factor(self):
+        """Cholesky factor of M (symmetric positive definite), computed once: MSPBE evaluations reuse it."""
+        from scipy.linalg import cho_factor
+
+        return cho_factor(self.M)
+
+    @cached_property
     def A(self) -> np.ndarray:
         p = self.problem
         return p.Phi.T @ (self.d[:, None] * (p.Phi - p.gamma * p.P @ p.Phi))

@@ -11,8 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse.csgraph import connected_components
-
 from dgtd.errors import DgtdInputError
 
 ROW_SUM_TOL = 1e-8
@@ -125,6 +123,8 @@ def chain_period(P: np.ndarray) -> int:
 
 def check_irreducible(name: str, P: np.ndarray) -> None:
     """Refuse a chain with more than one communicating class: its stationary distribution is not unique."""
+    from scipy.sparse.csgraph import connected_components  # imported here: keeps `dgtd` quick to start
+
     n, labels = connected_components(P > 0, directed=True, connection="strong")
     if n > 1:
         sizes = np.bincount(labels)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -30,6 +31,15 @@ class Scenario:
     sampling: Sampling
     iterations: int
     description: str
+    source: Callable[..., object] | None = None
+    """Factory ``source(seed, seed_ids)`` of the run's samples, for a simulator whose samples do not come from
+    the model (hidden state, links set by positions): anything with start/next_block/get_state/set_state (see
+    `dgtd.run.sampling.ModelSource`). None: samples are drawn from ``problem`` over ``network``. Every command
+    that runs an algorithm on the scenario should pass a fresh one as ``run(..., source=...)``
+    (`dgtd.config.make_source`), so that every algorithm sees the same samples and links."""
+    report: Callable[..., tuple] | None = None
+    """Optional ``report(result, source, out, plots) -> (dict, text)`` after a run: scenario-specific numbers for
+    summary.json (under "scenario"), figures written to ``out`` when ``plots``, and lines to print."""
     baselines: dict = field(default_factory=dict)  # name -> settings of the baselines `dgtd compare` runs beside DGTD
 
 
@@ -67,11 +77,36 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
     )
 
 
+@lru_cache(maxsize=2)
+def paper_example_2(edge_prob: float | None = None) -> Scenario:
+    """The paper's Example 2: three robots patrol a 20 m x 20 m area on a 20 x 20 grid, talking within 5 m.
+
+    World, regions and the estimated reference chain: `dgtd.problems.robots`. Tabular features, gamma = 0.5,
+    50 000 iterations as in the paper; samples and links come from the simulated robots (`PatrolSource`).
+    The paper gives no step sizes for this example; we keep its schedule alpha_k = alpha0 / sqrt(k + beta) with
+    alpha0 = 10, beta = 1000 and kappa = 3. When all three robots are linked, L(k) has eigenvalue 3, and the
+    consensus part of one step (v, mu, w along that eigenvector) is a contraction only for alpha_k below about
+    0.41 with kappa = 3 (0.18 with kappa = 1): alpha_0 = 10 / sqrt(1000) = 0.32 keeps every step stable, and
+    alpha0 = 10 keeps the per-visit learning rate of a state visited once in 4000 steps from stalling.
+    The reference chain is cached for the process (the simulation takes a few seconds).
+    """
+    if edge_prob is not None:
+        raise DgtdInputError("the links of paper-example-2 come from the robots' positions (5 m radius); "
+                             "--edge-prob does not apply")
+    from dgtd.problems.robots import PatrolWorld, patrol_scenario
+
+    return patrol_scenario(
+        PatrolWorld(), 5.0, algorithm=DGTD(alpha0=10.0, beta=1000.0, schedule="sqrt", kappa=3.0),
+        iterations=50_000, name="paper-example-2",
+        description="the paper's Example 2: 3 robots patrol a 20x20 grid, linked within 5 m, one danger map",
+    )
+
+
 def _task(problem: Problem, edge_prob: float, dgtd: DGTD, iterations: int, description: str, baselines: dict,
           sampling: Sampling = Sampling(mode="iid", shared=False)) -> Scenario:
     """A benchmark task (`dgtd.problems.tasks`) on a ring whose links are each up with ``edge_prob``."""
     return Scenario(problem, random_edges(topologies.ring(problem.n_agents), edge_prob), dgtd, sampling, iterations,
-                    description, baselines)
+                    description, baselines=baselines)
 
 
 def baird_scenario(edge_prob: float = 0.8) -> Scenario:
@@ -134,6 +169,7 @@ BENCHMARK_STEPS: dict[str, dict] = {
 
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-example-1": paper_example_1,
+    "paper-example-2": paper_example_2,
     "baird": baird_scenario,
     "boyan": boyan_scenario,
     "random-mdp": random_mdp_scenario,

@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dgtd.problems.model import Problem, chain_period, make_problem
 from dgtd.errors import DgtdInputError
-from scipy.sparse.csgraph import connected_components
+from dgtd.problems.model import Problem, chain_period, check_irreducible, make_problem
 
 
 def split_rewards(mean: np.ndarray, n_agents: int, rng: np.random.Generator, spread: float = 1.0,
@@ -162,7 +161,11 @@ def garnet(n_states: int = 30, branching: int = 3, n_agents: int = 10, n_feature
         for s in range(S):
             nxt = rng.choice(S, size=branching, replace=False)
             P[s, nxt] = rng.dirichlet(np.ones(branching))
-        if connected_components(P > 0, directed=True, connection="strong")[0] == 1 and chain_period(P) == 1:
+        try:
+            check_irreducible("P", P)
+        except DgtdInputError:
+            continue
+        if chain_period(P) == 1:
             break
     else:
         raise DgtdInputError(f"no ergodic Garnet chain with {S} states and {branching} successors in {max_tries} draws; "

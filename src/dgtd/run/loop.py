@@ -175,8 +175,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
     limit = DIVERGENCE_FACTOR * max(1.0, float(np.abs(w_star).max()), w0_norm)
     k, c = 0, 0
+    block = block_steps(settings.block_size, N, network.n_edges, B)
     while k < T:
-        k1 = min(k + int(settings.block_size), int(steps[c]))
+        k1 = min(k + block, int(steps[c]))
         blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
@@ -243,6 +244,13 @@ def stop_diverged(state, sums, w: np.ndarray, limit: float, diverged_at: np.ndar
     state = type(state)(*(np.where(new[:, None, None], np.nan, x) for x in state))
     sums = {key: np.where(new[:, None, None], np.nan, v) for key, v in sums.items()}
     return state, sums
+
+
+def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budget: int = 1 << 21) -> int:
+    """Steps per block: at most ``block_size``, and few enough that a block's samples stay near ``budget``
+    numbers (tens of MB), whatever N and |E|. Results do not depend on it."""
+    per_step = n_seeds * (4 * n_agents + n_edges)
+    return int(max(1, min(int(block_size), budget // max(per_step, 1))))
 
 
 def _kernel(backend: str, algorithm: str):

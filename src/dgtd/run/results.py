@@ -78,8 +78,11 @@ def summary(result: RunResult, config: dict) -> dict:
     }
 
 
-def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "dgtd") -> None:
-    """summary.json, metrics.csv and trajectory.npz in ``out``; summary.json is written last."""
+def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "dgtd", extra: dict | None = None) -> None:
+    """summary.json, metrics.csv and trajectory.npz in ``out``; summary.json is written last.
+
+    ``extra``: scenario-specific numbers, stored in summary.json under "scenario".
+    """
     out = Path(out)
     atomic_write(out / "metrics.csv", metrics_csv(result, algorithm))
     buf = io.BytesIO()
@@ -88,4 +91,4 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "
         arrays["w_trace"] = result.w_trace
     np.savez_compressed(buf, **arrays)
     atomic_write(out / "trajectory.npz", buf.getvalue())
-    atomic_write_json(out / "summary.json", summary(result, config))
+    atomic_write_json(out / "summary.json", summary(result, config) | ({"scenario": extra} if extra else {}))

@@ -1,0 +1,209 @@
+"""Throughput measurements: agent-steps per second of whole runs, the machine's copy bandwidth, and what an
+agent-step costs in bytes and flops. Used by `dgtd bench` and benchmarks/throughput.py.
+
+One agent-step is one agent's full Algorithm 1 update, sampling included: a run of T iterations with B seeds
+and N agents is T * B * N agent-steps.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgtd.algorithms.dgtd import DGTD
+from dgtd.graphs import topologies
+from dgtd.graphs.random import RandomEdges, random_edges
+from dgtd.problems.generators import random_problem
+from dgtd.problems.model import Problem
+from dgtd.problems.scenarios import get_scenario
+from dgtd.run.loop import RunSettings, run
+from dgtd.run.sampling import Sampling
+
+
+@dataclass(frozen=True)
+class BenchCase:
+    """A benchmark configuration: the problem, the network, how many seeds, and iterations per backend."""
+
+    key: str
+    description: str
+    make: Callable[[], tuple[Problem, RandomEdges, DGTD]]
+    seeds: int
+    iterations: dict
+
+
+def _connected_geometric(n: int, mean_degree: float, seed: int):
+    import networkx as nx
+
+    radius = np.sqrt(mean_degree / (np.pi * n))
+    for k in range(100):
+        G = nx.random_geometric_graph(n, radius, seed=seed + k)
+        if nx.is_connected(G):
+            return topologies.from_networkx(G)
+        radius *= 1.05
+    raise RuntimeError("no connected geometric graph found")
+
+
+def _sparse_random(n: int, mean_degree: int, rng: np.random.Generator):
+    """A ring (for connectivity) plus (mean_degree / 2 - 1) * n random chords: mean degree about mean_degree."""
+    ring = [(i, (i + 1) % n) for i in range(n)]
+    m = (mean_degree // 2 - 1) * n
+    u, v = rng.integers(n, size=(2, m))
+    keep = u != v
+    return topologies.from_edges(n, ring + list(zip(u[keep], v[keep])), f"sparse-random-deg{mean_degree}")
+
+
+def _case_a():
+    sc = get_scenario("paper-example-1")
+    return sc.problem, sc.network, sc.algorithm
+
+
+def _case_b():
+    rng = np.random.default_rng(1)
+    return (random_problem(128, 16, 64, rng), random_edges(topologies.ring_with_chords(16, 4), 0.5),
+            DGTD(alpha0=0.5, beta=10))
+
+
+def _case_c():
+    rng = np.random.default_rng(2)
+    return random_problem(128, 1000, 64, rng), random_edges(_connected_geometric(1000, 10, 2), 0.9), DGTD(alpha0=0.5, beta=10)
+
+
+def _case_d():
+    rng = np.random.default_rng(3)
+    return random_problem(128, 10_000, 64, rng), random_edges(_sparse_random(10_000, 6, rng), 0.9), DGTD(alpha0=0.5, beta=10)
+
+
+def _case_e():
+    rng = np.random.default_rng(4)
+    return random_problem(400, 3, 400, rng), random_edges(topologies.complete(3), 0.5), DGTD(alpha0=0.5, beta=10)
+
+
+CASES = {
+    "A": BenchCase("A", "paper-example-1 (N=5, q=2), 1 seed", _case_a, 1, {"numba": 1_000_000, "numpy": 20_000}),
+    "B": BenchCase("B", "N=16, q=64, random 128-state problem, ring with chords, p=0.5, 32 seeds", _case_b, 32,
+                   {"numba": 20_000, "numpy": 1_000}),
+    "C": BenchCase("C", "N=1000, q=64, random geometric graph (mean degree ~10), p=0.9, 1 seed", _case_c, 1,
+                   {"numba": 5_000, "numpy": 200}),
+    "D": BenchCase("D", "N=10000, q=64, sparse random graph (mean degree 6), p=0.9, 1 seed", _case_d, 1,
+                   {"numba": 500, "numpy": 20}),
+    "E": BenchCase("E", "tabular, 400 states, N=3, complete graph, p=0.5, 1 seed", _case_e, 1,
+                   {"numba": 100_000, "numpy": 5_000}),
+}
+
+
+def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: str, repeats: int) -> list[float]:
+    """Wall seconds of `run` (sampling, updates and one final metric checkpoint), after a warm-up run."""
+    settings = RunSettings(iterations=iterations, seeds=seeds, checkpoints=1, backend=backend)
+    run(problem, network, algorithm, Sampling(), RunSettings(iterations=min(iterations, 50), seeds=seeds,
+                                                             checkpoints=1, backend=backend))
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        run(problem, network, algorithm, Sampling(), settings)
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def copy_bandwidth(n_bytes: int = 400_000_000, repeats: int = 5) -> float:
+    """STREAM-style copy, in bytes moved (read + write) per second, best of ``repeats``."""
+    a = np.ones(n_bytes // 8)
+    b = np.empty_like(a)
+    np.copyto(b, a)
+    best = min(_timed(lambda: np.copyto(b, a)) for _ in range(repeats))
+    return 2 * a.nbytes / best
+
+
+def _timed(f) -> float:
+    t = time.perf_counter()
+    f()
+    return time.perf_counter() - t
+
+
+def bytes_per_agent_step(q: int, mean_degree: float) -> dict:
+    """Memory traffic of one agent-step of the agent-parallel kernel, float64.
+
+    Compulsory: theta read + write, (v, mu, w) read at k and written at k + 1, the running sum of w read +
+    write (the tail sum only in the final window, ignored): 10 vectors of q. Neighbour rows (3 vectors per
+    up edge) may hit the cache; they are listed apart.
+    """
+    compulsory = 10 * q * 8
+    neighbours = 3 * q * 8 * mean_degree
+    return {"compulsory": compulsory, "neighbours": neighbours}
+
+
+def flops_per_agent_step(q: int, mean_degree: float) -> float:
+    """Floating-point operations of one agent-step with dense features: 3 dot products (2q each), the three
+    Laplacian rows (2 per neighbour and feature each) and the four updates with clipping (~20 per feature)."""
+    return 6 * q + 6 * q * mean_degree + 20 * q
+
+
+def peak_flops(cores: int, ghz: float = 2.8, flops_per_cycle: int = 32) -> float:
+    """Double-precision peak: cores x clock x 2 AVX-512 FMA units x 8 lanes x 2 flops."""
+    return cores * ghz * 1e9 * flops_per_cycle
+
+
+def machine() -> str:
+    import os
+
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
+def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats: int = 3, progress=print) -> dict:
+    """Agent-steps per second (median of ``repeats``) for each case and backend, with bandwidth and flop context."""
+    from numba import get_num_threads
+
+    bw = copy_bandwidth()
+    rows = []
+    for key in keys:
+        case = CASES[key]
+        problem, network, algorithm = case.make()
+        N, q = problem.n_agents, problem.n_features
+        mean_deg = 2 * network.n_edges * float(network.p.mean()) / N
+        for backend in backends:
+            T = case.iterations[backend]
+            secs = time_run(problem, network, algorithm, case.seeds, T, backend, repeats)
+            med = float(np.median(secs))
+            rate = T * case.seeds * N / med
+            by = bytes_per_agent_step(q, mean_deg)
+            fl = flops_per_agent_step(q, mean_deg)
+            row = {"case": key, "description": case.description, "backend": backend, "N": N, "q": q,
+                   "seeds": case.seeds, "iterations": T, "seconds": secs, "agent_steps_per_s": rate,
+                   "mean_up_degree": mean_deg, "bytes_per_agent_step": by, "flops_per_agent_step": fl,
+                   "bandwidth_bound_agent_steps_per_s": bw / by["compulsory"],
+                   "fraction_of_bandwidth_bound": rate / (bw / by["compulsory"]),
+                   "fraction_of_peak_flops": rate * fl / peak_flops(get_num_threads())}
+            rows.append(row)
+            progress(f"{key} {backend:6s} {rate:14,.0f} agent-steps/s  (median of {repeats}: {med:.3f} s)")
+    return {"machine": machine(), "threads": get_num_threads(), "copy_bandwidth_bytes_per_s": bw,
+            "peak_flops": peak_flops(get_num_threads()), "date": time.strftime("%Y-%m-%d"), "rows": rows}
+
+
+def markdown(report: dict, extra_rows: list | None = None) -> str:
+    """The report as a Markdown table."""
+    lines = [f"Measured {report['date']} on {report['machine']} ({report['threads']} threads); "
+             f"STREAM-style copy bandwidth {report['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s (read + write); "
+             f"double-precision peak {report['peak_flops'] / 1e9:.0f} GFLOP/s (2 AVX-512 FMA units per core).",
+             "",
+             "| case | backend | N | q | seeds | agent-steps/s | bytes/agent-step (compulsory + neighbours) | "
+             "bandwidth bound | of bound | flops/agent-step | of peak |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in report["rows"] + (extra_rows or []):
+        by = r.get("bytes_per_agent_step")
+        lines.append(
+            f"| {r['case']} | {r['backend']} | {r['N']} | {r['q']} | {r['seeds']} | {r['agent_steps_per_s']:,.0f} | "
+            + (f"{by['compulsory']:,} + {by['neighbours']:,.0f} | {r['bandwidth_bound_agent_steps_per_s']:,.0f} | "
+               f"{r['fraction_of_bandwidth_bound']:.0%} | {r['flops_per_agent_step']:,.0f} | {r['fraction_of_peak_flops']:.1%} |"
+               if by else "| | | | |"))
+    return "\n".join(lines)

@@ -1,0 +1,148 @@
+"""The command line: outputs of run and solve, and one-line errors with exit code 2 for bad input."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from dgtd.cli import main
+from dgtd.problems import exact
+from dgtd.problems.generators import random_problem
+from dgtd.problems.io import load_problem, save_problem
+
+
+def cli(capsys, *args):
+    """Run the CLI in-process; returns (exit code, stdout, stderr)."""
+    try:
+        main(list(args))
+        code = 0
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def problem_file(tmp_path):
+    p = random_problem(8, 3, 3, np.random.default_rng(99), gamma=0.7)
+    path = tmp_path / "problem.npz"
+    save_problem(str(path), p)
+    return path, p
+
+
+def write_npz(tmp_path, **arrays):
+    base = dict(P=np.array([[0.5, 0.5], [0.2, 0.8]]), R=np.array([[1.0, 0.0], [0.0, 1.0]]),
+                Phi=np.array([[1.0], [2.0]]), gamma=0.9)
+    path = tmp_path / "p.npz"
+    np.savez(path, **{k: v for k, v in (base | arrays).items() if v is not None})
+    return str(path)
+
+
+def test_run_paper_example_writes_results(capsys, tmp_path):
+    out = tmp_path / "out"
+    code, stdout, _ = cli(capsys, "run", "paper-example-1", "-T", "2000", "--seeds", "2", "--out", str(out),
+                          "--no-progress", "--checkpoints", "10")
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert_allclose(s["w_star"], [15.9032, 21.0284], atol=1e-4)
+    assert np.array(s["w_last"]).shape == (2, 5, 2)
+    assert np.array(s["w_avg"]).shape == (2, 5, 2)
+    assert s["config"]["scenario"] == "paper-example-1" and s["config"]["kappa"] == 1.0
+    assert s["config"]["alpha0"] == 10.0 and s["config"]["beta"] == 100.0 and s["config"]["iterations"] == 2000
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    assert {r["metric"] for r in rows} >= {"error_last", "error_avg", "consensus", "mspbe_last"}
+    assert max(int(r["step"]) for r in rows) == 2000
+    assert (out / "iterates.png").stat().st_size > 1000 and (out / "errors.png").stat().st_size > 1000
+    assert "w* = (15.9, 21.03)" in stdout
+    assert stdout.count("%") >= 10  # one row per agent with relative errors
+
+
+def test_solve_on_generated_file(capsys, problem_file):
+    path, p = problem_file
+    code, stdout, _ = cli(capsys, "solve", "--problem", str(path), "--graph", "complete", "--edge-prob", "0.5")
+    assert code == 0
+    out = json.loads(stdout)
+    m = exact.Moments(load_problem(str(path)))
+    assert_allclose(out["w_star"], exact.w_star(m), rtol=1e-12)
+    assert max(out["kkt_residuals"].values()) < 1e-9
+    assert np.allclose(out["v_star"], 0)
+
+
+def test_run_on_generated_file_converges(capsys, problem_file, tmp_path):
+    path, _ = problem_file
+    out = tmp_path / "r"
+    code, _, _ = cli(capsys, "run", "--problem", str(path), "--graph", "ring", "--edge-prob", "0.7", "-T", "100000",
+                     "--alpha0", "1", "--beta", "10", "--out", str(out), "--no-progress", "--no-plots")
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["max_error_avg"] < 0.05
+    assert len(s["config"]["problem_sha256"]) == 64
+
+
+BAD = {
+    "rows do not sum to one": (dict(P=np.array([[0.5, 0.4], [0.2, 0.8]])), "sums to"),
+    "negative entries": (dict(P=np.array([[1.5, -0.5], [0.2, 0.8]])), "negative"),
+    "not ergodic": (dict(P=np.eye(2)), "not ergodic"),
+    "Phi rank": (dict(Phi=np.array([[1.0, 2.0], [2.0, 4.0]])), "full column rank"),
+    "shapes disagree": (dict(R=np.ones((2, 3))), "shape"),
+    "gamma too large": (dict(gamma=1.5), "gamma"),
+    "gamma not scalar": (dict(gamma=np.array([0.5, 0.5])), "scalar"),
+    "NaN": (dict(Phi=np.array([[np.nan], [1.0]])), "NaN"),
+    "missing array": (dict(Phi=None), "lacks Phi"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_problem_files(capsys, tmp_path, case):
+    arrays, match = BAD[case]
+    code, _, err = cli(capsys, "solve", "--problem", write_npz(tmp_path, **arrays))
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and match in err and "Traceback" not in err
+
+
+def test_bad_files_and_networks(capsys, tmp_path):
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"not a zip file at all")
+    pickled = tmp_path / "obj.npz"
+    np.savez(pickled, P=np.array([object()], dtype=object), R=np.ones((1, 2)), Phi=np.ones((2, 1)), gamma=0.5)
+    far = tmp_path / "far.txt"
+    far.write_text("0 5\n")
+    cut = tmp_path / "cut.txt"
+    cut.write_text("0 1\n")  # agent 2 of 3 has no link
+    good = write_npz(tmp_path)
+    three = tmp_path / "three.npz"
+    np.savez(three, P=np.array([[0.5, 0.5], [0.2, 0.8]]), R=np.ones((3, 2)), Phi=np.array([[1.0], [2.0]]), gamma=0.9)
+    cases = [
+        (("solve", "--problem", str(tmp_path / "missing.npz")), "does not exist"),
+        (("solve", "--problem", str(garbage)), "not a valid .npz"),
+        (("solve", "--problem", str(pickled)), "not a valid .npz"),
+        (("run", "--problem", good, "--graph", "ring", "--edge-prob", "0"), "disconnected"),
+        (("run", "--problem", good, "--graph", str(far), "-T", "10"), "names agent 5"),
+        (("run", "--problem", str(three), "--graph", str(cut), "-T", "10"), "disconnected"),
+        (("run", "--problem", good, "--graph", "hypercube"), "edge-list file"),
+        (("run", "no-such-scenario"), "unknown scenario"),
+        (("run", "paper-example-1", "--iterations", "0"), "iterations"),
+        (("run", "paper-example-1", "--alpha0", "-1"), "alpha0"),
+        (("run", "paper-example-1", "--backend", "gpu"), "backend"),
+        (("run",), "name a scenario"),
+    ]
+    for args, match in cases:
+        code, _, err = cli(capsys, *args)
+        assert code == 2, (args, err)
+        assert len(err.strip().splitlines()) == 1 and match in err and "Traceback" not in err, (args, err)
+
+
+def test_real_process_exit_code_and_no_traceback(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "dgtd.cli", "solve", "--problem", str(tmp_path / "nope.npz")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "does not exist" in r.stderr
+
+
+def test_scenarios_lists_paper_example(capsys):
+    code, out, _ = cli(capsys, "scenarios")
+    assert code == 0 and "paper-example-1" in out
