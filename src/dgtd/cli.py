@@ -142,7 +142,7 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
         "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
         "w_star": w.tolist(), "theta_star": sp.theta.tolist(), "v_star": sp.v.tolist(), "mu_star": sp.mu.tolist(),
-        "w_star_per_agent_reward": np.linalg.solve(m.A, m.b.T).T.tolist(),
+        "w_star_per_agent_reward": exact.fixed_point(m, m.b).tolist(),
         "stationary_distribution": m.d.tolist(), "mspbe_w_star": float(exact.mspbe(m, w)),
         "value_function": exact.value_function(m).tolist(), "approximate_values": (problem.Phi @ w).tolist(),
         "mean_laplacian": L.tolist(),

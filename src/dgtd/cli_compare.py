@@ -66,7 +66,8 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
                file=sys.stderr, mininterval=0.5)
     try:
         results, used, tables = run_compare(p, sc.network, samp, configs, cs,
-                                            progress=lambda name, n: bar.update(n), log=bar.write if tune else None)
+                                            progress=lambda name, n: bar.update(n), log=bar.write if tune else None,
+                                            source_factory=sc.source)
     finally:
         bar.close()
     spec = {"scenario": scenario, "algorithms": list(cs.algorithms), "seeds": seeds, "seed": seed,

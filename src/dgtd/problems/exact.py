@@ -91,19 +91,26 @@ def _solve(m: Moments, K: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 def w_star(m: Moments) -> np.ndarray:
-    """w* = (Phi^T D (I - gamma P) Phi)^-1 Phi^T D (1/N) sum_i r_i, eq. (solution) of `prop:equivalance`.
+    """w* = (Phi^T D (I - gamma P) Phi)^-1 Phi^T D (1/N) sum_i r_i, eq. (solution) of `prop:equivalance`."""
+    return fixed_point(m, m.b_mean)
 
-    With dependent features (Phi without full column rank) A w = b_mean has a line of solutions, all with
-    the same values Phi w. Every method here moves w along feature vectors, so w - w0 stays in the row
-    space of Phi: the solution they reach is w* = (I - P0) A^+ b_mean + P0 w0, P0 the projector onto the
-    null space of Phi and w0 the initial weights (zero unless the problem prescribes them).
+
+def fixed_point(m: Moments, b: np.ndarray) -> np.ndarray:
+    """The solution of A w = b (b = Phi^T D r for a reward r; (q,) or (..., q)).
+
+    With dependent features (Phi without full column rank) A w = b has a line of solutions, all with the
+    same values Phi w. Every method here moves w along feature vectors, so w - w0 stays in the row space of
+    Phi: the solution they reach is (I - P0) A^+ b + P0 w0, P0 the projector onto the null space of Phi and
+    w0 the initial weights (zero unless the problem prescribes them).
     """
+    b = np.asarray(b, dtype=np.float64)
     if not m.full_rank:
         P0 = m.null_projector
         w0 = np.zeros(P0.shape[0]) if m.problem.w0 is None else m.problem.w0
-        return (np.eye(P0.shape[0]) - P0) @ np.linalg.lstsq(m.A, m.b_mean, rcond=None)[0] + P0 @ w0
+        sol = np.linalg.lstsq(m.A, b.reshape(-1, b.shape[-1]).T, rcond=None)[0].T
+        return (sol @ (np.eye(P0.shape[0]) - P0) + w0 @ P0).reshape(b.shape)
     try:
-        return np.linalg.solve(m.A, m.b_mean)
+        return np.linalg.solve(m.A, b.reshape(-1, b.shape[-1]).T).T.reshape(b.shape)
     except np.linalg.LinAlgError:
         raise DgtdInputError("Phi^T D (I - gamma P) Phi is singular; the projected Bellman equation has no unique solution") from None
 

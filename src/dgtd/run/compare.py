@@ -73,30 +73,44 @@ def tune_score(result: RunResult) -> float:
     return float(np.median(np.log10(err).mean(axis=0)))
 
 
-def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE_GRID, seeds: int = 2):
+def _source(source_factory, settings: RunSettings):
+    """A fresh simulator source for ``settings`` (so that every run replays the same streams), or None."""
+    return None if source_factory is None else source_factory(settings.seed, range(settings.seeds))
+
+
+def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE_GRID, seeds: int = 2,
+         source_factory=None):
     """(best config, table of (alpha0, score)) over ``algorithm.alpha0 x grid`` on the tuning seeds."""
     tune_settings = replace(settings, seeds=int(seeds), seed=settings.seed + TUNE_SEED_OFFSET)
     table = []
     for factor in grid:
         cand = replace(algorithm, alpha0=float(algorithm.alpha0 * factor))
-        table.append((cand.alpha0, tune_score(run(problem, network, cand, sampling, tune_settings))))
+        r = run(problem, network, cand, sampling, tune_settings, source=_source(source_factory, tune_settings))
+        table.append((cand.alpha0, tune_score(r)))
     best = min(range(len(table)), key=lambda i: (table[i][1], -table[i][0]))
     return replace(algorithm, alpha0=table[best][0]), table
 
 
-def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None):
-    """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table})."""
+def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None,
+            source_factory=None):
+    """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
+
+    ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.problems.scenarios.Scenario.source`);
+    each run gets a fresh one, so every algorithm sees the same samples and links.
+    """
     results, used, tables = {}, {}, {}
     for name in cs.algorithms:
         alg = configs[name]
         if cs.tune:
-            alg, tables[name] = tune(problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds)
+            alg, tables[name] = tune(problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds,
+                                     source_factory)
             if log is not None:
                 log(f"{name}: alpha0 = {alg.alpha0:g} (tuning scores " +
                     ", ".join(f"{a:g}: {s:.3g}" for a, s in tables[name]) + ")")
         used[name] = alg
         results[name] = run(problem, network, alg, sampling, cs.settings,
-                            progress=None if progress is None else (lambda n, name=name: progress(name, n)))
+                            progress=None if progress is None else (lambda n, name=name: progress(name, n)),
+                            source=_source(source_factory, cs.settings))
     return results, used, tables
 
 
