@@ -126,6 +126,11 @@ def test_cli_compare_writes_csv_summary_and_plots(tmp_path, capsys):
     assert summary["problem"] == "baird" and len(summary["w_star"]) == 8
     for name in ("compare.png", "consensus.png"):
         assert (out / name).stat().st_size > 10_000
+    agents = np.load(out / "agent_errors.npz")
+    assert agents["dgtd/last"].shape == (len(agents["dgtd/steps"]), 2, 5)
+    assert agents["td0/last"].shape[2] == 1  # one centralised estimate
+    worst = [float(r["value"]) for r in rows if r["algorithm"] == "dgtd" and r["metric"] == "error_last" and r["seed"] == "1"]
+    np.testing.assert_allclose(worst, agents["dgtd/last"][:, 1].max(axis=1))
 
 
 @pytest.mark.parametrize("args, message", [
@@ -138,3 +143,39 @@ def test_cli_compare_bad_input_is_one_line_and_exit_code_2(args, message, tmp_pa
                           capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and message in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _benchmark_module():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "benchmarks" / "time_to_accuracy.py"
+    spec = importlib.util.spec_from_file_location("time_to_accuracy", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_time_to_accuracy_counts_from_when_the_median_stays_below():
+    mod = _benchmark_module()
+    x = np.array([[10, 10], [20, 20], [30, 30], [40, 40]], dtype=float)
+    Y = np.array([[1.0, 1.0], [0.05, 0.05], [0.2, 0.05], [0.05, 0.01]])
+    assert mod.first_stay_below(x, Y, 0.1) == 40.0  # the median rises above 0.1 at 30: counted from 40
+    assert mod.first_stay_below(x, Y, 0.2) == 20.0
+    assert mod.first_stay_below(x, Y, 0.001) is None
+    Y_div = np.array([[1.0, 1.0], [0.05, np.nan], [0.05, np.nan], [0.05, np.nan]])
+    assert mod.first_stay_below(x, Y_div, 0.1) is None  # half the seeds diverged: no median
+
+
+def test_time_to_accuracy_script_writes_table_json_and_plot(tmp_path):
+    from pathlib import Path
+
+    script = Path(__file__).parents[1] / "benchmarks" / "time_to_accuracy.py"
+    proc = subprocess.run([sys.executable, str(script), "--tasks", "boyan", "--algorithms", "dgtd,td0", "--seeds", "1",
+                           "--iterations", "3000", "--out", str(tmp_path)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    table = (tmp_path / "time_to_accuracy.md").read_text()
+    assert "| boyan | dgtd |" in table and "| boyan | td0 |" in table and "Measured" in table
+    rows = json.loads((tmp_path / "time_to_accuracy.json").read_text())["rows"]
+    assert {r["algorithm"] for r in rows} == {"dgtd", "td0"}
+    assert (tmp_path / "time_to_accuracy.png").stat().st_size > 10_000

@@ -40,7 +40,9 @@ class Scenario:
     report: Callable[..., tuple] | None = None
     """Optional ``report(result, source, out, plots) -> (dict, text)`` after a run: scenario-specific numbers for
     summary.json (under "scenario"), figures written to ``out`` when ``plots``, and lines to print."""
-    baselines: dict = field(default_factory=dict)  # name -> settings of the baselines `dgtd compare` runs beside DGTD
+    compare_settings: dict = field(default_factory=dict)
+    """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario;
+    for "dgtd" they override ``algorithm``'s only in comparisons (`dgtd.run.compare.configs_for`)."""
 
 
 PAPER_EXAMPLE_1_P = np.array(
@@ -73,7 +75,7 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
         sampling=Sampling(mode="iid", shared=False),
         iterations=1_000_000,
         description="the paper's Example 1: 4-state chain, 5 agents on a ring with random link failures",
-        baselines=BENCHMARK_STEPS["paper-example-1"],
+        compare_settings=COMPARE_STEPS["paper-example-1"],
     )
 
 
@@ -102,39 +104,39 @@ def paper_example_2(edge_prob: float | None = None) -> Scenario:
     )
 
 
-def _task(problem: Problem, edge_prob: float, dgtd: DGTD, iterations: int, description: str, baselines: dict,
+def _task(problem: Problem, edge_prob: float, dgtd: DGTD, iterations: int, description: str, steps: dict,
           sampling: Sampling = Sampling(mode="iid", shared=False)) -> Scenario:
     """A benchmark task (`dgtd.problems.tasks`) on a ring whose links are each up with ``edge_prob``."""
     return Scenario(problem, random_edges(topologies.ring(problem.n_agents), edge_prob), dgtd, sampling, iterations,
-                    description, baselines=baselines)
+                    description, compare_settings=steps)
 
 
 def baird_scenario(edge_prob: float = 0.8) -> Scenario:
     """Baird's counterexample, off-policy, 5 agents; off-policy TD(0) diverges here."""
     return _task(tasks.baird(n_agents=5), edge_prob, DGTD(alpha0=0.1, beta=100.0), 100_000,
                  "Baird's counterexample (7 states, 8 features, off-policy), 5 agents on a ring with link failures",
-                 BENCHMARK_STEPS["baird"])
+                 COMPARE_STEPS["baird"])
 
 
 def boyan_scenario(edge_prob: float = 0.8) -> Scenario:
     """The Boyan chain of Dann et al. (2014) with restart, 10 agents."""
     return _task(tasks.boyan(n_agents=10), edge_prob, DGTD(alpha0=30.0, beta=100.0), 200_000,
                  "Boyan chain (14 states, 4 features, restart), 10 agents on a ring with link failures",
-                 BENCHMARK_STEPS["boyan"])
+                 COMPARE_STEPS["boyan"])
 
 
 def random_mdp_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
     """Dann et al.'s 400-state random MDP, on-policy, 10 agents."""
     return _task(tasks.random_mdp(n_agents=10, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0), 100_000,
                  "random MDP (400 states, 10 actions, 200 features), on-policy, 10 agents on a ring",
-                 BENCHMARK_STEPS["random-mdp"])
+                 COMPARE_STEPS["random-mdp"])
 
 
 def random_mdp_off_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
     """Dann et al.'s 400-state random MDP, off-policy (random behaviour policy), 10 agents."""
     return _task(tasks.random_mdp(n_agents=10, off_policy=True, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0),
                  100_000, "random MDP (400 states, 10 actions, 200 features), off-policy, 10 agents on a ring",
-                 BENCHMARK_STEPS["random-mdp-off"])
+                 COMPARE_STEPS["random-mdp-off"])
 
 
 def garnet_scenario(edge_prob: float = 0.8, n_states: int = 30, branching: int = 3, n_agents: int = 10,
@@ -143,18 +145,18 @@ def garnet_scenario(edge_prob: float = 0.8, n_states: int = 30, branching: int =
     return _task(tasks.garnet(n_states, branching, n_agents, n_features, seed=seed), edge_prob,
                  DGTD(alpha0=3.0, beta=100.0), 100_000,
                  f"Garnet chain ({n_states} states, {branching} successors, {n_features} features), {n_agents} agents",
-                 BENCHMARK_STEPS["garnet"])
+                 COMPARE_STEPS["garnet"])
 
 
-# Step sizes of the baselines on each task (alpha_k = alpha0 / sqrt(k + beta), beta as DGTD's): picked by
-# `dgtd compare TASK --tune` from the grid alpha0 x (1/10, 1/3, 1, 3, 10) on seeds separate from the reported ones.
-# The grid points 10^(k/2) are rounded (0.316 -> 0.3, 3.16 -> 3, 31.6 -> 30); DGTD's own alpha0 is set the same
-# way in each scenario above (except the paper's Example 1, which keeps the paper's alpha0 = 10). On Baird
-# every algorithm uses alpha0 = 0.1: the TD methods diverge or grow at every step size of the grid, and the
-# gradient methods all stall on the same slow direction (near-constant values, an eigenvalue ~2e-5 of
-# A^T M^+ A), so the grid says nothing; one common step size shows both behaviours.
-BENCHMARK_STEPS: dict[str, dict] = {
-    "paper-example-1": {"gtd2": {"alpha0": 1.0}, "tdc": {"alpha0": 1.0}, "td0": {"alpha0": 0.3},
+# Step sizes in comparisons (alpha_k = alpha0 / sqrt(k + beta), beta as DGTD's): for each task and algorithm
+# the best alpha0 of the grid 10^(k/2), k = -5..4, by `dgtd.run.compare.tune_score` on 2 seeds separate from
+# the reported ones, rounded (0.316 -> 0.3, 3.16 -> 3, 31.6 -> 30); DGTD's is its scenario's alpha0, except on
+# the paper's Example 1, whose scenario keeps the paper's alpha0 = 10 for `dgtd run`. On Baird every algorithm
+# uses alpha0 = 0.1: the TD methods diverge or grow at every step size of the grid, and the gradient methods
+# all stall on the same slow direction (near-constant values, an eigenvalue ~2e-5 of A^T M^+ A), so the grid
+# says nothing; one common step size shows both behaviours.
+COMPARE_STEPS: dict[str, dict] = {
+    "paper-example-1": {"dgtd": {"alpha0": 0.3}, "gtd2": {"alpha0": 1.0}, "tdc": {"alpha0": 1.0}, "td0": {"alpha0": 0.3},
                         "consensus-td0": {"alpha0": 0.3}, "pd-td": {"alpha0": 0.3}, "local": {"alpha0": 1.0}},
     "baird": {name: {"alpha0": 0.1} for name in ("gtd2", "tdc", "td0", "consensus-td0", "pd-td", "local")},
     "boyan": {"gtd2": {"alpha0": 30.0}, "tdc": {"alpha0": 30.0}, "td0": {"alpha0": 1.0},

@@ -51,15 +51,15 @@ class CompareSettings:
 
 def configs_for(scenario, names) -> dict:
     """Each algorithm's config on a scenario: DGTD's is the scenario's; a baseline takes the scenario's
-    step-size schedule and offset (beta) and its own alpha0 (and other settings) from ``scenario.baselines``."""
+    step-size schedule and offset (beta); then ``scenario.compare_settings[name]`` (its alpha0, ...) applies."""
     out = {}
     for name in names:
+        fields = scenario.compare_settings.get(name, {})
         if name == "dgtd":
-            out[name] = scenario.algorithm
+            out[name] = replace(scenario.algorithm, **fields)
         else:
-            fields = {"schedule": scenario.algorithm.schedule, "beta": scenario.algorithm.beta}
-            fields.update(scenario.baselines.get(name, {}))
-            out[name] = make_algorithm(name, **fields)
+            out[name] = make_algorithm(name, schedule=scenario.algorithm.schedule, beta=scenario.algorithm.beta,
+                                       **fields)
     return out
 
 
@@ -106,7 +106,7 @@ def compare(problem, network, sampling, configs: dict, cs: CompareSettings, prog
                                      source_factory)
             if log is not None:
                 log(f"{name}: alpha0 = {alg.alpha0:g} (tuning scores " +
-                    ", ".join(f"{a:g}: {s:.3g}" for a, s in tables[name]) + ")")
+                    ", ".join(f"{a:.3g}: {s:.3g}" for a, s in tables[name]) + ")")
         used[name] = alg
         results[name] = run(problem, network, alg, sampling, cs.settings,
                             progress=None if progress is None else (lambda n, name=name: progress(name, n)),
@@ -165,7 +165,21 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
     return out
 
 
+def agent_errors_npz(results: dict) -> bytes:
+    """Every agent's relative error at every checkpoint: arrays NAME/last and NAME/avg (checkpoints, seeds,
+    agents or 1), and NAME/steps."""
+    buf = io.BytesIO()
+    arrays = {}
+    for name, r in results.items():
+        arrays[f"{name}/steps"] = r.steps
+        arrays[f"{name}/last"] = r.agent_error_last
+        arrays[f"{name}/avg"] = r.agent_error_avg
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
+
+
 def write_compare(out, problem, network, results: dict, used: dict, tables: dict, spec: dict) -> None:
-    """metrics.csv then summary.json (last), each written atomically."""
+    """metrics.csv (worst agent per seed), agent_errors.npz (each agent), then summary.json (last); each atomic."""
     atomic_write(out / "metrics.csv", compare_csv(results))
+    atomic_write(out / "agent_errors.npz", agent_errors_npz(results))
     atomic_write_json(out / "summary.json", summary(problem, network, results, used, tables, spec))
