@@ -175,6 +175,53 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 
 @cli.command()
+@click.argument("experiment", type=click.Path(dir_okay=False))
+@click.option("--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file).")
+@click.option("--executor", type=click.Choice(["process", "ray"]), default="process", show_default=True,
+              help="A pool of local processes, or Ray (pip install 'dgtd[ray]').")
+@click.option("--address", type=str, default=None,
+              help="Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1.")
+@click.option("--workers", type=int, default=None, help="Jobs at once (default: the local cores / the local Ray's CPUs).")
+@click.option("--resume/--no-resume", default=None,
+              help="Skip jobs already finished in OUT (default: on when OUT exists).")
+@click.option("--format", "format", type=click.Choice(["auto", "parquet", "csv"]), default="auto", show_default=True,
+              help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.")
+@click.option("--progress/--no-progress", default=True, show_default=True)
+@click.pass_context
+def sweep(ctx, experiment, **_):
+    """Run every point of EXPERIMENT.toml's [grid] as a job; one long table and per-job summaries in OUT.
+
+    Rerunning skips finished jobs, so an interrupted sweep is continued by running the same command.
+    """
+    from dgtd.experiments import experiment_from
+    from dgtd.sweep import default_out, run_sweep
+
+    flags = given_flags(ctx, exclude=("experiment",))
+    if "resume" in flags:
+        flags["sweep.resume"] = flags.pop("resume")
+    exp = experiment_from(experiment, flags)
+    out = Path(exp.output.out) if exp.output.out else default_out(experiment)
+    report = run_sweep(exp, out, echo=click.echo, progress=exp.output.progress)
+    click.echo(f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed"
+               + (f"; table: {report['table']}" if report["table"] else ""))
+    if report["failed"]:
+        for job, message in report["failed"].items():
+            click.echo(f"dgtd: job {job} failed: {message}", err=True)
+        click.echo("dgtd: run the same command again to retry the failed jobs", err=True)
+        sys.exit(1)
+
+
+@cli.command()
+@click.argument("directory", type=click.Path(file_okay=False, exists=True))
+def plot(directory):
+    """Draw the figures of a results DIRECTORY (of `dgtd run` or `dgtd sweep`) from its saved files alone."""
+    from dgtd.plot_results import plot_directory
+
+    for path in plot_directory(Path(directory)):
+        click.echo(f"wrote {path}")
+
+
+@cli.command()
 def scenarios():
     """List the named scenarios."""
     from dgtd.problems.scenarios import SCENARIOS, get_scenario

@@ -166,10 +166,13 @@ def load(path: str | Path) -> Experiment:
 
 
 def override(exp: Experiment, values: dict) -> Experiment:
-    """``exp`` with the given fields replaced (command-line flags), each routed to the spec, output or sweep."""
+    """``exp`` with the given fields replaced (command-line flags), each routed to the spec, output or sweep
+    options; 'sweep.NAME' names a sweep option whose name a run option also has (resume)."""
     parts = {"spec": {}, "output": {}, "sweep": {}}
     for key, value in values.items():
-        if key in SPEC_TYPES:
+        if key.startswith("sweep.") and key[6:] in SWEEP_TYPES:  # e.g. sweep.resume, not the run's resume
+            parts["sweep"][key[6:]] = value
+        elif key in SPEC_TYPES:
             parts["spec"][key] = value
         elif key in OUTPUT_TYPES:
             parts["output"][key] = value
