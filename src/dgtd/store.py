@@ -130,6 +130,20 @@ class SweepStore:
         return self.table_path
 
 
+def _cell(text: str):
+    """A grid value read back from CSV: None, bool, int, float or the string itself."""
+    if text == "":
+        return None
+    if text in ("True", "False"):
+        return text == "True"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def read_table(path: Path) -> dict:
     """A sweep table (Parquet or CSV) as columns {name: list or array}."""
     path = Path(path)
@@ -141,6 +155,9 @@ def read_table(path: Path) -> dict:
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
     cols = {name: [r[i] for r in rows[1:]] for i, name in enumerate(rows[0])}
+    for k in cols:
+        if k not in ("job", "algorithm", "metric", *METRIC_COLUMNS):
+            cols[k] = [_cell(x) for x in cols[k]]
     for k in ("seed", "step"):
         cols[k] = np.asarray(cols[k], dtype=np.int64)
     cols["value"] = np.asarray(cols["value"], dtype=np.float64)

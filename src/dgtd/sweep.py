@@ -154,7 +154,7 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
     bar = tqdm(total=len(todo), unit="job", file=sys.stderr, disable=not progress, smoothing=0.1)
     try:
         if todo:
-            _run_jobs(exp, todo, store, failed, bar)
+            _run_jobs(exp, todo, store, failed, bar, echo)
     finally:
         bar.close()
         table = store.write_table([(j.id, j.point) for j in jobs])
@@ -170,12 +170,13 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
             "table": table}
 
 
-def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict, bar) -> None:
+def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict, bar, echo) -> None:
     """Submit jobs until each is finished or failed; a broken process pool is replaced (Ray retries itself)."""
     pending = {j.id: j for j in todo}
     attempts = dict.fromkeys(pending, 0)
     while pending:
         executor = make_executor(exp, len(pending))
+        broken = False
         try:
             futures = {executor.submit(run_job, asdict(j.spec), 1): j for j in pending.values()}
             for future in as_completed(futures):
@@ -183,6 +184,7 @@ def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict,
                 try:
                     result = future.result()
                 except BrokenProcessPool:
+                    broken = True
                     attempts[job.id] += 1
                     if attempts[job.id] < MAX_ATTEMPTS:
                         continue  # resubmitted on a fresh pool
@@ -201,3 +203,6 @@ def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict,
                 bar.update()
         finally:
             executor.shutdown(wait=False, cancel_futures=True)
+        if broken and pending:
+            bar.clear()
+            echo(f"a worker process died; {len(pending)} unfinished job(s) go to a fresh pool")
