@@ -218,3 +218,16 @@ def test_killed_pool_worker_is_replaced(tmp_path, reference):
     assert "0 failed" in stdout and "a worker process died" in stdout
     assert_store_intact(out, 12)
     assert_same_table(table_of(out), table_of(reference))
+
+
+def test_ray_executor_without_ray_is_one_line(tmp_path, monkeypatch, run_cli):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
+    code, _, err = run_cli("sweep", sweep_file(tmp_path), "--out", tmp_path / "o", "--executor", "ray")
+    assert code == 2 and err.count("\n") == 1 and "pip install 'dgtd[ray]'" in err, err
+
+
+def test_address_needs_the_ray_executor(tmp_path, run_cli):
+    code, _, err = run_cli("sweep", sweep_file(tmp_path), "--out", tmp_path / "o", "--address", "auto")
+    assert code == 2 and "executor = 'ray'" in err, err

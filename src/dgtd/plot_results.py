@@ -66,10 +66,13 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
     """Each job's median curve over seeds with its min-max band, one panel per metric."""
     fig, axes = plt.subplots(1, len(CURVES), figsize=(13, 3.8))
     colors = plt.cm.viridis(np.linspace(0, 0.95, max(len(jobs), 1)))
+    # log axes need values > 0: floor at 1e-12 of the panel's largest value (consensus is exactly 0 at k = 1)
+    floor = {name: 1e-12 * max([float(np.nanmax(ms[name])) for _, ms in jobs.values() if name in ms] + [1e-300])
+             for name, _ in CURVES}
     for (job, (steps, ms)), color in zip(jobs.items(), colors, strict=True):
         for ax, (name, _) in zip(axes, CURVES, strict=True):
             if name in ms:
-                band(ax, steps, np.maximum(ms[name], 1e-300), _label(points[job]), color=color)
+                band(ax, steps, np.maximum(ms[name], floor[name]), _label(points[job]), color=color)
     for ax, (_, title) in zip(axes, CURVES, strict=True):
         ax.set_xscale("log")
         ax.set_yscale("log")
