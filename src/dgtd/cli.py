@@ -202,8 +202,8 @@ def sweep(ctx, experiment, **_):
     exp = experiment_from(experiment, flags)
     out = Path(exp.output.out) if exp.output.out else default_out(experiment)
     report = run_sweep(exp, out, echo=click.echo, progress=exp.output.progress)
-    click.echo(f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed"
-               + (f"; table: {report['table']}" if report["table"] else ""))
+    click.echo(f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed "
+               f"in {report['seconds']:.1f} s" + (f"; table: {report['table']}" if report["table"] else ""))
     if report["failed"]:
         for job, message in report["failed"].items():
             click.echo(f"dgtd: job {job} failed: {message}", err=True)

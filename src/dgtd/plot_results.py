@@ -88,41 +88,56 @@ def _numeric(values) -> bool:
     return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
 
 
+def _heat_maps(final: dict, points: dict, kx: str, ky: str, panels: dict, metric: str, k_end: int, path: Path) -> None:
+    """One heat map of the median final ``metric`` over (kx, ky) per value of the other swept parameters."""
+    from matplotlib.colors import LogNorm
+
+    xs = sorted({points[j][kx] for j in final})
+    ys = sorted({points[j][ky] for j in final})
+    grids = []
+    for members in panels.values():
+        Z = np.full((len(ys), len(xs)), np.nan)
+        for j in members:
+            Z[ys.index(points[j][ky]), xs.index(points[j][kx])] = np.median(final[j])
+        grids.append(Z)
+    positive = np.concatenate([Z[np.isfinite(Z) & (Z > 0)] for Z in grids])
+    norm = LogNorm(positive.min(), positive.max()) if positive.size and positive.min() < positive.max() else None
+    fig, axes = plt.subplots(1, len(grids), figsize=(len(grids) * (1.1 * len(xs) + 1.5) + 1.5, 0.7 * len(ys) + 2),
+                             squeeze=False)
+    for ax, Z, group in zip(axes[0], grids, panels, strict=True):
+        im = ax.imshow(Z, origin="lower", cmap="viridis", norm=norm, aspect="auto")
+        for (iy, ix), z in np.ndenumerate(Z):
+            if np.isfinite(z):
+                ax.text(ix, iy, f"{z:.2g}", ha="center", va="center", color="w", fontsize=7)
+        ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
+        ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+        ax.set_xlabel(kx)
+        ax.set_ylabel(ky)
+        ax.set_title(_label(dict(group)) or f"k = {k_end:,}", fontsize=9)
+    fig.colorbar(im, ax=axes[0].tolist(), label=f"final {metric} at k = {k_end:,} (median over seeds)")
+    _save(fig, path)
+
+
 def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metric: str = "error_avg") -> bool:
     """Final ``metric`` (median over seeds, min-max band) against the swept parameters that vary.
 
-    Two numeric parameters and nothing else varying: a heat map; otherwise a line plot over the first
-    numeric parameter (or the categories of the first one) with one line per value of the others.
+    Two numeric parameters or more: heat maps over the first two, one per value of the others (up to six);
+    otherwise a line plot over the numeric parameter (or the categories of the first one), one line per
+    value of the others.
     """
     final = {j: ms[metric][-1] for j, (_, ms) in jobs.items() if metric in ms}
     if not final:
         return False
     varying = [k for k in keys if len({repr(points[j].get(k)) for j in final}) > 1]
     numeric = [k for k in varying if _numeric([points[j][k] for j in final if points[j].get(k) is not None])]
-    if len(varying) == 2 and len(numeric) == 2:
-        kx, ky = numeric
-        xs = sorted({points[j][kx] for j in final})
-        ys = sorted({points[j][ky] for j in final})
-        Z = np.full((len(ys), len(xs)), np.nan)
-        for j, v in final.items():
-            Z[ys.index(points[j][ky]), xs.index(points[j][kx])] = np.median(v)
-        fig, ax = plt.subplots(figsize=(1.2 * len(xs) + 3, 0.8 * len(ys) + 2))
-        from matplotlib.colors import LogNorm
-
-        positive = Z[np.isfinite(Z) & (Z > 0)]
-        norm = LogNorm(positive.min(), positive.max()) if positive.size and positive.min() < positive.max() else None
-        im = ax.imshow(Z, origin="lower", cmap="viridis", norm=norm, aspect="auto")
-        for (iy, ix), z in np.ndenumerate(Z):
-            if np.isfinite(z):
-                ax.text(ix, iy, f"{z:.3g}", ha="center", va="center", color="w", fontsize=8)
-        ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
-        ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
-        ax.set_xlabel(kx)
-        ax.set_ylabel(ky)
-        fig.colorbar(im, ax=ax, label=f"final {metric} (median over seeds)")
-        ax.set_title(f"final {metric} at k = {max(int(s[-1]) for s, _ in jobs.values()):,}")
-        _save(fig, path)
-        return True
+    if len(numeric) >= 2:
+        kx, ky = numeric[:2]
+        panels: dict = {}
+        for j in final:
+            panels.setdefault(tuple((k, points[j].get(k)) for k in varying if k not in (kx, ky)), []).append(j)
+        if len(panels) <= 6:
+            _heat_maps(final, points, kx, ky, panels, metric, max(int(s[-1]) for s, _ in jobs.values()), path)
+            return True
     kx = numeric[0] if numeric else (varying[0] if varying else None)
     others = [k for k in varying if k != kx]
     groups: dict = {}

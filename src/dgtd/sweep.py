@@ -135,9 +135,15 @@ def default_out(file: str | None) -> Path:
 
 
 def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> dict:
-    """Run the jobs of ``exp`` not yet finished in ``out``; returns {'jobs', 'skipped', 'ran', 'failed', 'table'}."""
+    """Run the jobs of ``exp`` not yet finished in ``out``.
+
+    Returns {'jobs', 'skipped', 'ran', 'failed' {id: message}, 'table' (path or None), 'seconds'}.
+    """
+    import time
+
     from tqdm import tqdm
 
+    t_start = time.perf_counter()
     if not exp.grid:
         raise DgtdInputError("a sweep needs a [grid] table of lists, e.g. [grid] alpha0 = [1.0, 10.0]; "
                              "use `dgtd run` for a single run")
@@ -167,7 +173,7 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
             "jobs": [{"job": j.id, "point": j.point, "status": status(j)} for j in jobs],
         })
     return {"jobs": len(jobs), "skipped": len(jobs) - len(todo), "ran": len(todo) - len(failed), "failed": failed,
-            "table": table}
+            "table": table, "seconds": time.perf_counter() - t_start}
 
 
 def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict, bar, echo) -> None:
