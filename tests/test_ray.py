@@ -88,6 +88,7 @@ def _ray_task_workers() -> list[int]:
     return found
 
 
+@pytest.mark.slow  # a full sweep twice over, with a kill in between
 def test_killed_ray_worker_job_is_retried(tmp_path, reference):
     """SIGKILL one Ray worker while it runs a job: Ray reruns the job, and the table is the same."""
     out = tmp_path / "out"

@@ -172,6 +172,7 @@ def _wait_for(condition, timeout=120.0):
         time.sleep(0.05)
 
 
+@pytest.mark.slow  # a full sweep twice over, with a kill in between
 def test_killed_sweep_reruns_to_the_same_table(tmp_path, reference):
     """SIGKILL the sweep (driver and workers) after a few jobs; the rerun finishes the rest, once each."""
     out = tmp_path / "out"
