@@ -121,3 +121,17 @@ def test_config_toml_reproduces_the_run(tmp_path, run_cli):
                              "--no-plots", "--no-progress", "--out", tmp_path / "c")
     assert code == 0, err
     assert (tmp_path / "a" / "metrics.csv").read_bytes() == (tmp_path / "c" / "metrics.csv").read_bytes()
+
+
+def test_every_command_line_option_is_a_field():
+    """So that an experiment file can say anything the command line can."""
+    from dgtd.cli import cli
+    from dgtd.experiments import OUTPUT_TYPES, SPEC_TYPES, SWEEP_TYPES
+
+    renamed = {"resume_dir": "resume"}
+    for command, positional in (("run", "scenario"), ("sweep", "experiment")):
+        options = [p.name for p in cli.commands[command].params if p.name != positional]
+        assert options
+        for name in options:
+            name = renamed.get(name, name)
+            assert name in SPEC_TYPES or name in OUTPUT_TYPES or name in SWEEP_TYPES, f"dgtd {command} --{name}"

@@ -232,3 +232,14 @@ def test_ray_executor_without_ray_is_one_line(tmp_path, monkeypatch, run_cli):
 def test_address_needs_the_ray_executor(tmp_path, run_cli):
     code, _, err = run_cli("sweep", sweep_file(tmp_path), "--out", tmp_path / "o", "--address", "auto")
     assert code == 2 and "executor = 'ray'" in err, err
+
+
+def test_a_sweep_over_algorithm_names_from_the_registry(tmp_path):
+    import dgtd.algorithms
+
+    exp = parse({"scenario": "paper-example-1", "iterations": 1000, "backend": "numpy", "progress": False,
+                 "grid": {"algorithm": list(dgtd.algorithms.ALGORITHMS), "kappa": [0.0, 1.0]}, "sweep": {"workers": 1}})
+    report = run_sweep(exp, tmp_path / "o", echo=lambda s: None, progress=False)
+    assert report["ran"] == len(expand(exp)) >= 2 and not report["failed"]  # kappa = 0, 1 for dgtd at least
+    table = table_of(tmp_path / "o")
+    assert set(table["algorithm"]) == set(dgtd.algorithms.ALGORITHMS)

@@ -202,7 +202,9 @@ def _drop_none(d: dict) -> dict:
 
 def to_data(exp: Experiment, *, output: bool = True, sweep: bool = True) -> dict:
     """The experiment as TOML-ready data (None fields left out: TOML has no null)."""
-    data = _drop_none({f.name: getattr(exp.spec, f.name) for f in fields(RunSpec)})
+    first = ["scenario", "problem_file", "algorithm"]  # what is run, then how
+    names = first + [f.name for f in fields(RunSpec) if f.name not in first]
+    data = _drop_none({name: getattr(exp.spec, name) for name in names})
     if output:
         data.update(_drop_none({k: v for k, v in vars(exp.output).items() if k != "resume" or v}))
     if exp.grid:
