@@ -135,3 +135,23 @@ def test_every_command_line_option_is_a_field():
         for name in options:
             name = renamed.get(name, name)
             assert name in SPEC_TYPES or name in OUTPUT_TYPES or name in SWEEP_TYPES, f"dgtd {command} --{name}"
+
+
+def test_problem_files_are_recorded_with_absolute_paths(tmp_path, monkeypatch, run_cli):
+    from dgtd.problems.io import save_problem
+    from dgtd.problems.scenarios import get_scenario
+
+    monkeypatch.chdir(tmp_path)
+    save_problem("chain.npz", get_scenario("paper-example-1").problem)
+    (tmp_path / "edges.txt").write_text("0 1\n1 2\n2 3\n3 4\n")
+    write(tmp_path, 'problem_file = "chain.npz"\ngraph = "edges.txt"\niterations = 500\nbackend = "numpy"\n'
+                    'plots = false\nprogress = false\nout = "o"\n')
+    code, out, err = run_cli("run", "exp.toml")
+    assert code == 0, err
+    saved = tomllib.loads((tmp_path / "o" / "config.toml").read_text())
+    assert saved["problem_file"] == str(tmp_path / "chain.npz") and saved["graph"] == str(tmp_path / "edges.txt")
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert len(summary["config"]["problem_sha256"]) == 64
+    write(tmp_path, 'problem_file = "chain.npz"\n[params]\nsize = 3\n', "bad.toml")
+    code, _, err = run_cli("run", "bad.toml")
+    assert code == 2 and "params are a scenario's parameters" in err

@@ -39,7 +39,7 @@ def given_flags(ctx: click.Context, exclude=()) -> dict:
 
 
 def _is_experiment_file(arg: str | None) -> bool:
-    return arg is not None and (arg.endswith(".toml") or Path(arg).is_file())
+    return arg is not None and arg.endswith(".toml")
 
 
 @cli.command()

@@ -78,11 +78,10 @@ def expand(exp: Experiment) -> list[Job]:
     Grid points that resolve to the same run (kappa for an algorithm without kappa) are one job.
     """
     keys = grid_keys(exp.grid)
-    base = absolute_paths(exp.spec)
     jobs, seen = [], set()
     for values in itertools.product(*(v for _, v in keys)):
         point = dict(zip((k for k, _ in keys), values, strict=True))
-        spec = apply_point(base, point)
+        spec = absolute_paths(apply_point(exp.spec, point))
         try:
             *_, resolved = resolve(spec)
         except DgtdInputError as e:
