@@ -42,26 +42,35 @@ def _is_experiment_file(arg: str | None) -> bool:
     return arg is not None and arg.endswith(".toml")
 
 
+def _spec_options(f):
+    """Options that set run-spec fields; `dgtd run` and `dgtd sweep` share them (a sweep's base run)."""
+    options = [
+        click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
+        click.option("--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."),
+        click.option("--seeds", type=int, default=1, show_default=True, help="Independent runs, side by side."),
+        click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))."),
+        click.option("--alpha0", type=float, default=None, help="Step-size scale alpha0."),
+        click.option("--beta", type=float, default=None, help="Step-size offset beta in alpha0/sqrt(k+beta)."),
+        click.option("--schedule", type=click.Choice(["sqrt", "harmonic", "constant"]), default=None,
+                     help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0."),
+        click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."),
+        click.option("--shared/--independent", default=None,
+                     help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2)."),
+        click.option("--reward-noise", type=click.Choice(["none", "bernoulli", "uniform"]), default=None,
+                     help="Random rewards in [0, sigma] with the model's mean (default: deterministic)."),
+        click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True),
+        click.option("--checkpoints", type=int, default=200, show_default=True, help="How many times to record metrics."),
+        click.option("--tail-fraction", type=float, default=0.5, show_default=True, help="Final fraction of the run averaged for w_tail."),
+        click.option("--block-size", type=int, default=4096, show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
+    ]
+    for option in reversed(options):
+        f = option(f)
+    return _problem_options(f)
+
+
 @cli.command()
 @click.argument("scenario", required=False, metavar="SCENARIO|EXPERIMENT.toml")
-@_problem_options
-@click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd).")
-@click.option("--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's).")
-@click.option("--seeds", type=int, default=1, show_default=True, help="Independent runs, side by side.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).")
-@click.option("--alpha0", type=float, default=None, help="Step-size scale alpha0.")
-@click.option("--beta", type=float, default=None, help="Step-size offset beta in alpha0/sqrt(k+beta).")
-@click.option("--schedule", type=click.Choice(["sqrt", "harmonic", "constant"]), default=None,
-              help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.")
-@click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories.")
-@click.option("--shared/--independent", default=None,
-              help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).")
-@click.option("--reward-noise", type=click.Choice(["none", "bernoulli", "uniform"]), default=None,
-              help="Random rewards in [0, sigma] with the model's mean (default: deterministic).")
-@click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True)
-@click.option("--checkpoints", type=int, default=200, show_default=True, help="How many times to record metrics.")
-@click.option("--tail-fraction", type=float, default=0.5, show_default=True, help="Final fraction of the run averaged for w_tail.")
-@click.option("--block-size", type=int, default=4096, show_default=True, help="Steps drawn and advanced per block (no effect on results).")
+@_spec_options
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @click.option("--plots/--no-plots", default=True, show_default=True)
@@ -176,6 +185,7 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 @cli.command()
 @click.argument("experiment", type=click.Path(dir_okay=False))
+@_spec_options
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file).")
 @click.option("--executor", type=click.Choice(["process", "ray"]), default="process", show_default=True,
               help="A pool of local processes, or Ray (pip install 'dgtd[ray]').")
@@ -191,7 +201,8 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 def sweep(ctx, experiment, **_):
     """Run every point of EXPERIMENT.toml's [grid] as a job; one long table and per-job summaries in OUT.
 
-    Rerunning skips finished jobs, so an interrupted sweep is continued by running the same command.
+    Run options given as flags set the base run of every job (grid values win). Rerunning skips finished
+    jobs, so an interrupted sweep is continued by running the same command.
     """
     from dgtd.experiments import experiment_from
     from dgtd.sweep import default_out, run_sweep
