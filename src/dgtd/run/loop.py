@@ -128,18 +128,23 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
 
 
 def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = Sampling(),
-        settings: RunSettings = RunSettings(), progress=None, source=None) -> RunResult:
+        settings: RunSettings = RunSettings(), progress=None, source=None, *, checkpoint_every: int = 0,
+        on_checkpoint=None, resume: dict | None = None) -> RunResult:
     """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
 
     ``source`` supplies the samples (default: a `ModelSource` drawing from the problem's model); a simulator
     with hidden state or position-dependent networks passes its own.
+
+    With ``checkpoint_every`` = K > 0, ``on_checkpoint(snapshot)`` is called at every multiple of K below T with
+    the loop's whole state (`snapshot`: step, checkpoint index, algorithm state, running sums, metrics so far,
+    the source's stream state). Passing a snapshot as ``resume`` continues from it; the samples are a
+    function of the step only, so the result equals that of an uninterrupted run bit for bit.
     """
     t_start = time.perf_counter()
     ctx, moments, L_mean, saddle, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
-    source.start()
     kernel = _kernel(settings.backend, algorithm.name)
     state = algorithm.init(B, N, q)
     sums = {"all": np.zeros((B, N, q)), "tail": np.zeros((B, N, q))}
@@ -150,10 +155,21 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     err_last, err_avg = np.zeros((C, B, N)), np.zeros((C, B, N))
     keep_trace = B * N * q * C <= 2_000_000
     w_trace = np.zeros((C, B, N, q)) if keep_trace else None
-    k, c = 0, 0
+    k, c, seconds_before = 0, 0, 0.0
+    if resume is None:
+        source.start()
+    else:
+        k, c, seconds_before = int(resume["k"]), int(resume["c"]), float(resume["seconds"])
+        state = state._make(np.array(resume["state"][f]) for f in state._fields)
+        sums = {name: np.array(v) for name, v in resume["sums"].items()}
+        metrics = {name: np.array(v) for name, v in resume["metrics"].items()}
+        err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
+        w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
+        source.set_state(resume["source"])
+    every = int(checkpoint_every)
     block = block_steps(settings.block_size, N, network.n_edges, B)
     while k < T:
-        k1 = min(k + block, int(steps[c]))
+        k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
         blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         state, sums = kernel(ctx, state, sums, k, alphas, blk)
@@ -167,9 +183,12 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
             metrics["consensus"][c] = exact.consensus_error(w)
             metrics["mspbe_last"][c] = exact.mspbe(moments, w).max(-1)
             metrics["mspbe_avg"][c] = exact.mspbe(moments, w_avg).max(-1)
-            if keep_trace:
+            if w_trace is not None:
                 w_trace[c] = w
             c += 1
+        if every and k % every == 0 and k < T and on_checkpoint is not None:
+            on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
+                                   seconds_before + time.perf_counter() - t_start))
     final = state._asdict()
     kkt = {}
     if isinstance(state, dgtd_alg.DGTDState):
@@ -180,7 +199,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
         w_last=algorithm.estimate(state), w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
-        seconds=time.perf_counter() - t_start,
+        seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star))},
     )
 
@@ -190,6 +209,19 @@ def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budg
     numbers (tens of MB), whatever N and |E|. Results do not depend on it."""
     per_step = n_seeds * (4 * n_agents + n_edges)
     return int(max(1, min(int(block_size), budget // max(per_step, 1))))
+
+
+def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_state, seconds) -> dict:
+    """The loop's whole state after step k, as copies: what `run` needs to continue (its ``resume``)."""
+    return {
+        "k": int(k), "c": int(c), "seconds": float(seconds),
+        "state": {f: np.array(x) for f, x in state._asdict().items()},
+        "sums": {name: v.copy() for name, v in sums.items()},
+        "metrics": {name: v.copy() for name, v in metrics.items()},
+        "agent_error_last": err_last.copy(), "agent_error_avg": err_avg.copy(),
+        "w_trace": None if w_trace is None else w_trace.copy(),
+        "source": source_state,
+    }
 
 
 def _kernel(backend: str, algorithm: str):
