@@ -63,8 +63,8 @@ def task_rows(task: str, algorithms, seeds: int, iterations: int | None, tune: b
                "seconds": r.seconds}
         for th in THRESHOLDS:
             key = f"{th:.0%}"
-            row[f"samples_to_{key}"] = first_stay_below(r.metrics["samples"], err, th)
-            row[f"messages_to_{key}"] = first_stay_below(r.metrics["messages"], err, th)
+            row[f"samples_to_{key}"] = first_stay_below(r.info["counts"]["samples"], err, th)
+            row[f"messages_to_{key}"] = first_stay_below(r.info["counts"]["messages"], err, th)
         rows.append(row)
         print(f"{task:<16}{name:<15}" + "".join(f"{_fmt(row, f'samples_to_{th:.0%}'):>22}" for th in THRESHOLDS), flush=True)
     print(f"{task}: {wall:.1f} s for {len(results)} algorithms x {seeds} seeds x {T:,} iterations", flush=True)

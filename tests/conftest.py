@@ -1,7 +1,51 @@
+"""Shared helpers: running the CLI in this process or as a subprocess of this checkout's code."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from dgtd.problems.generators import random_mdp_problem, random_problem
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def cli_env(**extra) -> dict:
+    """Environment for a `python -m dgtd.cli` subprocess that imports this checkout's dgtd."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(SRC), *filter(None, [env.get("PYTHONPATH")])])
+    env.update(extra)
+    return env
+
+
+def dgtd_cmd(*args) -> list[str]:
+    return [sys.executable, "-m", "dgtd.cli", *map(str, args)]
+
+
+@pytest.fixture
+def run_cli(capsys):
+    """Run `dgtd ARGS` in-process; returns (exit code, stdout, stderr)."""
+    from dgtd.cli import main
+
+    def call(*args):
+        try:
+            main([str(a) for a in args])
+            code = 0
+        except SystemExit as e:
+            code = e.code or 0
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    return call
+
+
+def run_subprocess(*args, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run(dgtd_cmd(*args), env=cli_env(), capture_output=True, text=True, **kw)
 
 
 @pytest.fixture

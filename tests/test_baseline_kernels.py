@@ -49,6 +49,8 @@ def test_numba_matches_numpy(name, off_policy, edge_prob, mode, shared):
     assert_allclose(b.w_tail, a.w_tail, rtol=1e-9, atol=1e-9 * scale)
     for key in a.metrics:
         assert_allclose(b.metrics[key], a.metrics[key], rtol=1e-9, atol=1e-12)
+    for key in a.info["counts"]:
+        assert_allclose(b.info["counts"][key], a.info["counts"][key], rtol=0, atol=0)
     assert np.abs(a.w_last).max() > 0  # the runs moved
 
 

@@ -32,11 +32,11 @@ def test_on_baird_td0_diverges_and_dgtd_and_gtd2_do_not():
     assert np.min(np.linalg.eigvals(exact.Moments(sc.problem).A).real) < -0.2
     assert np.all(res["td0"].info["diverged_at"] > 0)
     assert np.all(np.isnan(res["td0"].metrics["error_last"][-1]))
-    assert np.all(res["td0"].metrics["diverged"][-1] == 1)
+    assert np.all(res["td0"].info["counts"]["diverged"][-1] == 1)
     start = exact.relative_error(sc.problem.w0, res["gtd2"].w_star)
     for name in ("gtd2", "dgtd"):
         r = res[name]
-        assert np.all(r.info["diverged_at"] < 0) and np.all(r.metrics["diverged"] == 0)
+        assert np.all(r.info["diverged_at"] < 0) and np.all(r.info["counts"]["diverged"] == 0)
         assert np.all(np.isfinite(r.w_last))
         assert r.metrics["error_last"][-1].max() < 0.5 * start
 
@@ -81,13 +81,13 @@ def test_samples_and_messages_are_counted():
     fixed = random_edges(topologies.ring(4), 1.0)
     for name, k in (("dgtd", 3), ("consensus-td0", 1), ("pd-td", 2), ("gtd2", 0), ("local", 0)):
         r = run(p4, fixed, make_algorithm(name), Sampling(), st)
-        assert np.all(r.metrics["messages"][-1] == T * 4 * 2 * k)
-        assert np.all(r.metrics["samples"][:, 0] == 4 * r.steps)
+        assert np.all(r.info["counts"]["messages"][-1] == T * 4 * 2 * k)
+        assert np.all(r.info["counts"]["samples"][:, 0] == 4 * r.steps)
     r = run(p, random_edges(topologies.ring(5), 0.5), make_algorithm("dgtd"), Sampling(), st)
-    links = r.metrics["messages"][-1] / 6
+    links = r.info["counts"]["messages"][-1] / 6
     assert np.all(links == np.round(links))
     assert np.all(np.abs(links - 0.5 * 5 * T) < 5 * np.sqrt(0.25 * 5 * T))  # 5 standard deviations
-    assert np.all(np.diff(r.metrics["messages"], axis=0) >= 0)
+    assert np.all(np.diff(r.info["counts"]["messages"], axis=0) >= 0)
 
 
 def test_compare_uses_the_same_samples_for_every_algorithm():

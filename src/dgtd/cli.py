@@ -30,70 +30,106 @@ def cli():
     """dgtd: distributed policy evaluation with the primal-dual distributed GTD method (Algorithm 1)."""
 
 
+def given_flags(ctx: click.Context, exclude=()) -> dict:
+    """The options typed on the command line (not defaults): they override an experiment file's fields."""
+    from click.core import ParameterSource
+
+    return {name: value for name, value in ctx.params.items()
+            if name not in exclude and ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)}
+
+
+def _is_experiment_file(arg: str | None) -> bool:
+    return arg is not None and arg.endswith(".toml")
+
+
+def _spec_options(f):
+    """Options that set run-spec fields; `dgtd run` and `dgtd sweep` share them (a sweep's base run)."""
+    options = [
+        click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
+        click.option("--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."),
+        click.option("--seeds", type=int, default=1, show_default=True, help="Independent runs, side by side."),
+        click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))."),
+        click.option("--alpha0", type=float, default=None, help="Step-size scale alpha0."),
+        click.option("--beta", type=float, default=None, help="Step-size offset beta in alpha0/sqrt(k+beta)."),
+        click.option("--schedule", type=click.Choice(["sqrt", "harmonic", "constant"]), default=None,
+                     help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0."),
+        click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."),
+        click.option("--shared/--independent", default=None,
+                     help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2)."),
+        click.option("--reward-noise", type=click.Choice(["none", "bernoulli", "uniform"]), default=None,
+                     help="Random rewards in [0, sigma] with the model's mean (default: deterministic)."),
+        click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True),
+        click.option("--checkpoints", type=int, default=200, show_default=True, help="How many times to record metrics."),
+        click.option("--tail-fraction", type=float, default=0.5, show_default=True, help="Final fraction of the run averaged for w_tail."),
+        click.option("--block-size", type=int, default=4096, show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
+    ]
+    for option in reversed(options):
+        f = option(f)
+    return _problem_options(f)
+
+
 @cli.command()
-@click.argument("scenario", required=False)
-@_problem_options
-@click.option("--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's).")
-@click.option("--seeds", type=int, default=1, show_default=True, help="Independent runs, side by side.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).")
-@click.option("--alpha0", type=float, default=None, help="Step-size scale alpha0.")
-@click.option("--beta", type=float, default=None, help="Step-size offset beta in alpha0/sqrt(k+beta).")
-@click.option("--schedule", type=click.Choice(["sqrt", "harmonic", "constant"]), default=None,
-              help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.")
-@click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories.")
-@click.option("--shared/--independent", default=None,
-              help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).")
-@click.option("--reward-noise", type=click.Choice(["none", "bernoulli", "uniform"]), default=None,
-              help="Random rewards in [0, sigma] with the model's mean (default: deterministic).")
-@click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True)
-@click.option("--checkpoints", type=int, default=200, show_default=True, help="How many times to record metrics.")
-@click.option("--tail-fraction", type=float, default=0.5, show_default=True, help="Final fraction of the run averaged for w_tail.")
+@click.argument("scenario", required=False, metavar="SCENARIO|EXPERIMENT.toml")
+@_spec_options
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @click.option("--plots/--no-plots", default=True, show_default=True)
-def run(scenario, problem_file, graph, edge_prob, kappa, rho, iterations, seeds, seed, alpha0, beta, schedule,
-        sampling, shared, reward_noise, backend, checkpoints, tail_fraction, out, progress, plots):
-    """Run Algorithm 1 on a named SCENARIO (e.g. paper-example-1) or on --problem FILE.npz."""
-    from tqdm import tqdm
+@click.option("--checkpoint-every", type=int, default=0, show_default=True,
+              help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never).")
+@click.option("--resume", "resume_dir", type=click.Path(file_okay=False), default=None,
+              help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run.")
+@click.pass_context
+def run(ctx, scenario, resume_dir, **_):
+    """Run an algorithm on a named SCENARIO (e.g. paper-example-1), on --problem FILE.npz, or as an EXPERIMENT.toml.
 
-    from dgtd.config import RunSpec, make_source, resolve, scenario_of, spec_record
-    from dgtd.run.loop import run as run_loop
-    from dgtd.run.results import write_results
+    Flags override the experiment file's fields; the results directory gets config.toml, the fully
+    resolved experiment, so that `dgtd run DIR/config.toml` reproduces the run.
+    """
+    from dgtd.config import scenario_of
+    from dgtd.experiments import experiment_from
+    from dgtd.run.resumable import CONFIG, prepare
 
-    if scenario is None and problem_file is None:
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
-    spec = RunSpec(scenario=scenario, problem_file=problem_file, graph=graph, edge_prob=edge_prob, iterations=iterations,
-                   seeds=seeds, seed=seed, alpha0=alpha0, beta=beta, schedule=schedule, kappa=kappa, rho=rho,
-                   sampling=sampling, shared=shared, reward_noise=reward_noise, backend=backend,
-                   checkpoints=checkpoints, tail_fraction=tail_fraction)
-    problem, network, algorithm, samp, settings, resolved = resolve(spec)
-    out = Path(out) if out else Path("runs") / problem.name
-    source = make_source(resolved, settings)  # None: samples from the model; else a simulator's own
-    links = getattr(source, "describe", network.describe)()
+    flags = given_flags(ctx, exclude=("scenario", "resume_dir"))
+    file = scenario if _is_experiment_file(scenario) else None
+    if scenario is not None and file is None:
+        flags["scenario"] = scenario
+    if resume_dir is not None:
+        flags.update(out=resume_dir, resume=True)
+        if file is None and "scenario" not in flags and "problem_file" not in flags:
+            file = str(Path(resume_dir) / CONFIG)
+    if file is None and "scenario" not in flags and "problem_file" not in flags:
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an EXPERIMENT.toml")
+    job = prepare(experiment_from(file, flags))
+    if job.finished:
+        click.echo(f"{job.out}: the run is already finished (summary.json); nothing to resume")
+        return
+    problem, network, algorithm, samp, settings = job.problem, job.network, job.algorithm, job.sampling, job.settings
+    links = network.describe()
+    if scenario_of(job.resolved) is not None and scenario_of(job.resolved).source is not None:
+        links = "set by the scenario's own simulation (see its report)"
     click.echo(f"{problem.name}: {problem.n_states} states, {problem.n_agents} agents, {problem.n_features} features, "
                f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
-    click.echo(f"Algorithm 1: alpha_k = {algorithm.alpha0:g}/{'sqrt(k+' if algorithm.schedule == 'sqrt' else '(k+'}"
-               f"{algorithm.beta:g}){'' if algorithm.schedule != 'constant' else ' (constant)'}, kappa {algorithm.kappa:g}, "
-               f"rho {algorithm.rho:g}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samp.mode} sampling, "
-               f"{'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
-    bar = tqdm(total=settings.iterations, unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
-    try:
-        result = run_loop(problem, network, algorithm, samp, settings, progress=bar.update, source=source)
-    finally:
-        bar.close()
-    sc = scenario_of(resolved)
-    extra, text = sc.report(result, source, out, plots) if sc is not None and sc.report is not None else (None, "")
-    write_results(out, result, spec_record(resolved), extra=extra)
-    if plots:
-        from dgtd.plots import plot_errors, plot_iterates
-
-        plot_iterates(result, out / "iterates.png")
-        plot_errors(result, out / "errors.png")
+    click.echo(f"{describe_algorithm(algorithm)}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
+               f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
+    if job.snapshot is not None:
+        click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
+    result = job.run()
+    names = job.save(result)
     click.echo(final_table(result))
-    if text:
-        click.echo(text)
-    click.echo(f"wrote {out}/summary.json, metrics.csv, trajectory.npz{', iterates.png, errors.png' if plots else ''} "
-               f"({result.seconds:.1f} s)")
+    if job.report_text:
+        click.echo(job.report_text)
+    click.echo(f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({result.seconds:.1f} s)")
+
+
+def describe_algorithm(algorithm) -> str:
+    """One line: Algorithm 1's step sizes and weights, or another algorithm's name and fields."""
+    if algorithm.name != "dgtd":
+        from dataclasses import asdict
+
+        return f"{algorithm.name}: " + ", ".join(f"{k} {v}" for k, v in asdict(algorithm).items() if v is not None)
+    return (f"Algorithm 1: alpha_k = {algorithm.alpha0:g}/{'sqrt(k+' if algorithm.schedule == 'sqrt' else '(k+'}"
+            f"{algorithm.beta:g}){'' if algorithm.schedule != 'constant' else ' (constant)'}, kappa {algorithm.kappa:g}, "
+            f"rho {algorithm.rho:g}")
 
 
 def _vec(x, n=4) -> str:
@@ -171,6 +207,55 @@ def bench(cases, backends, repeats, out):
     atomic_write_json(Path(out) / "throughput.json", report)
     atomic_write(Path(out) / "throughput.md", (markdown(report) + "\n").encode())
     click.echo(markdown(report))
+
+
+@cli.command()
+@click.argument("experiment", type=click.Path(dir_okay=False))
+@_spec_options
+@click.option("--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file).")
+@click.option("--executor", type=click.Choice(["process", "ray"]), default="process", show_default=True,
+              help="A pool of local processes, or Ray (pip install 'dgtd[ray]').")
+@click.option("--address", type=str, default=None,
+              help="Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1.")
+@click.option("--workers", type=int, default=None, help="Jobs at once (default: the local cores / the local Ray's CPUs).")
+@click.option("--resume/--no-resume", default=None,
+              help="Skip jobs already finished in OUT (default: on when OUT exists).")
+@click.option("--format", "format", type=click.Choice(["auto", "parquet", "csv"]), default="auto", show_default=True,
+              help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.")
+@click.option("--progress/--no-progress", default=True, show_default=True)
+@click.pass_context
+def sweep(ctx, experiment, **_):
+    """Run every point of EXPERIMENT.toml's [grid] as a job; one long table and per-job summaries in OUT.
+
+    Run options given as flags set the base run of every job (grid values win). Rerunning skips finished
+    jobs, so an interrupted sweep is continued by running the same command.
+    """
+    from dgtd.experiments import experiment_from
+    from dgtd.sweep import default_out, run_sweep
+
+    flags = given_flags(ctx, exclude=("experiment",))
+    if "resume" in flags:
+        flags["sweep.resume"] = flags.pop("resume")
+    exp = experiment_from(experiment, flags)
+    out = Path(exp.output.out) if exp.output.out else default_out(experiment)
+    report = run_sweep(exp, out, echo=click.echo, progress=exp.output.progress)
+    click.echo(f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed "
+               f"in {report['seconds']:.1f} s" + (f"; table: {report['table']}" if report["table"] else ""))
+    if report["failed"]:
+        for job, message in report["failed"].items():
+            click.echo(f"dgtd: job {job} failed: {message}", err=True)
+        click.echo("dgtd: run the same command again to retry the failed jobs", err=True)
+        sys.exit(1)
+
+
+@cli.command()
+@click.argument("directory", type=click.Path(file_okay=False, exists=True))
+def plot(directory):
+    """Draw the figures of a results DIRECTORY (of `dgtd run` or `dgtd sweep`) from its saved files alone."""
+    from dgtd.plot_results import plot_directory
+
+    for path in plot_directory(Path(directory)):
+        click.echo(f"wrote {path}")
 
 
 @cli.command()

@@ -2,11 +2,16 @@
 
 Every field may be left None to take the scenario's value; `resolve` returns the objects and the fully
 resolved spec, which is what results directories record so that a run can be reproduced exactly.
+Experiment files (`dgtd.experiments`) are TOML serialisations of a `RunSpec`.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+import difflib
+import inspect
+import types
+import typing
+from dataclasses import asdict, dataclass, fields, replace
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
@@ -20,7 +25,12 @@ from dgtd.run.sampling import Sampling
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One run of Algorithm 1, as data. ``scenario`` or ``problem_file`` names the problem."""
+    """One run, as data. ``scenario`` or ``problem_file`` names the problem.
+
+    ``algorithm`` names an entry of `dgtd.algorithms.ALGORITHMS` (default: the scenario's); ``alpha0`` ..
+    ``rho`` set the fields of that name of its config and ``algorithm_params`` any other field (e.g.
+    ``box_scale``). ``params`` are the scenario's own keyword arguments (``edge_prob`` stays a field of its own).
+    """
 
     scenario: str | None = None
     problem_file: str | None = None
@@ -41,9 +51,52 @@ class RunSpec:
     checkpoints: int = 200
     tail_fraction: float = 0.5
     block_size: int = 4096
+    algorithm: str | None = None
+    params: dict | None = None
+    algorithm_params: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+ALGORITHM_FIELDS = ("alpha0", "beta", "schedule", "kappa", "rho")
+STEP_SIZE_FIELDS = ("alpha0", "beta", "schedule")
+
+
+def closest(name: str, valid) -> str:
+    """'; did you mean X?' for the valid name closest to a misspelt one, else ''."""
+    close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+_TYPE_WORDS = {int: "an integer", float: "a number", str: "a string", bool: "true or false", dict: "a table",
+               list: "a list", tuple: "a list"}
+
+
+def check_type(where: str, value, hint) -> object:
+    """``value`` as the type ``hint`` asks (ints are accepted for floats), or a `DgtdInputError` naming ``where``."""
+    options = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    for t in options:
+        base = typing.get_origin(t) or t
+        if t is type(None):
+            if value is None:
+                return None
+        elif base is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        elif base is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        elif base in (list, tuple) and isinstance(value, (list, tuple)):
+            return tuple(value) if base is tuple else list(value)
+        elif base in (str, bool, dict) and isinstance(value, base):
+            return value
+    wanted = " or ".join(_TYPE_WORDS.get(typing.get_origin(t) or t, str(t)) for t in options if t is not type(None))
+    raise DgtdInputError(f"{where} must be {wanted}, got {value!r} ({type(value).__name__})")
+
+
+def field_types(cls) -> dict:
+    """Field name -> type hint of a dataclass (string annotations evaluated)."""
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in fields(cls)}
 
 
 def _network(graph: str, n_agents: int, edge_prob: float):
@@ -61,34 +114,44 @@ def resolve(spec: RunSpec):
     """(problem, network, algorithm, sampling, settings, resolved spec) for a spec."""
     if (spec.scenario is None) == (spec.problem_file is None):
         raise DgtdInputError("name exactly one problem: a scenario (e.g. paper-example-1) or --problem FILE.npz")
+    params = None
     if spec.scenario is not None:
-        sc = get_scenario(spec.scenario, **({} if spec.edge_prob is None else {"edge_prob": spec.edge_prob}))
+        kwargs, params, edge_prob = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)
+        sc = get_scenario(spec.scenario, **kwargs)
         problem, network, algorithm, sampling, iterations = sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations
-        graph, edge_prob = sc.network.base.name, float(sc.network.p.max())
+        graph = None  # the scenario's own network, rebuilt from the same parameters
         if sc.source is not None:
-            _refuse_model_overrides(spec, sc)
-            graph, edge_prob = None, None  # the scenario's source sets the links; nothing to record
+            _refuse_model_overrides(spec, sc)  # its source sets the links, states and rewards
+        if spec.edge_prob is not None and "edge_prob" not in kwargs and spec.graph is None:
+            if not hasattr(network, "base"):
+                raise DgtdInputError(f"scenario {spec.scenario!r} has no random-edge network, so edge_prob does not apply; remove it")
+            network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
         if spec.reward_noise not in (None, problem.reward_noise):
             problem = replace(problem, reward_noise=spec.reward_noise)
     else:
+        if spec.params:
+            raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")
         problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
         graph, edge_prob, iterations = "ring", 1.0, 100_000
         algorithm, sampling, network = DGTD(), Sampling(), None
     if spec.graph is not None or network is None:
         graph = spec.graph or graph
-        edge_prob = spec.edge_prob if spec.edge_prob is not None else edge_prob
+        edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph, problem.n_agents, edge_prob)
-    over = {k: getattr(spec, k) for k in ("alpha0", "beta", "schedule", "kappa", "rho") if getattr(spec, k) is not None}
-    algorithm = replace(algorithm, **over)
+    algorithm = build_algorithm(spec, algorithm)
     sampling = Sampling(mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared)
     settings = RunSettings(
         iterations=int(iterations if spec.iterations is None else spec.iterations), seeds=spec.seeds, seed=spec.seed, checkpoints=spec.checkpoints,
         tail_fraction=spec.tail_fraction, block_size=spec.block_size, backend=spec.backend,
     )
+    own = field_types(type(algorithm))
     resolved = replace(
-        spec, graph=graph, edge_prob=edge_prob, iterations=settings.iterations, alpha0=algorithm.alpha0,
-        beta=algorithm.beta, schedule=algorithm.schedule, kappa=algorithm.kappa, rho=algorithm.rho,
-        sampling=sampling.mode, shared=sampling.shared, reward_noise=problem.reward_noise,
+        spec, graph=graph, edge_prob=edge_prob, iterations=settings.iterations,
+        **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
+        sampling=sampling.mode, shared=sampling.shared, reward_noise=problem.reward_noise, algorithm=algorithm.name,
+        params=params,
+        algorithm_params={k: _plain(getattr(algorithm, k)) for k in own
+                          if k not in ALGORITHM_FIELDS and getattr(algorithm, k) is not None} or None,
     )
     return problem, network, algorithm, sampling, settings, resolved
 
@@ -121,6 +184,71 @@ def make_source(spec: RunSpec, settings: RunSettings):
     if sc is None or sc.source is None:
         return None
     return sc.source(settings.seed, range(settings.seeds))
+
+
+def _plain(x):
+    return list(x) if isinstance(x, tuple) else x
+
+
+def scenario_arguments(name: str, params: dict, edge_prob: float | None):
+    """(keyword arguments for the scenario's factory, its full parameters less edge_prob, edge_prob used).
+
+    Parameters not given take the factory's defaults, and the resolved spec records them all, so that a
+    later change of a default does not change what a saved config means.
+    """
+    from dgtd.problems.scenarios import SCENARIOS
+
+    if name not in SCENARIOS:
+        get_scenario(name)  # raises the error that lists the known names
+    sig = inspect.signature(SCENARIOS[name])
+    names = [p.name for p in sig.parameters.values() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    for k in params:
+        if k == "edge_prob":
+            raise DgtdInputError("edge_prob is a field of its own: write it at the top level, not under params")
+        if k not in names:
+            known = ", ".join(n for n in names if n != "edge_prob") or "none"
+            raise DgtdInputError(f"scenario {name!r} has no parameter {k!r}{closest(k, names)} (its parameters: {known})")
+    kwargs = {p.name: p.default for p in sig.parameters.values() if p.name in names and p.default is not p.empty}
+    kwargs.update(params)
+    if edge_prob is not None and "edge_prob" in names:
+        kwargs["edge_prob"] = edge_prob
+    missing = [n for n in names if n not in kwargs]
+    if missing:
+        raise DgtdInputError(f"scenario {name!r} needs parameter(s) {', '.join(missing)} under params")
+    rest = {k: _plain(v) for k, v in kwargs.items() if k != "edge_prob"}
+    return kwargs, rest or None, kwargs.get("edge_prob")
+
+
+def build_algorithm(spec: RunSpec, default):
+    """The config of ``spec.algorithm`` (default: the scenario's own), with the spec's fields set on it.
+
+    Another algorithm than the scenario's starts from its own defaults and the scenario's step sizes
+    (alpha0, beta, schedule) where it has those fields. A field the algorithm lacks is an error.
+    """
+    from dgtd.algorithms import ALGORITHMS
+
+    name = spec.algorithm or default.name
+    if name not in ALGORITHMS:
+        raise DgtdInputError(f"unknown algorithm {name!r}{closest(name, ALGORITHMS)} (known: {', '.join(ALGORITHMS)})")
+    cls = ALGORITHMS[name]
+    own = field_types(cls)
+    if isinstance(default, cls):
+        algorithm = default
+    else:
+        algorithm = cls(**{k: getattr(default, k) for k in STEP_SIZE_FIELDS if k in own and hasattr(default, k)})
+    over = {}
+    for k in ALGORITHM_FIELDS:
+        if getattr(spec, k) is not None:
+            if k not in own:
+                raise DgtdInputError(f"algorithm {name!r} has no parameter {k!r} (its parameters: {', '.join(own)}); remove it")
+            over[k] = getattr(spec, k)
+    for k, v in (spec.algorithm_params or {}).items():
+        if k in ALGORITHM_FIELDS:
+            raise DgtdInputError(f"{k} is a field of its own: write it at the top level, not under algorithm_params")
+        if k not in own:
+            raise DgtdInputError(f"algorithm {name!r} has no parameter {k!r}{closest(k, own)} (its parameters: {', '.join(own)})")
+        over[k] = check_type(f"algorithm_params.{k}", v, own[k])
+    return replace(algorithm, **over)
 
 
 def spec_record(spec: RunSpec) -> dict:

@@ -63,9 +63,9 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
         floor, top = _limits(results, metric)
         for name, r in results.items():
             Y = r.metrics[metric]
-            _curve(axes[row, 0], r.metrics["samples"], Y, name, floor, top)
+            _curve(axes[row, 0], r.info["counts"]["samples"], Y, name, floor, top)
             if r.info["messages"].max() > 0:
-                _curve(axes[row, 1], r.metrics["messages"], Y, name, floor, top)
+                _curve(axes[row, 1], r.info["counts"]["messages"], Y, name, floor, top)
             elif np.isfinite(_median_band(Y)[0][-1]):
                 axes[row, 1].axhline(max(_median_band(Y)[0][-1], floor), color=COLORS.get(name), ls=":", lw=1.2,
                                      label=f"{name} (no messages; final level)")
@@ -89,7 +89,7 @@ def plot_consensus(results: dict, path: Path, title: str = "") -> None:
     distributed = {name: r for name, r in results.items() if r.w_last.shape[1] > 1}
     floor = _limits(distributed, "consensus")[0] if distributed else 1e-300
     for name, r in distributed.items():  # all agents start equal: no initial level to cut at
-        _curve(ax, r.metrics["samples"], r.metrics["consensus"], name, floor, np.inf)
+        _curve(ax, r.info["counts"]["samples"], r.metrics["consensus"], name, floor, np.inf)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("agent-samples consumed")

@@ -98,29 +98,35 @@ FAST = {"reassoc", "contract", "nsz"}  # lets LLVM vectorise sums; results move 
 
 @njit(cache=True, inline="always", fastmath=FAST)
 def _laplacian_row(i, b, t, Z, up, has_up, indptr, nbr, eid, L):
-    """L = (L(k) Z)_i = sum over edges {i, j} up at step t of (Z_i - Z_j), Z = (w, v, mu) packed as (3, q) rows."""
+    """L = (L(k) Z)_i = |N_i(k)| Z_i - sum_{j in N_i(k)} Z_j (Algorithm 1's neighbour sums) for the packed rows
+    Z = (w, v + mu): the w update needs L v + L mu = L (v + mu), so two rows per neighbour are read, not three."""
     m = Z.shape[2]
-    zi = Z[b, i]
     L[:] = 0.0
+    count = 0
     for p in range(indptr[i], indptr[i + 1]):
         if (not has_up) or up[t, b, eid[p]]:
             zj = Z[b, nbr[p]]
+            count += 1
             for f in range(m):
-                L[f] += zi[f] - zj[f]
+                L[f] += zj[f]
+    zi = Z[b, i]
+    for f in range(m):
+        L[f] = count * zi[f] - L[f]
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
-def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, Z, Z_out, L, sum_all, sum_tail, Phi, sparse, ptr, idx,
-                val, gamma, kappa, rho, boxes):
-    """Algorithm 1 lines 7-9 for agent i of seed b; reads Z = (w, v, mu) at step k, writes Z_out at step k + 1.
+def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, VM, Z, Z_out, L, sum_all, sum_tail, Phi, sparse, ptr,
+                idx, val, gamma, kappa, rho, boxes):
+    """Algorithm 1 lines 7-9 for agent i of seed b.
 
-    Z[b, i] holds w in [0, q), v in [q, 2q), mu in [2q, 3q); L holds the matching rows of L(k) Z. theta only
-    depends on agent i's own variables, so it is updated in place. With sparse features (CSR rows ptr/idx/val
-    of Phi) the TD terms cost O(nnz(phi) + nnz(phi')) instead of O(q).
+    Z[b, i] = (w, v + mu) at step k (what neighbours read), Z_out[b, i] receives them at step k + 1;
+    VM[b, i] = (v, mu) and theta[b, i] depend on agent i's own variables only and are updated in place.
+    L = (L(k) w, L(k) (v + mu)) rows. With sparse features (CSR rows ptr/idx/val of Phi) the TD terms cost
+    O(nnz(phi) + nnz(phi')) instead of O(q).
     """
     q = theta.shape[2]
     b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
-    th, zi, zo = theta[b, i], Z[b, i], Z_out[b, i]
+    th, vm, zi, zo = theta[b, i], VM[b, i], Z[b, i], Z_out[b, i]
     phi_theta = 0.0
     phi_w = 0.0
     phin_w = 0.0
@@ -146,23 +152,18 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, Z, Z_out, L, sum_a
         st = sum_tail[b, i]
         for f in range(q):
             st[f] += zi[f]
-    # Line 7 (v) and line 8 (mu), projected (line 9)
-    for f in range(q):
-        vf, muf, Lw = zi[q + f], zi[2 * q + f], L[f]
-        zo[q + f] = min(max(vf - alpha * (vf - Lw), -b_v), b_v)
-        zo[2 * q + f] = min(max(muf - alpha * (-Lw + rho * muf), -b_mu), b_mu)
-    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
+    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w, projected (line 9)
     if not sparse:
         phi, phin = Phi[s], Phi[sn]
         for f in range(q):
             wf = zi[f]
-            g_w = rt * (phi[f] - gamma * phin[f]) - L[q + f] - L[2 * q + f] - kappa * L[f] - rho * wf
+            g_w = rt * (phi[f] - gamma * phin[f]) - L[q + f] - kappa * L[f] - rho * wf
             zo[f] = min(max(wf + alpha * g_w, -b_w), b_w)
             th[f] = min(max(th[f] - alpha * (phi[f] * c_theta), -b_th), b_th)
     else:
         for f in range(q):
             wf = zi[f]
-            zo[f] = wf + alpha * (-L[q + f] - L[2 * q + f] - kappa * L[f] - rho * wf)
+            zo[f] = wf + alpha * (-L[q + f] - kappa * L[f] - rho * wf)
         for p in range(ptr[s], ptr[s + 1]):
             f = idx[p]
             th[f] = min(max(th[f] - alpha * (val[p] * c_theta), -b_th), b_th)
@@ -171,10 +172,18 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, Z, Z_out, L, sum_a
             zo[idx[p]] -= alpha * (rt * gamma * val[p])
         for f in range(q):
             zo[f] = min(max(zo[f], -b_w), b_w)
+    # Line 7 (v) and line 8 (mu), projected (line 9); neighbours will read their sum
+    for f in range(q):
+        vf, muf, Lw = vm[f], vm[q + f], L[f]
+        v_new = min(max(vf - alpha * (vf - Lw), -b_v), b_v)
+        mu_new = min(max(muf - alpha * (-Lw + rho * muf), -b_mu), b_mu)
+        vm[f] = v_new
+        vm[q + f] = mu_new
+        zo[q + f] = v_new + mu_new
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
-def _dgtd_by_seed(theta, Z, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
+def _dgtd_by_seed(theta, VM, Z, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
                   Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid):
     """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds)."""
     B, N, m = Z.shape
@@ -191,14 +200,15 @@ def _dgtd_by_seed(theta, Z, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_
                 s, a = s_blk[t, b, o], a_blk[t, b, o]
                 # All Laplacians of step k are taken first, so in-place writes are safe (Jacobi form).
                 _agent_step(b, i, s, sn_blk[t, b, o], r_blk[t, b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, Z, Z, L[i], sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho, boxes)
+                            theta, VM, Z, Z, L[i], sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho,
+                            boxes)
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
-def _dgtd_by_agent(theta, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
+def _dgtd_by_agent(theta, VM, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
                    Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, n_chunks):
-    """Agents spread over the cores at every step (large N, few seeds): Z = (w, v, mu) is double-buffered so
-    that every agent reads step k's values of its neighbours while others write step k + 1's. Returns the
+    """Agents spread over the cores at every step (large N, few seeds): the rows neighbours read, Z = (w, v + mu),
+    are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns the
     number of buffer swaps (odd: the result is in Z2)."""
     B, N, m = Z.shape
     T = alphas.shape[0]
@@ -216,7 +226,8 @@ def _dgtd_by_agent(theta, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, s_bl
                 s, a = s_blk[t, b, o], a_blk[t, b, o]
                 _laplacian_row(i, b, t, Zi, up, has_up, indptr, nbr, eid, L)
                 _agent_step(b, i, s, sn_blk[t, b, o], r_blk[t, b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, Zi, Zo, L, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho, boxes)
+                            theta, VM, Zi, Zo, L, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho,
+                            boxes)
     return T
 
 
@@ -276,7 +287,8 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk: Block):
     from dgtd.algorithms.dgtd import DGTDState
 
     theta = np.array(state.theta, dtype=np.float64, order="C")
-    Z = np.concatenate([state.w, state.v, state.mu], axis=2)  # packed rows: one contiguous read per neighbour
+    VM = np.concatenate([state.v, state.mu], axis=2)
+    Z = np.concatenate([state.w, state.v + state.mu], axis=2)  # what neighbours read: one contiguous row each
     sum_all, sum_tail = sums["all"].copy(), sums["tail"].copy()
     indptr, nbr, eid = graph_arrays(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
@@ -286,13 +298,13 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk: Block):
     B, N, q = theta.shape
     if by_agent(B, N, q):
         Z2 = np.empty_like(Z)
-        if _dgtd_by_agent(theta, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:
+        if _dgtd_by_agent(theta, VM, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:
             Z = Z2
     else:
-        _dgtd_by_seed(theta, Z, sum_all, sum_tail, k0, ctx.tail_start, *common)
-    w, v, mu = Z[:, :, :q], Z[:, :, q:2 * q], Z[:, :, 2 * q:]
-    return DGTDState(theta, np.ascontiguousarray(v), np.ascontiguousarray(mu), np.ascontiguousarray(w)), \
-        {"all": sum_all, "tail": sum_tail}
+        _dgtd_by_seed(theta, VM, Z, sum_all, sum_tail, k0, ctx.tail_start, *common)
+    state = DGTDState(theta, np.ascontiguousarray(VM[:, :, :q]), np.ascontiguousarray(VM[:, :, q:]),
+                      np.ascontiguousarray(Z[:, :, :q]))
+    return state, {"all": sum_all, "tail": sum_tail}
 
 
 BLOCKS = {"dgtd": dgtd_block}

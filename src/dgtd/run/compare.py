@@ -115,12 +115,18 @@ def compare(problem, network, sampling, configs: dict, cs: CompareSettings, prog
 
 
 def compare_csv(results: dict) -> bytes:
-    """Long format: algorithm, seed, step, metric, value for every algorithm, checkpoint, seed and metric."""
+    """Long format: algorithm, seed, step, metric, value for every algorithm, checkpoint, seed and metric
+    (the run's metrics, then its counts: samples, messages, diverged)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["algorithm", "seed", "step", "metric", "value"])
     for name, result in results.items():
         w.writerows(metrics_rows(result, name))
+        counts = result.info["counts"]
+        for metric, values in counts.items():
+            for c, step in enumerate(result.steps):
+                for b in range(values.shape[1]):
+                    w.writerow([name, b, int(step), metric, float(values[c, b])])
     return buf.getvalue().encode()
 
 
@@ -151,7 +157,7 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
     }
     for name, r in results.items():
         div = r.info["diverged_at"]
-        final = {k: _stats(v[-1]) for k, v in r.metrics.items() if k not in ("diverged",)}
+        final = {k: _stats(v[-1]) for k, v in (r.metrics | r.info["counts"]).items() if k != "diverged"}
         out["algorithms"][name] = {
             "config": config_dict(used[name]),
             "tuning": [{"alpha0": a, "score": (s if np.isfinite(s) else None)} for a, s in tables.get(name, [])],

@@ -19,6 +19,9 @@ from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
+# Counts recorded at every checkpoint beside the metrics (in RunResult.info["counts"], arrays (C, B)): agent-samples
+# consumed, parameter vectors sent over links (`dgtd.algorithms.registry.messages_per_edge`), 1 once diverged.
+COUNTS = ("samples", "messages", "diverged")
 
 
 @dataclass(frozen=True)
@@ -145,18 +148,23 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
 
 
 def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = Sampling(),
-        settings: RunSettings = RunSettings(), progress=None, source=None) -> RunResult:
+        settings: RunSettings = RunSettings(), progress=None, source=None, *, checkpoint_every: int = 0,
+        on_checkpoint=None, resume: dict | None = None) -> RunResult:
     """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
 
     ``source`` supplies the samples (default: a `ModelSource` drawing from the problem's model); a simulator
     with hidden state or position-dependent networks passes its own.
+
+    With ``checkpoint_every`` = K > 0, ``on_checkpoint(snapshot)`` is called at every multiple of K below T with
+    the loop's whole state (`snapshot`: step, checkpoint index, algorithm state, running sums, metrics so far,
+    the source's stream state). Passing a snapshot as ``resume`` continues from it; the samples are a
+    function of the step only, so the result equals that of an uninterrupted run bit for bit.
     """
     t_start = time.perf_counter()
     ctx, moments, L_mean, saddle, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
-    source.start()
     kernel = _kernel(settings.backend, algorithm.name)
     state = algorithm.init(B, N, q)
     if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
@@ -165,8 +173,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     sums = {"all": np.zeros((B, n_est, q)), "tail": np.zeros((B, n_est, q))}
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
-    names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg", "samples", "messages", "diverged")
+    names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg")
     metrics = {m: np.zeros((C, B)) for m in names}
+    counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
     keep_trace = B * n_est * q * C <= 2_000_000
     w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
@@ -174,10 +183,24 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     messages, diverged_at = np.zeros(B), np.full(B, -1, dtype=np.int64)
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
     limit = DIVERGENCE_FACTOR * max(1.0, float(np.abs(w_star).max()), w0_norm)
-    k, c = 0, 0
+    k, c, seconds_before = 0, 0, 0.0
+    if resume is None:
+        source.start()
+    else:
+        k, c, seconds_before = int(resume["k"]), int(resume["c"]), float(resume["seconds"])
+        state = state._make(np.array(resume["state"][f]) for f in state._fields)
+        sums = {name: np.array(v) for name, v in resume["sums"].items()}
+        metrics = {name: np.array(v) for name, v in resume["metrics"].items()}
+        err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
+        w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
+        messages = np.array(resume.get("messages", messages), dtype=np.float64)
+        diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
+        counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
+        source.set_state(resume["source"])
+    every = int(checkpoint_every)
     block = block_steps(settings.block_size, N, network.n_edges, B)
     while k < T:
-        k1 = min(k + block, int(steps[c]))
+        k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
         blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
@@ -191,8 +214,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         if k == steps[c]:
             alive = diverged_at < 0
             w, w_avg = algorithm.estimate(state), sums["all"] / k
-            for name in names:
-                metrics[name][c] = np.nan
+            for x in (*metrics.values(), *counts.values()):
+                x[c] = np.nan
             err_last[c], err_avg[c] = np.nan, np.nan
             if alive.any():
                 wa, wv = w[alive], w_avg[alive]
@@ -201,20 +224,24 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                 metrics["consensus"][c, alive] = exact.consensus_error(wa)
                 metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
                 metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
-                metrics["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
-                metrics["messages"][c, alive] = messages[alive]
-            metrics["diverged"][c] = ~alive
-            if keep_trace:
+                counts["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
+                counts["messages"][c, alive] = messages[alive]
+            counts["diverged"][c] = ~alive
+            if w_trace is not None:
                 w_trace[c] = w
             c += 1
             if not alive.any():  # every seed has diverged: nothing left to run
-                for name in names:
-                    metrics[name][c:] = np.nan
-                metrics["diverged"][c:] = 1.0
+                for x in (*metrics.values(), *counts.values()):
+                    x[c:] = np.nan
+                counts["diverged"][c:] = 1.0
                 err_last[c:], err_avg[c:] = np.nan, np.nan
-                if keep_trace:
+                if w_trace is not None:
                     w_trace[c:] = np.nan
                 break
+        if every and k % every == 0 and k < T and on_checkpoint is not None:
+            on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
+                                   seconds_before + time.perf_counter() - t_start,
+                                   extra={"messages": messages, "diverged_at": diverged_at, "counts": counts}))
     final = state._asdict()
     kkt = {}
     if isinstance(state, dgtd_alg.DGTDState):
@@ -225,9 +252,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
         w_last=algorithm.estimate(state), w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
-        seconds=time.perf_counter() - t_start,
+        seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
-              "samples_per_step": N, "messages": messages},
+              "samples_per_step": N, "messages": messages, "counts": counts},
     )
 
 
@@ -251,6 +278,21 @@ def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budg
     numbers (tens of MB), whatever N and |E|. Results do not depend on it."""
     per_step = n_seeds * (4 * n_agents + n_edges)
     return int(max(1, min(int(block_size), budget // max(per_step, 1))))
+
+
+def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_state, seconds, extra=None) -> dict:
+    """The loop's whole state after step k, as copies: what `run` needs to continue (its ``resume``).
+    ``extra``: more arrays to restore (messages sent so far, divergence steps)."""
+    return {**{name: (np.array(v) if not isinstance(v, dict) else {n: np.array(x) for n, x in v.items()})
+               for name, v in (extra or {}).items()},
+        "k": int(k), "c": int(c), "seconds": float(seconds),
+        "state": {f: np.array(x) for f, x in state._asdict().items()},
+        "sums": {name: v.copy() for name, v in sums.items()},
+        "metrics": {name: v.copy() for name, v in metrics.items()},
+        "agent_error_last": err_last.copy(), "agent_error_avg": err_avg.copy(),
+        "w_trace": None if w_trace is None else w_trace.copy(),
+        "source": source_state,
+    }
 
 
 def _kernel(backend: str, algorithm: str):

@@ -1,0 +1,194 @@
+"""Figures from saved results alone: `dgtd plot DIR` for the directory of a run or of a sweep.
+
+A run's directory gives error, consensus and MSPBE curves with bands over seeds (and the iterates when the
+trace was kept); a sweep's gives those curves for every job and the final error against the swept
+parameters: a line plot over one parameter, a heat map over two.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+from dgtd.plots import _save, band, plot_errors, plot_iterates, plt
+
+CURVES = (("error_avg", "max relative error, averaged iterate"), ("consensus", "consensus error"),
+          ("mspbe_avg", "MSPBE, averaged iterate"))
+
+
+def load_run(directory: Path) -> SimpleNamespace:
+    """What the figures of a run need, read back from metrics.csv, trajectory.npz and summary.json."""
+    with open(directory / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    steps = np.unique([int(r["step"]) for r in rows])
+    seeds = 1 + max(int(r["seed"]) for r in rows)
+    metrics = {}
+    for r in rows:
+        m = metrics.setdefault(r["metric"], np.full((len(steps), seeds), np.nan))
+        m[np.searchsorted(steps, int(r["step"])), int(r["seed"])] = float(r["value"])
+    summary = json.loads((directory / "summary.json").read_text())
+    w_trace = None
+    if (directory / "trajectory.npz").exists():
+        with np.load(directory / "trajectory.npz", allow_pickle=False) as data:
+            w_trace = data["w_trace"] if "w_trace" in data.files else None
+    return SimpleNamespace(steps=steps, metrics=metrics, w_trace=w_trace, w_star=np.asarray(summary["w_star"]))
+
+
+def job_metrics(table: dict) -> dict:
+    """{job: (steps (C,), {metric: (C, seeds)})} from the columns of a sweep table."""
+    jobs = np.asarray(table["job"])
+    out = {}
+    for job in dict.fromkeys(table["job"]):
+        sel = jobs == job
+        steps, seed, value = table["step"][sel], table["seed"][sel], table["value"][sel]
+        metric = np.asarray(table["metric"])[sel]
+        u = np.unique(steps)
+        ms = {}
+        for name in dict.fromkeys(metric):
+            k = metric == name
+            M = np.full((len(u), seed.max() + 1), np.nan)
+            M[np.searchsorted(u, steps[k]), seed[k]] = value[k]
+            ms[name] = M
+        out[job] = (u, ms)
+    return out
+
+
+def _label(point: dict) -> str:
+    return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in point.items() if v is not None)
+
+
+def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
+    """Each job's median curve over seeds with its min-max band, one panel per metric."""
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(13, 3.8))
+    colors = plt.cm.viridis(np.linspace(0, 0.95, max(len(jobs), 1)))
+    # log axes need values > 0: floor at 1e-12 of the panel's largest value (consensus is exactly 0 at k = 1)
+    floor = {name: 1e-12 * max([float(np.nanmax(ms[name])) for _, ms in jobs.values() if name in ms] + [1e-300])
+             for name, _ in CURVES}
+    for (job, (steps, ms)), color in zip(jobs.items(), colors, strict=True):
+        for ax, (name, _) in zip(axes, CURVES, strict=True):
+            if name in ms:
+                band(ax, steps, np.maximum(ms[name], floor[name]), _label(points[job]), color=color)
+    for ax, (_, title) in zip(axes, CURVES, strict=True):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("iteration k")
+        ax.set_title(title)
+        ax.grid(alpha=0.3, which="both")
+    if len(jobs) <= 12:
+        axes[0].legend(fontsize=6)
+    _save(fig, path)
+
+
+def _numeric(values) -> bool:
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+
+
+def _heat_maps(final: dict, points: dict, kx: str, ky: str, panels: dict, metric: str, k_end: int, path: Path) -> None:
+    """One heat map of the median final ``metric`` over (kx, ky) per value of the other swept parameters."""
+    from matplotlib.colors import LogNorm
+
+    xs = sorted({points[j][kx] for j in final})
+    ys = sorted({points[j][ky] for j in final})
+    grids = []
+    for members in panels.values():
+        Z = np.full((len(ys), len(xs)), np.nan)
+        for j in members:
+            Z[ys.index(points[j][ky]), xs.index(points[j][kx])] = np.median(final[j])
+        grids.append(Z)
+    positive = np.concatenate([Z[np.isfinite(Z) & (Z > 0)] for Z in grids])
+    norm = LogNorm(positive.min(), positive.max()) if positive.size and positive.min() < positive.max() else None
+    fig, axes = plt.subplots(1, len(grids), figsize=(len(grids) * (1.1 * len(xs) + 1.5) + 1.5, 0.7 * len(ys) + 2),
+                             squeeze=False)
+    for ax, Z, group in zip(axes[0], grids, panels, strict=True):
+        im = ax.imshow(Z, origin="lower", cmap="viridis", norm=norm, aspect="auto")
+        for (iy, ix), z in np.ndenumerate(Z):
+            if np.isfinite(z):
+                ax.text(ix, iy, f"{z:.2g}", ha="center", va="center", color="w", fontsize=7)
+        ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
+        ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+        ax.set_xlabel(kx)
+        ax.set_ylabel(ky)
+        ax.set_title(_label(dict(group)) or f"k = {k_end:,}", fontsize=9)
+    fig.colorbar(im, ax=axes[0].tolist(), label=f"final {metric} at k = {k_end:,} (median over seeds)")
+    _save(fig, path)
+
+
+def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metric: str = "error_avg") -> bool:
+    """Final ``metric`` (median over seeds, min-max band) against the swept parameters that vary.
+
+    Two numeric parameters or more: heat maps over the first two, one per value of the others (up to six);
+    otherwise a line plot over the numeric parameter (or the categories of the first one), one line per
+    value of the others.
+    """
+    final = {j: ms[metric][-1] for j, (_, ms) in jobs.items() if metric in ms}
+    if not final:
+        return False
+    varying = [k for k in keys if len({repr(points[j].get(k)) for j in final}) > 1]
+    numeric = [k for k in varying if _numeric([points[j][k] for j in final if points[j].get(k) is not None])]
+    if len(numeric) >= 2:
+        kx, ky = numeric[:2]
+        panels: dict = {}
+        for j in final:
+            panels.setdefault(tuple((k, points[j].get(k)) for k in varying if k not in (kx, ky)), []).append(j)
+        if len(panels) <= 6:
+            _heat_maps(final, points, kx, ky, panels, metric, max(int(s[-1]) for s, _ in jobs.values()), path)
+            return True
+    kx = numeric[0] if numeric else (varying[0] if varying else None)
+    others = [k for k in varying if k != kx]
+    groups: dict = {}
+    for j in final:
+        groups.setdefault(tuple((k, points[j].get(k)) for k in others), []).append(j)
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for group, members in groups.items():
+        xs = [points[j].get(kx) if kx else j for j in members]
+        order = np.argsort(xs) if kx in numeric else np.arange(len(xs))
+        x = [xs[i] if kx in numeric else str(xs[i]) for i in order]
+        Y = np.array([final[members[i]] for i in order])
+        med = np.median(Y, axis=1)
+        line, = ax.plot(x, med, marker="o", label=_label(dict(group)) or None)
+        if Y.shape[1] > 1:
+            ax.fill_between(x, Y.min(axis=1), Y.max(axis=1), color=line.get_color(), alpha=0.2)
+    if kx in numeric and all(points[j][kx] > 0 for j in final):
+        ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(kx or "job")
+    ax.set_ylabel(f"final {metric}")
+    ax.set_title(f"final {metric} (median over seeds, band: min to max)")
+    ax.grid(alpha=0.3, which="both")
+    if len(groups) > 1:
+        ax.legend(fontsize=7)
+    _save(fig, path)
+    return True
+
+
+def plot_directory(directory: Path) -> list[Path]:
+    """Every figure the saved results of a run or sweep directory allow; returns the paths written."""
+    directory = Path(directory)
+    written = []
+    if (directory / "sweep.json").exists():
+        from dgtd.store import read_table
+
+        index = json.loads((directory / "sweep.json").read_text())
+        if not index.get("table"):
+            raise DgtdInputError(f"{directory} holds no finished job yet; run the sweep first")
+        points = {j["job"]: j["point"] for j in index["jobs"]}
+        jobs = job_metrics(read_table(directory / index["table"]))
+        plot_sweep_curves(jobs, points, directory / "curves.png")
+        written.append(directory / "curves.png")
+        for metric in ("error_avg", "error_last"):
+            if plot_final_error(jobs, points, index["grid"], directory / f"final_{metric}.png", metric):
+                written.append(directory / f"final_{metric}.png")
+        return written
+    if not (directory / "metrics.csv").exists():
+        raise DgtdInputError(f"{directory} is not a results directory of dgtd run or dgtd sweep (no metrics.csv or sweep.json)")
+    run = load_run(directory)
+    plot_errors(run, directory / "errors.png")
+    written.append(directory / "errors.png")
+    if plot_iterates(run, directory / "iterates.png"):
+        written.append(directory / "iterates.png")
+    return written

@@ -1,0 +1,122 @@
+"""One run of an experiment into its results directory, with periodic checkpoints and exact resume.
+
+The directory gets ``config.toml`` (the fully resolved experiment: ``dgtd run DIR/config.toml`` reproduces
+the run) before the run starts, ``checkpoint.npz`` every ``checkpoint_every`` iterations while it runs, and
+the results (`dgtd.run.results.write_results`) when it ends, after which the checkpoint is removed.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from dgtd.config import make_source, resolve, scenario_of, spec_record
+from dgtd.errors import DgtdInputError
+from dgtd.experiments import Experiment, absolute_paths, to_toml
+from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
+from dgtd.run.results import atomic_write
+
+CONFIG, CHECKPOINT = "config.toml", "checkpoint.npz"
+HEADER = "The fully resolved config of a dgtd run: `dgtd run THIS_FILE` reproduces it exactly."
+
+
+def _first_difference(a: dict, b: dict) -> str:
+    for key in sorted(set(a) | set(b)):
+        if a.get(key) != b.get(key):
+            return f"{key} = {a.get(key)!r} there, {b.get(key)!r} here"
+    return ""
+
+
+@dataclass
+class PreparedRun:
+    """A resolved run and where it goes: the library objects, the resolved spec and, when resuming, the snapshot."""
+
+    exp: Experiment
+    problem: object
+    network: object
+    algorithm: object
+    sampling: object
+    settings: object
+    resolved: object
+    out: Path
+    record: dict
+    snapshot: dict | None = None
+    finished: bool = False
+    source: object = None
+    report_text: str = ""
+
+    @property
+    def config_toml(self) -> str:
+        output = replace(self.exp.output, out=str(self.out), resume=False)
+        return to_toml(Experiment(spec=self.resolved, output=output), HEADER)
+
+    def run(self, progress: bool | None = None):
+        """Run (or continue) the loop, saving a checkpoint every ``checkpoint_every`` iterations."""
+        from tqdm import tqdm
+
+        from dgtd.run.loop import run as run_loop
+
+        show = self.exp.output.progress if progress is None else progress
+        done = 0 if self.snapshot is None else int(self.snapshot["k"])
+        bar = tqdm(total=self.settings.iterations, initial=done, unit="it", unit_scale=True, disable=not show,
+                   file=sys.stderr, mininterval=0.5)
+        every = self.exp.output.checkpoint_every
+        ckpt = self.out / CHECKPOINT
+        self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
+        try:
+            return run_loop(self.problem, self.network, self.algorithm, self.sampling, self.settings,
+                            progress=bar.update, source=self.source, checkpoint_every=every,
+                            on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record), resume=self.snapshot)
+        finally:
+            bar.close()
+
+    def save(self, result, plots: bool | None = None) -> list[str]:
+        """Write the results (and figures), then drop the checkpoint; returns the names written."""
+        from dgtd.run.results import write_results
+
+        plots = self.exp.output.plots if plots is None else plots
+        sc = scenario_of(self.resolved)
+        extra = None
+        if sc is not None and sc.report is not None:  # a scenario's own figures and numbers (e.g. the robots' maps)
+            extra, self.report_text = sc.report(result, self.source, self.out, plots)
+        write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra)
+        names = ["summary.json", "metrics.csv", "trajectory.npz"]
+        if plots:
+            from dgtd.plots import plot_errors, plot_iterates
+
+            if plot_iterates(result, self.out / "iterates.png"):
+                names.append("iterates.png")
+            plot_errors(result, self.out / "errors.png")
+            names.append("errors.png")
+        (self.out / CHECKPOINT).unlink(missing_ok=True)
+        return names
+
+
+def prepare(exp: Experiment) -> PreparedRun:
+    """Resolve an experiment, check a resume against its checkpoint, and write config.toml."""
+    if exp.grid:
+        raise DgtdInputError("this experiment has a [grid]: run it with `dgtd sweep FILE`")
+    if exp.spec.scenario is None and exp.spec.problem_file is None:
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an experiment file")
+    problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(exp.spec))
+    out = Path(exp.output.out) if exp.output.out else Path("runs") / problem.name
+    out = out.resolve()
+    record = json.loads(json.dumps(spec_record(resolved)))
+    run = PreparedRun(exp, problem, network, algorithm, sampling, settings, resolved, out, record)
+    ckpt = out / CHECKPOINT
+    if exp.output.resume:
+        if not ckpt.exists():
+            if (out / "summary.json").exists():
+                run.finished = True
+                return run
+            raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
+        run.snapshot, saved = load_checkpoint(ckpt)
+        diff = _first_difference(saved, record)
+        if diff:
+            raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
+    else:
+        ckpt.unlink(missing_ok=True)  # a stale checkpoint of an earlier run must never be resumed into this one
+        atomic_write(out / CONFIG, run.config_toml.encode())
+    return run

@@ -1,0 +1,213 @@
+"""Sweeps: the runs of a [grid] of run fields, handed as jobs to a `concurrent.futures` executor.
+
+Each grid point is one job: a `RunSpec` run with all its seeds side by side. Jobs go to a local process
+pool by default, or to Ray (`dgtd.ray_executor`); the driver alone writes files (`dgtd.store`), so workers
+on other machines need no shared disk. A job whose worker dies is run again: Ray retries it itself, and a
+broken process pool is replaced and the unfinished jobs resubmitted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import os
+import sys
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from dgtd.config import ALGORITHM_FIELDS, RunSpec, field_types, resolve, spec_record
+from dgtd.errors import DgtdInputError
+from dgtd.experiments import TABLES, Experiment, Output, absolute_paths, to_toml
+from dgtd.store import SweepStore
+
+MAX_ATTEMPTS = 3
+
+
+@dataclass(frozen=True)
+class Job:
+    """One grid point: ``point`` maps grid keys ('alpha0', 'params.n_states') to values, None where the job's
+    algorithm has no such field; ``spec`` is the fully resolved spec; ``id`` a digest of it."""
+
+    id: str
+    point: dict
+    spec: RunSpec
+
+
+def grid_keys(grid: dict) -> list[tuple[str, list]]:
+    """[(key, values)] with nested tables flattened to 'params.x' keys, in the file's order."""
+    out = []
+    for key, values in grid.items():
+        if key in TABLES:
+            out += [(f"{key}.{sub}", vals) for sub, vals in values.items()]
+        else:
+            out.append((key, values))
+    return out
+
+
+def apply_point(spec: RunSpec, point: dict) -> RunSpec:
+    """``spec`` with a grid point's values set, then the fields its algorithm lacks cleared (kappa for td0)."""
+    over, tables = {}, {t: dict(getattr(spec, t) or {}) for t in TABLES}
+    for key, value in point.items():
+        table, _, sub = key.partition(".")
+        if sub:
+            tables[table][sub] = value
+        else:
+            over[key] = value
+    spec = replace(spec, **over, **{t: d or None for t, d in tables.items()})
+    if spec.algorithm is not None:
+        from dgtd.algorithms import ALGORITHMS
+
+        if spec.algorithm in ALGORITHMS:
+            own = field_types(ALGORITHMS[spec.algorithm])
+            spec = replace(spec, **{k: None for k in ALGORITHM_FIELDS if k not in own},
+                           algorithm_params={k: v for k, v in (spec.algorithm_params or {}).items() if k in own} or None)
+    return spec
+
+
+def _applied(spec: RunSpec, key: str):
+    table, _, sub = key.partition(".")
+    return (getattr(spec, table) or {}).get(sub) if sub else getattr(spec, key)
+
+
+def expand(exp: Experiment) -> list[Job]:
+    """The sweep's jobs in grid order (the product of the grid's lists), each resolved and checked.
+
+    Grid points that resolve to the same run (kappa for an algorithm without kappa) are one job.
+    """
+    keys = grid_keys(exp.grid)
+    jobs, seen = [], set()
+    for values in itertools.product(*(v for _, v in keys)):
+        point = dict(zip((k for k, _ in keys), values, strict=True))
+        spec = absolute_paths(apply_point(exp.spec, point))
+        try:
+            *_, resolved = resolve(spec)
+        except DgtdInputError as e:
+            where = ", ".join(f"{k} = {v!r}" for k, v in point.items())
+            raise DgtdInputError(f"grid point {where}: {e}") from None
+        record = json.dumps(spec_record(resolved), sort_keys=True)
+        job_id = "j" + hashlib.sha256(record.encode()).hexdigest()[:12]
+        if job_id not in seen:
+            seen.add(job_id)
+            jobs.append(Job(job_id, {k: _applied(spec, k) for k in point}, resolved))
+    return jobs
+
+
+def run_job(spec: dict, threads: int | None = 1) -> dict:
+    """Run one job (in a worker): its checkpoint steps, metrics (C, seeds) and summary, as plain data.
+
+    ``threads`` caps the compiled kernels' threads, so that a worker per core does not oversubscribe.
+    """
+    from dgtd.run.loop import run as run_loop
+    from dgtd.run.results import summary
+
+    problem, network, algorithm, sampling, settings, resolved = resolve(RunSpec(**spec))
+    if threads and settings.backend == "numba":
+        import numba
+
+        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
+    result = run_loop(problem, network, algorithm, sampling, settings)
+    return {"steps": result.steps, "metrics": result.metrics, "algorithm": algorithm.name,
+            "summary": summary(result, json.loads(json.dumps(spec_record(resolved))))}
+
+
+def make_executor(exp: Experiment, n_jobs: int) -> Executor:
+    """A process pool on the local cores, or a `RayExecutor` (local on 127.0.0.1, or ``address``)."""
+    opts = exp.sweep
+    if opts.executor == "ray":
+        from dgtd.ray_executor import RayExecutor
+
+        return RayExecutor(address=opts.address, num_cpus=opts.workers)
+    if opts.address is not None:
+        raise DgtdInputError("address names a Ray cluster; use it with executor = 'ray' (--executor ray)")
+    import multiprocessing
+
+    workers = max(1, min(opts.workers or os.cpu_count() or 1, n_jobs))
+    # spawn, not fork: workers start clean (no inherited threads of the compiled kernels' runtime)
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+
+
+def default_out(file: str | None) -> Path:
+    return Path("runs") / (Path(file).stem if file else "sweep")
+
+
+def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> dict:
+    """Run the jobs of ``exp`` not yet finished in ``out``.
+
+    Returns {'jobs', 'skipped', 'ran', 'failed' {id: message}, 'table' (path or None), 'seconds'}.
+    """
+    import time
+
+    from tqdm import tqdm
+
+    t_start = time.perf_counter()
+    if not exp.grid:
+        raise DgtdInputError("a sweep needs a [grid] table of lists, e.g. [grid] alpha0 = [1.0, 10.0]; "
+                             "use `dgtd run` for a single run")
+    jobs = expand(exp)
+    out = Path(out).resolve()
+    resume = exp.sweep.resume if exp.sweep.resume is not None else out.exists()
+    store = SweepStore(out, exp.sweep.format)
+    saved = replace(exp, spec=absolute_paths(exp.spec), output=Output(out=str(out), progress=exp.output.progress))
+    store.begin(to_toml(saved, "A dgtd sweep: `dgtd sweep THIS_FILE` runs it again, skipping finished jobs."))
+    todo = [j for j in jobs if not (resume and store.done(j.id))]
+    where = exp.sweep.address or ("a local Ray on 127.0.0.1" if exp.sweep.executor == "ray" else "a local process pool")
+    echo(f"{len(jobs)} jobs ({len(jobs) - len(todo)} already finished), {len(todo)} to run on {where}; results in {out}")
+    failed: dict[str, str] = {}
+    bar = tqdm(total=len(todo), unit="job", file=sys.stderr, disable=not progress, smoothing=0.1)
+    try:
+        if todo:
+            _run_jobs(exp, todo, store, failed, bar, echo)
+    finally:
+        bar.close()
+        table = store.write_table([(j.id, j.point) for j in jobs])
+        status = lambda j: "failed" if j.id in failed else ("finished" if store.done(j.id) else "not run")  # noqa: E731
+        from dgtd.run.results import atomic_write_json
+
+        atomic_write_json(out / "sweep.json", {
+            "grid": [k for k, _ in grid_keys(exp.grid)],
+            "table": None if table is None else table.name,
+            "jobs": [{"job": j.id, "point": j.point, "status": status(j)} for j in jobs],
+        })
+    return {"jobs": len(jobs), "skipped": len(jobs) - len(todo), "ran": len(todo) - len(failed), "failed": failed,
+            "table": table, "seconds": time.perf_counter() - t_start}
+
+
+def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict, bar, echo) -> None:
+    """Submit jobs until each is finished or failed; a broken process pool is replaced (Ray retries itself)."""
+    pending = {j.id: j for j in todo}
+    attempts = dict.fromkeys(pending, 0)
+    while pending:
+        executor = make_executor(exp, len(pending))
+        broken = False
+        try:
+            futures = {executor.submit(run_job, asdict(j.spec), 1): j for j in pending.values()}
+            for future in as_completed(futures):
+                job = futures[future]
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    broken = True
+                    attempts[job.id] += 1
+                    if attempts[job.id] < MAX_ATTEMPTS:
+                        continue  # resubmitted on a fresh pool
+                    message = f"its worker process died {MAX_ATTEMPTS} times"
+                except Exception as e:  # a job's own failure must not stop the others
+                    message = f"{type(e).__name__}: {e}"
+                else:
+                    config = to_toml(Experiment(spec=job.spec), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone.")
+                    store.write_job(job.id, job.point, config, result)
+                    del pending[job.id]
+                    bar.update()
+                    continue
+                failed[job.id] = message
+                store.write_error(job.id, message)
+                del pending[job.id]
+                bar.update()
+        finally:
+            executor.shutdown(wait=False, cancel_futures=True)
+        if broken and pending:
+            bar.clear()
+            echo(f"a worker process died; {len(pending)} unfinished job(s) go to a fresh pool")

@@ -1,0 +1,101 @@
+"""Long runs resume: a run continued from a checkpoint ends with exactly the numbers of an uninterrupted run."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+from conftest import cli_env, dgtd_cmd
+
+from dgtd.config import RunSpec, resolve
+from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
+from dgtd.run.loop import run
+
+ARRAYS = ("w_last", "w_avg", "w_tail", "agent_error_last", "agent_error_avg", "w_trace", "steps")
+
+
+def assert_same_run(a, b):
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for name in a.metrics:
+        np.testing.assert_array_equal(a.metrics[name], b.metrics[name], err_msg=name)
+    for name in a.final_state:
+        np.testing.assert_array_equal(a.final_state[name], b.final_state[name], err_msg=name)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("sampling", ["iid", "markov"])
+def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling):
+    # random edges, reward noise and Markov states: every stream and the trajectories' current states matter
+    spec = RunSpec(scenario="paper-example-1", iterations=2500, seeds=3, backend=backend, sampling=sampling,
+                   reward_noise="bernoulli", edge_prob=0.7, checkpoints=15, block_size=300)
+    problem, network, algorithm, samp, settings, _ = resolve(spec)
+    whole = run(problem, network, algorithm, samp, settings)
+    snaps = []
+    saving = run(problem, network, algorithm, samp, settings, checkpoint_every=600, on_checkpoint=snaps.append)
+    assert [s["k"] for s in snaps] == [600, 1200, 1800, 2400]
+    assert_same_run(whole, saving)  # checkpointing (and the block boundaries it adds) changes nothing
+    for i in (0, 3):  # through the file format, from the first and the last checkpoint
+        save_checkpoint(tmp_path / "c.npz", snaps[i], {"spec": "x"})
+        snap, config = load_checkpoint(tmp_path / "c.npz")
+        assert config == {"spec": "x"}
+        assert_same_run(whole, run(problem, network, algorithm, samp, settings, resume=snap))
+
+
+def test_a_killed_run_resumes_to_the_same_files(tmp_path):
+    """Kill `dgtd run --checkpoint-every` after a checkpoint, `--resume` it, and compare with a whole run."""
+    exp = tmp_path / "long.toml"
+    exp.write_text('scenario = "paper-example-1"\niterations = 400000\nseeds = 2\nbackend = "numba"\n'
+                   'reward_noise = "uniform"\ncheckpoints = 40\nplots = false\nprogress = false\n')
+    whole = subprocess.run(dgtd_cmd("run", exp, "--out", tmp_path / "whole"), env=cli_env(), capture_output=True, text=True)
+    assert whole.returncode == 0, whole.stderr
+    out = tmp_path / "cut"
+    proc = subprocess.Popen(dgtd_cmd("run", exp, "--out", out, "--checkpoint-every", "20000"),
+                            env=cli_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while not (out / "checkpoint.npz").exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.1)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "summary.json").exists(), "the run finished before it could be killed; make it longer"
+    snap, _ = load_checkpoint(out / "checkpoint.npz")
+    assert 0 < snap["k"] < 400_000
+    resumed = subprocess.run(dgtd_cmd("run", "--resume", out), env=cli_env(), capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resuming" in resumed.stdout
+    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+    a, b = (json.loads((d / "summary.json").read_text()) for d in (out, tmp_path / "whole"))
+    a.pop("seconds"), b.pop("seconds")
+    assert a == b
+    with np.load(out / "trajectory.npz") as x, np.load(tmp_path / "whole" / "trajectory.npz") as y:
+        for k in y.files:
+            np.testing.assert_array_equal(x[k], y[k])
+    assert not (out / "checkpoint.npz").exists()  # a finished run drops its checkpoint
+    again = subprocess.run(dgtd_cmd("run", "--resume", out), env=cli_env(), capture_output=True, text=True)
+    assert again.returncode == 0 and "already finished" in again.stdout
+
+
+def test_resume_refuses_another_config(tmp_path, run_cli):
+    out = tmp_path / "r"
+    code, _, err = run_cli("run", "paper-example-1", "-T", "2000", "--backend", "numpy", "--no-plots", "--no-progress",
+                           "--checkpoints", "5", "--out", out, "--checkpoint-every", "500")
+    assert code == 0, err
+    # leave a checkpoint behind as a killed run would
+    problem, network, algorithm, samp, settings, resolved = resolve(RunSpec(
+        scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5))
+    snaps = []
+    run(problem, network, algorithm, samp, settings, checkpoint_every=500, on_checkpoint=snaps.append)
+    from dgtd.config import spec_record
+
+    save_checkpoint(out / "checkpoint.npz", snaps[0], json.loads(json.dumps(spec_record(resolved))))
+    code, _, err = run_cli("run", "--resume", out, "--kappa", "3")
+    assert code == 2 and "checkpoint" in err and "kappa = 1.0 there, 3.0 here" in err, err
+    code, out_text, err = run_cli("run", "--resume", out)
+    assert code == 0 and "resuming" in out_text, err
+    code, _, err = run_cli("run", "--resume", tmp_path / "nothing")
+    assert code == 2 and "does not exist" in err
