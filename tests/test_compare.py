@@ -179,3 +179,14 @@ def test_time_to_accuracy_script_writes_table_json_and_plot(tmp_path):
     rows = json.loads((tmp_path / "time_to_accuracy.json").read_text())["rows"]
     assert {r["algorithm"] for r in rows} == {"dgtd", "td0"}
     assert (tmp_path / "time_to_accuracy.png").stat().st_size > 10_000
+
+
+def test_dgtd_run_reports_a_diverged_baseline_and_writes_its_files(tmp_path, capsys):
+    """`dgtd run baird --algorithm td0`: off-policy TD(0) diverges; the run says so and still writes every file."""
+    out = tmp_path / "td0"
+    main(["run", "baird", "--algorithm", "td0", "-T", "30000", "--alpha0", "1", "--seeds", "2", "--out", str(out),
+          "--no-progress"])
+    text = capsys.readouterr().out
+    assert "DIVERGED: seed(s) [0, 1]" in text
+    for name in ("summary.json", "metrics.csv", "iterates.png", "errors.png"):
+        assert (out / name).exists()

@@ -154,6 +154,10 @@ def final_table(result) -> str:
     if result.w_last.shape[0] > 1:
         rows.append(f"over {result.w_last.shape[0]} seeds, worst agent: last {e_last.max():.2%}, averaged {e_avg.max():.2%}, "
                     f"tail-averaged {e_tail.max():.2%}; consensus error max {cons.max():.3g}")
+    div = np.asarray(result.info.get("diverged_at", []))
+    if np.any(div >= 0):  # stopped seeds: their estimates are NaN from then on
+        rows.append(f"DIVERGED: seed(s) {np.flatnonzero(div >= 0).tolist()} stopped at step(s) {div[div >= 0].tolist()} "
+                    "(estimates beyond 1e6 x the scale of w*, or not finite)")
     return "\n".join(rows)
 
 

@@ -1,19 +1,12 @@
-"""Every algorithm by name: DGTD (the paper's Algorithm 1) and the baselines it is compared with."""
+"""What comparisons need of the algorithms of `dgtd.algorithms.ALGORITHMS`: descriptions, construction by name,
+and the number of parameter vectors each sends per link."""
 
 from __future__ import annotations
 
 import dataclasses
 
-from dgtd.algorithms.consensus_td0 import ConsensusTD0
-from dgtd.algorithms.dgtd import DGTD
-from dgtd.algorithms.gtd2 import GTD2
-from dgtd.algorithms.local import Local
-from dgtd.algorithms.pd_td import PDTD
-from dgtd.algorithms.tdc import TDC
-from dgtd.algorithms.td0 import TD0
+from dgtd.algorithms import ALGORITHMS
 from dgtd.errors import DgtdInputError
-
-ALGORITHMS = {cls.name: cls for cls in (DGTD, GTD2, TDC, TD0, ConsensusTD0, PDTD, Local)}
 
 DESCRIPTIONS = {
     "dgtd": "the paper's primal-dual distributed GTD (Algorithm 1)",
