@@ -130,7 +130,8 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
             f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them agree"
         )
     if problem.reward_noise != "none" and (problem.R_sample.min() < 0 or problem.R.min() < 0):
-        raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; use --reward-noise none")
+        raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; "
+                             "use --reward-noise none")
     if sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
         raise DgtdInputError(
             "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
@@ -219,8 +220,10 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
             err_last[c], err_avg[c] = np.nan, np.nan
             if alive.any():
                 wa, wv = w[alive], w_avg[alive]
-                err_last[c, alive], err_avg[c, alive] = exact.relative_error(wa, w_star), exact.relative_error(wv, w_star)
-                metrics["error_last"][c, alive], metrics["error_avg"][c, alive] = err_last[c, alive].max(-1), err_avg[c, alive].max(-1)
+                err_last[c, alive] = exact.relative_error(wa, w_star)
+                err_avg[c, alive] = exact.relative_error(wv, w_star)
+                metrics["error_last"][c, alive] = err_last[c, alive].max(-1)
+                metrics["error_avg"][c, alive] = err_avg[c, alive].max(-1)
                 metrics["consensus"][c, alive] = exact.consensus_error(wa)
                 metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
                 metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
