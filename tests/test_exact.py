@@ -129,3 +129,23 @@ def test_consensus_and_relative_error():
     W = np.array([[[1.0, 2.0], [3.0, 2.0]]])
     assert_allclose(exact.consensus_error(W), [2.0])  # mean (2, 2): 1 + 1
     assert_allclose(exact.relative_error(W, np.array([2.0, 2.0])), [[0.5, 0.5]])
+
+
+def test_sparse_laplacian_paths_match_dense(rng, monkeypatch):
+    # Above DENSE_N agents mu* comes from conjugate gradients and |L^+|_inf from a spectral bound; force those
+    # paths on a small graph and compare with the dense formulas.
+    p = random_problem(6, 30, 3, rng)
+    G = topologies.ring_with_chords(30, 7)
+    w = rng.uniform(0.2, 1.0, G.n_edges)
+    m, L, Ls = exact.Moments(p), G.laplacian(w), G.laplacian_sparse(w)
+    assert_allclose(Ls.toarray(), L)
+    dense_mu = exact.mu_star(m, L)
+    monkeypatch.setattr(exact, "DENSE_N", 10)
+    assert_allclose(exact.mu_star(m, Ls), dense_mu, rtol=1e-9, atol=1e-11)
+    sp = exact.saddle_point(m, Ls, 1.0)
+    assert max(exact.kkt_residuals(m, Ls, 1.0, 0.0, sp).values()) < 1e-9
+    exact_norm = float(np.abs(laplacian_pinv(L)).sum(axis=1).max())
+    bound = exact.laplacian_pinv_inf_norm(Ls)
+    lambda_2 = np.linalg.eigvalsh(L)[1]
+    assert exact_norm <= bound
+    assert_allclose(bound, np.sqrt(30) / lambda_2, rtol=1e-6)

@@ -124,21 +124,20 @@ def _timed(f) -> float:
 
 
 def bytes_per_agent_step(q: int, mean_degree: float) -> dict:
-    """Memory traffic of one agent-step of the agent-parallel kernel, float64.
+    """Memory traffic of one agent-step of the compiled kernel, float64.
 
-    Compulsory: theta read + write, (v, mu, w) read at k and written at k + 1, the running sum of w read +
-    write (the tail sum only in the final window, ignored): 10 vectors of q. Neighbour rows (3 vectors per
-    up edge) may hit the cache; they are listed apart.
+    Compulsory: theta read + write (2q), (v, mu) read + write (4q), the row neighbours read, (w, v + mu), read
+    at k and written at k + 1 (4q), the running sum of w read + write (2q; the tail sum, only in the final
+    window, is left out): 12 vectors of q. The neighbours' rows (2q per up edge) may come from the caches;
+    they are listed apart.
     """
-    compulsory = 10 * q * 8
-    neighbours = 3 * q * 8 * mean_degree
-    return {"compulsory": compulsory, "neighbours": neighbours}
+    return {"compulsory": 12 * q * 8, "neighbours": 2 * q * 8 * mean_degree}
 
 
 def flops_per_agent_step(q: int, mean_degree: float) -> float:
-    """Floating-point operations of one agent-step with dense features: 3 dot products (2q each), the three
-    Laplacian rows (2 per neighbour and feature each) and the four updates with clipping (~20 per feature)."""
-    return 6 * q + 6 * q * mean_degree + 20 * q
+    """Floating-point operations of one agent-step with dense features: 3 dot products (6q), the Laplacian rows
+    of (w, v + mu) (2q adds per up neighbour, 4q to finish), and the updates with projection (~26q)."""
+    return 6 * q + 2 * q * mean_degree + 4 * q + 26 * q
 
 
 def peak_flops(cores: int, ghz: float = 2.8, flops_per_cycle: int = 32) -> float:

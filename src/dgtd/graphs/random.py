@@ -34,9 +34,9 @@ class RandomEdges:
         """True when every edge is always up: no random draws are needed."""
         return bool(np.all(self.p >= 1.0))
 
-    def mean_laplacian(self) -> np.ndarray:
-        """The mean Laplacian bold-L = E[L(k)] = sum_e p_e L_e."""
-        return self.base.laplacian(self.p)
+    def mean_laplacian(self, sparse: bool = False):
+        """The mean Laplacian bold-L = E[L(k)] = sum_e p_e L_e (dense, or scipy CSR with ``sparse``)."""
+        return self.base.laplacian_sparse(self.p) if sparse else self.base.laplacian(self.p)
 
     def masks_from_uniforms(self, u: np.ndarray) -> np.ndarray:
         """Edges up, (..., E) bool, from uniforms u (..., E): edge e is up when u_e < p_e."""

@@ -32,6 +32,18 @@ class Graph:
         np.add.at(L, (v, v), w)
         return L
 
+    def laplacian_sparse(self, weights=None):
+        """The same Laplacian as a scipy CSR matrix: O(N + |E|) memory, for large graphs."""
+        from scipy.sparse import coo_matrix
+
+        w = np.ones(self.n_edges) if weights is None else np.asarray(weights, dtype=np.float64)
+        u, v = self.edges[:, 0], self.edges[:, 1]
+        deg = np.bincount(u, w, self.n_nodes) + np.bincount(v, w, self.n_nodes)
+        rows = np.concatenate([u, v, np.arange(self.n_nodes)])
+        cols = np.concatenate([v, u, np.arange(self.n_nodes)])
+        vals = np.concatenate([-w, -w, deg])
+        return coo_matrix((vals, (rows, cols)), shape=(self.n_nodes, self.n_nodes)).tocsr()
+
 
 def from_edges(n_nodes: int, edges, name: str = "edges") -> Graph:
     """Graph from any iterable of (i, j) pairs; duplicates and orientation are normalised."""

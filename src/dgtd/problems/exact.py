@@ -125,9 +125,52 @@ def theta_star(m: Moments) -> np.ndarray:
     return _solve(m, m.M, (m.b - m.b_mean).T).T
 
 
-def mu_star(m: Moments, L: np.ndarray) -> np.ndarray:
+DENSE_N = 2000  # up to this many agents, Laplacian pseudo-inverses are formed densely
+REGULARISED_MAX = 1500  # largest N * q whose regularised (rho > 0) saddle point is solved as one dense system
+
+
+def lap(L, X: np.ndarray) -> np.ndarray:
+    """bar-L X along the agent axis (-2) of (..., N, q), for a dense or scipy-sparse L."""
+    if not issparse(L):
+        return L @ X
+    Xm = np.moveaxis(X, -2, 0)
+    out = L @ Xm.reshape(Xm.shape[0], -1)
+    return np.moveaxis(np.asarray(out).reshape(Xm.shape), 0, -2)
+
+
+def lap_pinv_apply(L, Y: np.ndarray) -> np.ndarray:
+    """L^+ Y for Y (N, q) with columns summing to zero (the range of L).
+
+    Dense: L^+ = (L + 11^T/N)^-1 - 11^T/N of `lemma:bound-lemma3`. Sparse: conjugate gradients on
+    L + 11^T/N, which equals L^+ Y on such columns (solved to 1e-13 relative residual).
+    """
+    N = Y.shape[0]
+    if not issparse(L) and N <= DENSE_N:
+        return laplacian_pinv(L) @ Y
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    Ls = L if issparse(L) else csr_from(L)
+    op = LinearOperator((N, N), matvec=lambda x: Ls @ x + x.sum() / N, dtype=np.float64)
+    out = np.empty_like(Y)
+    for j in range(Y.shape[1]):
+        x, info = cg(op, Y[:, j], rtol=1e-13, atol=0.0, maxiter=20 * N)
+        out[:, j] = x - x.mean()
+    return out
+
+
+def csr_from(L: np.ndarray):
+    from scipy.sparse import csr_matrix
+
+    return csr_matrix(L)
+
+
+def issparse(L) -> bool:
+    return hasattr(L, "tocsr")
+
+
+def mu_star(m: Moments, L) -> np.ndarray:
     """mu* = bar-L^+ bar-B^T theta*, `prop:saddle-point-mu`, with L^+ from `lemma:bound-lemma3`; shape (N, q)."""
-    return laplacian_pinv(L) @ (theta_star(m) @ m.A)
+    return lap_pinv_apply(L, theta_star(m) @ m.A)
 
 
 @dataclass(frozen=True)
@@ -140,7 +183,7 @@ class SaddlePoint:
     w: np.ndarray
 
 
-def saddle_point(m: Moments, L: np.ndarray, kappa: float = 0.0, rho: float = 0.0) -> SaddlePoint:
+def saddle_point(m: Moments, L, kappa: float = 0.0, rho: float = 0.0) -> SaddlePoint:
     """The saddle point (theta*, v* = 0, mu*, 1 kron w*) of `prop:stationary-points`; any kappa >= 0.
 
     With the regulariser rho > 0 (the modification after `prop:convergence-DGTD2`) the saddle point moves
@@ -152,8 +195,10 @@ def saddle_point(m: Moments, L: np.ndarray, kappa: float = 0.0, rho: float = 0.0
         return SaddlePoint(th, np.zeros_like(th), mu_star(m, L), np.tile(w_star(m), (N, 1)))
     q = m.A.shape[0]
     n = N * q
-    if 4 * n > 4000:
-        raise DgtdInputError(f"the regularised saddle point is solved densely; N*q = {n} is too large")
+    if n > REGULARISED_MAX:
+        raise DgtdInputError(f"the regularised saddle point is solved densely; N*q = {n} is over {REGULARISED_MAX}")
+    if issparse(L):
+        L = L.toarray()
     I_N, I_q, I_n = np.eye(N), np.eye(q), np.eye(n)
     Lk = np.kron(L, I_q)
     Z = np.zeros((n, n))
@@ -175,11 +220,11 @@ def lagrangian_gradient(m: Moments, L, kappa, rho, theta, v, mu, w):
 
     Returns (dL/dtheta, dL/dv, dL/dmu, dL/dw); the KKT conditions (eq. `KKT-points`) are that all four vanish.
     """
-    Lw = L @ w
+    Lw = lap(L, w)
     g_theta = theta @ m.M - m.b + w @ m.A.T
     g_v = v - Lw
     g_mu = -Lw + rho * mu
-    g_w = theta @ m.A - L @ v - L @ mu - kappa * Lw - rho * w
+    g_w = theta @ m.A - lap(L, v) - lap(L, mu) - kappa * Lw - rho * w
     return g_theta, g_v, g_mu, g_w
 
 
@@ -217,6 +262,21 @@ def relative_error(W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
     return np.abs(W - w_ref).max(axis=-1) / scale
 
 
+def laplacian_pinv_inf_norm(L) -> float:
+    """|L^+|_inf of the lemma: exact for up to DENSE_N agents; above, the bound sqrt(N) / lambda_2(L) >= it
+    (|A|_inf <= sqrt(N) |A|_2), with lambda_2 from a sparse shift-invert eigensolver, so boxes stay valid."""
+    N = L.shape[0]
+    if N <= DENSE_N:
+        Ld = L.toarray() if issparse(L) else L
+        return float(np.abs(laplacian_pinv(Ld)).sum(axis=1).max())
+    from scipy.sparse import identity
+    from scipy.sparse.linalg import eigsh
+
+    Ls = L if issparse(L) else csr_from(L)
+    vals = eigsh(Ls + 1e-9 * identity(N), k=2, sigma=-1e-3, which="LM", return_eigenvectors=False)
+    return float(np.sqrt(N) / (np.sort(vals)[-1] - 1e-9))
+
+
 @dataclass(frozen=True)
 class Bounds:
     """Half-widths of the projection boxes C_theta, C_v, C_mu, C_w (max-norm balls)."""
@@ -245,7 +305,7 @@ def lemma_bounds(m: Moments, L: np.ndarray, max_degree: int) -> Bounds:
         c_w += float(np.abs(m.null_projector @ w_star(m)).max())
     c_theta = 2.0 * p.sigma * S * np.sqrt(N / (xi * lam))
     phi_inf = float(np.abs(p.Phi).sum(axis=1).max())
-    L_pinv_inf = float(np.abs(laplacian_pinv(L)).sum(axis=1).max()) if N > 1 else 0.0
+    L_pinv_inf = laplacian_pinv_inf_norm(L) if N > 1 else 0.0
     c_mu = L_pinv_inf * phi_inf**2 * 2.0 * p.sigma * S**2 * np.sqrt(N / (xi * lam))
     c_v = 2.0 * max_degree * c_w
     return Bounds(float(c_theta), float(c_v), float(c_mu), float(c_w))

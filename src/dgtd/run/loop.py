@@ -107,7 +107,7 @@ def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges) -> tu
     if algorithm.boxes is not None:
         return tuple(float(b) for b in algorithm.boxes)
     max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
-    c = exact.lemma_bounds(moments, network.mean_laplacian(), max_degree)
+    c = exact.lemma_bounds(moments, network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N), max_degree)
     return tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
 
 
@@ -137,8 +137,11 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
             "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
         )
     moments, tables = _model_tables(problem)
-    L_mean = network.mean_laplacian()
-    saddle = exact.saddle_point(moments, L_mean, getattr(algorithm, "kappa", 0.0), getattr(algorithm, "rho", 0.0))
+    L_mean = network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N)  # O(N + |E|) memory for many agents
+    rho = getattr(algorithm, "rho", 0.0)
+    if problem.n_agents * problem.n_features > exact.REGULARISED_MAX:
+        rho = 0.0  # too large to solve densely: report the unregularised saddle point, the problem's own
+    saddle = exact.saddle_point(moments, L_mean, getattr(algorithm, "kappa", 0.0), rho)
     w_star = exact.w_star(moments)
     boxes = resolve_boxes(algorithm, moments, network)
     T = int(settings.iterations)
