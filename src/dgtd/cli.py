@@ -1,4 +1,4 @@
-"""The `dgtd` command line: run, solve, scenarios. Bad input prints one line and exits with code 2."""
+"""The `dgtd` command line: run, solve, scenarios, compare. Bad input prints one line and exits with code 2."""
 
 from __future__ import annotations
 
@@ -154,6 +154,10 @@ def final_table(result) -> str:
     if result.w_last.shape[0] > 1:
         rows.append(f"over {result.w_last.shape[0]} seeds, worst agent: last {e_last.max():.2%}, averaged {e_avg.max():.2%}, "
                     f"tail-averaged {e_tail.max():.2%}; consensus error max {cons.max():.3g}")
+    div = np.asarray(result.info.get("diverged_at", []))
+    if np.any(div >= 0):  # stopped seeds: their estimates are NaN from then on
+        rows.append(f"DIVERGED: seed(s) {np.flatnonzero(div >= 0).tolist()} stopped at step(s) {div[div >= 0].tolist()} "
+                    "(estimates beyond 1e6 x the scale of w*, or not finite)")
     return "\n".join(rows)
 
 
@@ -178,7 +182,7 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
         "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
         "w_star": w.tolist(), "theta_star": sp.theta.tolist(), "v_star": sp.v.tolist(), "mu_star": sp.mu.tolist(),
-        "w_star_per_agent_reward": np.linalg.solve(m.A, m.b.T).T.tolist(),
+        "w_star_per_agent_reward": exact.fixed_point(m, m.b).tolist(),
         "stationary_distribution": m.d.tolist(), "mspbe_w_star": float(exact.mspbe(m, w)),
         "value_function": exact.value_function(m).tolist(), "approximate_values": (problem.Phi @ w).tolist(),
         "mean_laplacian": L.tolist(),
@@ -265,6 +269,11 @@ def scenarios():
 
     for name, builder in SCENARIOS.items():  # the builders' first doc lines: listing builds nothing
         click.echo(f"{name:<20} {(builder.__doc__ or '').strip().splitlines()[0]}")
+
+
+from dgtd.cli_compare import compare as _compare  # noqa: E402
+
+cli.add_command(_compare)
 
 
 def main(argv=None) -> None:

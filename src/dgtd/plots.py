@@ -37,8 +37,9 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
             ax.plot(result.steps, W[:, i, f], color=col, lw=0.8, alpha=0.8, label=f"w[{f}], agents 1..{N}" if i == 0 else None)
         ax.axhline(result.w_star[f], color=col, ls="--", lw=1.2, label=f"w*[{f}] = {result.w_star[f]:.3f}")
     settled = W[len(W) // 3:, :, : min(q, max_components)]
-    lo = min(settled.min(), result.w_star[:max_components].min())
-    hi = max(settled.max(), result.w_star[:max_components].max())
+    settled = settled[np.isfinite(settled)]  # a diverged run is NaN from where it was stopped
+    lo = min(settled.min(initial=np.inf), result.w_star[:max_components].min())
+    hi = max(settled.max(initial=-np.inf), result.w_star[:max_components].max())
     pad = 0.15 * (hi - lo) + 1e-9
     ax.set_ylim(lo - pad, hi + pad)  # the early transient can reach the projection box; keep the settling readable
     ax.set_xscale("log")
@@ -67,7 +68,8 @@ def plot_errors(result: RunResult, path: Path) -> None:
     band(axes[0], x, m["error_last"], "last iterate")
     band(axes[0], x, m["error_avg"], "averaged iterate")
     axes[0].set_title("max over agents of |w_i - w*|_inf / |w*|_inf")
-    floor = lambda Y: np.maximum(Y, 1e-12 * max(float(Y.max()), 1e-300))  # noqa: E731  (log axes need > 0)
+    # log axes need > 0; NaN marks checkpoints after a run diverged
+    floor = lambda Y: np.maximum(Y, 1e-12 * max(float(np.nanmax(Y, initial=0.0)), 1e-300))  # noqa: E731
     band(axes[1], x, floor(m["consensus"]), "sum_i |w_i - mean w|^2")
     axes[1].set_title("consensus error")
     band(axes[2], x, floor(m["mspbe_last"]), "last iterate")

@@ -36,6 +36,7 @@ class DGTD:
     boxes: tuple[float, float, float, float] | None = None
 
     name = "dgtd"
+    vectors_per_direction = 3  # w_i, v_i and mu_i go to each neighbour (Algorithm 1 lines 7-8)
 
     def init(self, n_seeds: int, n_agents: int, n_features: int) -> "DGTDState":
         return init(n_seeds, n_agents, n_features)

@@ -34,3 +34,7 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk: Block):
 
 
 BLOCKS = {"dgtd": dgtd_block}
+
+from dgtd.backends.numpy_baselines import BLOCKS as _BASELINE_BLOCKS  # noqa: E402  (baselines: gtd2, tdc, ...)
+
+BLOCKS.update(_BASELINE_BLOCKS)

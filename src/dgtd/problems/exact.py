@@ -66,11 +66,51 @@ class Moments:
     def b_mean(self) -> np.ndarray:
         return self.b.mean(axis=0)
 
+    @cached_property
+    def full_rank(self) -> bool:
+        """Whether Phi has full column rank (else M and A are singular: see `w_star`)."""
+        return bool(np.linalg.matrix_rank(self.problem.Phi) == self.problem.n_features)
+
+    @cached_property
+    def M_inv(self) -> np.ndarray:
+        """M^-1 (the pseudo-inverse with dependent features), computed once for every MSPBE evaluation."""
+        return np.linalg.inv(self.M) if self.full_rank else np.linalg.pinv(self.M, hermitian=True)
+
+    @cached_property
+    def null_projector(self) -> np.ndarray:
+        """Orthogonal projector I - Phi^+ Phi onto the null space of Phi (zero when Phi has full column rank)."""
+        Phi = self.problem.Phi
+        return np.eye(Phi.shape[1]) - np.linalg.pinv(Phi) @ Phi
+
+
+def _solve(m: Moments, K: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """K^-1 rhs; with dependent features, the least-norm solution (rhs lies in the row space of Phi = range K)."""
+    if m.full_rank:
+        return np.linalg.solve(K, rhs)
+    return np.linalg.lstsq(K, rhs, rcond=None)[0]
+
 
 def w_star(m: Moments) -> np.ndarray:
     """w* = (Phi^T D (I - gamma P) Phi)^-1 Phi^T D (1/N) sum_i r_i, eq. (solution) of `prop:equivalance`."""
+    return fixed_point(m, m.b_mean)
+
+
+def fixed_point(m: Moments, b: np.ndarray) -> np.ndarray:
+    """The solution of A w = b (b = Phi^T D r for a reward r; (q,) or (..., q)).
+
+    With dependent features (Phi without full column rank) A w = b has a line of solutions, all with the
+    same values Phi w. Every method here moves w along feature vectors, so w - w0 stays in the row space of
+    Phi: the solution they reach is (I - P0) A^+ b + P0 w0, P0 the projector onto the null space of Phi and
+    w0 the initial weights (zero unless the problem prescribes them).
+    """
+    b = np.asarray(b, dtype=np.float64)
+    if not m.full_rank:
+        P0 = m.null_projector
+        w0 = np.zeros(P0.shape[0]) if m.problem.w0 is None else m.problem.w0
+        sol = np.linalg.lstsq(m.A, b.reshape(-1, b.shape[-1]).T, rcond=None)[0].T
+        return (sol @ (np.eye(P0.shape[0]) - P0) + w0 @ P0).reshape(b.shape)
     try:
-        return np.linalg.solve(m.A, m.b_mean)
+        return np.linalg.solve(m.A, b.reshape(-1, b.shape[-1]).T).T.reshape(b.shape)
     except np.linalg.LinAlgError:
         raise DgtdInputError("Phi^T D (I - gamma P) Phi is singular; the projected Bellman equation has no unique solution") from None
 
@@ -82,7 +122,7 @@ def theta_star(m: Moments) -> np.ndarray:
     appendix (eq. appendix:eq13) has this sign; the statement of `prop:stationary-points` carries the opposite
     sign, which does not satisfy the KKT equations. Tests check the KKT residuals to 1e-9.
     """
-    return np.linalg.solve(m.M, (m.b - m.b_mean).T).T
+    return _solve(m, m.M, (m.b - m.b_mean).T).T
 
 
 DENSE_N = 2000  # up to this many agents, Laplacian pseudo-inverses are formed densely
@@ -200,12 +240,9 @@ def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
     ``b`` defaults to the average reward's b_mean; ``w`` may have any leading axes (..., q).
     """
     b = m.b_mean if b is None else b
-    e = b - w @ m.A.T
-    q = e.shape[-1]
-    from scipy.linalg import cho_solve
-
-    Minv_e = cho_solve(m.M_factor, e.reshape(-1, q).T).T.reshape(e.shape)
-    return 0.5 * np.einsum("...i,...i->...", e, Minv_e)
+    # einsum loops in C without BLAS threads, which would contend with the compiled kernels' threads
+    e = b - np.einsum("...j,ij->...i", w, m.A)
+    return 0.5 * np.einsum("...i,ij,...j->...", e, m.M_inv, e)
 
 
 def value_function(m: Moments) -> np.ndarray:
@@ -258,11 +295,14 @@ def lemma_bounds(m: Moments, L: np.ndarray, max_degree: int) -> Bounds:
     p = m.problem
     S, N = p.n_states, p.n_agents
     xi = float(m.d.min())
-    lam = float(np.linalg.eigvalsh(p.Phi.T @ p.Phi).min())
+    eig = np.linalg.eigvalsh(p.Phi.T @ p.Phi)
+    lam = float(eig.min() if m.full_rank else eig[eig > 1e-10 * eig.max()].min())  # dependent features: row space
     J = value_function(m)
-    PiJ = p.Phi @ np.linalg.solve(m.M, p.Phi.T @ (m.d * J))
+    PiJ = p.Phi @ _solve(m, m.M, p.Phi.T @ (m.d * J))
     proj_err = float(np.sqrt(np.sum(m.d * (PiJ - J) ** 2)))
     c_w = np.sqrt(S / lam) * (proj_err / np.sqrt(xi) + p.sigma) / (1.0 - p.gamma)
+    if not m.full_rank:  # plus the part of w* along the null space of Phi, set by w0 (see `w_star`)
+        c_w += float(np.abs(m.null_projector @ w_star(m)).max())
     c_theta = 2.0 * p.sigma * S * np.sqrt(N / (xi * lam))
     phi_inf = float(np.abs(p.Phi).sum(axis=1).max())
     L_pinv_inf = laplacian_pinv_inf_norm(L) if N > 1 else 0.0

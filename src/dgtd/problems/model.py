@@ -34,6 +34,8 @@ class Problem:
     - ``sigma``: rewards lie in [0, sigma] (paper section 3); it sizes the projection boxes.
     - ``reward_noise``: 'none' (deterministic), 'bernoulli' (sigma * Bernoulli(mean / sigma)) or
       'uniform' (uniform on [m - h, m + h], h = min(m, sigma - m)); each has the stated mean and support.
+    - ``w0`` (q,) or None: the task's prescribed initial value weights (Baird's counterexample starts at
+      (1, 1, 1, 1, 1, 1, 10, 1)); None means zero, Algorithm 1 line 3.
     """
 
     P: np.ndarray
@@ -47,6 +49,7 @@ class Problem:
     reward_noise: str = "none"
     name: str = "problem"
     state_labels: tuple = field(default=())
+    w0: np.ndarray | None = None
 
     @property
     def n_states(self) -> int:
@@ -144,10 +147,22 @@ def make_problem(
     reward_noise: str = "none",
     name: str = "problem",
     state_labels: tuple = (),
+    w0=None,
+    signed_rewards: bool = False,
+    dependent_features: bool = False,
 ) -> Problem:
     """Validate and build a `Problem`; on-policy when no sampling model is given.
 
-    Every check raises `DgtdInputError` with a message naming what is wrong.
+    Every check raises `DgtdInputError` with a message naming what is wrong. Two checks can be relaxed for
+    benchmark tasks that need it, and only on request:
+
+    - ``signed_rewards``: mean rewards may be negative, |r| <= sigma, as in Boyan's chain (-3 per step) and in
+      Baird's counterexample (zero reward, which agents can only split into differing parts with signs).
+      The paper's bounds use |r| <= sigma only; the reward-noise models draw on [0, sigma], so the run
+      refuses noise for such a problem.
+    - ``dependent_features``: Phi may lack full column rank, as in Baird's counterexample (8 features for
+      7 states). The exact solution is then the one reached from ``w0``: every update moves w along feature
+      vectors, so w - w0 stays in the row space of Phi (`dgtd.problems.exact.w_star`).
     """
     P = _as_float_array("P", P, 2)
     R = _as_float_array("R", R, 2)
@@ -168,7 +183,7 @@ def make_problem(
     if R.shape[0] < 1:
         raise DgtdInputError("R must hold at least one agent (one row)")
     check_stochastic("P", P)
-    if np.linalg.matrix_rank(Phi) < Phi.shape[1]:
+    if not dependent_features and np.linalg.matrix_rank(Phi) < Phi.shape[1]:
         raise DgtdInputError(
             f"Phi ({Phi.shape[0]} x {Phi.shape[1]}) does not have full column rank "
             f"(rank {np.linalg.matrix_rank(Phi)}); remove features that are linear combinations of others"
@@ -198,9 +213,9 @@ def make_problem(
         raise DgtdInputError("the sampling model does not reproduce R: sum_a pi(a|s) R_sample(i,s,a) must equal R(i,s)")
     P_beh = P_sample.sum(axis=1)
     check_irreducible("the behaviour chain" if A > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
-    if np.any(R < 0) or np.any(R_sample < 0):
+    if not signed_rewards and (np.any(R < 0) or np.any(R_sample < 0)):
         raise DgtdInputError("rewards must be >= 0 (the paper's rewards lie in [0, sigma]); shift them by a constant")
-    r_max = float(max(R.max(), R_sample.max()))
+    r_max = float(max(np.abs(R).max(), np.abs(R_sample).max()))
     if sigma is None:
         sigma = r_max if r_max > 0 else 1.0
     sigma = float(sigma)
@@ -208,6 +223,13 @@ def make_problem(
         raise DgtdInputError(f"sigma must be positive and at least the largest mean reward {r_max:g}, got {sigma}")
     if reward_noise not in REWARD_NOISES:
         raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
+    if signed_rewards and reward_noise != "none":
+        raise DgtdInputError("reward noise draws rewards in [0, sigma]; a problem with signed rewards needs reward_noise='none'")
+    if w0 is not None:
+        w0 = _as_float_array("w0", w0, 1)
+        if w0.shape != (Phi.shape[1],):
+            raise DgtdInputError(f"w0 must have one entry per feature ({Phi.shape[1]}), got shape {w0.shape}")
+        w0.setflags(write=False)
     for a in (P, R, Phi, P_sample, ratio, R_sample):
         a.setflags(write=False)
-    return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels))
+    return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels), w0)

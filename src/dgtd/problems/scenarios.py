@@ -6,7 +6,7 @@ Scenarios are data: the CLI and experiment files refer to them by name, and flag
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
@@ -15,6 +15,7 @@ from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import RandomEdges, random_edges
+from dgtd.problems import tasks
 from dgtd.problems.features import gaussian_rbf
 from dgtd.problems.model import Problem, make_problem
 from dgtd.run.sampling import Sampling
@@ -39,6 +40,9 @@ class Scenario:
     report: Callable[..., tuple] | None = None
     """Optional ``report(result, source, out, plots) -> (dict, text)`` after a run: scenario-specific numbers for
     summary.json (under "scenario"), figures written to ``out`` when ``plots``, and lines to print."""
+    compare_settings: dict = field(default_factory=dict)
+    """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario;
+    for "dgtd" they override ``algorithm``'s only in comparisons (`dgtd.run.compare.configs_for`)."""
 
 
 PAPER_EXAMPLE_1_P = np.array(
@@ -71,6 +75,7 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
         sampling=Sampling(mode="iid", shared=False),
         iterations=1_000_000,
         description="the paper's Example 1: 4-state chain, 5 agents on a ring with random link failures",
+        compare_settings=COMPARE_STEPS["paper-example-1"],
     )
 
 
@@ -99,9 +104,79 @@ def paper_example_2(edge_prob: float | None = None) -> Scenario:
     )
 
 
+def _task(problem: Problem, edge_prob: float, dgtd: DGTD, iterations: int, description: str, steps: dict,
+          sampling: Sampling = Sampling(mode="iid", shared=False)) -> Scenario:
+    """A benchmark task (`dgtd.problems.tasks`) on a ring whose links are each up with ``edge_prob``."""
+    return Scenario(problem, random_edges(topologies.ring(problem.n_agents), edge_prob), dgtd, sampling, iterations,
+                    description, compare_settings=steps)
+
+
+def baird_scenario(edge_prob: float = 0.8) -> Scenario:
+    """Baird's counterexample, off-policy, 5 agents; off-policy TD(0) diverges here."""
+    return _task(tasks.baird(n_agents=5), edge_prob, DGTD(alpha0=0.1, beta=100.0), 100_000,
+                 "Baird's counterexample (7 states, 8 features, off-policy), 5 agents on a ring with link failures",
+                 COMPARE_STEPS["baird"])
+
+
+def boyan_scenario(edge_prob: float = 0.8) -> Scenario:
+    """The Boyan chain of Dann et al. (2014) with restart, 10 agents."""
+    return _task(tasks.boyan(n_agents=10), edge_prob, DGTD(alpha0=30.0, beta=100.0), 200_000,
+                 "Boyan chain (14 states, 4 features, restart), 10 agents on a ring with link failures",
+                 COMPARE_STEPS["boyan"])
+
+
+def random_mdp_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
+    """Dann et al.'s 400-state random MDP, on-policy, 10 agents."""
+    return _task(tasks.random_mdp(n_agents=10, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0), 100_000,
+                 "random MDP (400 states, 10 actions, 200 features), on-policy, 10 agents on a ring",
+                 COMPARE_STEPS["random-mdp"])
+
+
+def random_mdp_off_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
+    """Dann et al.'s 400-state random MDP, off-policy (random behaviour policy), 10 agents."""
+    return _task(tasks.random_mdp(n_agents=10, off_policy=True, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0),
+                 100_000, "random MDP (400 states, 10 actions, 200 features), off-policy, 10 agents on a ring",
+                 COMPARE_STEPS["random-mdp-off"])
+
+
+def garnet_scenario(edge_prob: float = 0.8, n_states: int = 30, branching: int = 3, n_agents: int = 10,
+                    n_features: int = 8, seed: int = 0) -> Scenario:
+    """A random ergodic Garnet chain (default 30 states, 3 successors, 10 agents, 8 features)."""
+    return _task(tasks.garnet(n_states, branching, n_agents, n_features, seed=seed), edge_prob,
+                 DGTD(alpha0=3.0, beta=100.0), 100_000,
+                 f"Garnet chain ({n_states} states, {branching} successors, {n_features} features), {n_agents} agents",
+                 COMPARE_STEPS["garnet"])
+
+
+# Step sizes in comparisons (alpha_k = alpha0 / sqrt(k + beta), beta as DGTD's): for each task and algorithm
+# the best alpha0 of the grid 10^(k/2), k = -5..4, by `dgtd.run.compare.tune_score` on 2 seeds separate from
+# the reported ones, rounded (0.316 -> 0.3, 3.16 -> 3, 31.6 -> 30); DGTD's is its scenario's alpha0, except on
+# the paper's Example 1, whose scenario keeps the paper's alpha0 = 10 for `dgtd run`. On Baird every algorithm
+# uses alpha0 = 0.1: the TD methods diverge or grow at every step size of the grid, and the gradient methods
+# all stall on the same slow direction (near-constant values, an eigenvalue ~2e-5 of A^T M^+ A), so the grid
+# says nothing; one common step size shows both behaviours.
+COMPARE_STEPS: dict[str, dict] = {
+    "paper-example-1": {"dgtd": {"alpha0": 0.3}, "gtd2": {"alpha0": 1.0}, "tdc": {"alpha0": 1.0}, "td0": {"alpha0": 0.3},
+                        "consensus-td0": {"alpha0": 0.3}, "pd-td": {"alpha0": 0.3}, "local": {"alpha0": 1.0}},
+    "baird": {name: {"alpha0": 0.1} for name in ("gtd2", "tdc", "td0", "consensus-td0", "pd-td", "local")},
+    "boyan": {"gtd2": {"alpha0": 30.0}, "tdc": {"alpha0": 30.0}, "td0": {"alpha0": 1.0},
+              "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 10.0}},
+    "random-mdp": {"gtd2": {"alpha0": 0.3}, "tdc": {"alpha0": 0.3}, "td0": {"alpha0": 3.0},
+                   "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 0.3}},
+    "random-mdp-off": {"gtd2": {"alpha0": 0.3}, "tdc": {"alpha0": 0.3}, "td0": {"alpha0": 3.0},
+                       "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 0.1}},
+    "garnet": {"gtd2": {"alpha0": 3.0}, "tdc": {"alpha0": 3.0}, "td0": {"alpha0": 1.0},
+               "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 3.0}},
+}
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-example-1": paper_example_1,
     "paper-example-2": paper_example_2,
+    "baird": baird_scenario,
+    "boyan": boyan_scenario,
+    "random-mdp": random_mdp_scenario,
+    "random-mdp-off": random_mdp_off_scenario,
+    "garnet": garnet_scenario,
 }
 
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from dgtd.algorithms import dgtd as dgtd_alg
+from dgtd.algorithms.registry import messages_per_edge
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
@@ -16,6 +18,10 @@ from dgtd.problems.model import Problem, chain_period
 from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
+DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
+# Counts recorded at every checkpoint beside the metrics (in RunResult.info["counts"], arrays (C, B)): agent-samples
+# consumed, parameter vectors sent over links (`dgtd.algorithms.registry.messages_per_edge`), 1 once diverged.
+COUNTS = ("samples", "messages", "diverged")
 
 
 @dataclass(frozen=True)
@@ -105,17 +111,32 @@ def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges) -> tu
     return tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
 
 
+_MODEL_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _model_tables(problem: Problem):
+    """The problem's `Moments` and sampler tables, built once per problem object and reused by every run on
+    it (comparisons run several algorithms on one problem; the tables of a 400-state MDP take seconds)."""
+    if problem not in _MODEL_CACHE:
+        moments = exact.Moments(problem)
+        _MODEL_CACHE[problem] = (moments, SamplerTables.build(problem, moments.d))
+    return _MODEL_CACHE[problem]
+
+
 def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling, settings: RunSettings):
     """Check that the pieces fit and compute the exact reference quantities."""
     if network.n_nodes != problem.n_agents:
         raise DgtdInputError(
             f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them agree"
         )
+    if problem.reward_noise != "none" and (problem.R_sample.min() < 0 or problem.R.min() < 0):
+        raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; "
+                             "use --reward-noise none")
     if sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
         raise DgtdInputError(
             "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
         )
-    moments = exact.Moments(problem)
+    moments, tables = _model_tables(problem)
     L_mean = network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N)  # O(N + |E|) memory for many agents
     rho = getattr(algorithm, "rho", 0.0)
     if problem.n_agents * problem.n_features > exact.REGULARISED_MAX:
@@ -125,7 +146,7 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     boxes = resolve_boxes(algorithm, moments, network)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
-    ctx = Context(problem, network, algorithm, sampling, SamplerTables.build(problem, moments.d),
+    ctx = Context(problem, network, algorithm, sampling, tables,
                   LaplacianOperator(network.base), boxes, T - tail_window)
     return ctx, moments, L_mean, saddle, w_star, tail_window
 
@@ -150,14 +171,22 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
     kernel = _kernel(settings.backend, algorithm.name)
     state = algorithm.init(B, N, q)
-    sums = {"all": np.zeros((B, N, q)), "tail": np.zeros((B, N, q))}
+    if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
+        state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
+    n_est = algorithm.estimate(state).shape[1]  # N agents' estimates, or 1 for a centralised learner
+    sums = {"all": np.zeros((B, n_est, q)), "tail": np.zeros((B, n_est, q))}
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
     names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg")
     metrics = {m: np.zeros((C, B)) for m in names}
-    err_last, err_avg = np.zeros((C, B, N)), np.zeros((C, B, N))
-    keep_trace = B * N * q * C <= 2_000_000
-    w_trace = np.zeros((C, B, N, q)) if keep_trace else None
+    counts = {m: np.zeros((C, B)) for m in COUNTS}
+    err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
+    keep_trace = B * n_est * q * C <= 2_000_000
+    w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
+    per_edge = messages_per_edge(algorithm)
+    messages, diverged_at = np.zeros(B), np.full(B, -1, dtype=np.int64)
+    w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
+    limit = DIVERGENCE_FACTOR * max(1.0, float(np.abs(w_star).max()), w0_norm)
     k, c, seconds_before = 0, 0, 0.0
     if resume is None:
         source.start()
@@ -168,6 +197,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         metrics = {name: np.array(v) for name, v in resume["metrics"].items()}
         err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
         w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
+        messages = np.array(resume.get("messages", messages), dtype=np.float64)
+        diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
+        counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
         source.set_state(resume["source"])
     every = int(checkpoint_every)
     block = block_steps(settings.block_size, N, network.n_edges, B)
@@ -175,23 +207,47 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
         blk = source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
-        state, sums = kernel(ctx, state, sums, k, alphas, blk)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
+            state, sums = kernel(ctx, state, sums, k, alphas, blk)
+        sent = (k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2))
+        messages += per_edge * sent * (diverged_at < 0)  # a stopped seed sends nothing
         if progress is not None:
             progress(k1 - k)
         k = k1
+        state, sums = stop_diverged(state, sums, algorithm.estimate(state), limit, diverged_at, k)
         if k == steps[c]:
+            alive = diverged_at < 0
             w, w_avg = algorithm.estimate(state), sums["all"] / k
-            err_last[c], err_avg[c] = exact.relative_error(w, w_star), exact.relative_error(w_avg, w_star)
-            metrics["error_last"][c], metrics["error_avg"][c] = err_last[c].max(-1), err_avg[c].max(-1)
-            metrics["consensus"][c] = exact.consensus_error(w)
-            metrics["mspbe_last"][c] = exact.mspbe(moments, w).max(-1)
-            metrics["mspbe_avg"][c] = exact.mspbe(moments, w_avg).max(-1)
+            for x in (*metrics.values(), *counts.values()):
+                x[c] = np.nan
+            err_last[c], err_avg[c] = np.nan, np.nan
+            if alive.any():
+                wa, wv = w[alive], w_avg[alive]
+                err_last[c, alive] = exact.relative_error(wa, w_star)
+                err_avg[c, alive] = exact.relative_error(wv, w_star)
+                metrics["error_last"][c, alive] = err_last[c, alive].max(-1)
+                metrics["error_avg"][c, alive] = err_avg[c, alive].max(-1)
+                metrics["consensus"][c, alive] = exact.consensus_error(wa)
+                metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
+                metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
+                counts["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
+                counts["messages"][c, alive] = messages[alive]
+            counts["diverged"][c] = ~alive
             if w_trace is not None:
                 w_trace[c] = w
             c += 1
+            if not alive.any():  # every seed has diverged: nothing left to run
+                for x in (*metrics.values(), *counts.values()):
+                    x[c:] = np.nan
+                counts["diverged"][c:] = 1.0
+                err_last[c:], err_avg[c:] = np.nan, np.nan
+                if w_trace is not None:
+                    w_trace[c:] = np.nan
+                break
         if every and k % every == 0 and k < T and on_checkpoint is not None:
             on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
-                                   seconds_before + time.perf_counter() - t_start))
+                                   seconds_before + time.perf_counter() - t_start,
+                                   extra={"messages": messages, "diverged_at": diverged_at, "counts": counts}))
     final = state._asdict()
     kkt = {}
     if isinstance(state, dgtd_alg.DGTDState):
@@ -203,8 +259,24 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         w_last=algorithm.estimate(state), w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
         seconds=seconds_before + time.perf_counter() - t_start,
-        info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star))},
+        info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
+              "samples_per_step": N, "messages": messages, "counts": counts},
     )
+
+
+def stop_diverged(state, sums, w: np.ndarray, limit: float, diverged_at: np.ndarray, k: int):
+    """Mark seeds whose estimate is not finite or exceeds ``limit`` as diverged at step k (in place in
+    ``diverged_at``) and stop them: their state and sums become NaN, which every kernel carries along."""
+    bad = ~np.all(np.isfinite(w), axis=(1, 2)) | (np.nan_to_num(np.abs(w), nan=np.inf).max(axis=(1, 2)) > limit)
+    for x in state:
+        bad |= ~np.all(np.isfinite(x.reshape(x.shape[0], -1)), axis=1)
+    new = bad & (diverged_at < 0)
+    if not new.any():
+        return state, sums
+    diverged_at[new] = k
+    state = type(state)(*(np.where(new[:, None, None], np.nan, x) for x in state))
+    sums = {key: np.where(new[:, None, None], np.nan, v) for key, v in sums.items()}
+    return state, sums
 
 
 def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budget: int = 1 << 21) -> int:
@@ -214,9 +286,11 @@ def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budg
     return int(max(1, min(int(block_size), budget // max(per_step, 1))))
 
 
-def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_state, seconds) -> dict:
-    """The loop's whole state after step k, as copies: what `run` needs to continue (its ``resume``)."""
-    return {
+def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_state, seconds, extra=None) -> dict:
+    """The loop's whole state after step k, as copies: what `run` needs to continue (its ``resume``).
+    ``extra``: more arrays to restore (messages sent so far, divergence steps)."""
+    return {**{name: (np.array(v) if not isinstance(v, dict) else {n: np.array(x) for n, x in v.items()})
+               for name, v in (extra or {}).items()},
         "k": int(k), "c": int(c), "seconds": float(seconds),
         "state": {f: np.array(x) for f, x in state._asdict().items()},
         "sums": {name: v.copy() for name, v in sums.items()},

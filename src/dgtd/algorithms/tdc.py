@@ -1,0 +1,61 @@
+"""TDC, TD with gradient correction (Sutton et al., ICML 2009), as pure functions.
+
+Glossary as in `dgtd.algorithms.gtd2`: ``w`` value weights (the paper's theta), ``theta`` the auxiliary
+vector (the paper's w). With the importance ratio (off-policy TDC, Maei 2011), at each sample:
+
+    w     <- w     + alpha_k ratio (delta phi - gamma phi' (phi^T theta))      (the paper's theta update)
+    theta <- theta + eta alpha_k (ratio delta - phi^T theta) phi                (as in GTD2)
+
+Mean path: w' = b - A w - (M - A^T) theta, since E[ratio gamma phi' phi^T] = M - A^T; at the fast-timescale
+theta = M^-1 (b - A w) it is A^T M^-1 (b - A w), the negative gradient of the MSPBE.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgtd.algorithms.gtd2 import GTDState, check_eta, theta_terms
+from dgtd.algorithms.stepsizes import check_schedule
+from dgtd.algorithms.td0 import agent_mean, dot, td_error
+
+
+@dataclass(frozen=True)
+class TDC:
+    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTD2`."""
+
+    alpha0: float = 0.1
+    beta: float = 1.0
+    schedule: str = "sqrt"
+    eta: float = 1.0
+
+    name = "tdc"
+    vectors_per_direction = 0
+
+    def __post_init__(self):
+        check_schedule(self.schedule, self.alpha0, self.beta)
+        check_eta(self.eta)
+
+    def init(self, n_seeds: int, n_agents: int, n_features: int) -> GTDState:
+        z = np.zeros((n_seeds, 1, n_features))
+        return GTDState(z, z.copy())
+
+    @staticmethod
+    def estimate(state: GTDState) -> np.ndarray:
+        return state.w
+
+
+def w_terms(w, theta, phi, phi_next, r, ratio, gamma: float) -> np.ndarray:
+    """Per-agent TDC value terms ratio_i (delta_i phi_i - gamma phi'_i (phi_i^T theta)), shape (B, N, q)."""
+    delta = td_error(w, phi, phi_next, r, gamma)
+    ratio = np.broadcast_to(ratio, delta.shape)
+    return (ratio * delta)[..., None] * phi - gamma * (ratio * dot(phi, theta))[..., None] * phi_next
+
+
+def update(state: GTDState, phi, phi_next, r, ratio, alpha: float, eta: float, gamma: float) -> GTDState:
+    """One TDC step, averaged over the N observed transitions; both updates use the values at step k."""
+    N = r.shape[1]
+    dw = agent_mean(w_terms(state.w, state.theta, phi, phi_next, r, ratio, gamma), N)
+    dtheta = agent_mean(theta_terms(state.w, state.theta, phi, phi_next, r, ratio, gamma), N)
+    return GTDState(state.w + alpha * dw, state.theta + eta * alpha * dtheta)

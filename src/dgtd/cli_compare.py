@@ -1,0 +1,99 @@
+"""`dgtd compare`: DGTD beside its baselines on one scenario, on the same sample streams."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import click
+
+from dgtd.errors import DgtdInputError
+
+
+def _names(text: str | None) -> tuple[str, ...]:
+    from dgtd.algorithms.registry import ALGORITHMS
+
+    if text is None:
+        return tuple(ALGORITHMS)
+    return tuple(a.strip() for a in text.split(",") if a.strip())
+
+
+@click.command()
+@click.argument("scenario")
+@click.option("--algorithms", "-a", type=str, default=None,
+              help="Comma-separated: dgtd, gtd2, tdc, td0, consensus-td0, pd-td, local (default: all).")
+@click.option("--seeds", type=int, default=5, show_default=True, help="Independent runs per algorithm, the same for all.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).")
+@click.option("--iterations", "-T", type=int, default=None, help="Iterations T (default: the scenario's).")
+@click.option("--edge-prob", type=float, default=None, help="Probability that each link is up at each step.")
+@click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories.")
+@click.option("--shared/--independent", default=None,
+              help="All agents observe one state trajectory, or each its own copy (default: the scenario's).")
+@click.option("--tune/--no-tune", default=False, show_default=True,
+              help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.")
+@click.option("--tune-seeds", type=int, default=2, show_default=True, help="Seeds per tuning run.")
+@click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True)
+@click.option("--checkpoints", type=int, default=100, show_default=True, help="How many times to record metrics.")
+@click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO).")
+@click.option("--progress/--no-progress", default=True, show_default=True)
+@click.option("--plots/--no-plots", default=True, show_default=True)
+def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
+            checkpoints, out, progress, plots):
+    """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from dgtd.problems.scenarios import get_scenario
+    from dgtd.run.compare import CompareSettings, compare as run_compare, configs_for, write_compare
+    from dgtd.run.loop import RunSettings
+    from dgtd.run.sampling import Sampling
+
+    sc = get_scenario(scenario, **({} if edge_prob is None else {"edge_prob": edge_prob}))
+    samp = Sampling(mode=sampling or sc.sampling.mode, shared=sc.sampling.shared if shared is None else shared)
+    settings = RunSettings(iterations=int(iterations or sc.iterations), seeds=seeds, seed=seed, checkpoints=checkpoints,
+                           block_size=4096, backend=backend)
+    cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
+    configs = configs_for(sc, cs.algorithms)
+    p = sc.problem
+    out = Path(out) if out else Path("runs") / f"compare-{scenario}"
+    click.echo(f"{p.name}: {p.n_states} states, {p.n_agents} agents, {p.n_features} features, gamma {p.gamma:g}"
+               f"{', off-policy' if p.off_policy else ''}; network: {sc.network.describe()}; {samp.mode} sampling, "
+               f"{'shared' if samp.shared else 'independent'} states")
+    click.echo(f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
+               f"{', step sizes tuned first' if tune else ''}")
+    bar = tqdm(total=settings.iterations * len(cs.algorithms), unit="it", unit_scale=True, disable=not progress,
+               file=sys.stderr, mininterval=0.5)
+    try:
+        results, used, tables = run_compare(p, sc.network, samp, configs, cs,
+                                            progress=lambda name, n: bar.update(n), log=bar.write if tune else None,
+                                            source_factory=sc.source)
+    finally:
+        bar.close()
+    spec = {"scenario": scenario, "algorithms": list(cs.algorithms), "seeds": seeds, "seed": seed,
+            "iterations": settings.iterations, "edge_prob": float(sc.network.p.max()), "sampling": samp.mode,
+            "shared": samp.shared, "tune": tune, "tune_seeds": tune_seeds if tune else None, "backend": backend,
+            "checkpoints": checkpoints}
+    write_compare(out, p, sc.network, results, used, tables, spec)
+    if plots:
+        from dgtd.plots_compare import plot_compare, plot_consensus
+
+        title = f"{p.name}, N={p.n_agents}, {seeds} seeds"
+        plot_compare(results, out / "compare.png", title)
+        plot_consensus(results, out / "consensus.png", title)
+    click.echo(table(results, used))
+    click.echo(f"wrote {out}/metrics.csv, agent_errors.npz, summary.json{', compare.png, consensus.png' if plots else ''}")
+
+
+def table(results: dict, used: dict) -> str:
+    """Final worst-agent errors (median over seeds) and divergence, one line per algorithm."""
+    import numpy as np
+
+    rows = [f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'MSPBE last':>12}{'messages':>12}  diverged"]
+    for name, r in results.items():
+        med = lambda k: np.nanmedian(r.metrics[k][-1]) if np.isfinite(r.metrics[k][-1]).any() else float("nan")  # noqa: E731
+        div = r.info["diverged_at"]
+        d = "no" if not np.any(div >= 0) else f"{int(np.sum(div >= 0))}/{len(div)} seeds (first at step {int(div[div >= 0].min()):,})"
+        rows.append(f"{name:<14}{used[name].alpha0:>8.3g}{med('error_last'):>12.3g}{med('error_avg'):>12.3g}"
+                    f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}  {d}")
+    return "\n".join(rows)

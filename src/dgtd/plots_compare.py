@@ -1,0 +1,100 @@
+"""Figures of `dgtd compare`: error and MSPBE against samples and against messages, median and band over seeds."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from dgtd.plots import _save  # noqa: E402
+
+COLORS = {"dgtd": "#d62728", "gtd2": "#1f77b4", "tdc": "#17becf", "td0": "#7f7f7f", "consensus-td0": "#2ca02c",
+          "pd-td": "#9467bd", "local": "#ff7f0e"}
+
+
+def _median_band(Y: np.ndarray):
+    """Median over seeds (NaN once half the seeds have diverged) and the min-max band of the live seeds."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        alive = np.isfinite(Y).sum(axis=1)
+        med = np.where(alive * 2 > Y.shape[1], np.nanmedian(Y, axis=1), np.nan)
+        return med, np.nanmin(Y, axis=1), np.nanmax(Y, axis=1)
+
+
+def _curve(ax, x, Y, name, floor, top):
+    """Median and band of Y (checkpoints, seeds) against x; values above ``top`` (diverging runs) are cut at
+    ``top`` so that the converging curves stay readable, and an x marks where the median run stopped."""
+    med, lo, hi = _median_band(np.maximum(Y, floor))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        xm = np.nanmedian(x, axis=1) if x.ndim == 2 else x
+    color = COLORS.get(name)
+    ax.plot(xm, np.minimum(med, top), label=name, color=color, lw=1.4)
+    if Y.shape[1] > 1:
+        ax.fill_between(xm, np.minimum(lo, top), np.minimum(hi, top), color=color, alpha=0.15, lw=0)
+    dead = np.flatnonzero(~np.isfinite(med))
+    if dead.size and dead[0] > 0:  # the median run stopped here: it diverged
+        ax.plot(xm[dead[0] - 1], min(med[dead[0] - 1], top), "x", color=color, ms=9, mew=2)
+
+
+def _limits(results: dict, metric: str) -> tuple[float, float]:
+    """(floor, top) of a log axis: top is 1e3 times the largest initial median, so that diverging runs
+    leave the frame instead of squashing the others; floor keeps exact zeros plottable."""
+    first = [np.nanmedian(r.metrics[metric][0]) for r in results.values() if np.isfinite(r.metrics[metric][0]).any()]
+    live = np.concatenate([r.metrics[metric][np.isfinite(r.metrics[metric])] for r in results.values()])
+    top = 1e3 * max(first + [1e-300])
+    positive = live[(live > 0) & (live <= top)]
+    floor = 1e-3 * float(positive.min()) if positive.size else 1e-300
+    return floor, top
+
+
+def plot_compare(results: dict, path: Path, title: str = "") -> None:
+    """2 x 2 panels: worst-agent relative error and MSPBE (last iterates), against agent-samples and against
+    parameter vectors sent. Algorithms that send nothing appear on the message panels as a dotted line at
+    their final level."""
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
+    for row, (metric, label) in enumerate((("error_last", "max_i |w_i - w*|_inf / |w*|_inf"),
+                                           ("mspbe_last", "MSPBE of the average reward (worst agent)"))):
+        floor, top = _limits(results, metric)
+        for name, r in results.items():
+            Y = r.metrics[metric]
+            _curve(axes[row, 0], r.info["counts"]["samples"], Y, name, floor, top)
+            if r.info["messages"].max() > 0:
+                _curve(axes[row, 1], r.info["counts"]["messages"], Y, name, floor, top)
+            elif np.isfinite(_median_band(Y)[0][-1]):
+                axes[row, 1].axhline(max(_median_band(Y)[0][-1], floor), color=COLORS.get(name), ls=":", lw=1.2,
+                                     label=f"{name} (no messages; final level)")
+            else:
+                axes[row, 1].plot([], [], "x", color=COLORS.get(name), label=f"{name} (no messages; diverged)")
+        axes[row, 0].set_ylabel(label)
+        axes[row, 0].set_xlabel("agent-samples consumed (N per step)")
+        axes[row, 1].set_xlabel("parameter vectors sent over links")
+    for ax in axes.ravel():
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.suptitle(title + "  (median over seeds, band: min-max; x: divergence)", fontsize=10)
+    _save(fig, path)
+
+
+def plot_consensus(results: dict, path: Path, title: str = "") -> None:
+    """Consensus error sum_i |w_i - mean w|^2 against samples, for the algorithms with one estimate per agent."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    distributed = {name: r for name, r in results.items() if r.w_last.shape[1] > 1}
+    floor = _limits(distributed, "consensus")[0] if distributed else 1e-300
+    for name, r in distributed.items():  # all agents start equal: no initial level to cut at
+        _curve(ax, r.info["counts"]["samples"], r.metrics["consensus"], name, floor, np.inf)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("agent-samples consumed")
+    ax.set_ylabel("sum_i |w_i - mean_j w_j|^2")
+    ax.set_title(title + " consensus error", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    _save(fig, path)

@@ -1,0 +1,191 @@
+"""Several algorithms on one problem and the same sample streams, with optional step-size tuning.
+
+Every algorithm runs with the same base seed and seed ids, so seed k of every algorithm sees the same
+states, rewards and links (`dgtd.run.sampling`): differences between algorithms are the algorithms'.
+Tuning runs use base seed ``seed + TUNE_SEED_OFFSET``: streams independent of the reported ones.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dgtd.algorithms.registry import ALGORITHMS, make_algorithm
+from dgtd.errors import DgtdInputError
+from dgtd.problems import exact
+from dgtd.run.loop import RunResult, RunSettings, run
+from dgtd.run.results import atomic_write, atomic_write_json, metrics_rows
+
+TUNE_SEED_OFFSET = 1_000_003
+TUNE_GRID = (0.1, 1 / 3, 1.0, 3.0, 10.0)
+
+
+@dataclass(frozen=True)
+class CompareSettings:
+    """What to compare and how: algorithm names, run settings shared by all, and tuning.
+
+    - ``tune``: pick each algorithm's alpha0 from ``alpha0 x tune_grid`` by `tune_score` on ``tune_seeds``
+      seeds of base seed ``settings.seed + TUNE_SEED_OFFSET``, then run the reported seeds with it.
+    """
+
+    algorithms: tuple[str, ...]
+    settings: RunSettings
+    tune: bool = False
+    tune_seeds: int = 2
+    tune_grid: tuple[float, ...] = TUNE_GRID
+
+    def __post_init__(self):
+        if not self.algorithms:
+            raise DgtdInputError("name at least one algorithm (e.g. --algorithms dgtd,gtd2)")
+        unknown = [a for a in self.algorithms if a not in ALGORITHMS]
+        if unknown:
+            raise DgtdInputError(f"unknown algorithm(s) {', '.join(unknown)}; known: {', '.join(ALGORITHMS)}")
+        if len(set(self.algorithms)) != len(self.algorithms):
+            raise DgtdInputError(f"an algorithm is named twice in {','.join(self.algorithms)}")
+        if int(self.tune_seeds) < 1:
+            raise DgtdInputError(f"tune seeds must be >= 1, got {self.tune_seeds}")
+
+
+def configs_for(scenario, names) -> dict:
+    """Each algorithm's config on a scenario: DGTD's is the scenario's; a baseline takes the scenario's
+    step-size schedule and offset (beta); then ``scenario.compare_settings[name]`` (its alpha0, ...) applies."""
+    out = {}
+    for name in names:
+        fields = scenario.compare_settings.get(name, {})
+        if name == "dgtd":
+            out[name] = replace(scenario.algorithm, **fields)
+        else:
+            out[name] = make_algorithm(name, schedule=scenario.algorithm.schedule, beta=scenario.algorithm.beta,
+                                       **fields)
+    return out
+
+
+def tune_score(result: RunResult) -> float:
+    """Median over seeds of the mean log10 worst-agent error (last iterate) over the checkpoints in the
+    second half of the run: rewards both speed and final accuracy. +inf if any seed diverged."""
+    if np.any(result.info["diverged_at"] >= 0):
+        return float("inf")
+    late = result.steps >= result.steps[-1] / 2
+    err = np.maximum(result.metrics["error_last"][late], 1e-300)
+    return float(np.median(np.log10(err).mean(axis=0)))
+
+
+def _source(source_factory, settings: RunSettings):
+    """A fresh simulator source for ``settings`` (so that every run replays the same streams), or None."""
+    return None if source_factory is None else source_factory(settings.seed, range(settings.seeds))
+
+
+def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE_GRID, seeds: int = 2,
+         source_factory=None):
+    """(best config, table of (alpha0, score)) over ``algorithm.alpha0 x grid`` on the tuning seeds."""
+    tune_settings = replace(settings, seeds=int(seeds), seed=settings.seed + TUNE_SEED_OFFSET)
+    table = []
+    for factor in grid:
+        cand = replace(algorithm, alpha0=float(algorithm.alpha0 * factor))
+        r = run(problem, network, cand, sampling, tune_settings, source=_source(source_factory, tune_settings))
+        table.append((cand.alpha0, tune_score(r)))
+    best = min(range(len(table)), key=lambda i: (table[i][1], -table[i][0]))
+    return replace(algorithm, alpha0=table[best][0]), table
+
+
+def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None,
+            source_factory=None):
+    """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
+
+    ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.problems.scenarios.Scenario.source`);
+    each run gets a fresh one, so every algorithm sees the same samples and links.
+    """
+    results, used, tables = {}, {}, {}
+    for name in cs.algorithms:
+        alg = configs[name]
+        if cs.tune:
+            alg, tables[name] = tune(problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds,
+                                     source_factory)
+            if log is not None:
+                log(f"{name}: alpha0 = {alg.alpha0:g} (tuning scores " +
+                    ", ".join(f"{a:.3g}: {s:.3g}" for a, s in tables[name]) + ")")
+        used[name] = alg
+        results[name] = run(problem, network, alg, sampling, cs.settings,
+                            progress=None if progress is None else (lambda n, name=name: progress(name, n)),
+                            source=_source(source_factory, cs.settings))
+    return results, used, tables
+
+
+def compare_csv(results: dict) -> bytes:
+    """Long format: algorithm, seed, step, metric, value for every algorithm, checkpoint, seed and metric
+    (the run's metrics, then its counts: samples, messages, diverged)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["algorithm", "seed", "step", "metric", "value"])
+    for name, result in results.items():
+        w.writerows(metrics_rows(result, name))
+        counts = result.info["counts"]
+        for metric, values in counts.items():
+            for c, step in enumerate(result.steps):
+                for b in range(values.shape[1]):
+                    w.writerow([name, b, int(step), metric, float(values[c, b])])
+    return buf.getvalue().encode()
+
+
+def _stats(x: np.ndarray) -> dict:
+    x = np.asarray(x, dtype=np.float64)
+    ok = x[np.isfinite(x)]
+    if ok.size == 0:
+        return {"median": None, "min": None, "max": None}
+    return {"median": float(np.median(ok)), "min": float(ok.min()), "max": float(ok.max())}
+
+
+def config_dict(alg) -> dict:
+    from dataclasses import asdict
+
+    return {"name": alg.name, **{k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(alg).items()}}
+
+
+def summary(problem, network, results: dict, used: dict, tables: dict, spec: dict) -> dict:
+    """summary.json: the exact solution, then per algorithm its config, final metrics over seeds,
+    divergence, samples and messages."""
+    m = exact.Moments(problem)
+    first = next(iter(results.values()))
+    out = {
+        "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
+        "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
+        "network": network.describe(), "w_star": first.w_star.tolist(), "mspbe_w_star": first.info["mspbe_w_star"],
+        "values_exact": exact.value_function(m).tolist(), "config": spec, "algorithms": {},
+    }
+    for name, r in results.items():
+        div = r.info["diverged_at"]
+        final = {k: _stats(v[-1]) for k, v in (r.metrics | r.info["counts"]).items() if k != "diverged"}
+        out["algorithms"][name] = {
+            "config": config_dict(used[name]),
+            "tuning": [{"alpha0": a, "score": (s if np.isfinite(s) else None)} for a, s in tables.get(name, [])],
+            "final": final,
+            "error_tail_averaged": _stats(exact.relative_error(r.w_tail, r.w_star).max(-1)),
+            "diverged_seeds": [int(b) for b in np.flatnonzero(div >= 0)],
+            "diverged_at_step": [int(k) for k in div[div >= 0]],
+            "samples_per_step": int(r.info["samples_per_step"]),
+            "seconds": r.seconds,
+        }
+    return out
+
+
+def agent_errors_npz(results: dict) -> bytes:
+    """Every agent's relative error at every checkpoint: arrays NAME/last and NAME/avg (checkpoints, seeds,
+    agents or 1), and NAME/steps."""
+    buf = io.BytesIO()
+    arrays = {}
+    for name, r in results.items():
+        arrays[f"{name}/steps"] = r.steps
+        arrays[f"{name}/last"] = r.agent_error_last
+        arrays[f"{name}/avg"] = r.agent_error_avg
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
+
+
+def write_compare(out, problem, network, results: dict, used: dict, tables: dict, spec: dict) -> None:
+    """metrics.csv (worst agent per seed), agent_errors.npz (each agent), then summary.json (last); each atomic."""
+    atomic_write(out / "metrics.csv", compare_csv(results))
+    atomic_write(out / "agent_errors.npz", agent_errors_npz(results))
+    atomic_write_json(out / "summary.json", summary(problem, network, results, used, tables, spec))
