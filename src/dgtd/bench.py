@@ -96,16 +96,24 @@ CASES = {
 
 
 def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: str, repeats: int) -> list[float]:
-    """Wall seconds of `run` (sampling, updates and one final metric checkpoint), after a warm-up run."""
+    """Wall seconds of `run`'s iterations (sampling, updates, the final metric checkpoint), after a warm-up run;
+    the one-off setup (exact solution, tables) is timed apart by `setup_seconds`."""
     settings = RunSettings(iterations=iterations, seeds=seeds, checkpoints=1, backend=backend)
     run(problem, network, algorithm, Sampling(), RunSettings(iterations=min(iterations, 50), seeds=seeds,
                                                              checkpoints=1, backend=backend))
     out = []
     for _ in range(repeats):
-        t = time.perf_counter()
-        run(problem, network, algorithm, Sampling(), settings)
-        out.append(time.perf_counter() - t)
+        out.append(run(problem, network, algorithm, Sampling(), settings).info["loop_seconds"])
     return out
+
+
+def setup_seconds(problem, network, algorithm) -> float:
+    """Wall seconds of a run's one-off preparation: checks, exact solution, boxes and sampler tables."""
+    from dgtd.run.loop import prepare
+
+    t = time.perf_counter()
+    prepare(problem, network, algorithm, Sampling(), RunSettings(iterations=1))
+    return time.perf_counter() - t
 
 
 def copy_bandwidth(n_bytes: int = 400_000_000, repeats: int = 5) -> float:
@@ -178,6 +186,7 @@ def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats
             by = bytes_per_agent_step(q, mean_deg)
             fl = flops_per_agent_step(q, mean_deg)
             row = {"case": key, "description": case.description, "backend": backend, "N": N, "q": q,
+                   "setup_seconds": setup_seconds(problem, network, algorithm),
                    "seeds": case.seeds, "iterations": T, "seconds": secs, "agent_steps_per_s": rate,
                    "mean_up_degree": mean_deg, "bytes_per_agent_step": by, "flops_per_agent_step": fl,
                    "bandwidth_bound_agent_steps_per_s": bw / by["compulsory"],

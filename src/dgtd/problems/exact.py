@@ -262,21 +262,6 @@ def relative_error(W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
     return np.abs(W - w_ref).max(axis=-1) / scale
 
 
-def laplacian_pinv_inf_norm(L) -> float:
-    """|L^+|_inf of the lemma: exact for up to DENSE_N agents; above, the bound sqrt(N) / lambda_2(L) >= it
-    (|A|_inf <= sqrt(N) |A|_2), with lambda_2 from a sparse shift-invert eigensolver, so boxes stay valid."""
-    N = L.shape[0]
-    if N <= DENSE_N:
-        Ld = L.toarray() if issparse(L) else L
-        return float(np.abs(laplacian_pinv(Ld)).sum(axis=1).max())
-    from scipy.sparse import identity
-    from scipy.sparse.linalg import eigsh
-
-    Ls = L if issparse(L) else csr_from(L)
-    vals = eigsh(Ls + 1e-9 * identity(N), k=2, sigma=-1e-3, which="LM", return_eigenvectors=False)
-    return float(np.sqrt(N) / (np.sort(vals)[-1] - 1e-9))
-
-
 @dataclass(frozen=True)
 class Bounds:
     """Half-widths of the projection boxes C_theta, C_v, C_mu, C_w (max-norm balls)."""
@@ -287,10 +272,12 @@ class Bounds:
     w: float
 
 
-def lemma_bounds(m: Moments, L: np.ndarray, max_degree: int) -> Bounds:
+def lemma_bounds(m: Moments, L, max_degree: int) -> Bounds:
     """The bounds c of `lemma:bound-lemma3` (its alpha is the discount gamma, as in Bertsekas' Prop. 6.10).
 
     c_v is free in the lemma (v* = 0); we take 2 * max_degree * c_w, the largest |L(k) w|_inf over boxes.
+    c_mu needs |L^+|_inf, which takes the dense pseudo-inverse (O(N^3)): above DENSE_N agents c_mu is instead
+    the exact |mu*|_inf (mu* by conjugate gradients), which the lemma's bound only over-estimates.
     """
     p = m.problem
     S, N = p.n_states, p.n_agents
@@ -305,7 +292,11 @@ def lemma_bounds(m: Moments, L: np.ndarray, max_degree: int) -> Bounds:
         c_w += float(np.abs(m.null_projector @ w_star(m)).max())
     c_theta = 2.0 * p.sigma * S * np.sqrt(N / (xi * lam))
     phi_inf = float(np.abs(p.Phi).sum(axis=1).max())
-    L_pinv_inf = laplacian_pinv_inf_norm(L) if N > 1 else 0.0
-    c_mu = L_pinv_inf * phi_inf**2 * 2.0 * p.sigma * S**2 * np.sqrt(N / (xi * lam))
+    if N > DENSE_N:
+        c_mu = float(np.abs(mu_star(m, L)).max())
+    else:
+        Ld = L.toarray() if issparse(L) else L
+        L_pinv_inf = float(np.abs(laplacian_pinv(Ld)).sum(axis=1).max()) if N > 1 else 0.0
+        c_mu = L_pinv_inf * phi_inf**2 * 2.0 * p.sigma * S**2 * np.sqrt(N / (xi * lam))
     c_v = 2.0 * max_degree * c_w
     return Bounds(float(c_theta), float(c_v), float(c_mu), float(c_w))

@@ -203,6 +203,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         source.set_state(resume["source"])
     every = int(checkpoint_every)
     block = block_steps(settings.block_size, N, network.n_edges, B)
+    t_loop = time.perf_counter()
     while k < T:
         k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
         blk = source.next_block(k1 - k)
@@ -260,7 +261,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
         seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
-              "samples_per_step": N, "messages": messages, "counts": counts},
+              "samples_per_step": N, "messages": messages, "counts": counts,
+              "loop_seconds": time.perf_counter() - t_loop},
     )
 
 
