@@ -93,7 +93,9 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
     return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
 
-FAST = {"reassoc", "contract", "nsz"}  # lets LLVM vectorise sums; results move by rounding only (tested to 1e-9)
+# No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
+# one compiled specialisation, and the same seed gave results one ulp apart in different processes.
+FAST = False
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
