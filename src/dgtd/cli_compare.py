@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import click
 
-from dgtd.errors import DgtdInputError
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -41,7 +39,6 @@ def _names(text: str | None) -> tuple[str, ...]:
 def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
             checkpoints, out, progress, plots):
     """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots."""
-    import numpy as np
     from tqdm import tqdm
 
     from dgtd.problems.scenarios import get_scenario

@@ -36,8 +36,8 @@ def check_eta(eta: float) -> None:
 
 
 @dataclass(frozen=True)
-class GTD2:
-    """Centralised GTD2 on the average reward.
+class GTDConfig:
+    """Fields shared by the centralised two-timescale gradient-TD learners (GTD2, TDC).
 
     - ``alpha0``, ``beta``, ``schedule``: the value step sizes alpha_k (see `dgtd.algorithms.stepsizes`).
     - ``eta``: the auxiliary step size is eta alpha_k (Sutton et al. 2009's beta = eta alpha).
@@ -48,7 +48,6 @@ class GTD2:
     schedule: str = "sqrt"
     eta: float = 1.0
 
-    name = "gtd2"
     vectors_per_direction = 0
 
     def __post_init__(self):
@@ -62,6 +61,13 @@ class GTD2:
     @staticmethod
     def estimate(state: GTDState) -> np.ndarray:
         return state.w
+
+
+@dataclass(frozen=True)
+class GTD2(GTDConfig):
+    """Centralised GTD2 on the average reward; fields as `GTDConfig`."""
+
+    name = "gtd2"
 
 
 def theta_terms(w, theta, phi, phi_next, r, ratio, gamma: float) -> np.ndarray:

@@ -16,34 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dgtd.algorithms.gtd2 import GTDState, check_eta, theta_terms
-from dgtd.algorithms.stepsizes import check_schedule
+from dgtd.algorithms.gtd2 import GTDConfig, GTDState, theta_terms
 from dgtd.algorithms.td0 import agent_mean, dot, td_error
 
 
 @dataclass(frozen=True)
-class TDC:
-    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTD2`."""
-
-    alpha0: float = 0.1
-    beta: float = 1.0
-    schedule: str = "sqrt"
-    eta: float = 1.0
+class TDC(GTDConfig):
+    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTDConfig`."""
 
     name = "tdc"
-    vectors_per_direction = 0
-
-    def __post_init__(self):
-        check_schedule(self.schedule, self.alpha0, self.beta)
-        check_eta(self.eta)
-
-    def init(self, n_seeds: int, n_agents: int, n_features: int) -> GTDState:
-        z = np.zeros((n_seeds, 1, n_features))
-        return GTDState(z, z.copy())
-
-    @staticmethod
-    def estimate(state: GTDState) -> np.ndarray:
-        return state.w
 
 
 def w_terms(w, theta, phi, phi_next, r, ratio, gamma: float) -> np.ndarray:
