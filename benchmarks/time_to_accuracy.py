@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import time
 import warnings
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.algorithms.registry import ALGORITHMS
+from dgtd.bench import machine
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.compare import CompareSettings, compare, configs_for
 from dgtd.run.loop import RunSettings
@@ -78,18 +77,6 @@ def _fmt(row: dict, key: str) -> str:
     if row["diverged_seeds"] * 2 > row["seeds"]:
         return f"diverged (step {row['first_divergence_step']:,})"
     return f"> {row['samples_budget']:.3g}" if key.startswith("samples") else "-"
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
 
 
 def markdown(rows: list, header: str) -> str:

@@ -156,7 +156,7 @@ def peak_flops(cores: int, ghz: float = 2.8, flops_per_cycle: int = 32) -> float
 def machine() -> str:
     import os
 
-    cpu = platform.processor() or "unknown CPU"
+    cpu = platform.processor() or platform.machine()
     try:
         for line in open("/proc/cpuinfo"):
             if line.startswith("model name"):
@@ -164,7 +164,7 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
 
 
 def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats: int = 3, progress=print) -> dict:
