@@ -34,7 +34,7 @@ class RunSettings:
     checkpoints: int = 100
     tail_fraction: float = 0.5
     block_size: int = 2048
-    backend: str = "numpy"
+    backend: str = "numba"
 
     def __post_init__(self):
         if int(self.iterations) < 1:
