@@ -146,3 +146,13 @@ def test_real_process_exit_code_and_no_traceback(tmp_path):
 def test_scenarios_lists_paper_example(capsys):
     code, out, _ = cli(capsys, "scenarios")
     assert code == 0 and "paper-example-1" in out
+
+
+def test_diverged_run_writes_standard_json(capsys, tmp_path):
+    # Off-policy TD(0) on Baird diverges: the run reports it and summary.json stays standard JSON (null, not NaN).
+    out = tmp_path / "td0"
+    code, stdout, _ = cli(capsys, "run", "baird", "--algorithm", "td0", "-T", "100000", "--no-progress", "--no-plots",
+                          "--out", str(out))
+    assert code == 0 and "DIVERGED" in stdout
+    s = json.loads((out / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-standard {c}"))
+    assert s["w_last"][0][0][0] is None

@@ -31,8 +31,20 @@ def atomic_write(path: Path, data: bytes) -> None:
         raise
 
 
+def json_ready(obj):
+    """``obj`` with NaN and infinities (a diverged seed's numbers) as null, which standard JSON allows."""
+    if isinstance(obj, float):
+        return obj if obj == obj and abs(obj) != float("inf") else None
+    if isinstance(obj, dict):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_ready(v) for v in obj]
+    return obj
+
+
 def atomic_write_json(path: Path, obj) -> None:
-    atomic_write(path, (json.dumps(obj, indent=2) + "\n").encode())
+    """Standard JSON (no NaN), written atomically."""
+    atomic_write(path, (json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n").encode())
 
 
 def metrics_rows(result: RunResult, algorithm: str):
