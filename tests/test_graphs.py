@@ -93,3 +93,15 @@ def test_read_edge_list(tmp_path):
     bad.write_text("0 x\n")
     with pytest.raises(DgtdInputError, match="malformed"):
         topologies.read_edge_list(str(bad))
+
+
+def test_all_reachable_matches_scipy(rng):
+    from scipy.sparse.csgraph import connected_components
+
+    for _ in range(30):
+        n = int(rng.integers(1, 12))
+        A = rng.random((n, n)) < rng.uniform(0.05, 0.4)
+        strong = connected_components(A, directed=True, connection="strong")[0] == 1
+        assert (topologies.all_reachable(A) and topologies.all_reachable(A.T)) == strong
+        sym = A | A.T
+        assert topologies.all_reachable(sym) == (connected_components(sym, directed=False)[0] == 1)

@@ -261,12 +261,11 @@ def feature_arrays(ctx):
     """Phi dense and as CSR rows; sparse when rows hold at most a quarter of the features (tabular: one)."""
     cache = ctx.__dict__.setdefault("_numba_cache", {})
     if "phi" not in cache:
-        from scipy.sparse import csr_matrix
-
         Phi = np.ascontiguousarray(ctx.Phi, dtype=np.float64)
-        csr = csr_matrix(Phi)
-        sparse = csr.nnz <= Phi.size // 4
-        cache["phi"] = (Phi, sparse, csr.indptr.astype(np.int64), csr.indices.astype(np.int64), csr.data.astype(np.float64))
+        rows, cols = np.nonzero(Phi)  # row-major order: CSR rows without importing scipy.sparse
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=Phi.shape[0]))]).astype(np.int64)
+        sparse = rows.size <= Phi.size // 4
+        cache["phi"] = (Phi, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64))
     return cache["phi"]
 
 

@@ -61,14 +61,21 @@ def random_edges(base: Graph, p=1.0) -> RandomEdges:
 
 def check_mean_connected(process: RandomEdges) -> None:
     """Assumption `assumption:connected`: the mean connectivity graph (edges with p_e > 0) is connected."""
-    from scipy.sparse.csgraph import connected_components  # imported here: keeps `dgtd` quick to start
+    from dgtd.graphs.topologies import all_reachable
 
     N = process.n_nodes
     if N == 1:
         return
     up = process.base.edges[process.p > 0]
-    A = np.zeros((N, N), dtype=bool)
-    A[up[:, 0], up[:, 1]] = True
+    if N <= 2000:  # dense breadth-first search: no scipy import on the common path
+        A = np.zeros((N, N), dtype=bool)
+        A[up[:, 0], up[:, 1]] = A[up[:, 1], up[:, 0]] = True
+        if all_reachable(A):
+            return
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    A = coo_matrix((np.ones(len(up)), (up[:, 0], up[:, 1])), shape=(N, N))  # O(N + |E|) for many agents
     n, labels = connected_components(A, directed=False)
     if n > 1:
         alone = np.flatnonzero(labels != labels[0])[:5].tolist()
@@ -93,15 +100,23 @@ class LaplacianOperator:
     """
 
     def __init__(self, graph: Graph):
-        from scipy.sparse import csr_matrix
-
+        self.graph = graph
         self.u = graph.edges[:, 0]
         self.v = graph.edges[:, 1]
-        E, N = graph.n_edges, graph.n_nodes
-        rows = np.concatenate([self.u, self.v])
-        cols = np.concatenate([np.arange(E), np.arange(E)])
-        vals = np.concatenate([np.ones(E), -np.ones(E)])
-        self.incidence = csr_matrix((vals, (rows, cols)), shape=(N, E))
+        self._incidence = None
+
+    @property
+    def incidence(self):
+        """Signed incidence matrix (N, E), built on first use (the compiled kernels never need it)."""
+        if self._incidence is None:
+            from scipy.sparse import csr_matrix
+
+            E, N = self.graph.n_edges, self.graph.n_nodes
+            rows = np.concatenate([self.u, self.v])
+            cols = np.concatenate([np.arange(E), np.arange(E)])
+            vals = np.concatenate([np.ones(E), -np.ones(E)])
+            self._incidence = csr_matrix((vals, (rows, cols)), shape=(N, E))
+        return self._incidence
 
     def __call__(self, X: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
         B, N, q = X.shape

@@ -45,6 +45,21 @@ class Graph:
         return coo_matrix((vals, (rows, cols)), shape=(self.n_nodes, self.n_nodes)).tocsr()
 
 
+def all_reachable(adj: np.ndarray) -> bool:
+    """Whether every node can be reached from node 0 along the dense boolean adjacency ``adj`` (n, n).
+
+    A breadth-first search in NumPy: the checks that run before every run use it, so that starting dgtd does
+    not import scipy.sparse.csgraph (a quarter of a second); the error paths use scipy for their details.
+    """
+    seen = np.zeros(adj.shape[0], dtype=bool)
+    seen[0] = True
+    frontier = seen.copy()
+    while frontier.any():
+        frontier = adj[frontier].any(axis=0) & ~seen
+        seen |= frontier
+    return bool(seen.all())
+
+
 def from_edges(n_nodes: int, edges, name: str = "edges") -> Graph:
     """Graph from any iterable of (i, j) pairs; duplicates and orientation are normalised."""
     if int(n_nodes) < 1:

@@ -123,7 +123,12 @@ def chain_period(P: np.ndarray) -> int:
 
 def check_irreducible(name: str, P: np.ndarray) -> None:
     """Refuse a chain with more than one communicating class: its stationary distribution is not unique."""
-    from scipy.sparse.csgraph import connected_components  # imported here: keeps `dgtd` quick to start
+    from dgtd.graphs.topologies import all_reachable
+
+    A = P > 0
+    if all_reachable(A) and all_reachable(A.T):
+        return
+    from scipy.sparse.csgraph import connected_components
 
     n, labels = connected_components(P > 0, directed=True, connection="strong")
     if n > 1:
