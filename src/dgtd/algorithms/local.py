@@ -11,33 +11,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from dgtd.algorithms import gtd2
-from dgtd.algorithms.gtd2 import GTDState, check_eta
-from dgtd.algorithms.stepsizes import check_schedule
+from dgtd.algorithms.gtd2 import GTDConfig, GTDState
 
 
 @dataclass(frozen=True)
-class Local:
-    """N independent GTD2 learners; fields as `dgtd.algorithms.gtd2.GTD2`."""
-
-    alpha0: float = 0.1
-    beta: float = 1.0
-    schedule: str = "sqrt"
-    eta: float = 1.0
+class Local(GTDConfig):
+    """N independent GTD2 learners; fields as `dgtd.algorithms.gtd2.GTDConfig`, one estimate per agent."""
 
     name = "local"
-    vectors_per_direction = 0
-
-    def __post_init__(self):
-        check_schedule(self.schedule, self.alpha0, self.beta)
-        check_eta(self.eta)
 
     def init(self, n_seeds: int, n_agents: int, n_features: int) -> GTDState:
         z = np.zeros((n_seeds, n_agents, n_features))
         return GTDState(z, z.copy())
-
-    @staticmethod
-    def estimate(state: GTDState) -> np.ndarray:
-        return state.w
 
 
 def update(state: GTDState, phi, phi_next, r, ratio, alpha: float, eta: float, gamma: float) -> GTDState:
