@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from dgtd.run.sampling import Block
+from dgtd.backends.numba_rng import next_double
+from dgtd.run.sampling import Block, Draws
 
 NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
 
@@ -24,6 +25,17 @@ def _alias(prob, alias, u):
     if x - j < prob[j]:
         return j
     return alias[j]
+
+
+@njit(cache=True, inline="always")
+def _alias_row(prob, alias, row, u):
+    """`_alias` on row ``row`` of 2-D tables, indexed in place (a row view would cost an atomic reference count)."""
+    K = prob.shape[1]
+    x = u * K
+    j = min(np.int64(x), K - 1)
+    if x - j < prob[row, j]:
+        return j
+    return alias[row, j]
 
 
 @njit(cache=True, inline="always")
@@ -95,141 +107,241 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
 
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
 # one compiled specialisation, and the same seed gave results one ulp apart in different processes.
-FAST = False
+#
+# Two rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (W[b, j, f]),
+# never through row views (W[b, j]): numba counts references to every view with an atomic update, and two
+# threads updating the same count stall each other. And every quantity has an array of its own (theta, v, mu,
+# w, s = v + mu, the Laplacian rows): when one loop writes two halves of the same array, LLVM cannot prove
+# that they do not overlap and falls back to scalar code, three times slower.
 
 
-@njit(cache=True, inline="always", fastmath=FAST)
-def _laplacian_row(i, b, t, Z, up, has_up, indptr, nbr, eid, L):
-    """L = (L(k) Z)_i = |N_i(k)| Z_i - sum_{j in N_i(k)} Z_j (Algorithm 1's neighbour sums) for the packed rows
-    Z = (w, v + mu): the w update needs L v + L mu = L (v + mu), so two rows per neighbour are read, not three."""
-    m = Z.shape[2]
-    L[:] = 0.0
+@njit(cache=True, inline="always")
+def _dots3(Phi, s, sn, theta, W, b, i, q, tmp):
+    """(phi^T theta_i, phi^T w_i, phi'^T w_i): the products go to the scratch rows tmp (3, P), P the power of two
+    at or above q (zero-padded), and are summed by halving, a fixed order that vectorises without reassociation
+    (so the rounding is the same in every process) and is more accurate than one running sum."""
+    P = tmp.shape[1]
+    for f in range(q):
+        tmp[0, f] = Phi[s, f] * theta[b, i, f]
+    for f in range(q):
+        tmp[1, f] = Phi[s, f] * W[b, i, f]
+    for f in range(q):
+        tmp[2, f] = Phi[sn, f] * W[b, i, f]
+    for k in range(3):
+        for f in range(q, P):
+            tmp[k, f] = 0.0
+    h = P
+    while h > 4:
+        h //= 2
+        for k in range(3):
+            for f in range(h):
+                tmp[k, f] += tmp[k, h + f]
+    return ((tmp[0, 0] + tmp[0, 1]) + (tmp[0, 2] + tmp[0, 3]), (tmp[1, 0] + tmp[1, 1]) + (tmp[1, 2] + tmp[1, 3]),
+            (tmp[2, 0] + tmp[2, 1]) + (tmp[2, 2] + tmp[2, 3]))
+
+
+def _scratch_width(q: int) -> int:
+    """P of `_dots3`: the power of two at or above q, at least 4."""
+    return max(4, 1 << (int(q) - 1).bit_length())
+
+
+@njit(cache=True, inline="always")
+def _laplacian_row(X, b, i, up, ub, indptr, nbr, eid, L, l):
+    """L[l] = (L(k) X)_i = |N_i(k)| X_i - sum_{j in N_i(k)} X_j for seed b: Algorithm 1's neighbour sums over the
+    edges of agent i that are up (row ub of the step's edge mask ``up``; all ones for a fixed graph)."""
+    q = X.shape[2]
+    for f in range(q):
+        L[l, f] = 0.0
     count = 0
     for p in range(indptr[i], indptr[i + 1]):
-        if (not has_up) or up[t, b, eid[p]]:
-            zj = Z[b, nbr[p]]
+        if up[ub, eid[p]]:
+            j = nbr[p]
             count += 1
-            for f in range(m):
-                L[f] += zj[f]
-    zi = Z[b, i]
-    for f in range(m):
-        L[f] = count * zi[f] - L[f]
+            for f in range(q):
+                L[l, f] += X[b, j, f]
+    for f in range(q):
+        L[l, f] = count * X[b, i, f] - L[l, f]
 
 
-@njit(cache=True, inline="always", fastmath=FAST)
-def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, VM, Z, Z_out, L, sum_all, sum_tail, Phi, sparse, ptr,
-                idx, val, gamma, kappa, rho, boxes):
+@njit(cache=True, inline="always")
+def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, W, S, Wo, So, Lw, Ls, l, tmp, sum_all,
+                sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho, boxes):
     """Algorithm 1 lines 7-9 for agent i of seed b.
 
-    Z[b, i] = (w, v + mu) at step k (what neighbours read), Z_out[b, i] receives them at step k + 1;
-    VM[b, i] = (v, mu) and theta[b, i] depend on agent i's own variables only and are updated in place.
-    L = (L(k) w, L(k) (v + mu)) rows. With sparse features (CSR rows ptr/idx/val of Phi) the TD terms cost
-    O(nnz(phi) + nnz(phi')) instead of O(q).
+    W[b, i] = w and S[b, i] = v + mu at step k (what neighbours read); Wo, So receive them at step k + 1 (they
+    are W, S themselves when every Laplacian row of the step was taken first). theta, V, MU depend on agent i's
+    own variables only and are updated in place. Lw[l] = (L(k) w)_i and Ls[l] = (L(k) v + L(k) mu)_i. With
+    sparse features (CSR rows ptr/idx/val of Phi) the TD terms cost O(nnz(phi) + nnz(phi')) instead of O(q).
     """
     q = theta.shape[2]
     b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
-    th, vm, zi, zo = theta[b, i], VM[b, i], Z[b, i], Z_out[b, i]
-    phi_theta = 0.0
-    phi_w = 0.0
-    phin_w = 0.0
     if sparse:
+        phi_theta = 0.0
+        phi_w = 0.0
+        phin_w = 0.0
         for p in range(ptr[s], ptr[s + 1]):
-            phi_theta += val[p] * th[idx[p]]
-            phi_w += val[p] * zi[idx[p]]
+            phi_theta += val[p] * theta[b, i, idx[p]]
+            phi_w += val[p] * W[b, i, idx[p]]
         for p in range(ptr[sn], ptr[sn + 1]):
-            phin_w += val[p] * zi[idx[p]]
+            phin_w += val[p] * W[b, i, idx[p]]
     else:
-        phi, phin = Phi[s], Phi[sn]
-        for f in range(q):
-            phi_theta += phi[f] * th[f]
-            phi_w += phi[f] * zi[f]
-            phin_w += phin[f] * zi[f]
+        phi_theta, phi_w, phin_w = _dots3(Phi, s, sn, theta, W, b, i, q, tmp)
     # Line 7 (theta): phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta
     c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
     rt = ratio * phi_theta
-    sa = sum_all[b, i]
     for f in range(q):
-        sa[f] += zi[f]
+        sum_all[b, i, f] += W[b, i, f]
     if in_tail:
-        st = sum_tail[b, i]
         for f in range(q):
-            st[f] += zi[f]
-    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w, projected (line 9)
-    if not sparse:
-        phi, phin = Phi[s], Phi[sn]
-        for f in range(q):
-            wf = zi[f]
-            g_w = rt * (phi[f] - gamma * phin[f]) - L[q + f] - kappa * L[f] - rho * wf
-            zo[f] = min(max(wf + alpha * g_w, -b_w), b_w)
-            th[f] = min(max(th[f] - alpha * (phi[f] * c_theta), -b_th), b_th)
-    else:
-        for f in range(q):
-            wf = zi[f]
-            zo[f] = wf + alpha * (-L[q + f] - kappa * L[f] - rho * wf)
-        for p in range(ptr[s], ptr[s + 1]):
-            f = idx[p]
-            th[f] = min(max(th[f] - alpha * (val[p] * c_theta), -b_th), b_th)
-            zo[f] += alpha * (rt * val[p])
-        for p in range(ptr[sn], ptr[sn + 1]):
-            zo[idx[p]] -= alpha * (rt * gamma * val[p])
-        for f in range(q):
-            zo[f] = min(max(zo[f], -b_w), b_w)
+            sum_tail[b, i, f] += W[b, i, f]
     # Line 7 (v) and line 8 (mu), projected (line 9); neighbours will read their sum
     for f in range(q):
-        vf, muf, Lw = vm[f], vm[q + f], L[f]
-        v_new = min(max(vf - alpha * (vf - Lw), -b_v), b_v)
-        mu_new = min(max(muf - alpha * (-Lw + rho * muf), -b_mu), b_mu)
-        vm[f] = v_new
-        vm[q + f] = mu_new
-        zo[q + f] = v_new + mu_new
+        vf, muf, lw = V[b, i, f], MU[b, i, f], Lw[l, f]
+        v_new = _clip(vf - alpha * (vf - lw), b_v)
+        mu_new = _clip(muf - alpha * (-lw + rho * muf), b_mu)
+        V[b, i, f] = v_new
+        MU[b, i, f] = mu_new
+        So[b, i, f] = v_new + mu_new
+    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w, projected (line 9)
+    if not sparse:
+        for f in range(q):
+            wf = W[b, i, f]
+            g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - Ls[l, f] - kappa * Lw[l, f] - rho * wf
+            Wo[b, i, f] = _clip(wf + alpha * g_w, b_w)
+        for f in range(q):
+            theta[b, i, f] = _clip(theta[b, i, f] - alpha * (Phi[s, f] * c_theta), b_th)
+    else:
+        for f in range(q):
+            wf = W[b, i, f]
+            Wo[b, i, f] = wf + alpha * (-Ls[l, f] - kappa * Lw[l, f] - rho * wf)
+        for p in range(ptr[s], ptr[s + 1]):
+            f = idx[p]
+            theta[b, i, f] = _clip(theta[b, i, f] - alpha * (val[p] * c_theta), b_th)
+            Wo[b, i, f] += alpha * (rt * val[p])
+        for p in range(ptr[sn], ptr[sn + 1]):
+            Wo[b, i, idx[p]] -= alpha * (rt * gamma * val[p])
+        for f in range(q):
+            Wo[b, i, f] = _clip(Wo[b, i, f], b_w)
 
 
-@njit(cache=True, parallel=True, fastmath=FAST)
-def _dgtd_by_seed(theta, VM, Z, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
-                  Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid):
-    """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds)."""
-    B, N, m = Z.shape
+@njit(cache=True, inline="always")
+def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise,
+                  p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t):
+    """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
+    and up_t (edges); returns how many edges are up.
+
+    Fused: drawn here from seed b's streams in rng, in the order `dgtd.run.sampling.Streams.draw` draws them
+    (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
+    `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
+    (samples from a simulator)."""
+    n_obs = s_t.shape[1]
+    N = r_t.shape[1]
+    E = up_t.shape[1]
+    S = R_sample.shape[1]
+    n_up = 0
+    if not fused:
+        for o in range(n_obs):
+            s_t[row, o], a_t[row, o], sn_t[row, o] = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
+        for i in range(N):
+            r_t[row, i] = r_blk[t, b, i]
+        if up_blk.shape[0] > 0:
+            for e in range(E):
+                up_t[row, e] = up_blk[t, b, e]
+                n_up += up_blk[t, b, e]
+        else:
+            n_up = E
+        return n_up
+    for o in range(n_obs):
+        if markov:
+            s = current[b, o]
+        else:
+            s = _alias(d_prob, d_alias, next_double(rng, b, 0))
+        j = _alias_row(sa_prob, sa_alias, s, next_double(rng, b, 0))
+        s_t[row, o] = s
+        a_t[row, o] = j // S
+        sn_t[row, o] = j % S
+        if markov:
+            current[b, o] = j % S
+    for i in range(N):
+        o = i if n_obs == N else 0
+        r = R_sample[i, s_t[row, o], a_t[row, o]]
+        r_t[row, i] = _reward(r, sigma, noise, next_double(rng, b, 1)) if noise != 0 else r
+    if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
+        for e in range(E):
+            up_t[row, e] = next_double(rng, b, 2) < p_edge[e]
+            n_up += up_t[row, e]
+    else:
+        n_up = E
+    return n_up
+
+
+@njit(cache=True, parallel=True)
+def _dgtd_by_seed(theta, V, MU, W, S, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
+                  d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
+                  n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P):
+    """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds): each
+    step samples, takes every agent's Laplacian rows, then updates the agents in place (Jacobi form)."""
+    B, N, q = W.shape
     T = alphas.shape[0]
-    n_obs = s_blk.shape[2]
-    has_up = up.shape[0] > 0
+    n_obs, E = current.shape[1], indptr[N] // 2
     for b in prange(B):
-        L = np.empty((N, m))
+        Lw = np.empty((N, q))
+        Ls = np.empty((N, q))
+        tmp = np.empty((3, P))
+        s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
+        r_t = np.empty((1, N))
+        up_t = np.ones((1, E), np.bool_)
         for t in range(T):
+            n_up[b] += _step_samples(b, 0, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                                     sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
+                                     up_t)
             for i in range(N):
-                _laplacian_row(i, b, t, Z, up, has_up, indptr, nbr, eid, L[i])
+                _laplacian_row(W, b, i, up_t, 0, indptr, nbr, eid, Lw, i)
+                _laplacian_row(S, b, i, up_t, 0, indptr, nbr, eid, Ls, i)
             for i in range(N):
                 o = i if n_obs == N else 0
-                s, a = s_blk[t, b, o], a_blk[t, b, o]
-                # All Laplacians of step k are taken first, so in-place writes are safe (Jacobi form).
-                _agent_step(b, i, s, sn_blk[t, b, o], r_blk[t, b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, VM, Z, Z, L[i], sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho,
-                            boxes)
+                s, a = s_t[0, o], a_t[0, o]
+                _agent_step(b, i, s, sn_t[0, o], r_t[0, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
+                            theta, V, MU, W, S, W, S, Lw, Ls, i, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val,
+                            gamma, kappa, rho, boxes)
 
 
-@njit(cache=True, parallel=True, fastmath=FAST)
-def _dgtd_by_agent(theta, VM, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, s_blk, a_blk, sn_blk, r_blk, up,
-                   Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, n_chunks):
-    """Agents spread over the cores at every step (large N, few seeds): the rows neighbours read, Z = (w, v + mu),
-    are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns the
-    number of buffer swaps (odd: the result is in Z2)."""
-    B, N, m = Z.shape
+@njit(cache=True, parallel=True)
+def _dgtd_by_agent(theta, V, MU, W, S, W2, S2, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current,
+                   d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk,
+                   up_blk, n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P,
+                   n_chunks):
+    """Agents spread over the cores at every step (large N, few seeds). Each step's samples are drawn first
+    (seed by seed: a stream is sequential), then the agents update; the rows neighbours read, w and v + mu,
+    are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns
+    the number of buffer swaps (odd: the result is in W2, S2)."""
+    B, N, q = W.shape
     T = alphas.shape[0]
-    n_obs = s_blk.shape[2]
-    has_up = up.shape[0] > 0
+    n_obs, E = current.shape[1], indptr[N] // 2
     total = B * N
+    s_t, a_t, sn_t = np.empty((B, n_obs), np.int64), np.empty((B, n_obs), np.int64), np.empty((B, n_obs), np.int64)
+    r_t = np.empty((B, N))
+    up_t = np.ones((B, E), np.bool_)
     for t in range(T):
-        Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
+        for b in prange(B):
+            n_up[b] += _step_samples(b, b, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                                     sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
+                                     up_t)
+        Wi, Si, Wo, So = (W, S, W2, S2) if t % 2 == 0 else (W2, S2, W, S)
         for c in prange(n_chunks):
-            L = np.empty(m)
+            Lw = np.empty((1, q))
+            Ls = np.empty((1, q))
+            tmp = np.empty((3, P))
             for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
                 b = flat // N
                 i = flat % N
                 o = i if n_obs == N else 0
-                s, a = s_blk[t, b, o], a_blk[t, b, o]
-                _laplacian_row(i, b, t, Zi, up, has_up, indptr, nbr, eid, L)
-                _agent_step(b, i, s, sn_blk[t, b, o], r_blk[t, b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, VM, Zi, Zo, L, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho,
-                            boxes)
+                s, a = s_t[b, o], a_t[b, o]
+                _laplacian_row(Wi, b, i, up_t, b, indptr, nbr, eid, Lw, 0)
+                _laplacian_row(Si, b, i, up_t, b, indptr, nbr, eid, Ls, 0)
+                _agent_step(b, i, s, sn_t[b, o], r_t[b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
+                            theta, V, MU, Wi, Si, Wo, So, Lw, Ls, 0, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx,
+                            val, gamma, kappa, rho, boxes)
     return T
 
 
@@ -281,32 +393,57 @@ def by_agent(B: int, N: int, q: int) -> bool:
     return B < get_num_threads() and N * q >= 4096
 
 
-def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk: Block):
-    """Same contract as `dgtd.backends.numpy_ref.dgtd_block`, compiled."""
+def _sample_args(ctx, blk, B: int):
+    """The sampling arguments of the DGTD kernels: draw in the kernel from a `Draws`' streams, or copy a `Block`."""
+    tables, network, problem = ctx.tables, ctx.network, ctx.problem
+    none_i, none_f, none_b = np.zeros((0, 0, 0), np.int64), np.zeros((0, 0, 0)), np.zeros((0, 0, 0), np.bool_)
+    if isinstance(blk, Draws):
+        src = blk.source
+        markov = src.current is not None
+        current = np.array(src.current, dtype=np.int64) if markov else np.zeros((B, src.n_obs), np.int64)
+        p_edge = np.zeros(0) if network.fixed else np.asarray(network.p, dtype=np.float64)
+        samples = (none_i, none_i, none_i, none_f, none_b)
+        fused, rng = True, src.streams.pcg_words()
+    else:
+        markov, current, p_edge = False, np.zeros((B, blk.s.shape[2]), np.int64), np.zeros(0)
+        samples = (blk.s, blk.a, blk.s_next, blk.r, _up(blk))
+        fused, rng = False, np.zeros((B, 3, 4), np.uint64)
+    return (fused, rng, markov, current, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
+            np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise], p_edge,
+            *samples, np.zeros(B, np.int64))
+
+
+def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
+    """Same contract as `dgtd.backends.numpy_ref.dgtd_block`, compiled; ``blk`` is a `Block` of samples or
+    `Draws` that the kernel draws itself (the same samples, never materialised)."""
     from numba import get_num_threads
 
     from dgtd.algorithms.dgtd import DGTDState
 
-    theta = np.array(state.theta, dtype=np.float64, order="C")
-    VM = np.concatenate([state.v, state.mu], axis=2)
-    Z = np.concatenate([state.w, state.v + state.mu], axis=2)  # what neighbours read: one contiguous row each
+    theta, V, MU, W = (np.array(x, dtype=np.float64, order="C") for x in state)
+    S = V + MU  # what neighbours read, with w
     sum_all, sum_tail = sums["all"].copy(), sums["tail"].copy()
     indptr, nbr, eid = graph_arrays(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
-    common = (np.ascontiguousarray(alphas), blk.s, blk.a, blk.s_next, blk.r, _up(blk), Phi, sparse, ptr, idx, val,
-              np.ascontiguousarray(ctx.ratio), float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
-              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid)
     B, N, q = theta.shape
+    sampling = _sample_args(ctx, blk, B)
+    common = (np.ascontiguousarray(alphas), *sampling, Phi, sparse, ptr, idx, val, np.ascontiguousarray(ctx.ratio),
+              float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
+              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, _scratch_width(q))
     if by_agent(B, N, q):
-        Z2 = np.empty_like(Z)
-        if _dgtd_by_agent(theta, VM, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:
-            Z = Z2
+        W2 = np.empty_like(W)
+        if _dgtd_by_agent(theta, V, MU, W, S, W2, np.empty_like(S), sum_all, sum_tail, k0, ctx.tail_start, *common,
+                          4 * get_num_threads()) % 2:
+            W = W2
     else:
-        _dgtd_by_seed(theta, VM, Z, sum_all, sum_tail, k0, ctx.tail_start, *common)
-    state = DGTDState(theta, np.ascontiguousarray(VM[:, :, :q]), np.ascontiguousarray(VM[:, :, q:]),
-                      np.ascontiguousarray(Z[:, :, :q]))
-    return state, {"all": sum_all, "tail": sum_tail}
+        _dgtd_by_seed(theta, V, MU, W, S, sum_all, sum_tail, k0, ctx.tail_start, *common)
+    if isinstance(blk, Draws):
+        fused, rng, markov, current = sampling[:4]
+        blk.settle(rng, current if markov else None, sampling[-1])
+    return DGTDState(theta, V, MU, W), {"all": sum_all, "tail": sum_tail}
 
+
+dgtd_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
 
 BLOCKS = {"dgtd": dgtd_block}
 

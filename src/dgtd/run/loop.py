@@ -15,7 +15,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
-from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
+from dgtd.run.sampling import Draws, ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
@@ -202,15 +202,20 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
         source.set_state(resume["source"])
     every = int(checkpoint_every)
-    block = block_steps(settings.block_size, N, network.n_edges, B)
+    # Kernels that draw their own samples (`Draws`) materialise nothing, so their blocks need no sample budget.
+    fused = getattr(kernel, "draws_samples", False) and isinstance(source, ModelSource)
+    block = block_steps(settings.block_size, N, 0 if fused else network.n_edges, B, budget=(1 << 24) if fused else (1 << 21))
     t_loop = time.perf_counter()
     while k < T:
         k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
-        blk = source.next_block(k1 - k)
+        blk = source.draws(k1 - k) if fused else source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
             state, sums = kernel(ctx, state, sums, k, alphas, blk)
-        sent = (k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2))
+        if isinstance(blk, Draws):
+            sent = blk.up_count
+        else:
+            sent = (k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2))
         messages += per_edge * sent * (diverged_at < 0)  # a stopped seed sends nothing
         if progress is not None:
             progress(k1 - k)

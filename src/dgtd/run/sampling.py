@@ -132,6 +132,18 @@ class Streams:
     def get_state(self) -> list:
         return [[g.bit_generator.state for g in gs] for gs in self.gens]
 
+    def pcg_words(self) -> np.ndarray:
+        """(B, 3, 4) uint64: the PCG64 state of every stream, for kernels that draw the uniforms themselves."""
+        from dgtd.backends.numba_rng import pcg_words
+
+        return pcg_words([g for gs in self.gens for g in gs]).reshape(len(self.gens), 3, 4)
+
+    def set_pcg_words(self, words: np.ndarray) -> None:
+        """Take back the states a kernel advanced (`pcg_words`)."""
+        from dgtd.backends.numba_rng import set_pcg_words
+
+        set_pcg_words([g for gs in self.gens for g in gs], words.reshape(-1, 4))
+
     def set_state(self, state: list) -> None:
         for gs, st in zip(self.gens, state, strict=True):
             for g, s in zip(gs, st, strict=True):
@@ -151,6 +163,23 @@ class Block(NamedTuple):
     s_next: np.ndarray
     r: np.ndarray
     up: np.ndarray | None
+
+
+@dataclass(eq=False)
+class Draws:
+    """T steps of a `ModelSource` that are not drawn yet: a compiled kernel draws them from the source's
+    streams where it uses them (nothing is materialised), then hands the advanced streams back with `settle`.
+    The samples are those `ModelSource.next_block` would have returned."""
+
+    source: "ModelSource"
+    T: int
+    up_count: np.ndarray | None = None  # (B,) edges up over the T steps, set by `settle`
+
+    def settle(self, words: np.ndarray, current: np.ndarray | None, up_count: np.ndarray) -> None:
+        self.source.streams.set_pcg_words(words)
+        if current is not None:
+            self.source.current = current
+        self.up_count = up_count
 
 
 def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.ndarray | None):
@@ -225,6 +254,10 @@ class ModelSource:
         else:
             blk, self.current = block_from_uniforms(self.problem, self.network, self.tables, U, self.current)
         return blk
+
+    def draws(self, T: int) -> Draws:
+        """The next T steps, to be drawn inside a compiled kernel (see `Draws`)."""
+        return Draws(self, int(T))
 
     def get_state(self) -> dict:
         return {"streams": self.streams.get_state(), "current": None if self.current is None else self.current.copy()}
