@@ -108,15 +108,22 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
 # one compiled specialisation, and the same seed gave results one ulp apart in different processes.
 #
-# Two rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (W[b, j, f]),
-# never through row views (W[b, j]): numba counts references to every view with an atomic update, and two
-# threads updating the same count stall each other. And every quantity has an array of its own (theta, v, mu,
-# w, s = v + mu, the Laplacian rows): when one loop writes two halves of the same array, LLVM cannot prove
-# that they do not overlap and falls back to scalar code, three times slower.
+# Three rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (Z[b, j, f]),
+# never through row views (Z[b, j]): numba counts references to every view with an atomic update, and two
+# threads updating the same count stall each other. A loop writes one half of an array at most (theta, v and mu
+# have arrays of their own): when one loop writes two halves of the same array, LLVM cannot prove that they do
+# not overlap and falls back to scalar code, three times slower. And offsets into the second half of a packed
+# row are unsigned (`_hi`), so that numba emits no wrap-around test for negative indices in the way.
 
 
 @njit(cache=True, inline="always")
-def _dots3(Phi, s, sn, theta, W, b, i, q, tmp):
+def _hi(q, f):
+    """Index of element f of the second half of a packed row of 2q: unsigned, so it needs no wrap-around test."""
+    return np.uint64(q) + np.uint64(f)
+
+
+@njit(cache=True, inline="always")
+def _dots3(Phi, s, sn, theta, Z, b, i, q, tmp):
     """(phi^T theta_i, phi^T w_i, phi'^T w_i): the products go to the scratch rows tmp (3, P), P the power of two
     at or above q (zero-padded), and are summed by halving, a fixed order that vectorises without reassociation
     (so the rounding is the same in every process) and is more accurate than one running sum."""
@@ -124,9 +131,9 @@ def _dots3(Phi, s, sn, theta, W, b, i, q, tmp):
     for f in range(q):
         tmp[0, f] = Phi[s, f] * theta[b, i, f]
     for f in range(q):
-        tmp[1, f] = Phi[s, f] * W[b, i, f]
+        tmp[1, f] = Phi[s, f] * Z[b, i, f]
     for f in range(q):
-        tmp[2, f] = Phi[sn, f] * W[b, i, f]
+        tmp[2, f] = Phi[sn, f] * Z[b, i, f]
     for k in range(3):
         for f in range(q, P):
             tmp[k, f] = 0.0
@@ -146,32 +153,34 @@ def _scratch_width(q: int) -> int:
 
 
 @njit(cache=True, inline="always")
-def _laplacian_row(X, b, i, up, ub, indptr, nbr, eid, L, l):
-    """L[l] = (L(k) X)_i = |N_i(k)| X_i - sum_{j in N_i(k)} X_j for seed b: Algorithm 1's neighbour sums over the
-    edges of agent i that are up (row ub of the step's edge mask ``up``; all ones for a fixed graph)."""
-    q = X.shape[2]
-    for f in range(q):
+def _laplacian_row(Z, b, i, up, ub, indptr, nbr, eid, L, l):
+    """L[l] = (L(k) Z)_i = |N_i(k)| Z_i - sum_{j in N_i(k)} Z_j (Algorithm 1's neighbour sums) for the packed rows
+    Z[b, j] = (w_j, v_j + mu_j) of seed b, over the edges of agent i that are up (row ub of the step's edge mask
+    ``up``; all ones for a fixed graph). The w update needs L v + L mu = L (v + mu): two vectors per neighbour,
+    read as one contiguous row."""
+    m = Z.shape[2]
+    for f in range(m):
         L[l, f] = 0.0
     count = 0
     for p in range(indptr[i], indptr[i + 1]):
         if up[ub, eid[p]]:
             j = nbr[p]
             count += 1
-            for f in range(q):
-                L[l, f] += X[b, j, f]
-    for f in range(q):
-        L[l, f] = count * X[b, i, f] - L[l, f]
+            for f in range(m):
+                L[l, f] += Z[b, j, f]
+    for f in range(m):
+        L[l, f] = count * Z[b, i, f] - L[l, f]
 
 
 @njit(cache=True, inline="always")
-def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, W, S, Wo, So, Lw, Ls, l, tmp, sum_all,
-                sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa, rho, boxes):
+def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l, tmp, sum_all, sum_tail, Phi, sparse,
+                ptr, idx, val, gamma, kappa, rho, boxes):
     """Algorithm 1 lines 7-9 for agent i of seed b.
 
-    W[b, i] = w and S[b, i] = v + mu at step k (what neighbours read); Wo, So receive them at step k + 1 (they
-    are W, S themselves when every Laplacian row of the step was taken first). theta, V, MU depend on agent i's
-    own variables only and are updated in place. Lw[l] = (L(k) w)_i and Ls[l] = (L(k) v + L(k) mu)_i. With
-    sparse features (CSR rows ptr/idx/val of Phi) the TD terms cost O(nnz(phi) + nnz(phi')) instead of O(q).
+    Z[b, i] = (w, v + mu) at step k, packed (what neighbours read); Zo[b, i] receives them at step k + 1 (Zo is
+    Z itself when every Laplacian row of the step was taken first). theta, V, MU depend on agent i's own
+    variables only and are updated in place. L[l] = ((L(k) w)_i, (L(k) v + L(k) mu)_i). With sparse features
+    (CSR rows ptr/idx/val of Phi) the TD terms cost O(nnz(phi) + nnz(phi')) instead of O(q).
     """
     q = theta.shape[2]
     b_th, b_v, b_mu, b_w = boxes[0], boxes[1], boxes[2], boxes[3]
@@ -181,47 +190,47 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, W, S, Wo, S
         phin_w = 0.0
         for p in range(ptr[s], ptr[s + 1]):
             phi_theta += val[p] * theta[b, i, idx[p]]
-            phi_w += val[p] * W[b, i, idx[p]]
+            phi_w += val[p] * Z[b, i, idx[p]]
         for p in range(ptr[sn], ptr[sn + 1]):
-            phin_w += val[p] * W[b, i, idx[p]]
+            phin_w += val[p] * Z[b, i, idx[p]]
     else:
-        phi_theta, phi_w, phin_w = _dots3(Phi, s, sn, theta, W, b, i, q, tmp)
+        phi_theta, phi_w, phin_w = _dots3(Phi, s, sn, theta, Z, b, i, q, tmp)
     # Line 7 (theta): phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta
     c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
     rt = ratio * phi_theta
     for f in range(q):
-        sum_all[b, i, f] += W[b, i, f]
+        sum_all[b, i, f] += Z[b, i, f]
     if in_tail:
         for f in range(q):
-            sum_tail[b, i, f] += W[b, i, f]
+            sum_tail[b, i, f] += Z[b, i, f]
     # Line 7 (v) and line 8 (mu), projected (line 9); neighbours will read their sum
     for f in range(q):
-        vf, muf, lw = V[b, i, f], MU[b, i, f], Lw[l, f]
+        vf, muf, lw = V[b, i, f], MU[b, i, f], L[l, f]
         v_new = _clip(vf - alpha * (vf - lw), b_v)
         mu_new = _clip(muf - alpha * (-lw + rho * muf), b_mu)
         V[b, i, f] = v_new
         MU[b, i, f] = mu_new
-        So[b, i, f] = v_new + mu_new
+        Zo[b, i, _hi(q, f)] = v_new + mu_new
     # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w, projected (line 9)
     if not sparse:
         for f in range(q):
-            wf = W[b, i, f]
-            g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - Ls[l, f] - kappa * Lw[l, f] - rho * wf
-            Wo[b, i, f] = _clip(wf + alpha * g_w, b_w)
+            wf = Z[b, i, f]
+            g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - L[l, _hi(q, f)] - kappa * L[l, f] - rho * wf
+            Zo[b, i, f] = _clip(wf + alpha * g_w, b_w)
         for f in range(q):
             theta[b, i, f] = _clip(theta[b, i, f] - alpha * (Phi[s, f] * c_theta), b_th)
     else:
         for f in range(q):
-            wf = W[b, i, f]
-            Wo[b, i, f] = wf + alpha * (-Ls[l, f] - kappa * Lw[l, f] - rho * wf)
+            wf = Z[b, i, f]
+            Zo[b, i, f] = wf + alpha * (-L[l, _hi(q, f)] - kappa * L[l, f] - rho * wf)
         for p in range(ptr[s], ptr[s + 1]):
             f = idx[p]
             theta[b, i, f] = _clip(theta[b, i, f] - alpha * (val[p] * c_theta), b_th)
-            Wo[b, i, f] += alpha * (rt * val[p])
+            Zo[b, i, f] += alpha * (rt * val[p])
         for p in range(ptr[sn], ptr[sn + 1]):
-            Wo[b, i, idx[p]] -= alpha * (rt * gamma * val[p])
+            Zo[b, i, idx[p]] -= alpha * (rt * gamma * val[p])
         for f in range(q):
-            Wo[b, i, f] = _clip(Wo[b, i, f], b_w)
+            Zo[b, i, f] = _clip(Zo[b, i, f], b_w)
 
 
 @njit(cache=True, inline="always")
@@ -276,17 +285,16 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
 
 
 @njit(cache=True, parallel=True)
-def _dgtd_by_seed(theta, V, MU, W, S, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
+def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
                   d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
                   n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P):
     """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds): each
     step samples, takes every agent's Laplacian rows, then updates the agents in place (Jacobi form)."""
-    B, N, q = W.shape
+    B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     for b in prange(B):
-        Lw = np.empty((N, q))
-        Ls = np.empty((N, q))
+        L = np.empty((N, m))
         tmp = np.empty((3, P))
         s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
         r_t = np.empty((1, N))
@@ -296,26 +304,25 @@ def _dgtd_by_seed(theta, V, MU, W, S, sum_all, sum_tail, k0, tail_start, alphas,
                                      sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
                                      up_t)
             for i in range(N):
-                _laplacian_row(W, b, i, up_t, 0, indptr, nbr, eid, Lw, i)
-                _laplacian_row(S, b, i, up_t, 0, indptr, nbr, eid, Ls, i)
+                _laplacian_row(Z, b, i, up_t, 0, indptr, nbr, eid, L, i)
             for i in range(N):
                 o = i if n_obs == N else 0
                 s, a = s_t[0, o], a_t[0, o]
                 _agent_step(b, i, s, sn_t[0, o], r_t[0, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, V, MU, W, S, W, S, Lw, Ls, i, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val,
-                            gamma, kappa, rho, boxes)
+                            theta, V, MU, Z, Z, L, i, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa,
+                            rho, boxes)
 
 
 @njit(cache=True, parallel=True)
-def _dgtd_by_agent(theta, V, MU, W, S, W2, S2, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current,
-                   d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk,
-                   up_blk, n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P,
+def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
+                   d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
+                   n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P,
                    n_chunks):
     """Agents spread over the cores at every step (large N, few seeds). Each step's samples are drawn first
-    (seed by seed: a stream is sequential), then the agents update; the rows neighbours read, w and v + mu,
+    (seed by seed: a stream is sequential), then the agents update; the rows neighbours read, (w, v + mu),
     are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns
-    the number of buffer swaps (odd: the result is in W2, S2)."""
-    B, N, q = W.shape
+    the number of buffer swaps (odd: the result is in Z2)."""
+    B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     total = B * N
@@ -323,25 +330,23 @@ def _dgtd_by_agent(theta, V, MU, W, S, W2, S2, sum_all, sum_tail, k0, tail_start
     r_t = np.empty((B, N))
     up_t = np.ones((B, E), np.bool_)
     for t in range(T):
-        for b in prange(B):
+        for b in range(B):  # a stream is sequential; few seeds here
             n_up[b] += _step_samples(b, b, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
                                      sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
                                      up_t)
-        Wi, Si, Wo, So = (W, S, W2, S2) if t % 2 == 0 else (W2, S2, W, S)
+        Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
         for c in prange(n_chunks):
-            Lw = np.empty((1, q))
-            Ls = np.empty((1, q))
+            L = np.empty((1, m))
             tmp = np.empty((3, P))
             for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
                 b = flat // N
                 i = flat % N
                 o = i if n_obs == N else 0
                 s, a = s_t[b, o], a_t[b, o]
-                _laplacian_row(Wi, b, i, up_t, b, indptr, nbr, eid, Lw, 0)
-                _laplacian_row(Si, b, i, up_t, b, indptr, nbr, eid, Ls, 0)
+                _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0)
                 _agent_step(b, i, s, sn_t[b, o], r_t[b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, V, MU, Wi, Si, Wo, So, Lw, Ls, 0, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx,
-                            val, gamma, kappa, rho, boxes)
+                            theta, V, MU, Zi, Zo, L, 0, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
+                            kappa, rho, boxes)
     return T
 
 
@@ -420,8 +425,8 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
 
     from dgtd.algorithms.dgtd import DGTDState
 
-    theta, V, MU, W = (np.array(x, dtype=np.float64, order="C") for x in state)
-    S = V + MU  # what neighbours read, with w
+    theta, V, MU = (np.array(x, dtype=np.float64, order="C") for x in state[:3])
+    Z = np.concatenate([state.w, state.v + state.mu], axis=2)  # what neighbours read: one contiguous row each
     sum_all, sum_tail = sums["all"].copy(), sums["tail"].copy()
     indptr, nbr, eid = graph_arrays(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
@@ -431,16 +436,15 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
               float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
               np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, _scratch_width(q))
     if by_agent(B, N, q):
-        W2 = np.empty_like(W)
-        if _dgtd_by_agent(theta, V, MU, W, S, W2, np.empty_like(S), sum_all, sum_tail, k0, ctx.tail_start, *common,
-                          4 * get_num_threads()) % 2:
-            W = W2
+        Z2 = np.empty_like(Z)
+        if _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:
+            Z = Z2
     else:
-        _dgtd_by_seed(theta, V, MU, W, S, sum_all, sum_tail, k0, ctx.tail_start, *common)
+        _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, ctx.tail_start, *common)
     if isinstance(blk, Draws):
         fused, rng, markov, current = sampling[:4]
         blk.settle(rng, current if markov else None, sampling[-1])
-    return DGTDState(theta, V, MU, W), {"all": sum_all, "tail": sum_tail}
+    return DGTDState(theta, V, MU, np.ascontiguousarray(Z[:, :, :q])), {"all": sum_all, "tail": sum_tail}
 
 
 dgtd_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
