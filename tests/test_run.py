@@ -71,6 +71,23 @@ def test_numba_matches_numpy(case, layout, monkeypatch):
     assert_allclose(fast.w_avg, ref.w_avg, rtol=1e-9, atol=1e-9 * scale)
     for name in ref.metrics:
         assert_allclose(fast.metrics[name], ref.metrics[name], rtol=1e-9, atol=1e-12)
+    assert_array_equal(fast.info["messages"], ref.info["messages"])
+
+
+@pytest.mark.parametrize("layout", ["seed", "agent"])
+def test_numba_draws_in_kernel_the_samples_of_a_block(layout, monkeypatch):
+    """The compiled DGTD kernel draws its own samples (`Draws`); fed the materialised `Block` of the same streams
+    instead, it must give the same numbers to the last bit, block after block."""
+    from dgtd.backends import numba_kernels
+
+    monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
+    case = dict(sampling=Sampling("markov"), noise="uniform", block=37)
+    fused = small_run("numba", **case)
+    monkeypatch.setattr(numba_kernels.dgtd_block, "draws_samples", False)
+    blocks = small_run("numba", **case)
+    assert_array_equal(fused.w_last, blocks.w_last)
+    assert_array_equal(fused.w_avg, blocks.w_avg)
+    assert_array_equal(fused.info["messages"], blocks.info["messages"])
 
 
 def test_paper_example_1_converges():

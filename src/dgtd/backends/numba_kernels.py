@@ -9,7 +9,10 @@ compiled once and cached on disk (``cache=True``).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from dgtd.backends.numba_rng import next_double
 from dgtd.run.sampling import Block, Draws
@@ -114,6 +117,36 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
 # have arrays of their own): when one loop writes two halves of the same array, LLVM cannot prove that they do
 # not overlap and falls back to scalar code, three times slower. And offsets into the second half of a packed
 # row are unsigned (`_hi`), so that numba emits no wrap-around test for negative indices in the way.
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i0, i1, i2):
+    """Ask the caches for element [i0, i1, i2] of a 3-D array (a hint: no effect on any result)."""
+    sig = types.void(arr, i0, i1, i2)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, args[1:], wraparound=False)
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def _prefetch_rows(Z, b, i, up, ub, indptr, nbr, eid):
+    """Prefetch the packed rows of agent i's neighbours that are up: on large graphs they are scattered in
+    memory, and the next agent's rows arrive while this agent computes."""
+    m = Z.shape[2]
+    for p in range(indptr[i], indptr[i + 1]):
+        if up[ub, eid[p]]:
+            j = nbr[p]
+            for f in range(0, m, 8):  # one 64-byte line holds 8 doubles
+                _prefetch(Z, b, j, f)
 
 
 @njit(cache=True, inline="always")
@@ -338,11 +371,14 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
         for c in prange(n_chunks):
             L = np.empty((1, m))
             tmp = np.empty((3, P))
-            for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
+            hi = (c + 1) * total // n_chunks
+            for flat in range(c * total // n_chunks, hi):
                 b = flat // N
                 i = flat % N
                 o = i if n_obs == N else 0
                 s, a = s_t[b, o], a_t[b, o]
+                if flat + 1 < hi:  # the next agent's neighbour rows arrive while this agent computes
+                    _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, (flat + 1) // N, indptr, nbr, eid)
                 _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0)
                 _agent_step(b, i, s, sn_t[b, o], r_t[b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
                             theta, V, MU, Zi, Zo, L, 0, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
