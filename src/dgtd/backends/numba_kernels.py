@@ -320,9 +320,10 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
 @njit(cache=True, parallel=True)
 def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
                   d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
-                  n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P):
+                  n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of, P):
     """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds): each
-    step samples, takes every agent's Laplacian rows, then updates the agents in place (Jacobi form)."""
+    step samples, takes every agent's Laplacian rows, then updates the agents in place (Jacobi form). Row i
+    of the state arrays holds agent agent_of[i] (`storage_order`)."""
     B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
@@ -339,9 +340,9 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
             for i in range(N):
                 _laplacian_row(Z, b, i, up_t, 0, indptr, nbr, eid, L, i)
             for i in range(N):
-                o = i if n_obs == N else 0
+                o = agent_of[i] if n_obs == N else 0
                 s, a = s_t[0, o], a_t[0, o]
-                _agent_step(b, i, s, sn_t[0, o], r_t[0, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
+                _agent_step(b, i, s, sn_t[0, o], r_t[0, agent_of[i]], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
                             theta, V, MU, Z, Z, L, i, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa,
                             rho, boxes)
 
@@ -349,8 +350,8 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
 @njit(cache=True, parallel=True)
 def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
                    d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
-                   n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, P,
-                   n_chunks):
+                   n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of,
+                   P, n_chunks):
     """Agents spread over the cores at every step (large N, few seeds). Each step's samples are drawn first
     (seed by seed: a stream is sequential), then the agents update; the rows neighbours read, (w, v + mu),
     are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns
@@ -375,12 +376,12 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
             for flat in range(c * total // n_chunks, hi):
                 b = flat // N
                 i = flat % N
-                o = i if n_obs == N else 0
+                o = agent_of[i] if n_obs == N else 0
                 s, a = s_t[b, o], a_t[b, o]
                 if flat + 1 < hi:  # the next agent's neighbour rows arrive while this agent computes
                     _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, (flat + 1) // N, indptr, nbr, eid)
                 _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0)
-                _agent_step(b, i, s, sn_t[b, o], r_t[b, i], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
+                _agent_step(b, i, s, sn_t[b, o], r_t[b, agent_of[i]], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
                             theta, V, MU, Zi, Zo, L, 0, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
                             kappa, rho, boxes)
     return T
@@ -404,6 +405,45 @@ def graph_arrays(ctx):
     if "csr" not in cache:
         cache["csr"] = csr_adjacency(ctx.network.base.edges, ctx.network.n_nodes)
     return cache["csr"]
+
+
+RELABEL_MIN_AGENTS = 256
+
+
+def storage_order(ctx):
+    """(order, inverse) of the agents in the DGTD kernels' arrays: row r holds agent order[r], agent i sits in row
+    inverse[i]. From RELABEL_MIN_AGENTS agents on, a reverse Cuthill-McKee ordering puts neighbours in nearby
+    rows, so that the rows an agent reads are mostly in cache already; below it, the identity (None). It depends
+    on the graph alone, never on the number of seeds or the layout, so a seed's numbers do not either."""
+    cache = ctx.__dict__.setdefault("_numba_cache", {})
+    if "order" not in cache:
+        N, edges = ctx.network.n_nodes, ctx.network.base.edges
+        cache["order"] = None
+        if N >= RELABEL_MIN_AGENTS and len(edges):
+            from scipy.sparse import coo_matrix
+            from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+            A = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(N, N)).tocsr()
+            order = np.asarray(reverse_cuthill_mckee(A + A.T, symmetric_mode=True), dtype=np.int64)
+            inverse = np.empty_like(order)
+            inverse[order] = np.arange(N)
+            cache["order"] = (order, inverse)
+    return cache["order"]
+
+
+def storage_graph(ctx):
+    """CSR neighbour lists of the base graph in storage rows (`storage_order`), with the original edge ids, and
+    the agent of every row."""
+    cache = ctx.__dict__.setdefault("_numba_cache", {})
+    if "storage_csr" not in cache:
+        order = storage_order(ctx)
+        N = ctx.network.n_nodes
+        if order is None:
+            cache["storage_csr"] = (*graph_arrays(ctx), np.arange(N, dtype=np.int64))
+        else:
+            edges = order[1][ctx.network.base.edges]
+            cache["storage_csr"] = (*csr_adjacency(edges, N), order[0])
+    return cache["storage_csr"]
 
 
 def _up(blk: Block):
@@ -461,16 +501,18 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
 
     from dgtd.algorithms.dgtd import DGTDState
 
-    theta, V, MU = (np.array(x, dtype=np.float64, order="C") for x in state[:3])
-    Z = np.concatenate([state.w, state.v + state.mu], axis=2)  # what neighbours read: one contiguous row each
-    sum_all, sum_tail = sums["all"].copy(), sums["tail"].copy()
-    indptr, nbr, eid = graph_arrays(ctx)
+    order = storage_order(ctx)
+    rows = (lambda x: np.array(x, dtype=np.float64, order="C")) if order is None else (lambda x: x[:, order[0]])
+    theta, V, MU = (rows(x) for x in state[:3])
+    Z = np.concatenate([rows(state.w), rows(state.v + state.mu)], axis=2)  # what neighbours read: one row each
+    sum_all, sum_tail = rows(sums["all"]), rows(sums["tail"])
+    indptr, nbr, eid, agent_of = storage_graph(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
     B, N, q = theta.shape
     sampling = _sample_args(ctx, blk, B)
     common = (np.ascontiguousarray(alphas), *sampling, Phi, sparse, ptr, idx, val, np.ascontiguousarray(ctx.ratio),
               float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
-              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, _scratch_width(q))
+              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, agent_of, _scratch_width(q))
     if by_agent(B, N, q):
         Z2 = np.empty_like(Z)
         if _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:
@@ -480,7 +522,9 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     if isinstance(blk, Draws):
         fused, rng, markov, current = sampling[:4]
         blk.settle(rng, current if markov else None, sampling[-1])
-    return DGTDState(theta, V, MU, np.ascontiguousarray(Z[:, :, :q])), {"all": sum_all, "tail": sum_tail}
+    back = (lambda x: np.ascontiguousarray(x)) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
+    return (DGTDState(back(theta), back(V), back(MU), back(Z[:, :, :q])),
+            {"all": back(sum_all), "tail": back(sum_tail)})
 
 
 dgtd_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
