@@ -156,10 +156,10 @@ def test_settings_validation():
 def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
     """Large graphs are stored in reverse Cuthill-McKee order inside the compiled DGTD kernel (lowered here to 8
     agents): samples, rewards and results must still belong to the right agents."""
-    from dgtd.backends import numba_kernels
+    from dgtd.backends import numba_graph, numba_kernels
 
     monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
-    monkeypatch.setattr(numba_kernels, "RELABEL_MIN_AGENTS", 8)
+    monkeypatch.setattr(numba_graph, "RELABEL_MIN_AGENTS", 8)
     rng = np.random.default_rng(8)
     problem = random_problem(6, 12, 3, rng, reward_noise="uniform")
     net = random_edges(topologies.from_edges(12, [(i, (i + 5) % 12) for i in range(12)] + [(0, 1), (3, 4)], "chords"),
@@ -171,5 +171,5 @@ def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
     scale = np.abs(ref.w_last).max()
     assert_allclose(fast.w_last, ref.w_last, rtol=1e-9, atol=1e-9 * scale)
     assert_allclose(fast.w_avg, ref.w_avg, rtol=1e-9, atol=1e-9 * scale)
-    order = numba_kernels.storage_order(type("Ctx", (), {"network": net})())
+    order = numba_graph.storage_order(type("Ctx", (), {"network": net})())
     assert order is not None and not np.array_equal(order[0], np.arange(12))  # the rows really were reordered

@@ -167,14 +167,15 @@ def local_block(ctx, state, sums, k0, alphas, blk):
 
 
 def _distributed_block(kind: int, ctx, state, sums, k0, alphas, blk: Block):
-    from dgtd.backends.numba_kernels import _up, graph_arrays
+    from dgtd.backends.numba_graph import graph_arrays
+    from dgtd.backends.numba_sampling import up_mask
 
     w = _f64(state.w)
     mu = _f64(state.mu) if kind else np.zeros_like(w)
     sum_all, sum_tail = _sums(sums)
     indptr, nbr, eid = graph_arrays(ctx)
     _distributed_td_kernel(kind, w, mu, sum_all, sum_tail, k0, ctx.tail_start, np.ascontiguousarray(alphas),
-                           float(getattr(ctx.algorithm, "eta", 0.0)), blk.s, blk.a, blk.s_next, blk.r, _up(blk),
+                           float(getattr(ctx.algorithm, "eta", 0.0)), blk.s, blk.a, blk.s_next, blk.r, up_mask(blk),
                            np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio), float(ctx.gamma),
                            indptr, nbr, eid)
     new = state._replace(w=w, mu=mu) if kind else state._replace(w=w)

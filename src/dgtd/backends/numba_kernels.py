@@ -1,111 +1,23 @@
 """Compiled kernels (numba): one fused loop per algorithm over a block of steps, seeds spread over the cores.
 
-The sampler turns uniforms into samples with exactly the arithmetic of the NumPy reference
-(`dgtd.run.sampling.alias_pick`, `reward_from_uniform`), and the update kernels apply the same updates, so
-for the same seed both backends give the same numbers up to floating-point summation order. Everything is
-compiled once and cached on disk (``cache=True``).
+The DGTD kernels draw their own samples from the seeds' PCG64 streams (`dgtd.backends.numba_sampling`), the
+same samples as the NumPy reference, and apply the same updates, so for the same seed both backends give the
+same numbers up to floating-point summation order. Everything is compiled once and cached on disk
+(``cache=True``).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, prange, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit, prange
 
-from dgtd.backends.numba_rng import next_double
-from dgtd.run.sampling import Block, Draws
-
-NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
-
-
-@njit(cache=True, inline="always")
-def _alias(prob, alias, u):
-    K = prob.shape[0]
-    x = u * K
-    j = min(np.int64(x), K - 1)
-    if x - j < prob[j]:
-        return j
-    return alias[j]
-
-
-@njit(cache=True, inline="always")
-def _alias_row(prob, alias, row, u):
-    """`_alias` on row ``row`` of 2-D tables, indexed in place (a row view would cost an atomic reference count)."""
-    K = prob.shape[1]
-    x = u * K
-    j = min(np.int64(x), K - 1)
-    if x - j < prob[row, j]:
-        return j
-    return alias[row, j]
-
-
-@njit(cache=True, inline="always")
-def _reward(mean, sigma, noise, u):
-    if noise == 0:
-        return mean
-    if noise == 1:
-        return sigma if u < mean / sigma else 0.0
-    h = min(mean, sigma - mean)
-    return mean + h * (2.0 * u - 1.0)
-
+from dgtd.backends.numba_graph import _prefetch_rows, storage_graph, storage_order
+from dgtd.backends.numba_sampling import _step_samples, sample_args
+from dgtd.run.sampling import Draws
 
 @njit(cache=True, inline="always")
 def _clip(x, b):
     return -b if x < -b else (b if x > b else x)
-
-
-@njit(cache=True, parallel=True)
-def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
-                   sigma, noise, p_edge, s_out, a_out, sn_out, r_out, up_out):
-    """Samples of a block: each (seed, observation) pair runs its own trajectory, so they are spread over the cores."""
-    T, B, n_obs, width = u_state.shape
-    N = R_sample.shape[0]
-    S = R_sample.shape[1]
-    for flat in prange(B * n_obs):
-        b = flat // n_obs
-        o = flat % n_obs
-        for t in range(T):
-            if markov:
-                s = current[b, o]
-            else:
-                s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
-            j = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, width - 1])
-            a = j // S
-            s_out[t, b, o] = s
-            a_out[t, b, o] = a
-            sn_out[t, b, o] = j % S
-            if markov:
-                current[b, o] = j % S
-            # Rewards of the agents that see this observation: agent o, or all agents on a shared trajectory.
-            lo, hi = (o, o + 1) if n_obs == N else (0, N)
-            for i in range(lo, hi):
-                r = R_sample[i, s, a]
-                r_out[t, b, i] = _reward(r, sigma, noise, u_reward[t, b, i]) if noise != 0 else r
-    E = p_edge.shape[0]
-    if up_out.shape[0] > 0:
-        for flat in prange(T * B):
-            t = flat // B
-            b = flat % B
-            for e in range(E):
-                up_out[t, b, e] = u_edge[t, b, e] < p_edge[e]
-
-
-def block_from_uniforms(problem, network, tables, U: dict, current):
-    """Compiled twin of `dgtd.run.sampling.block_from_uniforms`."""
-    T, B, n_obs, _ = U["state"].shape
-    N = problem.n_agents
-    markov = current is not None
-    cur = np.array(current, dtype=np.int64) if markov else np.zeros((1, 1), np.int64)
-    s, a, sn = (np.empty((T, B, n_obs), np.int64) for _ in range(3))
-    r = np.empty((T, B, N))
-    up = np.empty((T, B, network.n_edges), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
-    _sample_kernel(np.ascontiguousarray(U["state"]), U.get("reward", np.zeros((0, 0, 0))), U.get("edge", np.zeros((0, 0, 0))),
-                   markov, cur, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-                   np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise],
-                   np.asarray(network.p, dtype=np.float64), s, a, sn, r, up)
-    return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
 
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
@@ -117,36 +29,6 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
 # have arrays of their own): when one loop writes two halves of the same array, LLVM cannot prove that they do
 # not overlap and falls back to scalar code, three times slower. And offsets into the second half of a packed
 # row are unsigned (`_hi`), so that numba emits no wrap-around test for negative indices in the way.
-
-
-@intrinsic
-def _prefetch(typingctx, arr, i0, i1, i2):
-    """Ask the caches for element [i0, i1, i2] of a 3-D array (a hint: no effect on any result)."""
-    sig = types.void(arr, i0, i1, i2)
-
-    def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, args[1:], wraparound=False)
-        i32 = ir.IntType(32)
-        fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
-        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
-        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@njit(cache=True, inline="always")
-def _prefetch_rows(Z, b, i, up, ub, indptr, nbr, eid):
-    """Prefetch the packed rows of agent i's neighbours that are up: on large graphs they are scattered in
-    memory, and the next agent's rows arrive while this agent computes."""
-    m = Z.shape[2]
-    for p in range(indptr[i], indptr[i + 1]):
-        if up[ub, eid[p]]:
-            j = nbr[p]
-            for f in range(0, m, 8):  # one 64-byte line holds 8 doubles
-                _prefetch(Z, b, j, f)
 
 
 @njit(cache=True, inline="always")
@@ -266,57 +148,6 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l
             Zo[b, i, f] = _clip(Zo[b, i, f], b_w)
 
 
-@njit(cache=True, inline="always")
-def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise,
-                  p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t):
-    """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
-    and up_t (edges); returns how many edges are up.
-
-    Fused: drawn here from seed b's streams in rng, in the order `dgtd.run.sampling.Streams.draw` draws them
-    (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
-    `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
-    (samples from a simulator)."""
-    n_obs = s_t.shape[1]
-    N = r_t.shape[1]
-    E = up_t.shape[1]
-    S = R_sample.shape[1]
-    n_up = 0
-    if not fused:
-        for o in range(n_obs):
-            s_t[row, o], a_t[row, o], sn_t[row, o] = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
-        for i in range(N):
-            r_t[row, i] = r_blk[t, b, i]
-        if up_blk.shape[0] > 0:
-            for e in range(E):
-                up_t[row, e] = up_blk[t, b, e]
-                n_up += up_blk[t, b, e]
-        else:
-            n_up = E
-        return n_up
-    for o in range(n_obs):
-        if markov:
-            s = current[b, o]
-        else:
-            s = _alias(d_prob, d_alias, next_double(rng, b, 0))
-        j = _alias_row(sa_prob, sa_alias, s, next_double(rng, b, 0))
-        s_t[row, o] = s
-        a_t[row, o] = j // S
-        sn_t[row, o] = j % S
-        if markov:
-            current[b, o] = j % S
-    for i in range(N):
-        o = i if n_obs == N else 0
-        r = R_sample[i, s_t[row, o], a_t[row, o]]
-        r_t[row, i] = _reward(r, sigma, noise, next_double(rng, b, 1)) if noise != 0 else r
-    if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
-        for e in range(E):
-            up_t[row, e] = next_double(rng, b, 2) < p_edge[e]
-            n_up += up_t[row, e]
-    else:
-        n_up = E
-    return n_up
-
-
 @njit(cache=True, parallel=True)
 def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
                   d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
@@ -387,69 +218,6 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
     return T
 
 
-def csr_adjacency(edges: np.ndarray, n_nodes: int):
-    """Neighbour lists with edge ids: for node i, nbr[indptr[i]:indptr[i+1]] and their edges eid[...]."""
-    E = edges.shape[0]
-    ends = np.concatenate([edges[:, 0], edges[:, 1]])
-    others = np.concatenate([edges[:, 1], edges[:, 0]])
-    ids = np.concatenate([np.arange(E), np.arange(E)])
-    order = np.lexsort((others, ends))
-    indptr = np.zeros(n_nodes + 1, np.int64)
-    np.add.at(indptr, ends + 1, 1)
-    return np.cumsum(indptr), others[order].astype(np.int64), ids[order].astype(np.int64)
-
-
-def graph_arrays(ctx):
-    """CSR arrays of the base graph, computed once per run context."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "csr" not in cache:
-        cache["csr"] = csr_adjacency(ctx.network.base.edges, ctx.network.n_nodes)
-    return cache["csr"]
-
-
-RELABEL_MIN_AGENTS = 256
-
-
-def storage_order(ctx):
-    """(order, inverse) of the agents in the DGTD kernels' arrays: row r holds agent order[r], agent i sits in row
-    inverse[i]. From RELABEL_MIN_AGENTS agents on, a reverse Cuthill-McKee ordering puts neighbours in nearby
-    rows, so that the rows an agent reads are mostly in cache already; below it, the identity (None). It depends
-    on the graph alone, never on the number of seeds or the layout, so a seed's numbers do not either."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "order" not in cache:
-        N, edges = ctx.network.n_nodes, ctx.network.base.edges
-        cache["order"] = None
-        if N >= RELABEL_MIN_AGENTS and len(edges):
-            from scipy.sparse import coo_matrix
-            from scipy.sparse.csgraph import reverse_cuthill_mckee
-
-            A = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(N, N)).tocsr()
-            order = np.asarray(reverse_cuthill_mckee(A + A.T, symmetric_mode=True), dtype=np.int64)
-            inverse = np.empty_like(order)
-            inverse[order] = np.arange(N)
-            cache["order"] = (order, inverse)
-    return cache["order"]
-
-
-def storage_graph(ctx):
-    """CSR neighbour lists of the base graph in storage rows (`storage_order`), with the original edge ids, and
-    the agent of every row."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "storage_csr" not in cache:
-        order = storage_order(ctx)
-        N = ctx.network.n_nodes
-        if order is None:
-            cache["storage_csr"] = (*graph_arrays(ctx), np.arange(N, dtype=np.int64))
-        else:
-            edges = order[1][ctx.network.base.edges]
-            cache["storage_csr"] = (*csr_adjacency(edges, N), order[0])
-    return cache["storage_csr"]
-
-
-def _up(blk: Block):
-    return np.empty((0, 0, 0), np.bool_) if blk.up is None else np.ascontiguousarray(blk.up)
-
-
 def feature_arrays(ctx):
     """Phi dense and as CSR rows; sparse when rows hold at most a quarter of the features (tabular: one)."""
     cache = ctx.__dict__.setdefault("_numba_cache", {})
@@ -474,26 +242,6 @@ def by_agent(B: int, N: int, q: int) -> bool:
     return B < get_num_threads() and N * q >= 4096
 
 
-def _sample_args(ctx, blk, B: int):
-    """The sampling arguments of the DGTD kernels: draw in the kernel from a `Draws`' streams, or copy a `Block`."""
-    tables, network, problem = ctx.tables, ctx.network, ctx.problem
-    none_i, none_f, none_b = np.zeros((0, 0, 0), np.int64), np.zeros((0, 0, 0)), np.zeros((0, 0, 0), np.bool_)
-    if isinstance(blk, Draws):
-        src = blk.source
-        markov = src.current is not None
-        current = np.array(src.current, dtype=np.int64) if markov else np.zeros((B, src.n_obs), np.int64)
-        p_edge = np.zeros(0) if network.fixed else np.asarray(network.p, dtype=np.float64)
-        samples = (none_i, none_i, none_i, none_f, none_b)
-        fused, rng = True, src.streams.pcg_words()
-    else:
-        markov, current, p_edge = False, np.zeros((B, blk.s.shape[2]), np.int64), np.zeros(0)
-        samples = (blk.s, blk.a, blk.s_next, blk.r, _up(blk))
-        fused, rng = False, np.zeros((B, 3, 4), np.uint64)
-    return (fused, rng, markov, current, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-            np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise], p_edge,
-            *samples, np.zeros(B, np.int64))
-
-
 def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     """Same contract as `dgtd.backends.numpy_ref.dgtd_block`, compiled; ``blk`` is a `Block` of samples or
     `Draws` that the kernel draws itself (the same samples, never materialised)."""
@@ -509,7 +257,7 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     indptr, nbr, eid, agent_of = storage_graph(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
     B, N, q = theta.shape
-    sampling = _sample_args(ctx, blk, B)
+    sampling = sample_args(ctx, blk, B)
     common = (np.ascontiguousarray(alphas), *sampling, Phi, sparse, ptr, idx, val, np.ascontiguousarray(ctx.ratio),
               float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
               np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, agent_of, _scratch_width(q))

@@ -248,7 +248,7 @@ class ModelSource:
     def next_block(self, T: int) -> Block:
         U = self.streams.draw(T)
         if self.backend == "numba":
-            from dgtd.backends.numba_kernels import block_from_uniforms as fast
+            from dgtd.backends.numba_sampling import block_from_uniforms as fast
 
             blk, self.current = fast(self.problem, self.network, self.tables, U, self.current)
         else:

@@ -1,0 +1,174 @@
+"""Compiled sampling (numba): uniforms into samples with exactly the arithmetic of the NumPy reference
+(`dgtd.run.sampling.alias_pick`, `reward_from_uniform`), either for a whole block (`block_from_uniforms`, used
+by the baseline kernels and simulators) or step by step inside a kernel that draws its own uniforms from
+NumPy's PCG64 streams (`_step_samples`, `sample_args`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from dgtd.backends.numba_rng import next_double
+from dgtd.run.sampling import Block, Draws
+
+NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
+
+
+@njit(cache=True, inline="always")
+def _alias(prob, alias, u):
+    K = prob.shape[0]
+    x = u * K
+    j = min(np.int64(x), K - 1)
+    if x - j < prob[j]:
+        return j
+    return alias[j]
+
+
+@njit(cache=True, inline="always")
+def _alias_row(prob, alias, row, u):
+    """`_alias` on row ``row`` of 2-D tables, indexed in place (a row view would cost an atomic reference count)."""
+    K = prob.shape[1]
+    x = u * K
+    j = min(np.int64(x), K - 1)
+    if x - j < prob[row, j]:
+        return j
+    return alias[row, j]
+
+
+@njit(cache=True, inline="always")
+def _reward(mean, sigma, noise, u):
+    if noise == 0:
+        return mean
+    if noise == 1:
+        return sigma if u < mean / sigma else 0.0
+    h = min(mean, sigma - mean)
+    return mean + h * (2.0 * u - 1.0)
+
+
+@njit(cache=True, parallel=True)
+def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                   sigma, noise, p_edge, s_out, a_out, sn_out, r_out, up_out):
+    """Samples of a block: each (seed, observation) pair runs its own trajectory, so they are spread over the cores."""
+    T, B, n_obs, width = u_state.shape
+    N = R_sample.shape[0]
+    S = R_sample.shape[1]
+    for flat in prange(B * n_obs):
+        b = flat // n_obs
+        o = flat % n_obs
+        for t in range(T):
+            if markov:
+                s = current[b, o]
+            else:
+                s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
+            j = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, width - 1])
+            a = j // S
+            s_out[t, b, o] = s
+            a_out[t, b, o] = a
+            sn_out[t, b, o] = j % S
+            if markov:
+                current[b, o] = j % S
+            # Rewards of the agents that see this observation: agent o, or all agents on a shared trajectory.
+            lo, hi = (o, o + 1) if n_obs == N else (0, N)
+            for i in range(lo, hi):
+                r = R_sample[i, s, a]
+                r_out[t, b, i] = _reward(r, sigma, noise, u_reward[t, b, i]) if noise != 0 else r
+    E = p_edge.shape[0]
+    if up_out.shape[0] > 0:
+        for flat in prange(T * B):
+            t = flat // B
+            b = flat % B
+            for e in range(E):
+                up_out[t, b, e] = u_edge[t, b, e] < p_edge[e]
+
+
+def block_from_uniforms(problem, network, tables, U: dict, current):
+    """Compiled twin of `dgtd.run.sampling.block_from_uniforms`."""
+    T, B, n_obs, _ = U["state"].shape
+    N = problem.n_agents
+    markov = current is not None
+    cur = np.array(current, dtype=np.int64) if markov else np.zeros((1, 1), np.int64)
+    s, a, sn = (np.empty((T, B, n_obs), np.int64) for _ in range(3))
+    r = np.empty((T, B, N))
+    up = np.empty((T, B, network.n_edges), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
+    _sample_kernel(np.ascontiguousarray(U["state"]), U.get("reward", np.zeros((0, 0, 0))), U.get("edge", np.zeros((0, 0, 0))),
+                   markov, cur, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
+                   np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise],
+                   np.asarray(network.p, dtype=np.float64), s, a, sn, r, up)
+    return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
+
+
+@njit(cache=True, inline="always")
+def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise,
+                  p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t):
+    """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
+    and up_t (edges); returns how many edges are up.
+
+    Fused: drawn here from seed b's streams in rng, in the order `dgtd.run.sampling.Streams.draw` draws them
+    (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
+    `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
+    (samples from a simulator)."""
+    n_obs = s_t.shape[1]
+    N = r_t.shape[1]
+    E = up_t.shape[1]
+    S = R_sample.shape[1]
+    n_up = 0
+    if not fused:
+        for o in range(n_obs):
+            s_t[row, o], a_t[row, o], sn_t[row, o] = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
+        for i in range(N):
+            r_t[row, i] = r_blk[t, b, i]
+        if up_blk.shape[0] > 0:
+            for e in range(E):
+                up_t[row, e] = up_blk[t, b, e]
+                n_up += up_blk[t, b, e]
+        else:
+            n_up = E
+        return n_up
+    for o in range(n_obs):
+        if markov:
+            s = current[b, o]
+        else:
+            s = _alias(d_prob, d_alias, next_double(rng, b, 0))
+        j = _alias_row(sa_prob, sa_alias, s, next_double(rng, b, 0))
+        s_t[row, o] = s
+        a_t[row, o] = j // S
+        sn_t[row, o] = j % S
+        if markov:
+            current[b, o] = j % S
+    for i in range(N):
+        o = i if n_obs == N else 0
+        r = R_sample[i, s_t[row, o], a_t[row, o]]
+        r_t[row, i] = _reward(r, sigma, noise, next_double(rng, b, 1)) if noise != 0 else r
+    if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
+        for e in range(E):
+            up_t[row, e] = next_double(rng, b, 2) < p_edge[e]
+            n_up += up_t[row, e]
+    else:
+        n_up = E
+    return n_up
+
+
+def up_mask(blk: Block):
+    """The block's edge mask, or an empty one for a fixed graph (one compiled signature for both)."""
+    return np.empty((0, 0, 0), np.bool_) if blk.up is None else np.ascontiguousarray(blk.up)
+
+
+def sample_args(ctx, blk, B: int):
+    """The sampling arguments of the DGTD kernels: draw in the kernel from a `Draws`' streams, or copy a `Block`."""
+    tables, network, problem = ctx.tables, ctx.network, ctx.problem
+    none_i, none_f, none_b = np.zeros((0, 0, 0), np.int64), np.zeros((0, 0, 0)), np.zeros((0, 0, 0), np.bool_)
+    if isinstance(blk, Draws):
+        src = blk.source
+        markov = src.current is not None
+        current = np.array(src.current, dtype=np.int64) if markov else np.zeros((B, src.n_obs), np.int64)
+        p_edge = np.zeros(0) if network.fixed else np.asarray(network.p, dtype=np.float64)
+        samples = (none_i, none_i, none_i, none_f, none_b)
+        fused, rng = True, src.streams.pcg_words()
+    else:
+        markov, current, p_edge = False, np.zeros((B, blk.s.shape[2]), np.int64), np.zeros(0)
+        samples = (blk.s, blk.a, blk.s_next, blk.r, up_mask(blk))
+        fused, rng = False, np.zeros((B, 3, 4), np.uint64)
+    return (fused, rng, markov, current, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
+            np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise], p_edge,
+            *samples, np.zeros(B, np.int64))
