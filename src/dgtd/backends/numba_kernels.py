@@ -3,7 +3,9 @@
 The DGTD kernels draw their own samples from the seeds' PCG64 streams (`dgtd.backends.numba_sampling`), the
 same samples as the NumPy reference, and apply the same updates, so for the same seed both backends give the
 same numbers up to floating-point summation order. Everything is compiled once and cached on disk
-(``cache=True``).
+(``cache=True``). numba keys each cached kernel by its own file only: after editing a helper that the kernels
+inline from numba_sampling, numba_graph or numba_rng, delete the __pycache__ folder here (installed copies are
+rewritten whole on upgrade, so only working trees are concerned).
 """
 
 from __future__ import annotations
