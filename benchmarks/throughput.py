@@ -138,8 +138,8 @@ def main():
            f"{tta['seconds_to_target']:.2f} s of a {tta['seconds_full_run']:.2f} s run of 10^6 iterations")
     md += f"\n- A second `dgtd run paper-example-1 -T 1` in a fresh process takes {report['startup_seconds_second_run']:.2f} s in all"
     first = report["first_iteration_seconds"]
-    md += (f"\n- A fresh `dgtd run paper-example-1` has run its first block of iterations {np.median(first):.2f} s after the process"
-           f" starts (median of {len(first)}: {', '.join(f'{x:.2f}' for x in first)})")
+    md += (f"\n- A fresh `dgtd run paper-example-1` has run its first block of iterations {np.median(first):.2f} s"
+           f" after the process starts (median of {len(first)}: {', '.join(f'{x:.2f}' for x in first)})")
     if "cost_ratio_D_over_B" in report:
         md += f"\n- Cost per agent-step, N = 10 000 (D) over N = 16 (B): {report['cost_ratio_D_over_B']:.2f}x"
     out = Path(args.out)

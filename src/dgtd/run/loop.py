@@ -202,9 +202,13 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
         source.set_state(resume["source"])
     every = int(checkpoint_every)
-    # Kernels that draw their own samples (`Draws`) materialise nothing, so their blocks need no sample budget.
+    # Kernels that draw their own samples (`Draws`) materialise nothing: their blocks are bounded by work (a few
+    # seconds between progress updates), not by the memory of a block of samples.
     fused = getattr(kernel, "draws_samples", False) and isinstance(source, ModelSource)
-    block = block_steps(settings.block_size, N, 0 if fused else network.n_edges, B, budget=(1 << 24) if fused else (1 << 21))
+    if fused:
+        block = block_steps(settings.block_size, N, 0, B, budget=1 << 24)
+    else:
+        block = block_steps(settings.block_size, N, network.n_edges, B)
     t_loop = time.perf_counter()
     while k < T:
         k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
