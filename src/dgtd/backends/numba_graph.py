@@ -9,6 +9,15 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+
+def per_run(ctx, key: str, build):
+    """``build()``, computed once per run context and kept on it (arrays the kernels read at every block)."""
+    cache = ctx.__dict__.setdefault("_numba_cache", {})
+    if key not in cache:
+        cache[key] = build()
+    return cache[key]
+
+
 def csr_adjacency(edges: np.ndarray, n_nodes: int):
     """Neighbour lists with edge ids: for node i, nbr[indptr[i]:indptr[i+1]] and their edges eid[...]."""
     E = edges.shape[0]
@@ -23,10 +32,7 @@ def csr_adjacency(edges: np.ndarray, n_nodes: int):
 
 def graph_arrays(ctx):
     """CSR arrays of the base graph, computed once per run context."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "csr" not in cache:
-        cache["csr"] = csr_adjacency(ctx.network.base.edges, ctx.network.n_nodes)
-    return cache["csr"]
+    return per_run(ctx, "csr", lambda: csr_adjacency(ctx.network.base.edges, ctx.network.n_nodes))
 
 
 RELABEL_MIN_AGENTS = 256
@@ -37,35 +43,31 @@ def storage_order(ctx):
     inverse[i]. From RELABEL_MIN_AGENTS agents on, a reverse Cuthill-McKee ordering puts neighbours in nearby
     rows, so that the rows an agent reads are mostly in cache already; below it, the identity (None). It depends
     on the graph alone, never on the number of seeds or the layout, so a seed's numbers do not either."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "order" not in cache:
-        N, edges = ctx.network.n_nodes, ctx.network.base.edges
-        cache["order"] = None
-        if N >= RELABEL_MIN_AGENTS and len(edges):
-            from scipy.sparse import coo_matrix
-            from scipy.sparse.csgraph import reverse_cuthill_mckee
+    return per_run(ctx, "order", lambda: _rcm_order(ctx.network.base))
 
-            A = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(N, N)).tocsr()
-            order = np.asarray(reverse_cuthill_mckee(A + A.T, symmetric_mode=True), dtype=np.int64)
-            inverse = np.empty_like(order)
-            inverse[order] = np.arange(N)
-            cache["order"] = (order, inverse)
-    return cache["order"]
+
+def _rcm_order(graph):
+    if graph.n_nodes < RELABEL_MIN_AGENTS or graph.n_edges == 0:
+        return None
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    order = np.asarray(reverse_cuthill_mckee(graph.laplacian_sparse().tocsr(), symmetric_mode=True), dtype=np.int64)
+    inverse = np.empty_like(order)
+    inverse[order] = np.arange(graph.n_nodes)
+    return order, inverse
 
 
 def storage_graph(ctx):
     """CSR neighbour lists of the base graph in storage rows (`storage_order`), with the original edge ids, and
     the agent of every row."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "storage_csr" not in cache:
+
+    def build():
         order = storage_order(ctx)
-        N = ctx.network.n_nodes
         if order is None:
-            cache["storage_csr"] = (*graph_arrays(ctx), np.arange(N, dtype=np.int64))
-        else:
-            edges = order[1][ctx.network.base.edges]
-            cache["storage_csr"] = (*csr_adjacency(edges, N), order[0])
-    return cache["storage_csr"]
+            return (*graph_arrays(ctx), np.arange(ctx.network.n_nodes, dtype=np.int64))
+        return (*csr_adjacency(order[1][ctx.network.base.edges], ctx.network.n_nodes), order[0])
+
+    return per_run(ctx, "storage_csr", build)
 
 
 @intrinsic

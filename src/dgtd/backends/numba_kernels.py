@@ -13,9 +13,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from dgtd.backends.numba_graph import _prefetch_rows, storage_graph, storage_order
+from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
 from dgtd.backends.numba_sampling import _step_samples, sample_args
 from dgtd.run.sampling import Draws
+
 
 @njit(cache=True, inline="always")
 def _clip(x, b):
@@ -222,14 +223,15 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
 
 def feature_arrays(ctx):
     """Phi dense and as CSR rows; sparse when rows hold at most a quarter of the features (tabular: one)."""
-    cache = ctx.__dict__.setdefault("_numba_cache", {})
-    if "phi" not in cache:
+
+    def build():
         Phi = np.ascontiguousarray(ctx.Phi, dtype=np.float64)
         rows, cols = np.nonzero(Phi)  # row-major order: CSR rows without importing scipy.sparse
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=Phi.shape[0]))]).astype(np.int64)
         sparse = rows.size <= Phi.size // 4
-        cache["phi"] = (Phi, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64))
-    return cache["phi"]
+        return Phi, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64)
+
+    return per_run(ctx, "phi", build)
 
 
 LAYOUT = "auto"  # "seed" or "agent" force a layout (tests check both against the reference)
@@ -270,7 +272,7 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     else:
         _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, ctx.tail_start, *common)
     if isinstance(blk, Draws):
-        fused, rng, markov, current = sampling[:4]
+        _, rng, markov, current = sampling[:4]
         blk.settle(rng, current if markov else None, sampling[-1])
     back = (lambda x: np.ascontiguousarray(x)) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
     return (DGTDState(back(theta), back(V), back(MU), back(Z[:, :, :q])),

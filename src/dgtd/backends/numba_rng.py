@@ -20,7 +20,7 @@ _M_HI = np.uint64(2549297995355413924)  # PCG_DEFAULT_MULTIPLIER_128 = 2^64 * _M
 _M_LO = np.uint64(4865540595714422341)
 _SHIFT_ROT = np.uint64(58)
 _SHIFT_53 = np.uint64(11)
-_SIX3 = np.uint64(63)
+_ROT_MASK = np.uint64(63)
 _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
 _TO_UNIT = 1.0 / 9007199254740992.0  # 2^-53
@@ -53,7 +53,7 @@ def next_double(rng, b, k):
     # XSL-RR output: (hi ^ lo) rotated right by the top 6 bits of the state
     x = hi_n ^ lo_n
     rot = hi_n >> _SHIFT_ROT
-    out = (x >> rot) | (x << ((_ZERO - rot) & _SIX3))
+    out = (x >> rot) | (x << ((_ZERO - rot) & _ROT_MASK))
     return np.float64(out >> _SHIFT_53) * _TO_UNIT
 
 

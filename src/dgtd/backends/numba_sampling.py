@@ -37,6 +37,17 @@ def _alias_row(prob, alias, row, u):
 
 
 @njit(cache=True, inline="always")
+def _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, S):
+    """(s, a, s') of observation o of seed b from its two uniforms: s ~ d from u_s (i.i.d.) or the trajectory's
+    current state (Markovian, which then moves to s'; u_s is unused), and (a, s') from u_sa."""
+    s = current[b, o] if markov else _alias(d_prob, d_alias, u_s)
+    j = _alias_row(sa_prob, sa_alias, s, u_sa)
+    if markov:
+        current[b, o] = j % S
+    return s, j // S, j % S
+
+
+@njit(cache=True, inline="always")
 def _reward(mean, sigma, noise, u):
     if noise == 0:
         return mean
@@ -57,17 +68,11 @@ def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, 
         b = flat // n_obs
         o = flat % n_obs
         for t in range(T):
-            if markov:
-                s = current[b, o]
-            else:
-                s = _alias(d_prob, d_alias, u_state[t, b, o, 0])
-            j = _alias(sa_prob[s], sa_alias[s], u_state[t, b, o, width - 1])
-            a = j // S
+            s, a, sn = _transition(u_state[t, b, o, 0], u_state[t, b, o, width - 1], markov, current, b, o, d_prob,
+                                   d_alias, sa_prob, sa_alias, S)
             s_out[t, b, o] = s
             a_out[t, b, o] = a
-            sn_out[t, b, o] = j % S
-            if markov:
-                current[b, o] = j % S
+            sn_out[t, b, o] = sn
             # Rewards of the agents that see this observation: agent o, or all agents on a shared trajectory.
             lo, hi = (o, o + 1) if n_obs == N else (0, N)
             for i in range(lo, hi):
@@ -126,16 +131,9 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
             n_up = E
         return n_up
     for o in range(n_obs):
-        if markov:
-            s = current[b, o]
-        else:
-            s = _alias(d_prob, d_alias, next_double(rng, b, 0))
-        j = _alias_row(sa_prob, sa_alias, s, next_double(rng, b, 0))
-        s_t[row, o] = s
-        a_t[row, o] = j // S
-        sn_t[row, o] = j % S
-        if markov:
-            current[b, o] = j % S
+        u_s = 0.0 if markov else next_double(rng, b, 0)  # drawn first, as `Streams.draw` lays them out
+        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, next_double(rng, b, 0), markov, current, b, o,
+                                                             d_prob, d_alias, sa_prob, sa_alias, S)
     for i in range(N):
         o = i if n_obs == N else 0
         r = R_sample[i, s_t[row, o], a_t[row, o]]

@@ -136,13 +136,17 @@ class Streams:
         """(B, 3, 4) uint64: the PCG64 state of every stream, for kernels that draw the uniforms themselves."""
         from dgtd.backends.numba_rng import pcg_words
 
-        return pcg_words([g for gs in self.gens for g in gs]).reshape(len(self.gens), 3, 4)
+        return pcg_words(self._all()).reshape(len(self.gens), 3, 4)
 
     def set_pcg_words(self, words: np.ndarray) -> None:
         """Take back the states a kernel advanced (`pcg_words`)."""
         from dgtd.backends.numba_rng import set_pcg_words
 
-        set_pcg_words([g for gs in self.gens for g in gs], words.reshape(-1, 4))
+        set_pcg_words(self._all(), words.reshape(-1, 4))
+
+    def _all(self) -> list:
+        """Every generator, seed by seed, each seed's (states, rewards, edges) in order."""
+        return [g for gs in self.gens for g in gs]
 
     def set_state(self, state: list) -> None:
         for gs, st in zip(self.gens, state, strict=True):
