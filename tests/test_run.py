@@ -1,9 +1,12 @@
 """Whole runs: reproducibility, seed and block-size independence, backend agreement, convergence to w*."""
 
 import dataclasses
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from conftest import cli_env
 from numpy.testing import assert_allclose, assert_array_equal
 
 from dgtd.algorithms.dgtd import DGTD
@@ -173,3 +176,14 @@ def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
     assert_allclose(fast.w_avg, ref.w_avg, rtol=1e-9, atol=1e-9 * scale)
     order = numba_graph.storage_order(type("Ctx", (), {"network": net})())
     assert order is not None and not np.array_equal(order[0], np.arange(12))  # the rows really were reordered
+
+
+@pytest.mark.parametrize("user, expected", [({}, "10000"), ({"OMP_WAIT_POLICY": "PASSIVE"}, None),
+                                            ({"GOMP_SPINCOUNT": "0"}, "0")])
+def test_openmp_spin_default_keeps_what_the_user_set(user, expected):
+    """Importing dgtd sets a short OpenMP spin (agent-parallel kernels hand over between steps without a wake-up),
+    unless the user chose a waiting policy or a spin count."""
+    env = {k: v for k, v in cli_env().items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")} | user
+    code = "import os, dgtd; print(os.environ.get('GOMP_SPINCOUNT'))"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == str(expected)
