@@ -4,7 +4,7 @@ The DGTD kernels draw their own samples from the seeds' PCG64 streams (`dgtd.bac
 same samples as the NumPy reference, and apply the same updates, so for the same seed both backends give the
 same numbers up to floating-point summation order. Everything is compiled once and cached on disk
 (``cache=True``). numba keys each cached kernel by its own file only: after editing a helper that the kernels
-inline from numba_sampling, numba_graph or numba_rng, delete the __pycache__ folder here (installed copies are
+inline from numba_sampling, numba_graph, numba_rng or numba_simd, delete the __pycache__ folder here (installed copies are
 rewritten whole on upgrade, so only working trees are concerned).
 """
 
@@ -15,6 +15,7 @@ from numba import njit, prange
 
 from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
 from dgtd.backends.numba_sampling import _step_samples, sample_args
+from dgtd.backends.numba_simd import _dots3
 from dgtd.run.sampling import Draws
 
 
@@ -24,7 +25,8 @@ def _clip(x, b):
 
 
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
-# one compiled specialisation, and the same seed gave results one ulp apart in different processes.
+# one compiled specialisation, and the same seed gave results one ulp apart in different processes. Dot
+# products, which LLVM would then leave scalar, are written in vector instructions by hand (`numba_simd`).
 #
 # Three rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (Z[b, j, f]),
 # never through row views (Z[b, j]): numba counts references to every view with an atomic update, and two
@@ -38,36 +40,6 @@ def _clip(x, b):
 def _hi(q, f):
     """Index of element f of the second half of a packed row of 2q: unsigned, so it needs no wrap-around test."""
     return np.uint64(q) + np.uint64(f)
-
-
-@njit(cache=True, inline="always")
-def _dots3(Phi, s, sn, theta, Z, b, i, q, tmp):
-    """(phi^T theta_i, phi^T w_i, phi'^T w_i): the products go to the scratch rows tmp (3, P), P the power of two
-    at or above q (zero-padded), and are summed by halving, a fixed order that vectorises without reassociation
-    (so the rounding is the same in every process) and is more accurate than one running sum."""
-    P = tmp.shape[1]
-    for f in range(q):
-        tmp[0, f] = Phi[s, f] * theta[b, i, f]
-    for f in range(q):
-        tmp[1, f] = Phi[s, f] * Z[b, i, f]
-    for f in range(q):
-        tmp[2, f] = Phi[sn, f] * Z[b, i, f]
-    for k in range(3):
-        for f in range(q, P):
-            tmp[k, f] = 0.0
-    h = P
-    while h > 4:
-        h //= 2
-        for k in range(3):
-            for f in range(h):
-                tmp[k, f] += tmp[k, h + f]
-    return ((tmp[0, 0] + tmp[0, 1]) + (tmp[0, 2] + tmp[0, 3]), (tmp[1, 0] + tmp[1, 1]) + (tmp[1, 2] + tmp[1, 3]),
-            (tmp[2, 0] + tmp[2, 1]) + (tmp[2, 2] + tmp[2, 3]))
-
-
-def _scratch_width(q: int) -> int:
-    """P of `_dots3`: the power of two at or above q, at least 4."""
-    return max(4, 1 << (int(q) - 1).bit_length())
 
 
 @njit(cache=True, inline="always")
@@ -91,7 +63,7 @@ def _laplacian_row(Z, b, i, up, ub, indptr, nbr, eid, L, l):
 
 
 @njit(cache=True, inline="always")
-def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l, tmp, sum_all, sum_tail, Phi, sparse,
+def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l, sum_all, sum_tail, Phi, sparse,
                 ptr, idx, val, gamma, kappa, rho, boxes):
     """Algorithm 1 lines 7-9 for agent i of seed b.
 
@@ -112,7 +84,7 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l
         for p in range(ptr[sn], ptr[sn + 1]):
             phin_w += val[p] * Z[b, i, idx[p]]
     else:
-        phi_theta, phi_w, phin_w = _dots3(Phi, s, sn, theta, Z, b, i, q, tmp)
+        phi_theta, phi_w, phin_w = _dots3(Phi, s, sn, theta, Z, b, i, q)
     # Line 7 (theta): phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta
     c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
     rt = ratio * phi_theta
@@ -154,7 +126,7 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l
 @njit(cache=True, parallel=True)
 def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
                   d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
-                  n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of, P):
+                  n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of):
     """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds): each
     step samples, takes every agent's Laplacian rows, then updates the agents in place (Jacobi form). Row i
     of the state arrays holds agent agent_of[i] (`storage_order`)."""
@@ -163,7 +135,6 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
     n_obs, E = current.shape[1], indptr[N] // 2
     for b in prange(B):
         L = np.empty((N, m))
-        tmp = np.empty((3, P))
         s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
         r_t = np.empty((1, N))
         up_t = np.ones((1, E), np.bool_)
@@ -177,7 +148,7 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
                 o = agent_of[i] if n_obs == N else 0
                 s, a = s_t[0, o], a_t[0, o]
                 _agent_step(b, i, s, sn_t[0, o], r_t[0, agent_of[i]], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, V, MU, Z, Z, L, i, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa,
+                            theta, V, MU, Z, Z, L, i, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma, kappa,
                             rho, boxes)
 
 
@@ -185,7 +156,7 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
 def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alphas, fused, rng, markov, current, d_prob,
                    d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
                    n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of,
-                   P, n_chunks):
+                   n_chunks):
     """Agents spread over the cores at every step (large N, few seeds). Each step's samples are drawn first
     (seed by seed: a stream is sequential), then the agents update; the rows neighbours read, (w, v + mu),
     are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns
@@ -205,7 +176,6 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
         Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
         for c in prange(n_chunks):
             L = np.empty((1, m))
-            tmp = np.empty((3, P))
             hi = (c + 1) * total // n_chunks
             for flat in range(c * total // n_chunks, hi):
                 b = flat // N
@@ -216,7 +186,7 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
                     _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, (flat + 1) // N, indptr, nbr, eid)
                 _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0)
                 _agent_step(b, i, s, sn_t[b, o], r_t[b, agent_of[i]], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, V, MU, Zi, Zo, L, 0, tmp, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
+                            theta, V, MU, Zi, Zo, L, 0, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
                             kappa, rho, boxes)
     return T
 
@@ -254,9 +224,11 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     from dgtd.algorithms.dgtd import DGTDState
 
     order = storage_order(ctx)
-    rows = (lambda x: np.array(x, dtype=np.float64, order="C")) if order is None else (lambda x: x[:, order[0]])
+    # C order throughout: `_dots3` reads rows as contiguous vectors
+    rows = (lambda x: np.array(x, dtype=np.float64, order="C")) if order is None else (
+        lambda x: np.ascontiguousarray(x[:, order[0]], dtype=np.float64))
     theta, V, MU = (rows(x) for x in state[:3])
-    Z = np.concatenate([rows(state.w), rows(state.v + state.mu)], axis=2)  # what neighbours read: one row each
+    Z = np.ascontiguousarray(np.concatenate([rows(state.w), rows(state.v + state.mu)], axis=2))  # neighbours read one row
     sum_all, sum_tail = rows(sums["all"]), rows(sums["tail"])
     indptr, nbr, eid, agent_of = storage_graph(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
@@ -264,7 +236,7 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     sampling = sample_args(ctx, blk, B)
     common = (np.ascontiguousarray(alphas), *sampling, Phi, sparse, ptr, idx, val, np.ascontiguousarray(ctx.ratio),
               float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
-              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, agent_of, _scratch_width(q))
+              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, agent_of)
     if by_agent(B, N, q):
         Z2 = np.empty_like(Z)
         if _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, ctx.tail_start, *common, 4 * get_num_threads()) % 2:

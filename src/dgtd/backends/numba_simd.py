@@ -1,0 +1,54 @@
+"""Dot products in explicit vector instructions, for the compiled kernels.
+
+Without fastmath, LLVM may not reorder a floating-point sum, so a plain loop `acc += x[f] * y[f]` stays scalar.
+`_dots3` writes the vector code itself: four lanes, lane l summing the products f = l, l + 4, l + 8, ... in
+order, then (lane 0 + lane 1) + (lane 2 + lane 3), then the q mod 4 remaining products in order. The order is
+fixed by the code, not by the compiler, so every process gets the same bits.
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+
+@intrinsic
+def _dots3(typingctx, Phi, s, sn, theta, Z, b, i, q):
+    """(phi(s)^T theta[b, i], phi(s)^T w, phi(sn)^T w) with w = Z[b, i, :q], for C-contiguous Phi (S, q),
+    theta (B, N, q) and Z (B, N, m >= q); the TD terms of Algorithm 1 line 7."""
+    if not all(isinstance(a, types.Array) and a.layout == "C" for a in (Phi, theta, Z)):
+        return None
+    sig = types.UniTuple(types.float64, 3)(Phi, s, sn, theta, Z, b, i, q)
+
+    def codegen(context, builder, signature, args):
+        i64, i32 = ir.IntType(64), ir.IntType(32)
+        vec = ir.VectorType(ir.DoubleType(), 4)
+        zero = ir.Constant(i64, 0)
+        s_, sn_, b_, i_, q_ = (context.cast(builder, args[k], signature.args[k], types.int64) for k in (1, 2, 5, 6, 7))
+
+        def row(k, index):
+            ary = context.make_array(signature.args[k])(context, builder, args[k])
+            return cgutils.get_item_pointer(context, builder, signature.args[k], ary, [*index, zero], wraparound=False)
+
+        p_s, p_sn, p_th, p_w = row(0, [s_]), row(0, [sn_]), row(3, [b_, i_]), row(4, [b_, i_])
+        pairs = ((p_s, p_th), (p_s, p_w), (p_sn, p_w))
+        lanes = [cgutils.alloca_once_value(builder, ir.Constant(vec, [0.0] * 4)) for _ in pairs]
+        q4 = builder.and_(q_, ir.Constant(i64, ~3))
+        with cgutils.for_range_slice(builder, zero, q4, ir.Constant(i64, 4)) as (f, _):
+            load = lambda p: builder.load(builder.bitcast(builder.gep(p, [f]), vec.as_pointer()), align=8)
+            for acc, (x, y) in zip(lanes, pairs):
+                builder.store(builder.fadd(builder.load(acc), builder.fmul(load(x), load(y))), acc)
+        sums = []
+        for acc in lanes:
+            v = builder.load(acc)
+            e = [builder.extract_element(v, ir.Constant(i32, k)) for k in range(4)]
+            sums.append(cgutils.alloca_once_value(builder, builder.fadd(builder.fadd(e[0], e[1]), builder.fadd(e[2], e[3]))))
+        with cgutils.for_range_slice(builder, q4, q_, ir.Constant(i64, 1)) as (f, _):
+            for acc, (x, y) in zip(sums, pairs):
+                prod = builder.fmul(builder.load(builder.gep(x, [f])), builder.load(builder.gep(y, [f])))
+                builder.store(builder.fadd(builder.load(acc), prod), acc)
+        return context.make_tuple(builder, signature.return_type, [builder.load(acc) for acc in sums])
+
+    return sig, codegen
