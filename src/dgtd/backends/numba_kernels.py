@@ -4,8 +4,8 @@ The DGTD kernels draw their own samples from the seeds' PCG64 streams (`dgtd.bac
 same samples as the NumPy reference, and apply the same updates, so for the same seed both backends give the
 same numbers up to floating-point summation order. Everything is compiled once and cached on disk
 (``cache=True``). numba keys each cached kernel by its own file only: after editing a helper that the kernels
-inline from numba_sampling, numba_graph, numba_rng or numba_simd, delete the __pycache__ folder here (installed copies are
-rewritten whole on upgrade, so only working trees are concerned).
+inline from numba_sampling, numba_graph, numba_rng or numba_simd, delete the __pycache__ folder here
+(installed copies are rewritten whole on upgrade, so only working trees are concerned).
 """
 
 from __future__ import annotations
@@ -228,7 +228,8 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     rows = (lambda x: np.array(x, dtype=np.float64, order="C")) if order is None else (
         lambda x: np.ascontiguousarray(x[:, order[0]], dtype=np.float64))
     theta, V, MU = (rows(x) for x in state[:3])
-    Z = np.ascontiguousarray(np.concatenate([rows(state.w), rows(state.v + state.mu)], axis=2))  # neighbours read one row
+    # what neighbours read: one row (w, v + mu) each
+    Z = np.ascontiguousarray(np.concatenate([rows(state.w), rows(state.v + state.mu)], axis=2))
     sum_all, sum_tail = rows(sums["all"]), rows(sums["tail"])
     indptr, nbr, eid, agent_of = storage_graph(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)

@@ -44,7 +44,8 @@ def _dots3(typingctx, Phi, s, sn, theta, Z, b, i, q):
         for acc in lanes:
             v = builder.load(acc)
             e = [builder.extract_element(v, ir.Constant(i32, k)) for k in range(4)]
-            sums.append(cgutils.alloca_once_value(builder, builder.fadd(builder.fadd(e[0], e[1]), builder.fadd(e[2], e[3]))))
+            total = builder.fadd(builder.fadd(e[0], e[1]), builder.fadd(e[2], e[3]))
+            sums.append(cgutils.alloca_once_value(builder, total))
         with cgutils.for_range_slice(builder, q4, q_, ir.Constant(i64, 1)) as (f, _):
             for acc, (x, y) in zip(sums, pairs):
                 prod = builder.fmul(builder.load(builder.gep(x, [f])), builder.load(builder.gep(y, [f])))
