@@ -1,10 +1,10 @@
-"""Compiled helpers of the numba backend against plain Python: the hand-vectorised dot products."""
+"""Compiled helpers of the numba backend against plain Python: the hand-vectorised dot products and neighbour sums."""
 
 import numpy as np
 import pytest
 from numba import njit
 
-from dgtd.backends.numba_simd import _dots3
+from dgtd.backends.numba_simd import _dots3, _laplacian_rows
 
 
 @njit
@@ -36,3 +36,24 @@ def test_dots3_sums_in_its_fixed_order(q):
     w = Z[1, 2, :q]
     assert got == (lane_order_dot(Phi[4], theta[1, 2]), lane_order_dot(Phi[4], w), lane_order_dot(Phi[1], w))
     np.testing.assert_allclose(got, (Phi[4] @ theta[1, 2], Phi[4] @ w, Phi[1] @ w), rtol=1e-12, atol=1e-12)
+
+
+@njit
+def laplacian_rows(Z, b, i, js, count, L, l):
+    _laplacian_rows(Z, b, i, js, count, L, l)
+
+
+@pytest.mark.parametrize("m", [2, 15, 16, 17, 128, 130])
+@pytest.mark.parametrize("count", [0, 1, 3])
+def test_laplacian_rows_in_its_fixed_order(m, count):
+    """count Z_i - Z_j1 - Z_j2 - ..., element by element in that order: bit for bit, whatever the row length."""
+    rng = np.random.default_rng(m + 100 * count)
+    Z = rng.standard_normal((2, 5, m))
+    js = np.array([4, 0, 2, 99][:count] + [99] * (4 - count), dtype=np.int64)  # entries past count are never read
+    L = np.full((3, m), np.nan)
+    laplacian_rows(Z, 1, 3, js, count, L, 2)
+    expected = count * Z[1, 3]
+    for j in js[:count]:
+        expected = expected - Z[1, j]
+    assert np.array_equal(L[2], expected)
+    assert np.isnan(L[[0, 1]]).all()  # the other rows are untouched

@@ -15,7 +15,7 @@ from numba import njit, prange
 
 from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
 from dgtd.backends.numba_sampling import _step_samples, sample_args
-from dgtd.backends.numba_simd import _dots3
+from dgtd.backends.numba_simd import _dots3, _laplacian_rows
 from dgtd.run.sampling import Draws
 
 
@@ -26,7 +26,8 @@ def _clip(x, b):
 
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
 # one compiled specialisation, and the same seed gave results one ulp apart in different processes. Dot
-# products, which LLVM would then leave scalar, are written in vector instructions by hand (`numba_simd`).
+# products, which LLVM would then leave scalar, and the neighbour sums, whose running row LLVM would store
+# once per neighbour, are written in vector instructions by hand (`numba_simd`).
 #
 # Three rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (Z[b, j, f]),
 # never through row views (Z[b, j]): numba counts references to every view with an atomic update, and two
@@ -43,23 +44,25 @@ def _hi(q, f):
 
 
 @njit(cache=True, inline="always")
-def _laplacian_row(Z, b, i, up, ub, indptr, nbr, eid, L, l):
+def _laplacian_row(Z, b, i, up, ub, indptr, nbr, eid, L, l, J):
     """L[l] = (L(k) Z)_i = |N_i(k)| Z_i - sum_{j in N_i(k)} Z_j (Algorithm 1's neighbour sums) for the packed rows
     Z[b, j] = (w_j, v_j + mu_j) of seed b, over the edges of agent i that are up (row ub of the step's edge mask
     ``up``; all ones for a fixed graph). The w update needs L v + L mu = L (v + mu): two vectors per neighbour,
-    read as one contiguous row."""
-    m = Z.shape[2]
-    for f in range(m):
-        L[l, f] = 0.0
+    read as one contiguous row. J is scratch for the up neighbours' rows (as long as the largest degree)."""
     count = 0
     for p in range(indptr[i], indptr[i + 1]):
         if up[ub, eid[p]]:
-            j = nbr[p]
+            J[count] = nbr[p]
             count += 1
-            for f in range(m):
-                L[l, f] += Z[b, j, f]
-    for f in range(m):
-        L[l, f] = count * Z[b, i, f] - L[l, f]
+    _laplacian_rows(Z, b, i, J, count, L, l)
+
+
+@njit(cache=True, inline="always")
+def _max_degree(indptr):
+    d = 1
+    for k in range(indptr.shape[0] - 1):
+        d = max(d, indptr[k + 1] - indptr[k])
+    return d
 
 
 @njit(cache=True, inline="always")
@@ -135,6 +138,7 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
     n_obs, E = current.shape[1], indptr[N] // 2
     for b in prange(B):
         L = np.empty((N, m))
+        J = np.empty(_max_degree(indptr), np.int64)
         s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
         r_t = np.empty((1, N))
         up_t = np.ones((1, E), np.bool_)
@@ -143,7 +147,7 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
                                      sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
                                      up_t)
             for i in range(N):
-                _laplacian_row(Z, b, i, up_t, 0, indptr, nbr, eid, L, i)
+                _laplacian_row(Z, b, i, up_t, 0, indptr, nbr, eid, L, i, J)
             for i in range(N):
                 o = agent_of[i] if n_obs == N else 0
                 s, a = s_t[0, o], a_t[0, o]
@@ -176,6 +180,7 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
         Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
         for c in prange(n_chunks):
             L = np.empty((1, m))
+            J = np.empty(_max_degree(indptr), np.int64)
             hi = (c + 1) * total // n_chunks
             for flat in range(c * total // n_chunks, hi):
                 b = flat // N
@@ -184,7 +189,7 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
                 s, a = s_t[b, o], a_t[b, o]
                 if flat + 1 < hi:  # the next agent's neighbour rows arrive while this agent computes
                     _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, (flat + 1) // N, indptr, nbr, eid)
-                _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0)
+                _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0, J)
                 _agent_step(b, i, s, sn_t[b, o], r_t[b, agent_of[i]], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
                             theta, V, MU, Zi, Zo, L, 0, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
                             kappa, rho, boxes)

@@ -53,3 +53,58 @@ def _dots3(typingctx, Phi, s, sn, theta, Z, b, i, q):
         return context.make_tuple(builder, signature.return_type, [builder.load(acc) for acc in sums])
 
     return sig, codegen
+
+
+@intrinsic
+def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
+    """L[l] = count Z[b, i] - Z[b, js[0]] - ... - Z[b, js[count - 1]], element by element in that order, for
+    C-contiguous Z (B, N, m), L (., m) and js (int64): agent i's row of L(k) Z (Algorithm 1's neighbour sums).
+    Sixteen elements at a time stay in vector registers while the neighbours' rows stream past, so the row of L
+    is written once instead of once per neighbour."""
+    if not all(isinstance(a, types.Array) and a.layout == "C" for a in (Z, js, L)):
+        return None
+    sig = types.void(Z, b, i, js, count, L, l)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        f64 = ir.DoubleType()
+        vec = ir.VectorType(f64, 4)
+        zero = ir.Constant(i64, 0)
+        b_, i_, n_, l_ = (context.cast(builder, args[k], signature.args[k], types.int64) for k in (1, 2, 4, 6))
+        zty, jty, lty = signature.args[0], signature.args[3], signature.args[5]
+        z = context.make_array(zty)(context, builder, args[0])
+        jarr = context.make_array(jty)(context, builder, args[3])
+        larr = context.make_array(lty)(context, builder, args[5])
+        m = builder.extract_value(z.shape, 2)
+        p_i = cgutils.get_item_pointer(context, builder, zty, z, [b_, i_, zero], wraparound=False)
+        p_l = cgutils.get_item_pointer(context, builder, lty, larr, [l_, zero], wraparound=False)
+        c = builder.sitofp(n_, f64)
+        cvec = ir.Constant(vec, ir.Undefined)
+        for k in range(4):
+            cvec = builder.insert_element(cvec, c, ir.Constant(ir.IntType(32), k))
+
+        def neighbour_row(n):
+            j = builder.load(cgutils.get_item_pointer(context, builder, jty, jarr, [n], wraparound=False))
+            return cgutils.get_item_pointer(context, builder, zty, z, [b_, j, zero], wraparound=False)
+
+        vptr = lambda p, f: builder.bitcast(builder.gep(p, [f]), vec.as_pointer())
+        m16 = builder.and_(m, ir.Constant(i64, ~15))
+        with cgutils.for_range_slice(builder, zero, m16, ir.Constant(i64, 16)) as (f, _):
+            offs = [builder.add(f, ir.Constant(i64, 4 * k)) for k in range(4)]
+            acc = [cgutils.alloca_once_value(builder, builder.fmul(cvec, builder.load(vptr(p_i, o), align=8)))
+                   for o in offs]
+            with cgutils.for_range(builder, n_) as loop:
+                p_j = neighbour_row(loop.index)
+                for a, o in zip(acc, offs):
+                    builder.store(builder.fsub(builder.load(a), builder.load(vptr(p_j, o), align=8)), a)
+            for a, o in zip(acc, offs):
+                builder.store(builder.load(a), vptr(p_l, o), align=8)
+        with cgutils.for_range_slice(builder, m16, m, ir.Constant(i64, 1)) as (f, _):
+            acc = cgutils.alloca_once_value(builder, builder.fmul(c, builder.load(builder.gep(p_i, [f]))))
+            with cgutils.for_range(builder, n_) as loop:
+                x = builder.load(builder.gep(neighbour_row(loop.index), [f]))
+                builder.store(builder.fsub(builder.load(acc), x), acc)
+            builder.store(builder.load(acc), builder.gep(p_l, [f]))
+        return context.get_dummy_value()
+
+    return sig, codegen
