@@ -1,10 +1,11 @@
-"""Compiled helpers of the numba backend against plain Python: the hand-vectorised dot products and neighbour sums."""
+"""Compiled helpers of the numba backend against plain Python: the hand-vectorised dot products, neighbour
+sums and updates."""
 
 import numpy as np
 import pytest
 from numba import njit
 
-from dgtd.backends.numba_simd import _dots3, _laplacian_rows
+from dgtd.backends.numba_simd import _dense_updates, _dots3, _laplacian_rows
 
 
 @njit
@@ -57,3 +58,49 @@ def test_laplacian_rows_in_its_fixed_order(m, count):
         expected = expected - Z[1, j]
     assert np.array_equal(L[2], expected)
     assert np.isnan(L[[0, 1]]).all()  # the other rows are untouched
+
+
+@njit
+def dense_updates(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa, gamma,
+                  rt, c_theta, b_th, b_v, b_mu, b_w):
+    _dense_updates(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa, gamma,
+                   rt, c_theta, b_th, b_v, b_mu, b_w)
+
+
+def clip(x, bound):
+    return -bound if x < -bound else (bound if x > bound else x)
+
+
+@pytest.mark.parametrize("q", [1, 4, 7, 64])
+@pytest.mark.parametrize("in_tail", [False, True])
+@pytest.mark.parametrize("in_place", [False, True])
+def test_dense_updates_are_algorithm_1_lines_7_to_9(q, in_tail, in_place):
+    """Bit for bit the element-wise updates of Algorithm 1 lines 7-9 as plain Python writes them, with the
+    projections of line 9 active (small boxes), in place (Zo is Z) or into another buffer."""
+    rng = np.random.default_rng(q)
+    B, N, S = 2, 3, 5
+    Z, V, MU, theta = (rng.standard_normal((B, N, k)) for k in (2 * q, q, q, q))
+    sum_all, sum_tail = rng.standard_normal((B, N, q)), rng.standard_normal((B, N, q))
+    L, Phi = rng.standard_normal((2, 2 * q)), rng.standard_normal((S, q))
+    Zo = Z if in_place else np.full_like(Z, np.nan)
+    b, i, l, s, sn = 1, 2, 1, 3, 0
+    alpha, rho, kappa, gamma, rt, c_theta = 0.3, 0.1, 1.5, 0.9, 0.7, -0.4
+    boxes = (1.2, 0.8, 0.9, 1.1)  # theta, v, mu, w: some updates land outside and are clipped
+    old = [x.copy() for x in (Z, V, MU, theta, sum_all, sum_tail)]
+    w0, v0, mu0, th0, sa0, st0 = (x[b, i] for x in old)
+    dense_updates(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa, gamma,
+                  rt, c_theta, *boxes)
+    for f in range(q):
+        w, lw, lvm = w0[f], L[l, f], L[l, q + f]
+        v_new = clip(v0[f] - alpha * (v0[f] - lw), boxes[1])
+        mu_new = clip(mu0[f] - alpha * (-lw + rho * mu0[f]), boxes[2])
+        g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - lvm - kappa * lw - rho * w
+        assert (V[b, i, f], MU[b, i, f]) == (v_new, mu_new)
+        assert (Zo[b, i, f], Zo[b, i, q + f]) == (clip(w + alpha * g_w, boxes[3]), v_new + mu_new)
+        assert theta[b, i, f] == clip(th0[f] - alpha * (Phi[s, f] * c_theta), boxes[0])
+        assert sum_all[b, i, f] == sa0[f] + w
+        assert sum_tail[b, i, f] == (st0[f] + w if in_tail else st0[f])
+    others = np.ones((B, N), bool)
+    others[b, i] = False
+    for new, before in zip((V, MU, theta, sum_all, sum_tail), old[1:]):
+        assert np.array_equal(new[others], before[others])  # other agents and seeds are untouched

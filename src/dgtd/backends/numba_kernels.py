@@ -15,7 +15,7 @@ from numba import njit, prange
 
 from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
 from dgtd.backends.numba_sampling import _step_samples, sample_args
-from dgtd.backends.numba_simd import _dots3, _laplacian_rows
+from dgtd.backends.numba_simd import _dense_updates, _dots3, _laplacian_rows
 from dgtd.run.sampling import Draws
 
 
@@ -27,7 +27,8 @@ def _clip(x, b):
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
 # one compiled specialisation, and the same seed gave results one ulp apart in different processes. Dot
 # products, which LLVM would then leave scalar, and the neighbour sums, whose running row LLVM would store
-# once per neighbour, are written in vector instructions by hand (`numba_simd`).
+# once per neighbour, are written in vector instructions by hand (`numba_simd`), and so are the dense
+# updates, in one pass over the features instead of five (the memory-bound large graphs gain most).
 #
 # Three rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (Z[b, j, f]),
 # never through row views (Z[b, j]): numba counts references to every view with an atomic update, and two
@@ -91,6 +92,10 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l
     # Line 7 (theta): phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta
     c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
     rt = ratio * phi_theta
+    if not sparse:  # lines 7-9 in one pass over the features, element by element as below (`numba_simd`)
+        _dense_updates(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa,
+                       gamma, rt, c_theta, b_th, b_v, b_mu, b_w)
+        return
     for f in range(q):
         sum_all[b, i, f] += Z[b, i, f]
     if in_tail:
@@ -104,26 +109,19 @@ def _agent_step(b, i, s, sn, r, ratio, alpha, in_tail, theta, V, MU, Z, Zo, L, l
         V[b, i, f] = v_new
         MU[b, i, f] = mu_new
         Zo[b, i, _hi(q, f)] = v_new + mu_new
-    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w, projected (line 9)
-    if not sparse:
-        for f in range(q):
-            wf = Z[b, i, f]
-            g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - L[l, _hi(q, f)] - kappa * L[l, f] - rho * wf
-            Zo[b, i, f] = _clip(wf + alpha * g_w, b_w)
-        for f in range(q):
-            theta[b, i, f] = _clip(theta[b, i, f] - alpha * (Phi[s, f] * c_theta), b_th)
-    else:
-        for f in range(q):
-            wf = Z[b, i, f]
-            Zo[b, i, f] = wf + alpha * (-L[l, _hi(q, f)] - kappa * L[l, f] - rho * wf)
-        for p in range(ptr[s], ptr[s + 1]):
-            f = idx[p]
-            theta[b, i, f] = _clip(theta[b, i, f] - alpha * (val[p] * c_theta), b_th)
-            Zo[b, i, f] += alpha * (rt * val[p])
-        for p in range(ptr[sn], ptr[sn + 1]):
-            Zo[b, i, idx[p]] -= alpha * (rt * gamma * val[p])
-        for f in range(q):
-            Zo[b, i, f] = _clip(Zo[b, i, f], b_w)
+    # Line 8 (w): ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w, projected (line 9);
+    # the TD part phi and phi' touch only their nonzero features
+    for f in range(q):
+        wf = Z[b, i, f]
+        Zo[b, i, f] = wf + alpha * (-L[l, _hi(q, f)] - kappa * L[l, f] - rho * wf)
+    for p in range(ptr[s], ptr[s + 1]):
+        f = idx[p]
+        theta[b, i, f] = _clip(theta[b, i, f] - alpha * (val[p] * c_theta), b_th)
+        Zo[b, i, f] += alpha * (rt * val[p])
+    for p in range(ptr[sn], ptr[sn + 1]):
+        Zo[b, i, idx[p]] -= alpha * (rt * gamma * val[p])
+    for f in range(q):
+        Zo[b, i, f] = _clip(Zo[b, i, f], b_w)
 
 
 @njit(cache=True, parallel=True)

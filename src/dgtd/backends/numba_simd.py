@@ -108,3 +108,90 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def _dense_updates(typingctx, Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho,
+                   kappa, gamma, rt, c_theta, b_th, b_v, b_mu, b_w):
+    """Algorithm 1 lines 7-9 for agent i of seed b with dense features, in one pass over the q features (the
+    arithmetic of each element exactly as `numba_kernels._agent_step` writes it, four elements at a time):
+    running sums of w; v and mu from L[l] = (L w, L (v + mu)), projected, their sum to Zo[b, i, q:]; w to
+    Zo[b, i, :q]; theta. Zo may be Z itself: each element of w is read before it is written."""
+    arrays = (Z, Zo, V, MU, theta, sum_all, sum_tail, L, Phi)
+    if not all(isinstance(a, types.Array) and a.layout == "C" for a in arrays):
+        return None
+    sig = types.void(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa,
+                     gamma, rt, c_theta, b_th, b_v, b_mu, b_w)
+
+    def codegen(context, builder, signature, args):
+        i64, f64 = ir.IntType(64), ir.DoubleType()
+        vec = ir.VectorType(f64, 4)
+        zero = ir.Constant(i64, 0)
+        ta = signature.args
+        as_int = lambda k: context.cast(builder, args[k], ta[k], types.int64)
+        as_f64 = lambda k: context.cast(builder, args[k], ta[k], types.float64)
+        b_, i_, l_, s_, sn_ = (as_int(k) for k in (2, 3, 11, 13, 14))
+        tail = context.cast(builder, args[9], ta[9], types.boolean)
+        alpha_, rho_, kappa_, gamma_, rt_, ct_, bth, bv, bmu, bw = (as_f64(k) for k in range(15, 25))
+
+        def row(k, index):
+            ary = context.make_array(ta[k])(context, builder, args[k])
+            return cgutils.get_item_pointer(context, builder, ta[k], ary, [*index, zero], wraparound=False)
+
+        z, zo = row(0, [b_, i_]), row(1, [b_, i_])
+        v, mu, th, sa, st = (row(k, [b_, i_]) for k in (4, 5, 6, 7, 8))
+        lrow, ps, psn = row(10, [l_]), row(12, [s_]), row(12, [sn_])
+        q = builder.extract_value(context.make_array(ta[6])(context, builder, args[6]).shape, 2)
+
+        def elements(f, ty):
+            """The updates of elements f, ..., f + width - 1, as values of type ty (double or <4 x double>)."""
+            width = ty.count if isinstance(ty, ir.VectorType) else 1
+
+            def splat(x):
+                if width == 1:
+                    return x
+                out = ir.Constant(ty, ir.Undefined)
+                for k in range(width):
+                    out = builder.insert_element(out, x, ir.Constant(ir.IntType(32), k))
+                return out
+
+            def at(p, offset=None):
+                g = builder.gep(p, [f if offset is None else builder.add(f, offset)])
+                return builder.bitcast(g, ty.as_pointer()) if width > 1 else g
+
+            ld = lambda p, offset=None: builder.load(at(p, offset), align=8)
+            st_ = lambda x, p, offset=None: builder.store(x, at(p, offset), align=8)
+            add, sub, mul = builder.fadd, builder.fsub, builder.fmul
+            A, RHO, KAPPA, GAMMA, RT, CT = (splat(x) for x in (alpha_, rho_, kappa_, gamma_, rt_, ct_))
+
+            def clip(x, bound):
+                hi_, lo_ = splat(bound), splat(builder.fneg(bound))
+                inner = builder.select(builder.fcmp_ordered(">", x, hi_), hi_, x)
+                return builder.select(builder.fcmp_ordered("<", x, lo_), lo_, inner)
+
+            w = ld(z)
+            st_(add(ld(sa), w), sa)
+            with builder.if_then(tail):
+                st_(add(ld(st), w), st)
+            # Line 7 (v) and line 8 (mu), projected (line 9); neighbours will read their sum
+            vf, muf, lw, lvm = ld(v), ld(mu), ld(lrow), ld(lrow, q)
+            v_new = clip(sub(vf, mul(A, sub(vf, lw))), bv)
+            mu_new = clip(sub(muf, mul(A, add(builder.fneg(lw), mul(RHO, muf)))), bmu)
+            st_(v_new, v)
+            st_(mu_new, mu)
+            st_(add(v_new, mu_new), zo, q)
+            # Line 8 (w): ratio (phi - gamma phi') phi^T theta - L v - L mu - kappa L w - rho w, projected (line 9)
+            phs = ld(ps)
+            g_w = sub(sub(sub(mul(RT, sub(phs, mul(GAMMA, ld(psn)))), lvm), mul(KAPPA, lw)), mul(RHO, w))
+            st_(clip(add(w, mul(A, g_w)), bw), zo)
+            # Line 7 (theta)
+            st_(clip(sub(ld(th), mul(A, mul(phs, CT))), bth), th)
+
+        q4 = builder.and_(q, ir.Constant(i64, ~3))
+        with cgutils.for_range_slice(builder, zero, q4, ir.Constant(i64, 4)) as (f, _):
+            elements(f, vec)
+        with cgutils.for_range_slice(builder, q4, q, ir.Constant(i64, 1)) as (f, _):
+            elements(f, f64)
+        return context.get_dummy_value()
+
+    return sig, codegen
