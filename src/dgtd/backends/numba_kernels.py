@@ -30,12 +30,13 @@ def _clip(x, b):
 # once per neighbour, are written in vector instructions by hand (`numba_simd`), and so are the dense
 # updates, in one pass over the features instead of five (the memory-bound large graphs gain most).
 #
-# Three rules keep the inner loops vectorised. Elements of the shared arrays are indexed directly (Z[b, j, f]),
-# never through row views (Z[b, j]): numba counts references to every view with an atomic update, and two
-# threads updating the same count stall each other. A loop writes one half of an array at most (theta, v and mu
-# have arrays of their own): when one loop writes two halves of the same array, LLVM cannot prove that they do
-# not overlap and falls back to scalar code, three times slower. And offsets into the second half of a packed
-# row are unsigned (`_hi`), so that numba emits no wrap-around test for negative indices in the way.
+# Three rules keep the loops left to LLVM (sparse features) vectorised. Elements of the shared arrays are
+# indexed directly (Z[b, j, f]), never through row views (Z[b, j]): numba counts references to every view with
+# an atomic update, and two threads updating the same count stall each other. A loop writes one half of an
+# array at most (theta, v and mu have arrays of their own): when one loop writes two halves of the same array,
+# LLVM cannot prove that they do not overlap and falls back to scalar code, three times slower. And offsets into
+# the second half of a packed row are unsigned (`_hi`), so that numba emits no wrap-around test for negative
+# indices in the way.
 
 
 @njit(cache=True, inline="always")
@@ -134,9 +135,10 @@ def _dgtd_by_seed(theta, V, MU, Z, sum_all, sum_tail, k0, tail_start, alphas, fu
     B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
+    degree = _max_degree(indptr)
     for b in prange(B):
         L = np.empty((N, m))
-        J = np.empty(_max_degree(indptr), np.int64)
+        J = np.empty(degree, np.int64)
         s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
         r_t = np.empty((1, N))
         up_t = np.ones((1, E), np.bool_)
@@ -166,6 +168,7 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
     B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
+    degree = _max_degree(indptr)
     total = B * N
     s_t, a_t, sn_t = np.empty((B, n_obs), np.int64), np.empty((B, n_obs), np.int64), np.empty((B, n_obs), np.int64)
     r_t = np.empty((B, N))
@@ -178,7 +181,7 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
         Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
         for c in prange(n_chunks):
             L = np.empty((1, m))
-            J = np.empty(_max_degree(indptr), np.int64)
+            J = np.empty(degree, np.int64)
             hi = (c + 1) * total // n_chunks
             for flat in range(c * total // n_chunks, hi):
                 b = flat // N

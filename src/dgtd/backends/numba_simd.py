@@ -13,25 +13,43 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+_LANE = ir.IntType(32)
+
+
+def _all_c_contiguous(*arrays) -> bool:
+    """The intrinsics read rows as contiguous memory: every array must be typed C-contiguous."""
+    return all(isinstance(a, types.Array) and a.layout == "C" for a in arrays)
+
+
+def _row(context, builder, aryty, ary, index):
+    """Pointer to element [*index, 0] of a numba array value: the start of a row."""
+    arr = context.make_array(aryty)(context, builder, ary)
+    zero = ir.Constant(ir.IntType(64), 0)
+    return cgutils.get_item_pointer(context, builder, aryty, arr, [*index, zero], wraparound=False)
+
+
+def _splat(builder, x, vec):
+    """The vector of type vec with x in every lane."""
+    out = ir.Constant(vec, ir.Undefined)
+    for k in range(vec.count):
+        out = builder.insert_element(out, x, ir.Constant(_LANE, k))
+    return out
+
 
 @intrinsic
 def _dots3(typingctx, Phi, s, sn, theta, Z, b, i, q):
     """(phi(s)^T theta[b, i], phi(s)^T w, phi(sn)^T w) with w = Z[b, i, :q], for C-contiguous Phi (S, q),
     theta (B, N, q) and Z (B, N, m >= q); the TD terms of Algorithm 1 line 7."""
-    if not all(isinstance(a, types.Array) and a.layout == "C" for a in (Phi, theta, Z)):
+    if not _all_c_contiguous(Phi, theta, Z):
         return None
     sig = types.UniTuple(types.float64, 3)(Phi, s, sn, theta, Z, b, i, q)
 
     def codegen(context, builder, signature, args):
-        i64, i32 = ir.IntType(64), ir.IntType(32)
+        i64 = ir.IntType(64)
         vec = ir.VectorType(ir.DoubleType(), 4)
         zero = ir.Constant(i64, 0)
         s_, sn_, b_, i_, q_ = (context.cast(builder, args[k], signature.args[k], types.int64) for k in (1, 2, 5, 6, 7))
-
-        def row(k, index):
-            ary = context.make_array(signature.args[k])(context, builder, args[k])
-            return cgutils.get_item_pointer(context, builder, signature.args[k], ary, [*index, zero], wraparound=False)
-
+        row = lambda k, index: _row(context, builder, signature.args[k], args[k], index)
         p_s, p_sn, p_th, p_w = row(0, [s_]), row(0, [sn_]), row(3, [b_, i_]), row(4, [b_, i_])
         pairs = ((p_s, p_th), (p_s, p_w), (p_sn, p_w))
         lanes = [cgutils.alloca_once_value(builder, ir.Constant(vec, [0.0] * 4)) for _ in pairs]
@@ -43,7 +61,7 @@ def _dots3(typingctx, Phi, s, sn, theta, Z, b, i, q):
         sums = []
         for acc in lanes:
             v = builder.load(acc)
-            e = [builder.extract_element(v, ir.Constant(i32, k)) for k in range(4)]
+            e = [builder.extract_element(v, ir.Constant(_LANE, k)) for k in range(4)]
             total = builder.fadd(builder.fadd(e[0], e[1]), builder.fadd(e[2], e[3]))
             sums.append(cgutils.alloca_once_value(builder, total))
         with cgutils.for_range_slice(builder, q4, q_, ir.Constant(i64, 1)) as (f, _):
@@ -61,7 +79,7 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
     C-contiguous Z (B, N, m), L (., m) and js (int64): agent i's row of L(k) Z (Algorithm 1's neighbour sums).
     Sixteen elements at a time stay in vector registers while the neighbours' rows stream past, so the row of L
     is written once instead of once per neighbour."""
-    if not all(isinstance(a, types.Array) and a.layout == "C" for a in (Z, js, L)):
+    if not _all_c_contiguous(Z, js, L):
         return None
     sig = types.void(Z, b, i, js, count, L, l)
 
@@ -72,20 +90,15 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
         zero = ir.Constant(i64, 0)
         b_, i_, n_, l_ = (context.cast(builder, args[k], signature.args[k], types.int64) for k in (1, 2, 4, 6))
         zty, jty, lty = signature.args[0], signature.args[3], signature.args[5]
-        z = context.make_array(zty)(context, builder, args[0])
-        jarr = context.make_array(jty)(context, builder, args[3])
-        larr = context.make_array(lty)(context, builder, args[5])
-        m = builder.extract_value(z.shape, 2)
-        p_i = cgutils.get_item_pointer(context, builder, zty, z, [b_, i_, zero], wraparound=False)
-        p_l = cgutils.get_item_pointer(context, builder, lty, larr, [l_, zero], wraparound=False)
+        m = builder.extract_value(context.make_array(zty)(context, builder, args[0]).shape, 2)
+        p_i = _row(context, builder, zty, args[0], [b_, i_])
+        p_l = _row(context, builder, lty, args[5], [l_])
+        p_js = _row(context, builder, jty, args[3], [])  # js[0]
         c = builder.sitofp(n_, f64)
-        cvec = ir.Constant(vec, ir.Undefined)
-        for k in range(4):
-            cvec = builder.insert_element(cvec, c, ir.Constant(ir.IntType(32), k))
+        cvec = _splat(builder, c, vec)
 
         def neighbour_row(n):
-            j = builder.load(cgutils.get_item_pointer(context, builder, jty, jarr, [n], wraparound=False))
-            return cgutils.get_item_pointer(context, builder, zty, z, [b_, j, zero], wraparound=False)
+            return _row(context, builder, zty, args[0], [b_, builder.load(builder.gep(p_js, [n]))])
 
         vptr = lambda p, f: builder.bitcast(builder.gep(p, [f]), vec.as_pointer())
         m16 = builder.and_(m, ir.Constant(i64, ~15))
@@ -117,8 +130,7 @@ def _dense_updates(typingctx, Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_t
     arithmetic of each element exactly as `numba_kernels._agent_step` writes it, four elements at a time):
     running sums of w; v and mu from L[l] = (L w, L (v + mu)), projected, their sum to Zo[b, i, q:]; w to
     Zo[b, i, :q]; theta. Zo may be Z itself: each element of w is read before it is written."""
-    arrays = (Z, Zo, V, MU, theta, sum_all, sum_tail, L, Phi)
-    if not all(isinstance(a, types.Array) and a.layout == "C" for a in arrays):
+    if not _all_c_contiguous(Z, Zo, V, MU, theta, sum_all, sum_tail, L, Phi):
         return None
     sig = types.void(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa,
                      gamma, rt, c_theta, b_th, b_v, b_mu, b_w)
@@ -134,10 +146,7 @@ def _dense_updates(typingctx, Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_t
         tail = context.cast(builder, args[9], ta[9], types.boolean)
         alpha_, rho_, kappa_, gamma_, rt_, ct_, bth, bv, bmu, bw = (as_f64(k) for k in range(15, 25))
 
-        def row(k, index):
-            ary = context.make_array(ta[k])(context, builder, args[k])
-            return cgutils.get_item_pointer(context, builder, ta[k], ary, [*index, zero], wraparound=False)
-
+        row = lambda k, index: _row(context, builder, ta[k], args[k], index)
         z, zo = row(0, [b_, i_]), row(1, [b_, i_])
         v, mu, th, sa, st = (row(k, [b_, i_]) for k in (4, 5, 6, 7, 8))
         lrow, ps, psn = row(10, [l_]), row(12, [s_]), row(12, [sn_])
@@ -147,13 +156,7 @@ def _dense_updates(typingctx, Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_t
             """The updates of elements f, ..., f + width - 1, as values of type ty (double or <4 x double>)."""
             width = ty.count if isinstance(ty, ir.VectorType) else 1
 
-            def splat(x):
-                if width == 1:
-                    return x
-                out = ir.Constant(ty, ir.Undefined)
-                for k in range(width):
-                    out = builder.insert_element(out, x, ir.Constant(ir.IntType(32), k))
-                return out
+            splat = (lambda x: _splat(builder, x, ty)) if width > 1 else (lambda x: x)
 
             def at(p, offset=None):
                 g = builder.gep(p, [f if offset is None else builder.add(f, offset)])

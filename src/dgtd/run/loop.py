@@ -15,7 +15,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
-from dgtd.run.sampling import Draws, ModelSource, Sampling, SamplerTables
+from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
@@ -216,7 +216,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
             state, sums = kernel(ctx, state, sums, k, alphas, blk)
-        if isinstance(blk, Draws):
+        if fused:
             sent = blk.up_count
         else:
             sent = (k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2))
