@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from dgtd.backends.numba_simd import _dense_updates, _dots3, _laplacian_rows
+from dgtd.backends.numba_simd import UNROLLED_NEIGHBOURS, _dense_updates, _dots3, _laplacian_rows
 
 
 @njit
@@ -45,12 +45,14 @@ def laplacian_rows(Z, b, i, js, count, L, l):
 
 
 @pytest.mark.parametrize("m", [2, 15, 16, 17, 128, 130])
-@pytest.mark.parametrize("count", [0, 1, 3])
+@pytest.mark.parametrize("count", [0, 1, 3, UNROLLED_NEIGHBOURS, UNROLLED_NEIGHBOURS + 1, 12])
 def test_laplacian_rows_in_its_fixed_order(m, count):
-    """count Z_i - Z_j1 - Z_j2 - ..., element by element in that order: bit for bit, whatever the row length."""
+    """count Z_i - Z_j1 - Z_j2 - ..., element by element in that order: bit for bit, whatever the row length, for
+    counts with straight-line code and counts past them (the general loop)."""
     rng = np.random.default_rng(m + 100 * count)
-    Z = rng.standard_normal((2, 5, m))
-    js = np.array([4, 0, 2, 99][:count] + [99] * (4 - count), dtype=np.int64)  # entries past count are never read
+    Z = rng.standard_normal((2, 16, m))
+    js = np.full(16, 99, dtype=np.int64)  # entries past count are never read (99 is out of range)
+    js[:count] = rng.choice(np.delete(np.arange(16), 3), size=count, replace=False)
     L = np.full((3, m), np.nan)
     laplacian_rows(Z, 1, 3, js, count, L, 2)
     expected = count * Z[1, 3]
@@ -71,21 +73,33 @@ def clip(x, bound):
     return -bound if x < -bound else (bound if x > bound else x)
 
 
+def same(x, y):
+    """Equal bit for bit up to NaN payloads: NaN for NaN, and zeros of the same sign."""
+    return (np.isnan(x) and np.isnan(y)) or (x == y and np.signbit(x) == np.signbit(y))
+
+
+SMALL_BOXES = (1.2, 0.8, 0.9, 1.1)  # theta, v, mu, w: some updates land outside and are clipped
+ODD_BOXES = (0.0, np.inf, np.nan, 0.0)  # clipped to signed zeros, never clipped, and a NaN bound (no clipping)
+
+
 @pytest.mark.parametrize("q", [1, 4, 7, 64])
 @pytest.mark.parametrize("in_tail", [False, True])
 @pytest.mark.parametrize("in_place", [False, True])
-def test_dense_updates_are_algorithm_1_lines_7_to_9(q, in_tail, in_place):
+@pytest.mark.parametrize("boxes", [SMALL_BOXES, ODD_BOXES])
+def test_dense_updates_are_algorithm_1_lines_7_to_9(q, in_tail, in_place, boxes):
     """Bit for bit the element-wise updates of Algorithm 1 lines 7-9 as plain Python writes them, with the
-    projections of line 9 active (small boxes), in place (Zo is Z) or into another buffer."""
+    projections of line 9 active, in place (Zo is Z) or into another buffer; with odd boxes (zero, infinite,
+    NaN) and a NaN in v and mu, the projections keep `_clip`'s signed zeros and NaNs."""
     rng = np.random.default_rng(q)
     B, N, S = 2, 3, 5
     Z, V, MU, theta = (rng.standard_normal((B, N, k)) for k in (2 * q, q, q, q))
+    if boxes is ODD_BOXES:
+        V[1, 2, q // 2] = MU[1, 2, 0] = np.nan
     sum_all, sum_tail = rng.standard_normal((B, N, q)), rng.standard_normal((B, N, q))
     L, Phi = rng.standard_normal((2, 2 * q)), rng.standard_normal((S, q))
     Zo = Z if in_place else np.full_like(Z, np.nan)
     b, i, l, s, sn = 1, 2, 1, 3, 0
     alpha, rho, kappa, gamma, rt, c_theta = 0.3, 0.1, 1.5, 0.9, 0.7, -0.4
-    boxes = (1.2, 0.8, 0.9, 1.1)  # theta, v, mu, w: some updates land outside and are clipped
     old = [x.copy() for x in (Z, V, MU, theta, sum_all, sum_tail)]
     w0, v0, mu0, th0, sa0, st0 = (x[b, i] for x in old)
     dense_updates(Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_tail, L, l, Phi, s, sn, alpha, rho, kappa, gamma,
@@ -95,11 +109,11 @@ def test_dense_updates_are_algorithm_1_lines_7_to_9(q, in_tail, in_place):
         v_new = clip(v0[f] - alpha * (v0[f] - lw), boxes[1])
         mu_new = clip(mu0[f] - alpha * (-lw + rho * mu0[f]), boxes[2])
         g_w = rt * (Phi[s, f] - gamma * Phi[sn, f]) - lvm - kappa * lw - rho * w
-        assert (V[b, i, f], MU[b, i, f]) == (v_new, mu_new)
-        assert (Zo[b, i, f], Zo[b, i, q + f]) == (clip(w + alpha * g_w, boxes[3]), v_new + mu_new)
-        assert theta[b, i, f] == clip(th0[f] - alpha * (Phi[s, f] * c_theta), boxes[0])
-        assert sum_all[b, i, f] == sa0[f] + w
-        assert sum_tail[b, i, f] == (st0[f] + w if in_tail else st0[f])
+        assert same(V[b, i, f], v_new) and same(MU[b, i, f], mu_new)
+        assert same(Zo[b, i, f], clip(w + alpha * g_w, boxes[3])) and same(Zo[b, i, q + f], v_new + mu_new)
+        assert same(theta[b, i, f], clip(th0[f] - alpha * (Phi[s, f] * c_theta), boxes[0]))
+        assert same(sum_all[b, i, f], sa0[f] + w)
+        assert same(sum_tail[b, i, f], st0[f] + w if in_tail else st0[f])
     others = np.ones((B, N), bool)
     others[b, i] = False
     for new, before in zip((V, MU, theta, sum_all, sum_tail), old[1:]):

@@ -52,10 +52,9 @@ def _laplacian_row(Z, b, i, up, ub, indptr, nbr, eid, L, l, J):
     ``up``; all ones for a fixed graph). The w update needs L v + L mu = L (v + mu): two vectors per neighbour,
     read as one contiguous row. J is scratch for the up neighbours' rows (as long as the largest degree)."""
     count = 0
-    for p in range(indptr[i], indptr[i + 1]):
-        if up[ub, eid[p]]:
-            J[count] = nbr[p]
-            count += 1
+    for p in range(indptr[i], indptr[i + 1]):  # without a branch: edges are up at random, a branch mispredicts
+        J[count] = nbr[p]
+        count += up[ub, eid[p]]
     _laplacian_rows(Z, b, i, J, count, L, l)
 
 

@@ -73,12 +73,17 @@ def _dots3(typingctx, Phi, s, sn, theta, Z, b, i, q):
     return sig, codegen
 
 
+UNROLLED_NEIGHBOURS = 8  # up to this many neighbours, `_laplacian_rows` has a loop of its own for each count
+
+
 @intrinsic
 def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
     """L[l] = count Z[b, i] - Z[b, js[0]] - ... - Z[b, js[count - 1]], element by element in that order, for
     C-contiguous Z (B, N, m), L (., m) and js (int64): agent i's row of L(k) Z (Algorithm 1's neighbour sums).
     Sixteen elements at a time stay in vector registers while the neighbours' rows stream past, so the row of L
-    is written once instead of once per neighbour."""
+    is written once instead of once per neighbour. Up to UNROLLED_NEIGHBOURS neighbours, the code branches on
+    the count once and then runs straight-line code for that count: a loop over a count that changes from agent
+    to agent would be mispredicted at every block of sixteen elements."""
     if not _all_c_contiguous(Z, js, L):
         return None
     sig = types.void(Z, b, i, js, count, L, l)
@@ -102,16 +107,44 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
 
         vptr = lambda p, f: builder.bitcast(builder.gep(p, [f]), vec.as_pointer())
         m16 = builder.and_(m, ir.Constant(i64, ~15))
-        with cgutils.for_range_slice(builder, zero, m16, ir.Constant(i64, 16)) as (f, _):
-            offs = [builder.add(f, ir.Constant(i64, 4 * k)) for k in range(4)]
-            acc = [cgutils.alloca_once_value(builder, builder.fmul(cvec, builder.load(vptr(p_i, o), align=8)))
-                   for o in offs]
-            with cgutils.for_range(builder, n_) as loop:
-                p_j = neighbour_row(loop.index)
+
+        def blocks(rows):
+            """The blocks of sixteen elements, neighbours' rows from ``rows(f, subtract)``."""
+            with cgutils.for_range_slice(builder, zero, m16, ir.Constant(i64, 16)) as (f, _):
+                offs = [builder.add(f, ir.Constant(i64, 4 * k)) for k in range(4)]
+                acc = [builder.fmul(cvec, builder.load(vptr(p_i, o), align=8)) for o in offs]
+                for p_j in rows():
+                    acc = [builder.fsub(a, builder.load(vptr(p_j, o), align=8)) for a, o in zip(acc, offs)]
                 for a, o in zip(acc, offs):
-                    builder.store(builder.fsub(builder.load(a), builder.load(vptr(p_j, o), align=8)), a)
-            for a, o in zip(acc, offs):
-                builder.store(builder.load(a), vptr(p_l, o), align=8)
+                    builder.store(a, vptr(p_l, o), align=8)
+
+        def looped():
+            """Any count: the neighbours in a loop inside each block."""
+            with cgutils.for_range_slice(builder, zero, m16, ir.Constant(i64, 16)) as (f, _):
+                offs = [builder.add(f, ir.Constant(i64, 4 * k)) for k in range(4)]
+                acc = [cgutils.alloca_once_value(builder, builder.fmul(cvec, builder.load(vptr(p_i, o), align=8)))
+                       for o in offs]
+                with cgutils.for_range(builder, n_) as loop:
+                    p_j = neighbour_row(loop.index)
+                    for a, o in zip(acc, offs):
+                        builder.store(builder.fsub(builder.load(a), builder.load(vptr(p_j, o), align=8)), a)
+                for a, o in zip(acc, offs):
+                    builder.store(builder.load(a), vptr(p_l, o), align=8)
+
+        done = builder.append_basic_block("laplacian_done")
+        other = builder.append_basic_block("laplacian_any_count")
+        switch = builder.switch(n_, other)
+        for n in range(UNROLLED_NEIGHBOURS + 1):
+            case = builder.append_basic_block(f"laplacian_{n}_neighbours")
+            switch.add_case(ir.Constant(i64, n), case)
+            builder.position_at_end(case)
+            p_js_n = [neighbour_row(ir.Constant(i64, k)) for k in range(n)]
+            blocks(lambda: p_js_n)
+            builder.branch(done)
+        builder.position_at_end(other)
+        looped()
+        builder.branch(done)
+        builder.position_at_end(done)
         with cgutils.for_range_slice(builder, m16, m, ir.Constant(i64, 1)) as (f, _):
             acc = cgutils.alloca_once_value(builder, builder.fmul(c, builder.load(builder.gep(p_i, [f]))))
             with cgutils.for_range(builder, n_) as loop:
@@ -168,9 +201,11 @@ def _dense_updates(typingctx, Z, Zo, b, i, V, MU, theta, sum_all, sum_tail, in_t
             A, RHO, KAPPA, GAMMA, RT, CT = (splat(x) for x in (alpha_, rho_, kappa_, gamma_, rt_, ct_))
 
             def clip(x, bound):
+                # `_clip`'s result for bound >= 0 or NaN, NaN x included; testing the inner result rather than x
+                # lets LLVM emit one min and one max instruction instead of a min, a compare and a blend
                 hi_, lo_ = splat(bound), splat(builder.fneg(bound))
                 inner = builder.select(builder.fcmp_ordered(">", x, hi_), hi_, x)
-                return builder.select(builder.fcmp_ordered("<", x, lo_), lo_, inner)
+                return builder.select(builder.fcmp_ordered("<", inner, lo_), lo_, inner)
 
             w = ld(z)
             st_(add(ld(sa), w), sa)
