@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
-from dgtd.backends.numba_sampling import _step_samples, sample_args
+from dgtd.backends.numba_sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.numba_simd import _dense_updates, _dots3, _laplacian_rows
 from dgtd.run.sampling import Draws
 
@@ -160,24 +160,29 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
                    d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk,
                    n_up, Phi, sparse, ptr, idx, val, ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of,
                    n_chunks):
-    """Agents spread over the cores at every step (large N, few seeds). Each step's samples are drawn first
-    (seed by seed: a stream is sequential), then the agents update; the rows neighbours read, (w, v + mu),
-    are double-buffered so that every agent reads step k's values while others write step k + 1's. Returns
-    the number of buffer swaps (odd: the result is in Z2)."""
+    """Agents spread over the cores at every step (large N, few seeds). The rows neighbours read, (w, v + mu),
+    are double-buffered so that every agent reads step k's values while others write step k + 1's. Samples
+    are double-buffered too: while the agents update with step k's, the chunks also draw step k + 1's, each
+    seed's state and reward streams in one chunk and its edge stream in another (a stream is sequential, but
+    the streams are independent), so that no core waits while another samples. Returns the number of buffer
+    swaps (odd: the result is in Z2)."""
     B, N, m = Z.shape
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     degree = _max_degree(indptr)
     total = B * N
-    s_t, a_t, sn_t = np.empty((B, n_obs), np.int64), np.empty((B, n_obs), np.int64), np.empty((B, n_obs), np.int64)
-    r_t = np.empty((B, N))
-    up_t = np.ones((B, E), np.bool_)
+    s_t, a_t, sn_t = np.empty((2 * B, n_obs), np.int64), np.empty((2 * B, n_obs), np.int64), np.empty((2 * B, n_obs), np.int64)
+    r_t = np.empty((2 * B, N))
+    up_t = np.ones((2 * B, E), np.bool_)
+    # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
+    words = np.zeros((B, 3, 16), np.uint64)
+    words[:, :, :4] = rng
+    for b in range(B):  # step 0's samples
+        n_up[b] += _step_samples(b, b, 0, fused, words, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                                 sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t)
     for t in range(T):
-        for b in range(B):  # a stream is sequential; few seeds here
-            n_up[b] += _step_samples(b, b, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
-                                     sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
-                                     up_t)
         Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
+        now, nxt = (t % 2) * B, ((t + 1) % 2) * B  # rows of this step's samples and the next step's
         for c in prange(n_chunks):
             L = np.empty((1, m))
             J = np.empty(degree, np.int64)
@@ -186,13 +191,24 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
                 b = flat // N
                 i = flat % N
                 o = agent_of[i] if n_obs == N else 0
-                s, a = s_t[b, o], a_t[b, o]
+                s, a = s_t[now + b, o], a_t[now + b, o]
                 if flat + 1 < hi:  # the next agent's neighbour rows arrive while this agent computes
-                    _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, (flat + 1) // N, indptr, nbr, eid)
-                _laplacian_row(Zi, b, i, up_t, b, indptr, nbr, eid, L, 0, J)
-                _agent_step(b, i, s, sn_t[b, o], r_t[b, agent_of[i]], ratio_tab[s, a], alphas[t], k0 + t >= tail_start,
-                            theta, V, MU, Zi, Zo, L, 0, sum_all, sum_tail, Phi, sparse, ptr, idx, val, gamma,
-                            kappa, rho, boxes)
+                    _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, now + (flat + 1) // N, indptr, nbr, eid)
+                _laplacian_row(Zi, b, i, up_t, now + b, indptr, nbr, eid, L, 0, J)
+                _agent_step(b, i, s, sn_t[now + b, o], r_t[now + b, agent_of[i]], ratio_tab[s, a], alphas[t],
+                            k0 + t >= tail_start, theta, V, MU, Zi, Zo, L, 0, sum_all, sum_tail, Phi, sparse, ptr, idx,
+                            val, gamma, kappa, rho, boxes)
+            if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over chunks
+                for j in range(2 * B):
+                    if j * n_chunks // (2 * B) == c:
+                        sb = j // 2
+                        if j % 2 == 0:
+                            _step_observations(sb, nxt + sb, t + 1, fused, words, markov, current, d_prob, d_alias,
+                                               sa_prob, sa_alias, R_sample, sigma, noise, s_blk, a_blk, sn_blk, r_blk,
+                                               s_t, a_t, sn_t, r_t)
+                        else:
+                            n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, up_blk, up_t)
+    rng[:, :, :] = words[:, :, :4]
     return T
 
 

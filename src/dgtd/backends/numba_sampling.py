@@ -112,24 +112,26 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
     Fused: drawn here from seed b's streams in rng, in the order `dgtd.run.sampling.Streams.draw` draws them
     (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
     `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
-    (samples from a simulator)."""
+    (samples from a simulator). The two halves, `_step_observations` and `_step_edges`, read disjoint streams
+    and write disjoint arrays: a kernel may run them at the same time."""
+    _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma,
+                       noise, s_blk, a_blk, sn_blk, r_blk, s_t, a_t, sn_t, r_t)
+    return _step_edges(b, row, t, fused, rng, p_edge, up_blk, up_t)
+
+
+@njit(cache=True, inline="always")
+def _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma,
+                       noise, s_blk, a_blk, sn_blk, r_blk, s_t, a_t, sn_t, r_t):
+    """The states, actions, next states and rewards of `_step_samples` (seed b's state and reward streams)."""
     n_obs = s_t.shape[1]
     N = r_t.shape[1]
-    E = up_t.shape[1]
     S = R_sample.shape[1]
-    n_up = 0
     if not fused:
         for o in range(n_obs):
             s_t[row, o], a_t[row, o], sn_t[row, o] = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
         for i in range(N):
             r_t[row, i] = r_blk[t, b, i]
-        if up_blk.shape[0] > 0:
-            for e in range(E):
-                up_t[row, e] = up_blk[t, b, e]
-                n_up += up_blk[t, b, e]
-        else:
-            n_up = E
-        return n_up
+        return
     for o in range(n_obs):
         u_s = 0.0 if markov else next_double(rng, b, 0)  # drawn first, as `Streams.draw` lays them out
         s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, next_double(rng, b, 0), markov, current, b, o,
@@ -138,6 +140,21 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
         o = i if n_obs == N else 0
         r = R_sample[i, s_t[row, o], a_t[row, o]]
         r_t[row, i] = _reward(r, sigma, noise, next_double(rng, b, 1)) if noise != 0 else r
+
+
+@njit(cache=True, inline="always")
+def _step_edges(b, row, t, fused, rng, p_edge, up_blk, up_t):
+    """Which edges are up, for `_step_samples` (seed b's edge stream); returns how many."""
+    E = up_t.shape[1]
+    n_up = 0
+    if not fused:
+        if up_blk.shape[0] > 0:
+            for e in range(E):
+                up_t[row, e] = up_blk[t, b, e]
+                n_up += up_blk[t, b, e]
+        else:
+            n_up = E
+        return n_up
     if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
         for e in range(E):
             up_t[row, e] = next_double(rng, b, 2) < p_edge[e]
