@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from dgtd.backends.numba_rng import next_double
+from dgtd.backends.numba_rng import pcg_step
 from dgtd.run.sampling import Block, Draws
 
 NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
@@ -20,9 +20,8 @@ def _alias(prob, alias, u):
     K = prob.shape[0]
     x = u * K
     j = min(np.int64(x), K - 1)
-    if x - j < prob[j]:
-        return j
-    return alias[j]
+    other = alias[j]  # read first, so that the choice compiles to a conditional move, not a branch taken at random
+    return j if x - j < prob[j] else other
 
 
 @njit(cache=True, inline="always")
@@ -31,9 +30,8 @@ def _alias_row(prob, alias, row, u):
     K = prob.shape[1]
     x = u * K
     j = min(np.int64(x), K - 1)
-    if x - j < prob[row, j]:
-        return j
-    return alias[row, j]
+    other = alias[row, j]  # as in `_alias`
+    return j if x - j < prob[row, j] else other
 
 
 @njit(cache=True, inline="always")
@@ -132,14 +130,24 @@ def _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, 
         for i in range(N):
             r_t[row, i] = r_blk[t, b, i]
         return
+    hi, lo = rng[b, 0, 0], rng[b, 0, 1]  # the stream's state stays in registers over the loop (`pcg_step`)
     for o in range(n_obs):
-        u_s = 0.0 if markov else next_double(rng, b, 0)  # drawn first, as `Streams.draw` lays them out
-        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, next_double(rng, b, 0), markov, current, b, o,
-                                                             d_prob, d_alias, sa_prob, sa_alias, S)
+        u_s = 0.0
+        if not markov:  # drawn first, as `Streams.draw` lays them out
+            hi, lo, u_s = pcg_step(hi, lo, rng[b, 0, 2], rng[b, 0, 3])
+        hi, lo, u_sa = pcg_step(hi, lo, rng[b, 0, 2], rng[b, 0, 3])
+        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias,
+                                                             sa_prob, sa_alias, S)
+    rng[b, 0, 0], rng[b, 0, 1] = hi, lo
+    hi, lo = rng[b, 1, 0], rng[b, 1, 1]
     for i in range(N):
         o = i if n_obs == N else 0
         r = R_sample[i, s_t[row, o], a_t[row, o]]
-        r_t[row, i] = _reward(r, sigma, noise, next_double(rng, b, 1)) if noise != 0 else r
+        if noise != 0:
+            hi, lo, u = pcg_step(hi, lo, rng[b, 1, 2], rng[b, 1, 3])
+            r = _reward(r, sigma, noise, u)
+        r_t[row, i] = r
+    rng[b, 1, 0], rng[b, 1, 1] = hi, lo
 
 
 @njit(cache=True, inline="always")
@@ -156,9 +164,12 @@ def _step_edges(b, row, t, fused, rng, p_edge, up_blk, up_t):
             n_up = E
         return n_up
     if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
+        hi, lo, inc_hi, inc_lo = rng[b, 2, 0], rng[b, 2, 1], rng[b, 2, 2], rng[b, 2, 3]
         for e in range(E):
-            up_t[row, e] = next_double(rng, b, 2) < p_edge[e]
+            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
+            up_t[row, e] = u < p_edge[e]
             n_up += up_t[row, e]
+        rng[b, 2, 0], rng[b, 2, 1] = hi, lo
     else:
         n_up = E
     return n_up
