@@ -109,7 +109,7 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
         m16 = builder.and_(m, ir.Constant(i64, ~15))
 
         def blocks(rows):
-            """The blocks of sixteen elements, neighbours' rows from ``rows(f, subtract)``."""
+            """The blocks of sixteen elements, with the neighbours' rows ``rows()``."""
             with cgutils.for_range_slice(builder, zero, m16, ir.Constant(i64, 16)) as (f, _):
                 offs = [builder.add(f, ir.Constant(i64, 4 * k)) for k in range(4)]
                 acc = [builder.fmul(cvec, builder.load(vptr(p_i, o), align=8)) for o in offs]
