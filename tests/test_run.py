@@ -194,3 +194,28 @@ def test_openmp_spin_default_keeps_what_the_user_set(user, expected):
     code = "import os, dgtd; print(os.environ.get('GOMP_SPINCOUNT'))"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.strip() == str(expected)
+
+
+@pytest.mark.parametrize("layout", ["seed", "agent"])
+def test_numba_empty_block_changes_nothing(layout, monkeypatch):
+    """A block of no steps leaves the state, the running sums and the sample streams as they were (the agent
+    layout draws a step's samples ahead of its updates: none may be drawn here)."""
+    from dgtd.backends import numba_kernels
+    from dgtd.run.loop import prepare
+    from dgtd.run.sampling import ModelSource
+
+    monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
+    problem = random_problem(5, 4, 3, np.random.default_rng(3), reward_noise="bernoulli")
+    net, alg, B = random_edges(topologies.ring(4), 0.6), DGTD(alpha0=0.5, beta=10), 2
+    ctx, *_ = prepare(problem, net, alg, Sampling(), RunSettings(iterations=10, seeds=B))
+    source = ModelSource(problem, net, Sampling(), ctx.tables, 0, range(B), "numba")
+    source.start()
+    words = source.streams.pcg_words().copy()
+    state = alg.init(B, 4, 3)._replace(w=np.ones((B, 4, 3)))
+    sums = {"all": np.full((B, 4, 3), 2.0), "tail": np.full((B, 4, 3), 3.0)}
+    new_state, new_sums = numba_kernels.dgtd_block(ctx, state, sums, 0, np.zeros(0), source.draws(0))
+    for before, after in zip(state, new_state):
+        assert_array_equal(before, after)
+    assert_array_equal(new_sums["all"], sums["all"])
+    assert_array_equal(new_sums["tail"], sums["tail"])
+    assert_array_equal(source.streams.pcg_words(), words)

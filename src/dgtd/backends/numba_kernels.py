@@ -177,7 +177,7 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
     # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
     words = np.zeros((B, 3, 16), np.uint64)
     words[:, :, :4] = rng
-    for b in range(B):  # step 0's samples
+    for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
         n_up[b] += _step_samples(b, b, 0, fused, words, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
                                  sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t)
     for t in range(T):
