@@ -100,14 +100,16 @@ def test_compiled_pcg64_is_numpys_stream():
     the advanced words back continues where the kernel stopped."""
     from numba import njit
 
-    from dgtd.backends.numba_rng import next_double
+    from dgtd.backends.numba_rng import pcg_step
 
     @njit
     def draw(words, n):
         out = np.empty((words.shape[0], n))
         for b in range(words.shape[0]):
+            hi, lo = words[b, 1, 0], words[b, 1, 1]
             for t in range(n):
-                out[b, t] = next_double(words, b, 1)
+                hi, lo, out[b, t] = pcg_step(hi, lo, words[b, 1, 2], words[b, 1, 3])
+            words[b, 1, 0], words[b, 1, 1] = hi, lo
         return out
 
     a = Streams(5, [0, 4], 1, 3, 2, mode="iid", reward_noise=True, random_edges=True)

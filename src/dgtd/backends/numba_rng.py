@@ -41,7 +41,9 @@ def _mulhi(typingctx, a, b):
 
 @njit(cache=True, inline="always")
 def pcg_step(hi, lo, inc_hi, inc_lo):
-    """One step of a PCG64 stream held in registers: (state hi, state lo, uniform in [0, 1))."""
+    """One step of a PCG64 stream: (state hi, state lo, uniform in [0, 1)), the state as four uint64 words
+    (state hi, state lo, increment hi, increment lo). A loop of draws keeps the state in registers and writes it
+    back once: written back after every draw, it would put a store and a load on the chain between draws."""
     # state * M + inc, modulo 2^128
     lo_m = lo * _M_LO
     hi_m = _mulhi(lo, _M_LO) + lo * _M_HI + hi * _M_LO
@@ -52,17 +54,6 @@ def pcg_step(hi, lo, inc_hi, inc_lo):
     rot = hi_n >> _SHIFT_ROT
     out = (x >> rot) | (x << ((_ZERO - rot) & _ROT_MASK))
     return hi_n, lo_n, np.float64(out >> _SHIFT_53) * _TO_UNIT
-
-
-@njit(cache=True, inline="always")
-def next_double(rng, b, k):
-    """Next uniform in [0, 1) of stream k of seed b; rng[b, k] = (state hi, state lo, inc hi, inc lo). Loops of
-    draws should hold the state in registers with `pcg_step` instead: written back to memory after every draw,
-    the state puts a store and a load on the chain from one draw to the next."""
-    hi, lo, u = pcg_step(rng[b, k, 0], rng[b, k, 1], rng[b, k, 2], rng[b, k, 3])
-    rng[b, k, 0] = hi
-    rng[b, k, 1] = lo
-    return u
 
 
 def pcg_words(generators) -> np.ndarray:

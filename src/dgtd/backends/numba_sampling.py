@@ -130,21 +130,21 @@ def _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, 
         for i in range(N):
             r_t[row, i] = r_blk[t, b, i]
         return
-    hi, lo = rng[b, 0, 0], rng[b, 0, 1]  # the stream's state stays in registers over the loop (`pcg_step`)
+    hi, lo, inc_hi, inc_lo = rng[b, 0, 0], rng[b, 0, 1], rng[b, 0, 2], rng[b, 0, 3]  # in registers (`pcg_step`)
     for o in range(n_obs):
         u_s = 0.0
         if not markov:  # drawn first, as `Streams.draw` lays them out
-            hi, lo, u_s = pcg_step(hi, lo, rng[b, 0, 2], rng[b, 0, 3])
-        hi, lo, u_sa = pcg_step(hi, lo, rng[b, 0, 2], rng[b, 0, 3])
+            hi, lo, u_s = pcg_step(hi, lo, inc_hi, inc_lo)
+        hi, lo, u_sa = pcg_step(hi, lo, inc_hi, inc_lo)
         s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias,
                                                              sa_prob, sa_alias, S)
     rng[b, 0, 0], rng[b, 0, 1] = hi, lo
-    hi, lo = rng[b, 1, 0], rng[b, 1, 1]
+    hi, lo, inc_hi, inc_lo = rng[b, 1, 0], rng[b, 1, 1], rng[b, 1, 2], rng[b, 1, 3]
     for i in range(N):
         o = i if n_obs == N else 0
         r = R_sample[i, s_t[row, o], a_t[row, o]]
         if noise != 0:
-            hi, lo, u = pcg_step(hi, lo, rng[b, 1, 2], rng[b, 1, 3])
+            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
             r = _reward(r, sigma, noise, u)
         r_t[row, i] = r
     rng[b, 1, 0], rng[b, 1, 1] = hi, lo

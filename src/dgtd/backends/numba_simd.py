@@ -1,9 +1,11 @@
-"""Dot products in explicit vector instructions, for the compiled kernels.
+"""Dot products, neighbour sums and dense updates in explicit vector instructions, for the compiled kernels.
 
 Without fastmath, LLVM may not reorder a floating-point sum, so a plain loop `acc += x[f] * y[f]` stays scalar.
 `_dots3` writes the vector code itself: four lanes, lane l summing the products f = l, l + 4, l + 8, ... in
 order, then (lane 0 + lane 1) + (lane 2 + lane 3), then the q mod 4 remaining products in order. The order is
-fixed by the code, not by the compiler, so every process gets the same bits.
+fixed by the code, not by the compiler, so every process gets the same bits. `_laplacian_rows` and
+`_dense_updates` keep each element's arithmetic as plain code writes it and only choose how many elements
+travel together.
 """
 
 from __future__ import annotations
@@ -109,11 +111,11 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
         m16 = builder.and_(m, ir.Constant(i64, ~15))
 
         def blocks(rows):
-            """The blocks of sixteen elements, with the neighbours' rows ``rows()``."""
+            """The blocks of sixteen elements, with the neighbours' rows ``rows`` (pointers, in order)."""
             with cgutils.for_range_slice(builder, zero, m16, ir.Constant(i64, 16)) as (f, _):
                 offs = [builder.add(f, ir.Constant(i64, 4 * k)) for k in range(4)]
                 acc = [builder.fmul(cvec, builder.load(vptr(p_i, o), align=8)) for o in offs]
-                for p_j in rows():
+                for p_j in rows:
                     acc = [builder.fsub(a, builder.load(vptr(p_j, o), align=8)) for a, o in zip(acc, offs)]
                 for a, o in zip(acc, offs):
                     builder.store(a, vptr(p_l, o), align=8)
@@ -138,8 +140,7 @@ def _laplacian_rows(typingctx, Z, b, i, js, count, L, l):
             case = builder.append_basic_block(f"laplacian_{n}_neighbours")
             switch.add_case(ir.Constant(i64, n), case)
             builder.position_at_end(case)
-            p_js_n = [neighbour_row(ir.Constant(i64, k)) for k in range(n)]
-            blocks(lambda: p_js_n)
+            blocks([neighbour_row(ir.Constant(i64, k)) for k in range(n)])
             builder.branch(done)
         builder.position_at_end(other)
         looped()
