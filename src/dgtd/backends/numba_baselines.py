@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from dgtd.backends.numba_cache import load_quickly
 from dgtd.run.sampling import Block
 
 
@@ -128,6 +129,9 @@ def _distributed_td_kernel(kind, w, mu, sum_all, sum_tail, k0, tail_start, alpha
                     else:
                         w[b, i, f] += alpha * (c * Phi[s, f] - eta * Lw[i, f] - eta * Lmu[i, f])
                         mu[b, i, f] += alpha * eta * Lw[i, f]
+
+
+load_quickly(_gtd_kernel, _distributed_td_kernel)
 
 
 def _f64(x):

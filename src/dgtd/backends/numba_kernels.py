@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from dgtd.backends.numba_cache import load_quickly
 from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
 from dgtd.backends.numba_sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.numba_simd import _dense_updates, _dots3, _laplacian_rows
@@ -210,6 +211,9 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
                             n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, up_blk, up_t)
     rng[:, :, :] = words[:, :, :4]
     return T
+
+
+load_quickly(_dgtd_by_seed, _dgtd_by_agent)
 
 
 def feature_arrays(ctx):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from dgtd.backends.numba_cache import load_quickly
 from dgtd.backends.numba_rng import pcg_step
 from dgtd.run.sampling import Block, Draws
 
@@ -83,6 +84,9 @@ def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, 
             b = flat % B
             for e in range(E):
                 up_out[t, b, e] = u_edge[t, b, e] < p_edge[e]
+
+
+load_quickly(_sample_kernel)
 
 
 def block_from_uniforms(problem, network, tables, U: dict, current):

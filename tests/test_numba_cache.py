@@ -1,0 +1,79 @@
+"""Cached kernels load without numba's registry refresh, and a cache miss still compiles from a refreshed context."""
+
+import subprocess
+import sys
+
+import numpy as np
+from conftest import cli_env
+from numba.core.runtime import rtsys
+
+from dgtd.backends import numba_cache
+
+
+class FakeContext:
+    def __init__(self):
+        self.refreshed = 0
+
+    def refresh(self):
+        self.refreshed += 1
+
+
+class FakeCache:
+    """What `_load_without_refresh` uses of a numba cache: a hit returns the stored overload, a miss None."""
+
+    def __init__(self, stored):
+        self.stored = stored
+
+    def _guard_against_spurious_io_errors(self):
+        import contextlib
+
+        return contextlib.nullcontext()
+
+    def _load_overload(self, sig, target_context):
+        return self.stored.get(sig)
+
+
+def test_hit_loads_without_refresh_and_miss_refreshes_before_compiling(monkeypatch):
+    monkeypatch.setattr(rtsys, "initialize", lambda ctx: None)  # the fake context has no runtime to start
+    cache, ctx = FakeCache({"sig": "overload"}), FakeContext()
+    assert numba_cache._load_without_refresh(cache, "sig", ctx) == "overload"
+    assert ctx.refreshed == 0
+    assert numba_cache._load_without_refresh(cache, "other", ctx) is None
+    assert ctx.refreshed == 1  # numba compiles next, with every typing and lowering registered
+
+
+def test_load_quickly_leaves_dispatchers_without_these_internals_alone():
+    class NoCache:
+        _cache = object()
+
+    d = NoCache()
+    numba_cache.load_quickly(d)
+    assert not hasattr(d._cache, "load_overload")
+
+
+SECOND_PROCESS = """
+import sys
+import numpy as np
+from dgtd.problems.scenarios import get_scenario
+from dgtd.run.loop import RunSettings, run
+from dgtd.run.sampling import Sampling
+sc = get_scenario("paper-example-1")
+res = run(sc.problem, sc.network, sc.algorithm, Sampling(), RunSettings(iterations=500, seeds=2, checkpoints=2,
+          backend="numba"))
+np.save(sys.argv[1], res.w_last)
+print("refreshed" if "numba.np.linalg" in sys.modules else "not refreshed")
+"""
+
+
+def test_a_second_process_loads_the_cached_kernel_without_refresh(tmp_path):
+    """The first process may compile (a cold cache); the second loads the kernel from the cache without importing
+    numba's registries (numba.np.linalg is one of them) and gets the same numbers bit for bit."""
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"w{k}.npy"
+        r = subprocess.run([sys.executable, "-c", SECOND_PROCESS, str(out)], capture_output=True, text=True,
+                           env=cli_env())
+        assert r.returncode == 0, r.stderr
+        outs.append((r.stdout.strip(), np.load(out)))
+    assert outs[1][0] == "not refreshed"
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
