@@ -1,13 +1,8 @@
-"""Graphs for the compiled kernels: CSR neighbour lists with edge ids, the storage order of the agents, and
-prefetching of neighbours' rows."""
+"""Graphs for the compiled kernels: CSR neighbour lists with edge ids and the storage order of the agents."""
 
 from __future__ import annotations
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
 
 def per_run(ctx, key: str, build):
@@ -68,33 +63,3 @@ def storage_graph(ctx):
         return (*csr_adjacency(order[1][ctx.network.base.edges], ctx.network.n_nodes), order[0])
 
     return per_run(ctx, "storage_csr", build)
-
-
-@intrinsic
-def _prefetch(typingctx, arr, i0, i1, i2):
-    """Ask the caches for element [i0, i1, i2] of a 3-D array (a hint: no effect on any result)."""
-    sig = types.void(arr, i0, i1, i2)
-
-    def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, args[1:], wraparound=False)
-        i32 = ir.IntType(32)
-        fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
-        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
-        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@njit(cache=True, inline="always")
-def _prefetch_rows(Z, b, i, up, ub, indptr, nbr, eid):
-    """Prefetch the packed rows of agent i's neighbours that are up: on large graphs they are scattered in
-    memory, and the next agent's rows arrive while this agent computes."""
-    m = Z.shape[2]
-    for p in range(indptr[i], indptr[i + 1]):
-        if up[ub, eid[p]]:
-            j = nbr[p]
-            for f in range(0, m, 8):  # one 64-byte line holds 8 doubles
-                _prefetch(Z, b, j, f)

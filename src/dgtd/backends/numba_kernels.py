@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from dgtd.backends.numba_cache import load_quickly
-from dgtd.backends.numba_graph import _prefetch_rows, per_run, storage_graph, storage_order
+from dgtd.backends.numba_graph import per_run, storage_graph, storage_order
 from dgtd.backends.numba_sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.numba_simd import _dense_updates, _dots3, _laplacian_rows
 from dgtd.run.sampling import Draws
@@ -193,8 +193,6 @@ def _dgtd_by_agent(theta, V, MU, Z, Z2, sum_all, sum_tail, k0, tail_start, alpha
                 i = flat % N
                 o = agent_of[i] if n_obs == N else 0
                 s, a = s_t[now + b, o], a_t[now + b, o]
-                if flat + 1 < hi:  # the next agent's neighbour rows arrive while this agent computes
-                    _prefetch_rows(Zi, (flat + 1) // N, (flat + 1) % N, up_t, now + (flat + 1) // N, indptr, nbr, eid)
                 _laplacian_row(Zi, b, i, up_t, now + b, indptr, nbr, eid, L, 0, J)
                 _agent_step(b, i, s, sn_t[now + b, o], r_t[now + b, agent_of[i]], ratio_tab[s, a], alphas[t],
                             k0 + t >= tail_start, theta, V, MU, Zi, Zo, L, 0, sum_all, sum_tail, Phi, sparse, ptr, idx,
