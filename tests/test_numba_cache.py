@@ -1,5 +1,6 @@
 """Cached kernels load without numba's registry refresh, and a cache miss still compiles from a refreshed context."""
 
+import contextlib
 import subprocess
 import sys
 
@@ -25,8 +26,6 @@ class FakeCache:
         self.stored = stored
 
     def _guard_against_spurious_io_errors(self):
-        import contextlib
-
         return contextlib.nullcontext()
 
     def _load_overload(self, sig, target_context):

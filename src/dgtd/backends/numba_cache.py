@@ -9,6 +9,8 @@ numba's compiler refreshes the context itself before any compilation in the proc
 
 from __future__ import annotations
 
+from functools import partial
+
 
 def _load_without_refresh(cache, sig, target_context):
     """`numba.core.caching.Cache.load_overload` less the registry refresh when the cache holds ``sig``."""
@@ -29,5 +31,4 @@ def load_quickly(*dispatchers) -> None:
         cache = getattr(dispatcher, "_cache", None)
         if not all(hasattr(cache, name) for name in ("_load_overload", "_guard_against_spurious_io_errors")):
             continue
-        cache.load_overload = lambda sig, target_context, cache=cache: _load_without_refresh(cache, sig,
-                                                                                              target_context)
+        cache.load_overload = partial(_load_without_refresh, cache)

@@ -4,7 +4,7 @@ The DGTD kernels draw their own samples from the seeds' PCG64 streams (`dgtd.bac
 same samples as the NumPy reference, and apply the same updates, so for the same seed both backends give the
 same numbers up to floating-point summation order. Everything is compiled once and cached on disk
 (``cache=True``). numba keys each cached kernel by its own file only: after editing a helper that the kernels
-inline from numba_sampling, numba_graph, numba_rng or numba_simd, delete the __pycache__ folder here
+inline from numba_sampling, numba_rng or numba_simd, delete the __pycache__ folder here
 (installed copies are rewritten whole on upgrade, so only working trees are concerned).
 """
 
