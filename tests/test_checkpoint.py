@@ -99,3 +99,25 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     assert code == 0 and "resuming" in out_text, err
     code, _, err = run_cli("run", "--resume", tmp_path / "nothing")
     assert code == 2 and "does not exist" in err
+
+
+def test_checkpoint_of_another_format_is_refused(tmp_path):
+    """A checkpoint written by another file format (1 kept a second running sum for the tail average) is refused
+    with one line that says so, not misread."""
+    import io
+
+    from dgtd.errors import DgtdInputError
+    from dgtd.run import checkpoint
+
+    path = tmp_path / "c.npz"
+    save_checkpoint(path, {"k": 1, "sums": {"all": np.zeros(3)}}, {"spec": "x"})
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("__meta__")))
+    meta["format"] = 1
+    buf = io.BytesIO()
+    np.savez(buf, __meta__=np.array(json.dumps(meta)), **arrays)
+    path.write_bytes(buf.getvalue())
+    assert checkpoint.FORMAT == 2
+    with pytest.raises(DgtdInputError, match="has format 1, this dgtd reads 2"):
+        load_checkpoint(path)

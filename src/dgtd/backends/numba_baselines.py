@@ -50,16 +50,14 @@ def _dots(Phi, s, sn, x, y):
 
 
 @njit(cache=True, inline="always")
-def _add_sums(w, b, k, tail_start, sum_all, sum_tail):
+def _add_sums(w, b, sum_all):
     for e in range(w.shape[1]):
         for f in range(w.shape[2]):
             sum_all[b, e, f] += w[b, e, f]
-            if k >= tail_start:
-                sum_tail[b, e, f] += w[b, e, f]
 
 
 @njit(cache=True, parallel=True)
-def _gtd_kernel(kind, w, theta, sum_all, sum_tail, k0, tail_start, alphas, eta, s_blk, a_blk, sn_blk, r_blk,
+def _gtd_kernel(kind, w, theta, sum_all, alphas, eta, s_blk, a_blk, sn_blk, r_blk,
                 Phi, ratio_tab, gamma):
     """kind 0: TD(0), 1: GTD2, 2: TDC. Centralised when w has one row (mean over the N transitions), else
     per agent (`local`). theta is unused by TD(0)."""
@@ -73,7 +71,7 @@ def _gtd_kernel(kind, w, theta, sum_all, sum_tail, k0, tail_start, alphas, eta, 
         dw = np.empty((n_est, q))
         dth = np.empty((n_est, q))
         for t in range(T):
-            _add_sums(w, b, k0 + t, tail_start, sum_all, sum_tail)
+            _add_sums(w, b, sum_all)
             dw[:] = 0.0
             dth[:] = 0.0
             for i in range(N):
@@ -100,7 +98,7 @@ def _gtd_kernel(kind, w, theta, sum_all, sum_tail, k0, tail_start, alphas, eta, 
 
 
 @njit(cache=True, parallel=True)
-def _distributed_td_kernel(kind, w, mu, sum_all, sum_tail, k0, tail_start, alphas, eta, s_blk, a_blk, sn_blk,
+def _distributed_td_kernel(kind, w, mu, sum_all, alphas, eta, s_blk, a_blk, sn_blk,
                            r_blk, up, Phi, ratio_tab, gamma, indptr, nbr, eid):
     """kind 0: consensus TD(0) (Metropolis mixing); kind 1: pd-td (Laplacian primal-dual). mu unused by kind 0."""
     B, N, q = w.shape
@@ -112,7 +110,7 @@ def _distributed_td_kernel(kind, w, mu, sum_all, sum_tail, k0, tail_start, alpha
         Lmu = np.empty((N, q))
         deg = np.zeros(N, np.int64)
         for t in range(T):
-            _add_sums(w, b, k0 + t, tail_start, sum_all, sum_tail)
+            _add_sums(w, b, sum_all)
             alpha = alphas[t]
             _mix(w[b], up, t, b, has_up, indptr, nbr, eid, kind == 0, deg, Lw)
             if kind == 1:
@@ -138,20 +136,16 @@ def _f64(x):
     return np.array(x, dtype=np.float64, order="C")
 
 
-def _sums(sums):
-    return sums["all"].copy(), sums["tail"].copy()
-
-
 def _gtd_block(kind: int, ctx, state, sums, k0, alphas, blk: Block):
     w = _f64(state.w)
     theta = _f64(state.theta) if kind else np.zeros_like(w)
-    sum_all, sum_tail = _sums(sums)
+    sum_all = sums["all"].copy()
     eta = float(getattr(ctx.algorithm, "eta", 1.0))
-    _gtd_kernel(kind, w, theta, sum_all, sum_tail, k0, ctx.tail_start, np.ascontiguousarray(alphas), eta,
+    _gtd_kernel(kind, w, theta, sum_all, np.ascontiguousarray(alphas), eta,
                 blk.s, blk.a, blk.s_next, blk.r, np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
                 float(ctx.gamma))
     new = state._replace(w=w, theta=theta) if kind else state._replace(w=w)
-    return new, {"all": sum_all, "tail": sum_tail}
+    return new, {"all": sum_all}
 
 
 def td0_block(ctx, state, sums, k0, alphas, blk):
@@ -176,14 +170,14 @@ def _distributed_block(kind: int, ctx, state, sums, k0, alphas, blk: Block):
 
     w = _f64(state.w)
     mu = _f64(state.mu) if kind else np.zeros_like(w)
-    sum_all, sum_tail = _sums(sums)
+    sum_all = sums["all"].copy()
     indptr, nbr, eid = graph_arrays(ctx)
-    _distributed_td_kernel(kind, w, mu, sum_all, sum_tail, k0, ctx.tail_start, np.ascontiguousarray(alphas),
+    _distributed_td_kernel(kind, w, mu, sum_all, np.ascontiguousarray(alphas),
                            float(getattr(ctx.algorithm, "eta", 0.0)), blk.s, blk.a, blk.s_next, blk.r, up_mask(blk),
                            np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio), float(ctx.gamma),
                            indptr, nbr, eid)
     new = state._replace(w=w, mu=mu) if kind else state._replace(w=w)
-    return new, {"all": sum_all, "tail": sum_tail}
+    return new, {"all": sum_all}
 
 
 def consensus_td0_block(ctx, state, sums, k0, alphas, blk):

@@ -23,10 +23,7 @@ def _advance(ctx, state, sums, k0: int, alphas, blk: Block, step):
     sums = {k: v.copy() for k, v in sums.items()}
     estimate = ctx.algorithm.estimate
     for t in range(len(alphas)):
-        w = estimate(state)
-        sums["all"] += w
-        if k0 + t >= ctx.tail_start:
-            sums["tail"] += w
+        sums["all"] += estimate(state)
         state = step(state, t, *_sample(ctx, blk, t), alphas[t])
     return state, sums
 

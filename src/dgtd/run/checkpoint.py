@@ -17,7 +17,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.run.results import atomic_write
 
-FORMAT = 1
+FORMAT = 2  # 2: one running sum of w_k and the copy taken at the tail's start (1 kept a second sum)
 
 
 def _split(obj, key: str, arrays: dict):

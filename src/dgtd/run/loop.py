@@ -174,7 +174,10 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
         state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
     n_est = algorithm.estimate(state).shape[1]  # N agents' estimates, or 1 for a centralised learner
-    sums = {"all": np.zeros((B, n_est, q)), "tail": np.zeros((B, n_est, q))}
+    # Kernels keep one running sum of w_k; the tail average is its difference from a copy taken at tail_start (a
+    # block boundary), so no kernel reads or writes a second sum.
+    sums = {"all": np.zeros((B, n_est, q))}
+    tail_base = None
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
     names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg")
@@ -194,6 +197,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         k, c, seconds_before = int(resume["k"]), int(resume["c"]), float(resume["seconds"])
         state = state._make(np.array(resume["state"][f]) for f in state._fields)
         sums = {name: np.array(v) for name, v in resume["sums"].items()}
+        tail_base = None if resume.get("tail_base") is None else np.array(resume["tail_base"])
         metrics = {name: np.array(v) for name, v in resume["metrics"].items()}
         err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
         w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
@@ -211,7 +215,10 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         block = block_steps(settings.block_size, N, network.n_edges, B)
     t_loop = time.perf_counter()
     while k < T:
-        k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T)
+        if k == ctx.tail_start and tail_base is None:
+            tail_base = sums["all"].copy()
+        k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T,
+                 ctx.tail_start if k < ctx.tail_start else T)
         blk = source.draws(k1 - k) if fused else source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
@@ -257,7 +264,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         if every and k % every == 0 and k < T and on_checkpoint is not None:
             on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
                                    seconds_before + time.perf_counter() - t_start,
-                                   extra={"messages": messages, "diverged_at": diverged_at, "counts": counts}))
+                                   extra={"messages": messages, "diverged_at": diverged_at, "counts": counts,
+                                          **({} if tail_base is None else {"tail_base": tail_base})}))
     final = state._asdict()
     kkt = {}
     if isinstance(state, dgtd_alg.DGTDState):
@@ -266,7 +274,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
             exact.lagrangian_gradient(moments, L_mean, algorithm.kappa, algorithm.rho, *state))}
     return RunResult(
         steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
-        w_last=algorithm.estimate(state), w_avg=sums["all"] / T, w_tail=sums["tail"] / tail_window, tail_window=tail_window,
+        w_last=algorithm.estimate(state), w_avg=sums["all"] / T,
+        w_tail=(sums["all"] - (np.nan if tail_base is None else tail_base)) / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
         seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
