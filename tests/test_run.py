@@ -183,6 +183,7 @@ def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
 
     monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     monkeypatch.setattr(numba_graph, "RELABEL_MIN_AGENTS", 8)
+    monkeypatch.setattr(numba_graph, "NEARBY_ROWS", 3)  # twelve agents are all near at the default distance
     rng = np.random.default_rng(8)
     problem = random_problem(6, 12, 3, rng, reward_noise="uniform")
     net = random_edges(topologies.from_edges(12, [(i, (i + 5) % 12) for i in range(12)] + [(0, 1), (3, 4)], "chords"),
@@ -196,6 +197,24 @@ def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
     assert_allclose(fast.w_avg, ref.w_avg, rtol=1e-9, atol=1e-9 * scale)
     order = numba_graph.storage_order(type("Ctx", (), {"network": net})())
     assert order is not None and not np.array_equal(order[0], np.arange(12))  # the rows really were reordered
+
+
+def test_agents_are_reordered_only_where_that_makes_more_edges_local():
+    """A ring with random chords is local as numbered (its ring edges) and stays so; the same graph with its agents
+    numbered at random is reordered, and its reordering makes most edges local again."""
+    from dgtd.backends import numba_graph
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    edges = [(i, (i + 1) % n) for i in range(n)] + [tuple(rng.choice(n, 2, replace=False)) for _ in range(n)]
+    ctx = lambda graph: type("Ctx", (), {"network": random_edges(graph, 0.9)})()
+    assert numba_graph.storage_order(ctx(topologies.from_edges(n, edges, "ring-chords"))) is None
+    label = rng.permutation(n)
+    ring = [(label[i], label[(i + 1) % n]) for i in range(n)]
+    order = numba_graph.storage_order(ctx(topologies.from_edges(n, ring, "shuffled-ring")))
+    assert order is not None
+    assert numba_graph._local_fraction(np.array(ring), order[1]) > 0.9 > numba_graph._local_fraction(np.array(ring),
+                                                                                                  np.arange(n))
 
 
 @pytest.mark.parametrize("user, expected", [({}, "10000"), ({"OMP_WAIT_POLICY": "PASSIVE"}, None),
