@@ -73,9 +73,9 @@ def _row_value(ptr, idx, val, s, f):
 
 @njit(cache=True)
 def _sparse_td_feature(b, i, f, phs, phsn, c_theta, rt, alpha, S, Zi, Zo, J, count, gamma, kappa, rho, b_th, b_w):
-    c = float(count)
     """Feature f of w and theta with its nonzero phi_f(s) = phs or phi_f(s') = phsn, after a pass without the TD
     terms (`_sparse_step`): the arithmetic of `numba_simd._agent_pass`, from the same inputs."""
+    c = float(count)
     w = Zi[b, i, shared_index(f, W)]
     lw, lvm = c * w, c * Zi[b, i, shared_index(f, VMU)]
     for n in range(count):
