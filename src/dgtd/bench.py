@@ -147,27 +147,30 @@ def flops_per_agent_step(q: int, mean_degree: float) -> float:
     return 6 * q + 2 * q * mean_degree + 4 * q + 26 * q
 
 
-def _cpuinfo() -> tuple[float, set]:
-    """(nominal clock in GHz, instruction-set flags) of the first processor in /proc/cpuinfo (Linux), or (0, {})."""
-    ghz, flags = 0.0, set()
+def _cpuinfo() -> dict:
+    """The first processor's fields in /proc/cpuinfo (Linux; empty elsewhere): "model name", "cpu MHz", "flags"."""
+    fields: dict = {}
     try:
         for line in open("/proc/cpuinfo"):
             key, _, value = line.partition(":")
-            if key.strip() == "cpu MHz" and not ghz:
-                ghz = float(value) / 1000
-            elif key.strip() == "flags" and not flags:
-                flags = set(value.split())
-    except (OSError, ValueError):
+            if not key.strip() and fields:  # the blank line after the first processor
+                break
+            fields.setdefault(key.strip(), value.strip())
+    except OSError:
         pass
-    return ghz, flags
+    return fields
 
 
 def peak_flops(cores: int) -> tuple[float, str]:
     """Double-precision peak (flops/s) and how it was reckoned: cores x nominal clock x 2 FMA units x vector lanes
     (8 with AVX-512, 4 with AVX2, 2 otherwise) x 2 flops. The clock is the one /proc/cpuinfo reports (2.8 GHz
     where it reports none); a core that runs faster than it reaches a higher peak than the one stated."""
-    ghz, flags = _cpuinfo()
-    ghz = ghz or 2.8
+    info = _cpuinfo()
+    try:
+        ghz = float(info.get("cpu MHz", "")) / 1000
+    except ValueError:
+        ghz = 2.8
+    flags = set(info.get("flags", "").split())
     lanes, isa = (8, "AVX-512") if "avx512f" in flags else ((4, "AVX2") if "avx2" in flags else (2, "SSE2"))
     return cores * ghz * 1e9 * 2 * lanes * 2, f"2 {isa} FMA units per core at {ghz:.2f} GHz"
 
@@ -175,14 +178,7 @@ def peak_flops(cores: int) -> tuple[float, str]:
 def machine() -> str:
     import os
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = _cpuinfo().get("model name") or platform.processor() or platform.machine()
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
 
 

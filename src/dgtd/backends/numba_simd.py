@@ -160,7 +160,7 @@ def _agent_pass(typingctx, Zi, Zo, S, b, i, js, count, Phi, s, sn, s_next, sn_ne
     different array: the neighbours read step k); S[b, i] is its state row, updated in place. For each feature
     f, in this order: (L(k) w)_i and (L(k) (v + mu))_i as count Zi[b, i] - Zi[b, js[0]] - ... -
     Zi[b, js[count - 1]] (in registers, never stored); the running sum of w; v and mu, projected, and their sum;
-    w; theta (the arithmetic of `numba_kernels._sparse_step`). The new theta and w are still in registers when
+    w; theta (the arithmetic of `numba_kernels._sparse_td_feature`). The new theta and w are still in registers when
     the next step's dot products need them: the pass returns (phi(s_next)^T theta, phi(s_next)^T w,
     phi(sn_next)^T w) at step k + 1, summed in `_dots3`'s order, so that the next step need not read them again;
     with s_next and sn_next None it computes none of them and returns zeros (each variant is compiled apart).
