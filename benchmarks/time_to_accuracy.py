@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dgtd.algorithms.registry import ALGORITHMS
+from dgtd.algorithms import ALGORITHMS
 from dgtd.bench import machine
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.compare import CompareSettings, compare, configs_for

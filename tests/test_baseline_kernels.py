@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from dgtd.algorithms.registry import make_algorithm
+from dgtd.algorithms import make_algorithm
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import tasks
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 BASELINES = ("td0", "gtd2", "tdc", "local", "consensus-td0", "pd-td")
 

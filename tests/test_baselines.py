@@ -11,14 +11,14 @@ from numpy.testing import assert_allclose
 
 from dgtd.algorithms import consensus_td0, gtd2, local, pd_td, tdc, td0
 from dgtd.algorithms.dgtd import DGTD
-from dgtd.algorithms.registry import ALGORITHMS, make_algorithm, messages_per_edge
+from dgtd.algorithms import ALGORITHMS, make_algorithm, messages_per_edge
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import LaplacianOperator, random_edges
 from dgtd.problems import exact, tasks
 from dgtd.problems.model import make_problem
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 def small_mdp(off_policy: bool, n_agents: int = 3, seed: int = 3):

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from dgtd.algorithms.registry import make_algorithm
+from dgtd.algorithms import make_algorithm
 from dgtd.cli import main
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
@@ -18,7 +18,7 @@ from dgtd.problems import exact, tasks
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.compare import CompareSettings, compare, configs_for
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 def test_on_baird_td0_diverges_and_dgtd_and_gtd2_do_not():

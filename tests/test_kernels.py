@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from dgtd.backends.numba_simd import (MU, SHARED, STATE, SUM_W, THETA, UNROLLED_NEIGHBOURS, UNROLLED_WITHOUT_TD, V,
+from dgtd.backends.compiled.simd import (MU, SHARED, STATE, SUM_W, THETA, UNROLLED_NEIGHBOURS, UNROLLED_WITHOUT_TD, V,
                                       VMU, W, _agent_pass, _dots3, blocks, from_blocks, shared_index, state_index,
                                       to_blocks)
 

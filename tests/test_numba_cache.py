@@ -55,7 +55,7 @@ import sys
 import numpy as np
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 sc = get_scenario("paper-example-1")
 res = run(sc.problem, sc.network, sc.algorithm, Sampling(), RunSettings(iterations=500, seeds=2, checkpoints=2,
           backend="numba"))

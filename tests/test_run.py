@@ -15,7 +15,7 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems.generators import random_mdp_problem, random_problem
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 def small_run(backend="numpy", seeds=2, T=300, block=64, sampling=Sampling(), problem=None, p_edge=0.6, **kw):
@@ -46,7 +46,7 @@ def test_block_size_does_not_change_results(backend, layout, monkeypatch):
     """Blocks of 7 steps (odd: the agent layout's double buffers end a block on their other half, and its
     next-step samples must not run past the block) give the numbers of one block."""
     if layout:
-        from dgtd.backends import numba_kernels
+        from dgtd.backends.compiled.kernels import dgtd as numba_kernels
 
         monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     a = small_run(backend, block=7, sampling=Sampling("markov"), noise="bernoulli")
@@ -84,7 +84,7 @@ CASES = {
 @pytest.mark.parametrize("layout", ["seed", "agent"])
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_numba_matches_numpy(case, layout, monkeypatch):
-    from dgtd.backends import numba_kernels
+    from dgtd.backends.compiled.kernels import dgtd as numba_kernels
 
     monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     ref = small_run("numpy", **CASES[case])
@@ -101,7 +101,7 @@ def test_numba_matches_numpy(case, layout, monkeypatch):
 def test_numba_draws_in_kernel_the_samples_of_a_block(layout, monkeypatch):
     """The compiled DGTD kernel draws its own samples (`Draws`); fed the materialised `Block` of the same streams
     instead, it must give the same numbers to the last bit, block after block."""
-    from dgtd.backends import numba_kernels
+    from dgtd.backends.compiled.kernels import dgtd as numba_kernels
 
     monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     case = dict(sampling=Sampling("markov"), noise="uniform", block=37)
@@ -179,7 +179,8 @@ def test_settings_validation():
 def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
     """Large graphs are stored in reverse Cuthill-McKee order inside the compiled DGTD kernel (lowered here to 8
     agents): samples, rewards and results must still belong to the right agents."""
-    from dgtd.backends import numba_graph, numba_kernels
+    from dgtd.backends.compiled import graph as numba_graph
+    from dgtd.backends.compiled.kernels import dgtd as numba_kernels
 
     monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     monkeypatch.setattr(numba_graph, "RELABEL_MIN_AGENTS", 8)
@@ -202,7 +203,7 @@ def test_numba_relabelled_rows_match_numpy(layout, monkeypatch):
 def test_agents_are_reordered_only_where_that_makes_more_edges_local():
     """A ring with random chords is local as numbered (its ring edges) and stays so; the same graph with its agents
     numbered at random is reordered, and its reordering makes most edges local again."""
-    from dgtd.backends import numba_graph
+    from dgtd.backends.compiled import graph as numba_graph
 
     rng = np.random.default_rng(0)
     n = 2000
@@ -232,9 +233,9 @@ def test_openmp_spin_default_keeps_what_the_user_set(user, expected):
 def test_numba_empty_block_changes_nothing(layout, monkeypatch):
     """A block of no steps leaves the state, the running sums and the sample streams as they were (the agent
     layout draws a step's samples ahead of its updates: none may be drawn here)."""
-    from dgtd.backends import numba_kernels
+    from dgtd.backends.compiled.kernels import dgtd as numba_kernels
     from dgtd.run.loop import prepare
-    from dgtd.run.sampling import ModelSource
+    from dgtd.sources.model import ModelSource
 
     monkeypatch.setattr(numba_kernels, "LAYOUT", layout)
     problem = random_problem(5, 4, 3, np.random.default_rng(3), reward_noise="bernoulli")
@@ -244,9 +245,9 @@ def test_numba_empty_block_changes_nothing(layout, monkeypatch):
     source.start()
     words = source.streams.pcg_words().copy()
     state = alg.init(B, 4, 3)._replace(w=np.ones((B, 4, 3)))
-    sums = {"all": np.full((B, 4, 3), 2.0)}
-    new_state, new_sums = numba_kernels.dgtd_block(ctx, state, sums, 0, np.zeros(0), source.draws(0))
+    w_sum = np.full((B, 4, 3), 2.0)
+    new_state, new_sum = numba_kernels.dgtd_block(ctx, state, w_sum, np.zeros(0), source.draws(0))
     for before, after in zip(state, new_state):
         assert_array_equal(before, after)
-    assert_array_equal(new_sums["all"], sums["all"])
+    assert_array_equal(new_sum, w_sum)
     assert_array_equal(source.streams.pcg_words(), words)

@@ -8,7 +8,7 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.problems.generators import random_problem
-from dgtd.run.sampling import (ModelSource, Sampling, SamplerTables, Streams, alias_pick, alias_table,
+from dgtd.sources.model import (ModelSource, Sampling, SamplerTables, Streams, alias_pick, alias_table,
                                reward_from_uniform)
 
 
@@ -100,7 +100,7 @@ def test_compiled_pcg64_is_numpys_stream():
     the advanced words back continues where the kernel stopped."""
     from numba import njit
 
-    from dgtd.backends.numba_rng import pcg_step
+    from dgtd.backends.compiled.rng import pcg_step
 
     @njit
     def draw(words, n):

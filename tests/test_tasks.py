@@ -14,9 +14,9 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
 from dgtd.problems.model import chain_period, make_problem
 from dgtd.problems.scenarios import SCENARIOS, get_scenario
-from dgtd.algorithms.registry import make_algorithm
+from dgtd.algorithms import make_algorithm
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 def test_baird_w_star_by_hand():

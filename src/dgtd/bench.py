@@ -21,7 +21,7 @@ from dgtd.problems.generators import random_problem
 from dgtd.problems.model import Problem
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import click
 
 
 def _names(text: str | None) -> tuple[str, ...]:
-    from dgtd.algorithms.registry import ALGORITHMS
+    from dgtd.algorithms import ALGORITHMS
 
     if text is None:
         return tuple(ALGORITHMS)
@@ -44,7 +44,7 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
     from dgtd.problems.scenarios import get_scenario
     from dgtd.run.compare import CompareSettings, compare as run_compare, configs_for, write_compare
     from dgtd.run.loop import RunSettings
-    from dgtd.run.sampling import Sampling
+    from dgtd.sources.model import Sampling
 
     sc = get_scenario(scenario, **({} if edge_prob is None else {"edge_prob": edge_prob}))
     samp = Sampling(mode=sampling or sc.sampling.mode, shared=sc.sampling.shared if shared is None else shared)

@@ -20,7 +20,7 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
 from dgtd.problems.scenarios import get_scenario
 from dgtd.run.loop import RunSettings
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,14 @@
-"""Algorithms by name: each entry is a frozen config class with ``name``, ``init`` and ``estimate``.
+"""The algorithms, each a frozen dataclass of hyperparameters with pure ``init`` / ``update`` / ``estimate``
+(`dgtd.algorithms.base`), registered by name in `ALGORITHMS`.
 
-Configs, experiment files and sweeps look algorithms up here (never by a hard-coded list); the block
-kernels that advance them are registered by the same name in each backend's ``BLOCKS``. Besides DGTD
-(the paper's Algorithm 1) they are the baselines it is compared with (`dgtd.algorithms.registry`).
+Configs, experiment files, sweeps, comparisons and kernels look algorithms up here by name, never by a list of their
+own. Besides DGTD (the paper's Algorithm 1) they are the baselines it is compared with. Adding an algorithm is one
+file with its class, and a line below.
 """
+
+from __future__ import annotations
+
+import dataclasses
 
 from dgtd.algorithms.consensus_td0 import ConsensusTD0
 from dgtd.algorithms.dgtd import DGTD
@@ -11,6 +16,33 @@ from dgtd.algorithms.gtd2 import GTD2
 from dgtd.algorithms.local import Local
 from dgtd.algorithms.pd_td import PDTD
 from dgtd.algorithms.td0 import TD0
+from dgtd.algorithms.td_tracking import TDTracking
 from dgtd.algorithms.tdc import TDC
+from dgtd.errors import DgtdInputError
 
-ALGORITHMS = {cls.name: cls for cls in (DGTD, GTD2, TDC, TD0, ConsensusTD0, PDTD, Local)}
+ALGORITHMS = {cls.name: cls for cls in (DGTD, GTD2, TDC, TD0, ConsensusTD0, PDTD, TDTracking, Local)}
+
+
+def make_algorithm(name: str, **fields):
+    """The algorithm ``name`` with ``fields`` overriding its defaults.
+
+    >>> make_algorithm("gtd2", alpha0=0.5).eta
+    1.0
+    """
+    if name not in ALGORITHMS:
+        raise DgtdInputError(f"unknown algorithm {name!r} (known: {', '.join(ALGORITHMS)})")
+    cls = ALGORITHMS[name]
+    known = {f.name for f in dataclasses.fields(cls)}
+    bad = sorted(set(fields) - known)
+    if bad:
+        raise DgtdInputError(f"algorithm {name} has no setting {', '.join(bad)} (it has: {', '.join(sorted(known))})")
+    return cls(**fields)
+
+
+def messages_per_edge(algorithm) -> int:
+    """Parameter vectors an up link carries per step, both directions together."""
+    return 2 * int(algorithm.vectors_per_link)
+
+
+__all__ = ["ALGORITHMS", "ConsensusTD0", "DGTD", "GTD2", "Local", "PDTD", "TD0", "TDC", "TDTracking",
+           "make_algorithm", "messages_per_edge"]

@@ -16,52 +16,31 @@ run reports that. Each agent sends one vector (w_i) to each neighbour per step.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.stepsizes import check_schedule
-from dgtd.algorithms.td0 import td_error
-
-
-@dataclass(frozen=True)
-class ConsensusTD0:
-    """Consensus TD(0) with Metropolis weights; ``alpha0``, ``beta``, ``schedule`` give alpha_k."""
-
-    alpha0: float = 0.1
-    beta: float = 1.0
-    schedule: str = "sqrt"
-
-    name = "consensus-td0"
-    vectors_per_direction = 1  # w_i
-
-    def __post_init__(self):
-        check_schedule(self.schedule, self.alpha0, self.beta)
-
-    def init(self, n_seeds: int, n_agents: int, n_features: int) -> "ConsensusState":
-        return ConsensusState(np.zeros((n_seeds, n_agents, n_features)))
-
-    @staticmethod
-    def estimate(state: "ConsensusState") -> np.ndarray:
-        return state.w
+from dgtd.algorithms.base import StepSizes, ratio_td_step, zeros
+from dgtd.samples import Sample
 
 
 class ConsensusState(NamedTuple):
     w: np.ndarray  # (B, N, q)
 
 
-def metropolis_weights(edges: np.ndarray, up: np.ndarray, n_nodes: int) -> np.ndarray:
-    """W_ij = 1 / (1 + max(d_i, d_j)) on each edge (i, j) up, else 0; ``up`` (..., E) bool -> (..., E) float."""
-    up = np.asarray(up, dtype=np.float64)
-    ends = np.zeros((edges.shape[0], n_nodes))
-    ends[np.arange(edges.shape[0]), edges[:, 0]] = 1.0
-    ends[np.arange(edges.shape[0]), edges[:, 1]] = 1.0
-    deg = up @ ends  # (..., N): links up at each agent
-    return up / (1.0 + np.maximum(deg[..., edges[:, 0]], deg[..., edges[:, 1]]))
+@dataclass(frozen=True)
+class ConsensusTD0(StepSizes):
+    """Consensus TD(0) with Metropolis weights; ``alpha0``, ``beta``, ``schedule`` give alpha_k."""
 
+    name: ClassVar[str] = "consensus-td0"
+    description: ClassVar[str] = "distributed TD(0) with Metropolis consensus (Doan, Maguluri, Romberg 2019)"
+    color: ClassVar[str] = "#2ca02c"
+    vectors_per_link: ClassVar[int] = 1  # w_i
 
-def update(state: ConsensusState, phi, phi_next, r, ratio, mix, alpha: float, gamma: float) -> ConsensusState:
-    """One step; ``mix(X)`` applies L_W(k) along the agent axis, so W(k) w = w - mix(w)."""
-    w = state.w
-    delta = td_error(w, phi, phi_next, r, gamma)
-    return ConsensusState(w - mix(w) + alpha * (np.broadcast_to(ratio, delta.shape) * delta)[..., None] * phi)
+    def init(self, seeds: int, agents: int, features: int) -> ConsensusState:
+        return ConsensusState(*zeros(seeds, agents, features, 1))
+
+    def update(self, state: ConsensusState, sample: Sample, links, alpha: float) -> ConsensusState:
+        """W(k) w + alpha_k ratio delta phi, with W(k) w = w - L_W(k) w (`dgtd.graphs.links.Links.metropolis`)."""
+        w = state.w
+        return ConsensusState(w - links.metropolis(w) + alpha * ratio_td_step(sample, w))

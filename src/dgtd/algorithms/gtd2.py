@@ -16,13 +16,12 @@ the N transitions the agents observed (see `dgtd.algorithms.td0`); `local` appli
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.stepsizes import check_schedule
-from dgtd.algorithms.td0 import agent_mean, dot, td_error
-from dgtd.errors import DgtdInputError
+from dgtd.algorithms.base import StepSizes, agent_mean, check_nonnegative, dot, td_error, zeros
+from dgtd.samples import Sample
 
 
 class GTDState(NamedTuple):
@@ -30,70 +29,48 @@ class GTDState(NamedTuple):
     theta: np.ndarray
 
 
-def check_eta(eta: float) -> None:
-    if not (np.isfinite(eta) and eta > 0):
-        raise DgtdInputError(f"eta (auxiliary step size / main step size) must be positive, got {eta}")
-
-
 @dataclass(frozen=True)
-class GTDConfig:
-    """Fields shared by the centralised two-timescale gradient-TD learners (GTD2, TDC).
+class GTDConfig(StepSizes):
+    """Fields shared by the two-timescale gradient-TD learners (GTD2, TDC, local GTD2).
 
     - ``alpha0``, ``beta``, ``schedule``: the value step sizes alpha_k (see `dgtd.algorithms.stepsizes`).
     - ``eta``: the auxiliary step size is eta alpha_k (Sutton et al. 2009's beta = eta alpha).
     """
 
-    alpha0: float = 0.1
-    beta: float = 1.0
-    schedule: str = "sqrt"
     eta: float = 1.0
 
-    vectors_per_direction = 0
+    vectors_per_link: ClassVar[int] = 0
 
     def __post_init__(self):
-        check_schedule(self.schedule, self.alpha0, self.beta)
-        check_eta(self.eta)
+        super().__post_init__()
+        check_nonnegative("eta (auxiliary step size / main step size)", self.eta, strict=True)
 
-    def init(self, n_seeds: int, n_agents: int, n_features: int) -> GTDState:
-        z = np.zeros((n_seeds, 1, n_features))
-        return GTDState(z, z.copy())
+    def init(self, seeds: int, agents: int, features: int) -> GTDState:
+        return GTDState(*zeros(seeds, 1, features, 2))
 
-    @staticmethod
-    def estimate(state: GTDState) -> np.ndarray:
-        return state.w
+
+def theta_terms(state: GTDState, sample: Sample) -> np.ndarray:
+    """Per-agent auxiliary terms (ratio_i delta_i - phi_i^T theta) phi_i, shape (B, N, q)."""
+    delta = td_error(sample, state.w)
+    return (np.broadcast_to(sample.ratio, delta.shape) * delta - dot(sample.phi, state.theta))[..., None] * sample.phi
+
+
+def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
+    """Per-agent GTD2 value terms ratio_i (phi_i - gamma phi'_i) (phi_i^T theta), shape (B, N or 1, q)."""
+    phi, phi_next, _, ratio, gamma = sample
+    return (ratio * dot(phi, state.theta))[..., None] * (phi - gamma * phi_next)
 
 
 @dataclass(frozen=True)
 class GTD2(GTDConfig):
     """Centralised GTD2 on the average reward; fields as `GTDConfig`."""
 
-    name = "gtd2"
+    name: ClassVar[str] = "gtd2"
+    description: ClassVar[str] = "centralised GTD2 on the average reward (Sutton et al. 2009)"
+    color: ClassVar[str] = "#1f77b4"
 
-
-def theta_terms(w, theta, phi, phi_next, r, ratio, gamma: float) -> np.ndarray:
-    """Per-agent auxiliary terms (ratio_i delta_i - phi_i^T theta) phi_i, shape (B, N, q)."""
-    delta = td_error(w, phi, phi_next, r, gamma)
-    return (np.broadcast_to(ratio, delta.shape) * delta - dot(phi, theta))[..., None] * phi
-
-
-def w_terms(theta, phi, phi_next, ratio, gamma: float) -> np.ndarray:
-    """Per-agent GTD2 value terms ratio_i (phi_i - gamma phi'_i) (phi_i^T theta), shape (B, N or 1, q)."""
-    return (ratio * dot(phi, theta))[..., None] * (phi - gamma * phi_next)
-
-
-def increments(state: GTDState, phi, phi_next, r, ratio, gamma: float, central: bool = True):
-    """(dw, dtheta) of GTD2: averaged over the agents' transitions (central) or per agent (local)."""
-    N = r.shape[1]
-    dw = w_terms(state.theta, phi, phi_next, ratio, gamma)
-    dtheta = theta_terms(state.w, state.theta, phi, phi_next, r, ratio, gamma)
-    if central:
-        return agent_mean(dw, N), agent_mean(dtheta, N)
-    shape = (r.shape[0], N, phi.shape[2])
-    return np.broadcast_to(dw, shape), dtheta
-
-
-def update(state: GTDState, phi, phi_next, r, ratio, alpha: float, eta: float, gamma: float,
-           central: bool = True) -> GTDState:
-    """One GTD2 step: both updates use the values at step k."""
-    dw, dtheta = increments(state, phi, phi_next, r, ratio, gamma, central)
-    return GTDState(state.w + alpha * dw, state.theta + eta * alpha * dtheta)
+    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
+        """One GTD2 step averaged over the N transitions; both updates use the values at step k."""
+        N = sample.r.shape[1]
+        dw, dtheta = agent_mean(w_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
+        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * dtheta)

@@ -7,24 +7,28 @@ gap is what the network buys. The state is GTD2's with an agent axis, (B, N, q).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from dgtd.algorithms import gtd2
-from dgtd.algorithms.gtd2 import GTDConfig, GTDState
+from dgtd.algorithms.base import zeros
+from dgtd.algorithms.gtd2 import GTDConfig, GTDState, theta_terms, w_terms
+from dgtd.samples import Sample
 
 
 @dataclass(frozen=True)
 class Local(GTDConfig):
     """N independent GTD2 learners; fields as `dgtd.algorithms.gtd2.GTDConfig`, one estimate per agent."""
 
-    name = "local"
+    name: ClassVar[str] = "local"
+    description: ClassVar[str] = "each agent runs GTD2 on its own reward, no communication"
+    color: ClassVar[str] = "#ff7f0e"
 
-    def init(self, n_seeds: int, n_agents: int, n_features: int) -> GTDState:
-        z = np.zeros((n_seeds, n_agents, n_features))
-        return GTDState(z, z.copy())
+    def init(self, seeds: int, agents: int, features: int) -> GTDState:
+        return GTDState(*zeros(seeds, agents, features, 2))
 
-
-def update(state: GTDState, phi, phi_next, r, ratio, alpha: float, eta: float, gamma: float) -> GTDState:
-    """One GTD2 step of every agent on its own sample and reward."""
-    return gtd2.update(state, phi, phi_next, r, ratio, alpha, eta, gamma, central=False)
+    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
+        """One GTD2 step of every agent on its own sample and reward."""
+        shape = state.w.shape
+        dw = np.broadcast_to(w_terms(state, sample), shape)
+        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * theta_terms(state, sample))

@@ -16,39 +16,12 @@ to each neighbour per step.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.stepsizes import check_schedule
-from dgtd.algorithms.td0 import td_error
-from dgtd.errors import DgtdInputError
-
-
-@dataclass(frozen=True)
-class PDTD:
-    """Primal-dual distributed TD. ``alpha0``, ``beta``, ``schedule``: alpha_k; ``eta`` >= 0 the consensus weight."""
-
-    alpha0: float = 0.1
-    beta: float = 1.0
-    schedule: str = "sqrt"
-    eta: float = 1.0
-
-    name = "pd-td"
-    vectors_per_direction = 2  # w_i and mu_i
-
-    def __post_init__(self):
-        check_schedule(self.schedule, self.alpha0, self.beta)
-        if not (np.isfinite(self.eta) and self.eta >= 0):
-            raise DgtdInputError(f"eta must be >= 0, got {self.eta}")
-
-    def init(self, n_seeds: int, n_agents: int, n_features: int) -> "PDTDState":
-        z = np.zeros((n_seeds, n_agents, n_features))
-        return PDTDState(z, z.copy())
-
-    @staticmethod
-    def estimate(state: "PDTDState") -> np.ndarray:
-        return state.w
+from dgtd.algorithms.base import StepSizes, check_nonnegative, ratio_td_step, zeros
+from dgtd.samples import Sample
 
 
 class PDTDState(NamedTuple):
@@ -56,10 +29,27 @@ class PDTDState(NamedTuple):
     mu: np.ndarray  # (B, N, q)
 
 
-def update(state: PDTDState, phi, phi_next, r, ratio, lap, alpha: float, gamma: float, eta: float) -> PDTDState:
-    """One step; ``lap(X)`` applies L(k) along the agent axis; both updates use the values at step k."""
-    w, mu = state
-    Lw = lap(w)
-    delta = td_error(w, phi, phi_next, r, gamma)
-    td = (np.broadcast_to(ratio, delta.shape) * delta)[..., None] * phi
-    return PDTDState(w + alpha * (td - eta * Lw - eta * lap(mu)), mu + alpha * eta * Lw)
+@dataclass(frozen=True)
+class PDTD(StepSizes):
+    """Primal-dual distributed TD. ``alpha0``, ``beta``, ``schedule``: alpha_k; ``eta`` >= 0 the consensus weight."""
+
+    eta: float = 1.0
+
+    name: ClassVar[str] = "pd-td"
+    description: ClassVar[str] = "Laplacian primal-dual distributed TD (Lim and Lee 2025)"
+    color: ClassVar[str] = "#9467bd"
+    vectors_per_link: ClassVar[int] = 2  # w_i and mu_i
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_nonnegative("eta", self.eta)
+
+    def init(self, seeds: int, agents: int, features: int) -> PDTDState:
+        return PDTDState(*zeros(seeds, agents, features, 2))
+
+    def update(self, state: PDTDState, sample: Sample, links, alpha: float) -> PDTDState:
+        """One step; both updates use the values at step k."""
+        w, mu = state
+        Lw = links.laplacian(w)
+        td = ratio_td_step(sample, w)
+        return PDTDState(w + alpha * (td - self.eta * Lw - self.eta * links.laplacian(mu)), mu + alpha * self.eta * Lw)

@@ -1,4 +1,4 @@
-"""Step-size sequences alpha_k, k = 0, 1, ... (paper remarks after `prop:convergence-DGTD2`)."""
+"""Step-size sequences alpha_k, k = 0, 1, ... (paper remarks after Proposition 7)."""
 
 from __future__ import annotations
 

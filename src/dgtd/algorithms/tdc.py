@@ -13,30 +13,33 @@ theta = M^-1 (b - A w) it is A^T M^-1 (b - A w), the negative gradient of the MS
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from dgtd.algorithms.base import agent_mean, dot, td_error
 from dgtd.algorithms.gtd2 import GTDConfig, GTDState, theta_terms
-from dgtd.algorithms.td0 import agent_mean, dot, td_error
+from dgtd.samples import Sample
+
+
+def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
+    """Per-agent TDC value terms ratio_i (delta_i phi_i - gamma phi'_i (phi_i^T theta)), shape (B, N, q)."""
+    phi, phi_next, _, ratio, gamma = sample
+    delta = td_error(sample, state.w)
+    ratio = np.broadcast_to(ratio, delta.shape)
+    return (ratio * delta)[..., None] * phi - gamma * (ratio * dot(phi, state.theta))[..., None] * phi_next
 
 
 @dataclass(frozen=True)
 class TDC(GTDConfig):
     """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTDConfig`."""
 
-    name = "tdc"
+    name: ClassVar[str] = "tdc"
+    description: ClassVar[str] = "centralised TDC on the average reward (Sutton et al. 2009)"
+    color: ClassVar[str] = "#17becf"
 
-
-def w_terms(w, theta, phi, phi_next, r, ratio, gamma: float) -> np.ndarray:
-    """Per-agent TDC value terms ratio_i (delta_i phi_i - gamma phi'_i (phi_i^T theta)), shape (B, N, q)."""
-    delta = td_error(w, phi, phi_next, r, gamma)
-    ratio = np.broadcast_to(ratio, delta.shape)
-    return (ratio * delta)[..., None] * phi - gamma * (ratio * dot(phi, theta))[..., None] * phi_next
-
-
-def update(state: GTDState, phi, phi_next, r, ratio, alpha: float, eta: float, gamma: float) -> GTDState:
-    """One TDC step, averaged over the N observed transitions; both updates use the values at step k."""
-    N = r.shape[1]
-    dw = agent_mean(w_terms(state.w, state.theta, phi, phi_next, r, ratio, gamma), N)
-    dtheta = agent_mean(theta_terms(state.w, state.theta, phi, phi_next, r, ratio, gamma), N)
-    return GTDState(state.w + alpha * dw, state.theta + eta * alpha * dtheta)
+    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
+        """One TDC step, averaged over the N observed transitions; both updates use the values at step k."""
+        N = sample.r.shape[1]
+        dw, dtheta = agent_mean(w_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
+        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * dtheta)

@@ -4,7 +4,7 @@ Unlike `dgtd.graphs.random.RandomEdges`, the links are not i.i.d. over time: the
 agents' positions, recomputed at every step, so they inherit the motion's correlations. Any model that
 moves agents in a metric space can use this: pass positions (..., N, dim) to `ProximityNetwork.masks`.
 
-The run loop still needs a `RandomEdges` for the mean Laplacian (mu* of `prop:saddle-point-mu`), the
+The run loop still needs a `RandomEdges` for the mean Laplacian (mu* of Proposition 5), the
 connectivity assumption and the kernels' edge list: `LinkStats.mean_network()` gives the complete graph
 with p_e = the observed frequency of each link (the mean graph), while a sample source supplies the actual
 per-step masks over the same edge list (see `dgtd.problems.robots.PatrolSource`).

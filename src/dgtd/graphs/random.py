@@ -60,7 +60,7 @@ def random_edges(base: Graph, p=1.0) -> RandomEdges:
 
 
 def check_mean_connected(process: RandomEdges) -> None:
-    """Assumption `assumption:connected`: the mean connectivity graph (edges with p_e > 0) is connected."""
+    """Assumption Assumption 2 (mean connectivity): the mean connectivity graph (edges with p_e > 0) is connected."""
     from dgtd.graphs.topologies import all_reachable
 
     N = process.n_nodes
@@ -81,12 +81,12 @@ def check_mean_connected(process: RandomEdges) -> None:
         alone = np.flatnonzero(labels != labels[0])[:5].tolist()
         raise DgtdInputError(
             f"the mean communication graph is disconnected ({n} components; e.g. agents {alone} cannot reach agent 0); "
-            "add edges or raise the edge probability so that every agent is connected (assumption:connected)"
+            "add edges or raise the edge probability so that every agent is connected (the mean connectivity assumption)"
         )
 
 
 def laplacian_pinv(L: np.ndarray) -> np.ndarray:
-    """Pseudo-inverse of a connected graph's Laplacian, L^+ = (L + 11^T/N)^-1 - 11^T/N (`lemma:bound-lemma3`)."""
+    """Pseudo-inverse of a connected graph's Laplacian, L^+ = (L + 11^T/N)^-1 - 11^T/N (Lemma 2)."""
     N = L.shape[0]
     J = np.full((N, N), 1.0 / N)
     return np.linalg.inv(L + J) - J

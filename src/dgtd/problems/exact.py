@@ -91,7 +91,7 @@ def _solve(m: Moments, K: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 def w_star(m: Moments) -> np.ndarray:
-    """w* = (Phi^T D (I - gamma P) Phi)^-1 Phi^T D (1/N) sum_i r_i, eq. (solution) of `prop:equivalance`."""
+    """w* = (Phi^T D (I - gamma P) Phi)^-1 Phi^T D (1/N) sum_i r_i, the solution of Proposition 1."""
     return fixed_point(m, m.b_mean)
 
 
@@ -119,7 +119,7 @@ def theta_star(m: Moments) -> np.ndarray:
     """theta*_i = M^-1 Phi^T D (r_i - r_mean), shape (N, q).
 
     From the first KKT equation (eq. `KKT-points`): M theta_i - b_i + A w* = 0 and A w* = b_mean. The paper's
-    appendix (eq. appendix:eq13) has this sign; the statement of `prop:stationary-points` carries the opposite
+    appendix (the proof of Proposition 4) has this sign; the statement of Proposition 4 carries the opposite
     sign, which does not satisfy the KKT equations. Tests check the KKT residuals to 1e-9.
     """
     return _solve(m, m.M, (m.b - m.b_mean).T).T
@@ -141,7 +141,7 @@ def lap(L, X: np.ndarray) -> np.ndarray:
 def lap_pinv_apply(L, Y: np.ndarray) -> np.ndarray:
     """L^+ Y for Y (N, q) with columns summing to zero (the range of L).
 
-    Dense: L^+ = (L + 11^T/N)^-1 - 11^T/N of `lemma:bound-lemma3`. Sparse: conjugate gradients on
+    Dense: L^+ = (L + 11^T/N)^-1 - 11^T/N of Lemma 2. Sparse: conjugate gradients on
     L + 11^T/N, which equals L^+ Y on such columns (solved to 1e-13 relative residual).
     """
     N = Y.shape[0]
@@ -169,7 +169,7 @@ def issparse(L) -> bool:
 
 
 def mu_star(m: Moments, L) -> np.ndarray:
-    """mu* = bar-L^+ bar-B^T theta*, `prop:saddle-point-mu`, with L^+ from `lemma:bound-lemma3`; shape (N, q)."""
+    """mu* = bar-L^+ bar-B^T theta*, Proposition 5, with L^+ from Lemma 2; shape (N, q)."""
     return lap_pinv_apply(L, theta_star(m) @ m.A)
 
 
@@ -184,9 +184,9 @@ class SaddlePoint:
 
 
 def saddle_point(m: Moments, L, kappa: float = 0.0, rho: float = 0.0) -> SaddlePoint:
-    """The saddle point (theta*, v* = 0, mu*, 1 kron w*) of `prop:stationary-points`; any kappa >= 0.
+    """The saddle point (theta*, v* = 0, mu*, 1 kron w*) of Proposition 4; any kappa >= 0.
 
-    With the regulariser rho > 0 (the modification after `prop:convergence-DGTD2`) the saddle point moves
+    With the regulariser rho > 0 (the modification after Proposition 7) the saddle point moves
     and is unique; it is then found by solving the KKT equations as one linear system (small N q only).
     """
     N = m.b.shape[0]
@@ -274,7 +274,7 @@ class Bounds:
 
 
 def lemma_bounds(m: Moments, L, max_degree: int) -> Bounds:
-    """The bounds c of `lemma:bound-lemma3` (its alpha is the discount gamma, as in Bertsekas' Prop. 6.10).
+    """The bounds c of Lemma 2 (its alpha is the discount gamma, as in Bertsekas' Prop. 6.10).
 
     c_v is free in the lemma (v* = 0); we take 2 * max_degree * c_w, the largest |L(k) w|_inf over boxes.
     c_mu needs |L^+|_inf, which takes the dense pseudo-inverse (O(N^3)): above DENSE_N agents c_mu is instead

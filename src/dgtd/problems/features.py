@@ -6,7 +6,7 @@ import numpy as np
 
 
 def tabular(n_states: int) -> np.ndarray:
-    """Phi = I: the tabular case of the paper's remark after `prop:equivalance`."""
+    """Phi = I: the tabular case of the paper's remark after Proposition 1."""
     return np.eye(n_states)
 
 

@@ -31,7 +31,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.proximity import LinkStats, ProximityNetwork, count_links, empty_stats
 from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_star, visit_frequencies
-from dgtd.run.sampling import Block
+from dgtd.samples import Block
 
 # (x0, y0, x1, y1) in metres: region i is detected only by robot i's sensor.
 PAPER_REGIONS = (
@@ -139,7 +139,7 @@ def trajectory(world: PatrolWorld, x: np.ndarray, r: np.ndarray, U: np.ndarray):
 
 
 class PatrolSource:
-    """The patrol world as a sample source for the run loop (protocol of `dgtd.run.sampling.ModelSource`).
+    """The patrol world as a sample source for the run loop (protocol of `dgtd.sources.model.ModelSource`).
 
     Seed k's robots use the generator of ``SeedSequence(seed, spawn_key=(k,))``'s first child (the core's
     'states' stream): 4 uniforms per robot to start, then 2 per robot per step whether or not a waypoint is
@@ -368,7 +368,7 @@ def patrol_scenario(world: PatrolWorld = PatrolWorld(), radius: float = 5.0, *, 
     from dgtd.problems.features import tabular
     from dgtd.problems.model import make_problem
     from dgtd.problems.scenarios import Scenario
-    from dgtd.run.sampling import Sampling
+    from dgtd.sources.model import Sampling
 
     proximity = ProximityNetwork(world.n_robots, radius)
     ref = simulate_reference(world, proximity, reference_teams, reference_steps, reference_burn_in, reference_seed)

@@ -18,7 +18,7 @@ from dgtd.graphs.random import RandomEdges, random_edges
 from dgtd.problems import tasks
 from dgtd.problems.features import gaussian_rbf
 from dgtd.problems.model import Problem, make_problem
-from dgtd.run.sampling import Sampling
+from dgtd.sources.model import Sampling
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,7 +34,7 @@ class Scenario:
     source: Callable[..., object] | None = None
     """Factory ``source(seed, seed_ids)`` of the run's samples, for a simulator whose samples do not come from
     the model (hidden state, links set by positions): anything with start/next_block/get_state/set_state (see
-    `dgtd.run.sampling.ModelSource`). None: samples are drawn from ``problem`` over ``network``. Every command
+    `dgtd.sources.model.ModelSource`). None: samples are drawn from ``problem`` over ``network``. Every command
     that runs an algorithm on the scenario should pass a fresh one as ``run(..., source=...)``
     (`dgtd.config.make_source`), so that every algorithm sees the same samples and links."""
     report: Callable[..., tuple] | None = None
@@ -60,7 +60,7 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
     kappa = 1. The paper's network figure is missing: we use a ring of five agents whose every link fails
     independently at each step with probability 0.2 (up with probability ``edge_prob``), so that the graph
     at a given step is often disconnected while the mean graph (a ring) is connected, as
-    `assumption:connected` requires. Each agent draws its own i.i.d. sample s ~ d, as Algorithm 1 states.
+    Assumption 2 (mean connectivity) requires. Each agent draws its own i.i.d. sample s ~ d, as Algorithm 1 states.
     """
     R = np.zeros((5, 4))
     R[0, 3] = 50.0

@@ -1,7 +1,7 @@
 """Several algorithms on one problem and the same sample streams, with optional step-size tuning.
 
 Every algorithm runs with the same base seed and seed ids, so seed k of every algorithm sees the same
-states, rewards and links (`dgtd.run.sampling`): differences between algorithms are the algorithms'.
+states, rewards and links (`dgtd.sources.model`): differences between algorithms are the algorithms'.
 Tuning runs use base seed ``seed + TUNE_SEED_OFFSET``: streams independent of the reported ones.
 """
 
@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dgtd.algorithms.registry import ALGORITHMS, make_algorithm
+from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.errors import DgtdInputError
 from dgtd.problems import exact
 from dgtd.run.loop import RunResult, RunSettings, run

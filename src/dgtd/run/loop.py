@@ -8,19 +8,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dgtd.algorithms import dgtd as dgtd_alg
-from dgtd.algorithms.registry import messages_per_edge
+from dgtd.algorithms import messages_per_edge
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
-from dgtd.run.sampling import ModelSource, Sampling, SamplerTables
+from dgtd.sources.model import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
 # Counts recorded at every checkpoint beside the metrics (in RunResult.info["counts"], arrays (C, B)): agent-samples
-# consumed, parameter vectors sent over links (`dgtd.algorithms.registry.messages_per_edge`), 1 once diverged.
+# consumed, parameter vectors sent over links (`dgtd.algorithms.messages_per_edge`), 1 once diverged.
 COUNTS = ("samples", "messages", "diverged")
 
 
@@ -146,6 +145,8 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     boxes = resolve_boxes(algorithm, moments, network)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
+    if boxes and hasattr(algorithm, "with_boxes"):  # the kernels project onto the resolved boxes
+        algorithm = algorithm.with_boxes(boxes)
     ctx = Context(problem, network, algorithm, sampling, tables,
                   LaplacianOperator(network.base), boxes, T - tail_window)
     return ctx, moments, L_mean, saddle, w_star, tail_window
@@ -169,7 +170,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
-    kernel = _kernel(settings.backend, algorithm.name)
+    kernel = kernel_for(settings.backend, algorithm.name)
     state = algorithm.init(B, N, q)
     if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
         state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
@@ -222,7 +223,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         blk = source.draws(k1 - k) if fused else source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
-            state, sums = kernel(ctx, state, sums, k, alphas, blk)
+            state, w_sum = kernel(ctx, state, sums["all"], alphas, blk)
+        sums = {"all": w_sum}
         if fused:
             sent = blk.up_count
         else:
@@ -268,10 +270,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                                           **({} if tail_base is None else {"tail_base": tail_base})}))
     final = state._asdict()
     kkt = {}
-    if isinstance(state, dgtd_alg.DGTDState):
-        kkt = {name: float(np.abs(g).max()) for name, g in zip(
-            ("theta", "v", "mu", "w"),
-            exact.lagrangian_gradient(moments, L_mean, algorithm.kappa, algorithm.rho, *state))}
+    if hasattr(algorithm, "diagnostics"):
+        kkt = algorithm.diagnostics(state, moments, L_mean).get("kkt_last", {})
     return RunResult(
         steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
         w_last=algorithm.estimate(state), w_avg=sums["all"] / T,
@@ -321,12 +321,19 @@ def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_stat
     }
 
 
-def _kernel(backend: str, algorithm: str):
-    """The block kernel of ``algorithm`` on ``backend``: each backend module has a BLOCKS registry."""
-    if backend == "numba":
-        from dgtd.backends import numba_kernels as mod
-    else:
-        from dgtd.backends import numpy_ref as mod
-    if algorithm not in mod.BLOCKS:
-        raise DgtdInputError(f"algorithm {algorithm!r} has no {backend} kernel; use --backend numpy")
-    return mod.BLOCKS[algorithm]
+def kernel_for(backend: str, algorithm: str):
+    """The block kernel of ``algorithm`` on ``backend`` (`dgtd.backends.reference.run_block` contract); an
+    algorithm without a compiled kernel runs on the reference, with a one-line notice."""
+    from dgtd.backends.reference import run_block
+
+    if backend == "numpy":
+        return run_block
+    from dgtd.backends.compiled import KERNELS
+
+    if algorithm not in KERNELS:
+        import warnings
+
+        warnings.warn(f"algorithm {algorithm!r} has no compiled kernel: it runs on the NumPy reference backend",
+                      stacklevel=3)
+        return run_block
+    return KERNELS[algorithm]

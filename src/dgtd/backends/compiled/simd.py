@@ -11,7 +11,7 @@ Order. Without fastmath, LLVM may not reorder a floating-point sum, so a plain l
 scalar. `_dots3` writes the vector code itself: four lanes, lane l summing the products f = l, l + 4, l + 8,
 ... in order, then (lane 0 + lane 1) + (lane 2 + lane 3), then the q mod 4 remaining products in order. The
 order is fixed by the code, not by the compiler, so every process gets the same bits. `_agent_pass` keeps each
-element's arithmetic as plain code writes it (`numba_kernels._sparse_td_feature` is the same arithmetic, one
+element's arithmetic as plain code writes it (`dgtd.backends.compiled.kernels.dgtd._sparse_td_feature` is the same arithmetic, one
 feature at a time) and sums its dot products in `_dots3`'s order.
 """
 
@@ -160,14 +160,14 @@ def _agent_pass(typingctx, Zi, Zo, S, b, i, js, count, Phi, s, sn, s_next, sn_ne
     different array: the neighbours read step k); S[b, i] is its state row, updated in place. For each feature
     f, in this order: (L(k) w)_i and (L(k) (v + mu))_i as count Zi[b, i] - Zi[b, js[0]] - ... -
     Zi[b, js[count - 1]] (in registers, never stored); the running sum of w; v and mu, projected, and their sum;
-    w; theta (the arithmetic of `numba_kernels._sparse_td_feature`). The new theta and w are still in registers when
+    w; theta (the arithmetic of `dgtd.backends.compiled.kernels.dgtd._sparse_td_feature`). The new theta and w are still in registers when
     the next step's dot products need them: the pass returns (phi(s_next)^T theta, phi(s_next)^T w,
     phi(sn_next)^T w) at step k + 1, summed in `_dots3`'s order, so that the next step need not read them again;
     with s_next and sn_next None it computes none of them and returns zeros (each variant is compiled apart).
     Up to UNROLLED_NEIGHBOURS neighbours, the code branches on the count once and then runs straight-line code
     for it (a loop over a count that changes from agent to agent would be mispredicted at every block). With
     Phi None, the pass leaves out the TD terms (phi = phi' = 0) and theta, and unrolls UNROLLED_WITHOUT_TD
-    counts: `numba_kernels._sparse_step` adds the TD terms for the few features where phi or phi' is not zero."""
+    counts: `dgtd.backends.compiled.kernels.dgtd._sparse_step` adds the TD terms for the few features where phi or phi' is not zero."""
     td = not isinstance(Phi, types.NoneType)
     if not _all_c_contiguous(Zi, Zo, S, js, *([Phi] if td else [])):
         return None

@@ -1,11 +1,9 @@
-"""Compiled kernels (numba): one fused loop per algorithm over a block of steps, seeds spread over the cores.
+"""The compiled DGTD kernel (Algorithm 1, `dgtd.algorithms.dgtd.DGTD.update`): one fused loop over a block of steps.
 
-The DGTD kernels draw their own samples from the seeds' PCG64 streams (`dgtd.backends.numba_sampling`), the
-same samples as the NumPy reference, and apply the same updates, so for the same seed both backends give the
-same numbers up to floating-point summation order. Everything is compiled once and cached on disk
-(``cache=True``). numba keys each cached kernel by its own file only: after editing a helper that the kernels
-inline from numba_sampling, numba_rng or numba_simd, delete the __pycache__ folder here
-(installed copies are rewritten whole on upgrade, so only working trees are concerned).
+The kernels draw their own samples from the seeds' PCG64 streams (`dgtd.backends.compiled.sampling`), the same
+samples as the reference backend, and apply the same updates, so for the same seed both backends give the same
+numbers up to floating-point summation order. Two layouts: seeds spread over the cores (`_dgtd_by_seed`, small N)
+or agents (`_dgtd_by_agent`, large N and few seeds).
 """
 
 from __future__ import annotations
@@ -13,12 +11,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from dgtd.backends.numba_cache import load_quickly
-from dgtd.backends.numba_graph import per_run, storage_graph, storage_order
-from dgtd.backends.numba_sampling import _step_edges, _step_observations, _step_samples, sample_args
-from dgtd.backends.numba_simd import (MU, SUM_W, THETA, V, VMU, W, _agent_pass, _dots3, from_blocks, shared_index,
-                                      state_index, to_blocks)
-from dgtd.run.sampling import Draws
+from dgtd.algorithms.dgtd import DGTDState
+from dgtd.backends.compiled import kernel
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.graph import per_run, storage_graph, storage_order
+from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
+from dgtd.backends.compiled.simd import (MU, SUM_W, THETA, V, VMU, W, _agent_pass, _dots3, from_blocks, shared_index,
+                                         state_index, to_blocks)
+from dgtd.samples import Draws
 
 
 @njit(cache=True, inline="always")
@@ -28,7 +28,7 @@ def _clip(x, b):
 
 # No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
 # one compiled specialisation, and the same seed gave results one ulp apart in different processes. The dense
-# agent step is written in vector instructions by hand (`numba_simd._agent_pass`), in one pass over the
+# agent step is written in vector instructions by hand (`dgtd.backends.compiled.simd._agent_pass`), in one pass over the
 # features. Elements of the shared arrays are indexed directly (S[b, i, k]), never through row views (S[b, i]):
 # numba counts references to every view with an atomic update, and two threads updating the same count stall
 # each other.
@@ -261,27 +261,28 @@ def by_agent(B: int, N: int, q: int) -> bool:
     return B < get_num_threads() and N * q >= 4096
 
 
-def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
-    """Same contract as `dgtd.backends.numpy_ref.dgtd_block`, compiled; ``blk`` is a `Block` of samples or
-    `Draws` that the kernel draws itself (the same samples, never materialised)."""
+@kernel("dgtd")
+def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
+    """The contract of `dgtd.backends.reference.run_block`, compiled; ``blk`` is a `Block` of samples or `Draws`
+    that the kernel draws itself (the same samples, never materialised)."""
     from numba import get_num_threads
 
-    from dgtd.algorithms.dgtd import DGTDState
-
+    algorithm = ctx.algorithm
     order = storage_order(ctx)
     rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
     back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
     B, N, q = state.w.shape
-    # the blocked rows of `numba_simd`: the agents' state rows, and the shared rows neighbours read (w, v + mu)
-    S = to_blocks([rows(state.theta), rows(state.v), rows(state.mu), rows(sums["all"])], q)
+    # the blocked rows of `simd`: the agents' state rows, and the shared rows neighbours read (w, v + mu)
+    S = to_blocks([rows(state.theta), rows(state.v), rows(state.mu), rows(w_sum)], q)
     Z = to_blocks([rows(state.w), rows(state.v + state.mu)], q)
     Z2 = np.zeros_like(Z)
     indptr, nbr, eid, agent_of = storage_graph(ctx)
     Phi, sparse, ptr, idx, val = feature_arrays(ctx)
     sampling = sample_args(ctx, blk, B)
+    boxes = (np.inf,) * 4 if algorithm.boxes is None else algorithm.boxes
     common = (np.ascontiguousarray(alphas), *sampling, Phi, sparse, ptr, idx, val, np.ascontiguousarray(ctx.ratio),
-              float(ctx.gamma), float(ctx.algorithm.kappa), float(ctx.algorithm.rho),
-              np.asarray(ctx.boxes, dtype=np.float64), indptr, nbr, eid, agent_of)
+              float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), np.asarray(boxes, dtype=np.float64),
+              indptr, nbr, eid, agent_of)
     if by_agent(B, N, q):
         steps = _dgtd_by_agent(S, Z, Z2, q, *common, 4 * get_num_threads())
     else:
@@ -291,14 +292,8 @@ def dgtd_block(ctx, state, sums, k0: int, alphas: np.ndarray, blk):
     if isinstance(blk, Draws):
         _, rng, markov, current = sampling[:4]
         blk.settle(rng, current if markov else None, sampling[-1])
-    theta, v, mu, sum_all = (back(from_blocks(S, var, 4, q)) for var in (THETA, V, MU, SUM_W))
-    return DGTDState(theta, v, mu, back(from_blocks(Z, W, 2, q))), {"all": sum_all}
+    theta, v, mu, sum_w = (back(from_blocks(S, var, 4, q)) for var in (THETA, V, MU, SUM_W))
+    return DGTDState(theta, v, mu, back(from_blocks(Z, W, 2, q))), sum_w
 
 
 dgtd_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
-
-BLOCKS = {"dgtd": dgtd_block}
-
-from dgtd.backends.numba_baselines import BLOCKS as _BASELINE_BLOCKS  # noqa: E402  (baselines: gtd2, tdc, ...)
-
-BLOCKS.update(_BASELINE_BLOCKS)

@@ -1,5 +1,5 @@
 """Compiled sampling (numba): uniforms into samples with exactly the arithmetic of the NumPy reference
-(`dgtd.run.sampling.alias_pick`, `reward_from_uniform`), either for a whole block (`block_from_uniforms`, used
+(`dgtd.sources.model.alias_pick`, `reward_from_uniform`), either for a whole block (`block_from_uniforms`, used
 by the baseline kernels and simulators) or step by step inside a kernel that draws its own uniforms from
 NumPy's PCG64 streams (`_step_samples`, `sample_args`).
 """
@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from dgtd.backends.numba_cache import load_quickly
-from dgtd.backends.numba_rng import pcg_step
-from dgtd.run.sampling import Block, Draws
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.rng import pcg_step
+from dgtd.samples import Block, Draws
 
 NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
 
@@ -101,7 +101,7 @@ load_quickly(_sample_kernel)
 
 
 def block_from_uniforms(problem, network, tables, U: dict, current):
-    """Compiled twin of `dgtd.run.sampling.block_from_uniforms`."""
+    """Compiled twin of `dgtd.sources.model.block_from_uniforms`."""
     T, B, n_obs, _ = U["state"].shape
     N = problem.n_agents
     markov = current is not None
@@ -122,7 +122,7 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
     """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
     and up_t (edges); returns how many edges are up.
 
-    Fused: drawn here from seed b's streams in rng, in the order `dgtd.run.sampling.Streams.draw` draws them
+    Fused: drawn here from seed b's streams in rng, in the order `dgtd.sources.model.Streams.draw` draws them
     (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
     `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
     (samples from a simulator). The two halves, `_step_observations` and `_step_edges`, read disjoint streams

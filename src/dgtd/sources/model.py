@@ -11,12 +11,11 @@ NumPy reference and the compiled kernels see identical samples.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
-
 import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.problems.model import Problem
+from dgtd.samples import Block, Draws
 
 SAMPLING_MODES = ("iid", "markov")
 
@@ -134,13 +133,13 @@ class Streams:
 
     def pcg_words(self) -> np.ndarray:
         """(B, 3, 4) uint64: the PCG64 state of every stream, for kernels that draw the uniforms themselves."""
-        from dgtd.backends.numba_rng import pcg_words
+        from dgtd.backends.compiled.rng import pcg_words
 
         return pcg_words(self._all()).reshape(len(self.gens), 3, 4)
 
     def set_pcg_words(self, words: np.ndarray) -> None:
         """Take back the states a kernel advanced (`pcg_words`)."""
-        from dgtd.backends.numba_rng import set_pcg_words
+        from dgtd.backends.compiled.rng import set_pcg_words
 
         set_pcg_words(self._all(), words.reshape(-1, 4))
 
@@ -152,38 +151,6 @@ class Streams:
         for gs, st in zip(self.gens, state, strict=True):
             for g, s in zip(gs, st, strict=True):
                 g.bit_generator.state = s
-
-
-class Block(NamedTuple):
-    """The samples of T steps for B seeds: what every kernel consumes.
-
-    ``s``, ``a``, ``s_next`` (T, B, n_obs) int64 with n_obs = N (independent copies) or 1 (shared
-    trajectory); ``r`` (T, B, N) rewards; ``up`` (T, B, E) bool, the edges up at each step, or None for a
-    fixed graph.
-    """
-
-    s: np.ndarray
-    a: np.ndarray
-    s_next: np.ndarray
-    r: np.ndarray
-    up: np.ndarray | None
-
-
-@dataclass(eq=False)
-class Draws:
-    """T steps of a `ModelSource` that are not drawn yet: a compiled kernel draws them from the source's
-    streams where it uses them (nothing is materialised), then hands the advanced streams back with `settle`.
-    The samples are those `ModelSource.next_block` would have returned."""
-
-    source: "ModelSource"
-    T: int
-    up_count: np.ndarray | None = None  # (B,) edges up over the T steps, set by `settle`
-
-    def settle(self, words: np.ndarray, current: np.ndarray | None, up_count: np.ndarray) -> None:
-        self.source.streams.set_pcg_words(words)
-        if current is not None:
-            self.source.current = current
-        self.up_count = up_count
 
 
 def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.ndarray | None):
@@ -252,7 +219,7 @@ class ModelSource:
     def next_block(self, T: int) -> Block:
         U = self.streams.draw(T)
         if self.backend == "numba":
-            from dgtd.backends.numba_sampling import block_from_uniforms as fast
+            from dgtd.backends.compiled.sampling import block_from_uniforms as fast
 
             blk, self.current = fast(self.problem, self.network, self.tables, U, self.current)
         else:

@@ -1,0 +1,51 @@
+"""Compiled centralised GTD2: `dgtd.algorithms.gtd2.GTD2.update`, line for line, seeds spread over the cores."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from dgtd.algorithms.gtd2 import GTDState
+from dgtd.backends.compiled import kernel
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays
+
+
+@njit(cache=True, inline="always")
+def gtd2_terms(Phi, s, sn, ratio, delta, phi_theta, gamma, dw, dtheta):
+    """Add one transition's w_terms and theta_terms (`dgtd.algorithms.gtd2`) to dw and dtheta."""
+    for f in range(dw.shape[0]):
+        dw[f] += ratio * phi_theta * (Phi[s, f] - gamma * Phi[sn, f])  # ratio (phi - gamma phi') phi^T theta
+        dtheta[f] += (ratio * delta - phi_theta) * Phi[s, f]  # (ratio delta - phi^T theta) phi
+
+
+@njit(cache=True, parallel=True)
+def _gtd2(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+    B, _, q = w.shape
+    T, N, n_obs = alphas.shape[0], r_blk.shape[2], s_blk.shape[2]
+    for b in prange(B):
+        dw, dtheta = np.empty(q), np.empty(q)
+        for t in range(T):
+            add_rows(w, b, w_sum)
+            dw[:] = 0.0
+            dtheta[:] = 0.0
+            for i in range(N):
+                o = i if n_obs == N else 0
+                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
+                ratio = ratio_tab[s, a_blk[t, b, o]]
+                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, 0) - feature_dot(Phi, s, w, b, 0)
+                gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, 0), gamma, dw, dtheta)
+            alpha = alphas[t]
+            for f in range(q):
+                w[b, 0, f] += alpha * (dw[f] / N)
+                theta[b, 0, f] += eta * alpha * (dtheta[f] / N)
+
+
+load_quickly(_gtd2)
+
+
+@kernel("gtd2")
+def gtd2_block(ctx, state, w_sum, alphas, blk):
+    w, theta, w_sum = f64(state.w), f64(state.theta), f64(w_sum)
+    _gtd2(w, theta, w_sum, np.ascontiguousarray(alphas), float(ctx.algorithm.eta), *model_arrays(ctx, blk))
+    return GTDState(w, theta), w_sum

@@ -1,0 +1,41 @@
+"""Compiled centralised TD(0): `dgtd.algorithms.td0.TD0.update`, line for line, seeds spread over the cores."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from dgtd.algorithms.td0 import TD0State
+from dgtd.backends.compiled import kernel
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays
+
+
+@njit(cache=True, parallel=True)
+def _td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+    B, _, q = w.shape
+    T, N, n_obs = alphas.shape[0], r_blk.shape[2], s_blk.shape[2]
+    for b in prange(B):
+        dw = np.empty(q)
+        for t in range(T):
+            add_rows(w, b, w_sum)
+            dw[:] = 0.0
+            for i in range(N):
+                o = i if n_obs == N else 0
+                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
+                ratio = ratio_tab[s, a_blk[t, b, o]]
+                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, 0) - feature_dot(Phi, s, w, b, 0)
+                for f in range(q):
+                    dw[f] += ratio * delta * Phi[s, f]  # ratio_i delta_i phi_i
+            for f in range(q):
+                w[b, 0, f] += alphas[t] * (dw[f] / N)  # the mean over the N transitions
+
+
+load_quickly(_td0)
+
+
+@kernel("td0")
+def td0_block(ctx, state, w_sum, alphas, blk):
+    w, w_sum = f64(state.w), f64(w_sum)
+    _td0(w, w_sum, np.ascontiguousarray(alphas), *model_arrays(ctx, blk))
+    return TD0State(w), w_sum

@@ -1,0 +1,47 @@
+"""Compiled TD(0) with gradient tracking: `dgtd.algorithms.td_tracking.TDTracking.update`, line for line."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from dgtd.algorithms.td_tracking import TrackingState
+from dgtd.backends.compiled import kernel
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.primitives import add_rows, degrees, f64, feature_dot, laplacian_rows, link_arrays, model_arrays
+
+
+@njit(cache=True, parallel=True)
+def _td_tracking(w, z, g_prev, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, up, indptr, nbr,
+                 eid):
+    B, N, q = w.shape
+    T, n_obs, has_up = alphas.shape[0], s_blk.shape[2], up.shape[0] > 0
+    for b in prange(B):
+        Lw, Lz = np.empty((N, q)), np.empty((N, q))
+        deg = np.zeros(N, np.int64)
+        for t in range(T):
+            add_rows(w, b, w_sum)
+            degrees(up, t, b, has_up, indptr, eid, deg)
+            laplacian_rows(w, b, up, t, has_up, indptr, nbr, eid, True, deg, Lw)
+            laplacian_rows(z, b, up, t, has_up, indptr, nbr, eid, True, deg, Lz)
+            for i in range(N):
+                o = i if n_obs == N else 0
+                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
+                ratio = ratio_tab[s, a_blk[t, b, o]]
+                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, i) - feature_dot(Phi, s, w, b, i)
+                for f in range(q):
+                    g = ratio * delta * Phi[s, f]  # g_i(k)
+                    z_new = z[b, i, f] - Lz[i, f] + g - g_prev[b, i, f]  # the tracker z_i(k)
+                    w[b, i, f] = w[b, i, f] - Lw[i, f] + alphas[t] * z_new
+                    z[b, i, f] = z_new
+                    g_prev[b, i, f] = g
+
+
+load_quickly(_td_tracking)
+
+
+@kernel("td-tracking")
+def td_tracking_block(ctx, state, w_sum, alphas, blk):
+    w, z, g, w_sum = f64(state.w), f64(state.z), f64(state.g), f64(w_sum)
+    _td_tracking(w, z, g, w_sum, np.ascontiguousarray(alphas), *model_arrays(ctx, blk), *link_arrays(ctx, blk))
+    return TrackingState(w, z, g), w_sum

@@ -1,0 +1,47 @@
+"""Compiled centralised TDC: `dgtd.algorithms.tdc.TDC.update`, line for line, seeds spread over the cores."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from dgtd.algorithms.gtd2 import GTDState
+from dgtd.backends.compiled import kernel
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays
+
+
+@njit(cache=True, parallel=True)
+def _tdc(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+    B, _, q = w.shape
+    T, N, n_obs = alphas.shape[0], r_blk.shape[2], s_blk.shape[2]
+    for b in prange(B):
+        dw, dtheta = np.empty(q), np.empty(q)
+        for t in range(T):
+            add_rows(w, b, w_sum)
+            dw[:] = 0.0
+            dtheta[:] = 0.0
+            for i in range(N):
+                o = i if n_obs == N else 0
+                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
+                ratio = ratio_tab[s, a_blk[t, b, o]]
+                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, 0) - feature_dot(Phi, s, w, b, 0)
+                phi_theta = feature_dot(Phi, s, theta, b, 0)
+                for f in range(q):
+                    # w_terms: ratio (delta phi - gamma phi' phi^T theta); theta_terms as GTD2's
+                    dw[f] += ratio * delta * Phi[s, f] - gamma * (ratio * phi_theta) * Phi[sn, f]
+                    dtheta[f] += (ratio * delta - phi_theta) * Phi[s, f]
+            alpha = alphas[t]
+            for f in range(q):
+                w[b, 0, f] += alpha * (dw[f] / N)
+                theta[b, 0, f] += eta * alpha * (dtheta[f] / N)
+
+
+load_quickly(_tdc)
+
+
+@kernel("tdc")
+def tdc_block(ctx, state, w_sum, alphas, blk):
+    w, theta, w_sum = f64(state.w), f64(state.theta), f64(w_sum)
+    _tdc(w, theta, w_sum, np.ascontiguousarray(alphas), float(ctx.algorithm.eta), *model_arrays(ctx, blk))
+    return GTDState(w, theta), w_sum

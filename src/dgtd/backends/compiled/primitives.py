@@ -1,0 +1,75 @@
+"""Generic compiled primitives the kernels of `dgtd.backends.compiled.kernels` share: no algorithm's maths.
+
+Plain numba loops; each sums in a fixed order (no fastmath), so a kernel's results are the same bits in every
+process. Elements are indexed directly (X[b, i, f]) rather than through row views where a kernel runs in parallel
+(numba counts references to every view atomically). Also the Python-side helpers that hand arrays to kernels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from dgtd.backends.compiled.graph import graph_arrays
+from dgtd.backends.compiled.sampling import up_mask
+from dgtd.samples import Block
+
+
+@njit(cache=True, inline="always")
+def add_rows(x, b, total):
+    """total[b] += x[b] over all rows and features: the running sum of the estimates."""
+    for e in range(x.shape[1]):
+        for f in range(x.shape[2]):
+            total[b, e, f] += x[b, e, f]
+
+
+@njit(cache=True, inline="always")
+def feature_dot(Phi, s, x, b, e):
+    """phi(s)^T x[b, e], summed in feature order."""
+    acc = 0.0
+    for f in range(x.shape[2]):
+        acc += Phi[s, f] * x[b, e, f]
+    return acc
+
+
+@njit(cache=True, inline="always")
+def degrees(up, t, b, has_up, indptr, eid, deg):
+    """deg[i] = agent i's number of links up at step t (all its edges on a fixed graph)."""
+    for i in range(deg.shape[0]):
+        d = 0
+        for p in range(indptr[i], indptr[i + 1]):
+            if (not has_up) or up[t, b, eid[p]]:
+                d += 1
+        deg[i] = d
+
+
+@njit(cache=True)
+def laplacian_rows(X, b, up, t, has_up, indptr, nbr, eid, metropolis, deg, out):
+    """out[i] = sum over links {i, j} up at step t of c_ij (X[b, i] - X[b, j]): c_ij = 1 (the Laplacian L(k)) or,
+    with ``metropolis``, 1 / (1 + max(d_i, d_j)) from the degrees ``deg`` (`degrees`), the Metropolis Laplacian."""
+    N, q = out.shape
+    for i in range(N):
+        for f in range(q):
+            out[i, f] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            if (not has_up) or up[t, b, eid[p]]:
+                j = nbr[p]
+                c = 1.0 / (1.0 + max(deg[i], deg[j])) if metropolis else 1.0
+                for f in range(q):
+                    out[i, f] += c * (X[b, i, f] - X[b, j, f])
+
+
+def f64(x) -> np.ndarray:
+    """A C-contiguous float64 copy: kernels update their arrays in place."""
+    return np.array(x, dtype=np.float64, order="C")
+
+
+def model_arrays(ctx, blk: Block) -> tuple:
+    """(s, a, s_next, r) of the block and the problem's (Phi, ratio table, gamma): what every kernel reads."""
+    return (blk.s, blk.a, blk.s_next, blk.r, np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
+            float(ctx.gamma))
+
+
+def link_arrays(ctx, blk: Block) -> tuple:
+    """(up mask, CSR indptr, neighbours, edge ids) of the block's links."""
+    return (up_mask(blk), *graph_arrays(ctx))

@@ -1,0 +1,64 @@
+"""The step's data and blocks of it: the bottom layer, which every other imports and which imports nothing of dgtd.
+
+Glossary (the same in every module): B seeds, N agents, q features, n observations per step (n = N when every
+agent runs its own copy of the chain, n = 1 when all observe one shared trajectory, broadcast against N).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Sample(NamedTuple):
+    """One step's data for every seed and agent, as an algorithm's ``update`` reads it.
+
+    - ``phi``, ``phi_next`` (B, n, q): features phi(s_i) and phi(s'_i) of each agent's transition;
+    - ``r`` (B, N): each agent's local reward (the paper's r-hat_i, section 3);
+    - ``ratio`` (B, n): the importance ratio pi(a|s) / beta(a|s) (1 on-policy);
+    - ``gamma``: the discount of the transition, a float or an array broadcasting against ``ratio``.
+    """
+
+    phi: np.ndarray
+    phi_next: np.ndarray
+    r: np.ndarray
+    ratio: np.ndarray
+    gamma: float | np.ndarray
+
+
+class Block(NamedTuple):
+    """The samples of T steps for B seeds, as state indices: what every block kernel consumes.
+
+    ``s``, ``a``, ``s_next`` (T, B, n) int64; ``r`` (T, B, N) rewards; ``up`` (T, B, E) bool, the edges up at each
+    step, or None for a fixed graph.
+    """
+
+    s: np.ndarray
+    a: np.ndarray
+    s_next: np.ndarray
+    r: np.ndarray
+    up: np.ndarray | None
+
+    def sample(self, t: int, Phi: np.ndarray, ratio: np.ndarray, gamma) -> Sample:
+        """Step t as a `Sample`, with the features ``Phi`` (S, q) and the ratio table (S, A) of the problem."""
+        s, a, sn = self.s[t], self.a[t], self.s_next[t]
+        return Sample(Phi[s], Phi[sn], self.r[t], ratio[s, a], gamma)
+
+
+@dataclass(eq=False)
+class Draws:
+    """T steps of a model source that are not drawn yet: a compiled kernel that draws its own samples takes them
+    from ``source.streams`` where it uses them (nothing is materialised) and hands the advanced streams back with
+    `settle`. The samples are those the source's ``next_block(T)`` would have returned."""
+
+    source: object
+    T: int
+    up_count: np.ndarray | None = None  # (B,) edges up over the T steps, set by `settle`
+
+    def settle(self, words: np.ndarray, current: np.ndarray | None, up_count: np.ndarray) -> None:
+        self.source.streams.set_pcg_words(words)
+        if current is not None:
+            self.source.current = current
+        self.up_count = up_count
