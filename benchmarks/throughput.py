@@ -22,9 +22,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from per_agent_loop import per_agent_loop  # noqa: E402
 
-from dgtd.bench import CASES, markdown, measure  # noqa: E402
+from dgtd.cli.bench import CASES, markdown, measure  # noqa: E402
 from dgtd.problems import exact  # noqa: E402
-from dgtd.problems.scenarios import get_scenario  # noqa: E402
+from dgtd.scenarios import get_scenario  # noqa: E402
 from dgtd.run.loop import RunSettings, run  # noqa: E402
 
 

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.bench import machine
-from dgtd.problems.scenarios import get_scenario
+from dgtd.cli.bench import machine
+from dgtd.scenarios import get_scenario
 from dgtd.run.compare import CompareSettings, compare, configs_for
 from dgtd.run.loop import RunSettings
 

@@ -7,7 +7,7 @@ import pytest
 
 from dgtd.cli import main
 from dgtd.config import RunSpec, make_source, resolve
-from dgtd.problems.robots import PatrolSource
+from dgtd.scenarios.robots import PatrolSource
 
 
 def test_run_paper_example_2_writes_maps_pictures_and_summary(tmp_path, capsys):

@@ -15,7 +15,7 @@ from dgtd.cli import main
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
-from dgtd.problems.scenarios import get_scenario
+from dgtd.scenarios import get_scenario
 from dgtd.run.compare import CompareSettings, compare, configs_for
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling

@@ -7,10 +7,13 @@ import pytest
 from numpy.testing import assert_allclose
 
 from dgtd.algorithms import dgtd as alg
+from dgtd.algorithms.dgtd import DGTD
 from dgtd.graphs import topologies
+from dgtd.graphs.links import Links
 from dgtd.graphs.random import LaplacianOperator, random_edges
 from dgtd.problems import exact
 from dgtd.problems.generators import random_mdp_problem, random_problem
+from dgtd.samples import Sample
 
 
 def expected_direction(problem, network, state, kappa, rho):
@@ -35,7 +38,8 @@ def expected_direction(problem, network, state, kappa, rho):
                     phin = np.broadcast_to(problem.Phi[sn], (1, N, problem.n_features))
                     r = problem.R_sample[:, s, a][None, :]
                     ratio = np.full((1, N), problem.ratio[s, a])
-                    g = alg.direction(state, phi, phin, r, ratio, lambda X: lap(X, mask[None]), problem.gamma, kappa, rho)
+                    g = alg.direction(state, Sample(phi, phin, r, ratio, problem.gamma), Links(lap, mask[None], 1),
+                                      kappa, rho)
                     for acc, x in zip(total, g):
                         acc += weight * x
     return total
@@ -62,9 +66,9 @@ def test_single_agent_is_gtd2(rng):
     # theta the auxiliary weights: theta += a (delta - phi^T theta) phi;  w += a (phi - gamma phi') phi^T theta.
     p = random_problem(5, 1, 3, rng)
     lap = LaplacianOperator(topologies.path(1))
-    state = alg.init(1, 1, 3)
+    dgtd = DGTD(kappa=1.0, boxes=(1e9,) * 4)
+    state = dgtd.init(1, 1, 3)
     th, w = np.zeros(3), np.zeros(3)
-    boxes = (1e9,) * 4
     for k in range(200):
         s, sn = rng.integers(5, size=2)
         r = p.R[0, s]
@@ -72,8 +76,8 @@ def test_single_agent_is_gtd2(rng):
         phi, phin = p.Phi[s], p.Phi[sn]
         delta = r + p.gamma * phin @ w - phi @ w
         th, w = th + a * (delta - phi @ th) * phi, w + a * (phi - p.gamma * phin) * (phi @ th)
-        state = alg.update(state, phi[None, None], phin[None, None], np.array([[r]]), np.ones((1, 1)),
-                           lambda X: lap(X, None), a, p.gamma, 1.0, 0.0, boxes)
+        sample = Sample(phi[None, None], phin[None, None], np.array([[r]]), np.ones((1, 1)), p.gamma)
+        state = dgtd.update(state, sample, Links.fixed(lap, 1), a)
     assert_allclose(state.theta[0, 0], th, rtol=1e-12)
     assert_allclose(state.w[0, 0], w, rtol=1e-12)
     assert np.all(state.v == 0) and np.all(state.mu == 0)
@@ -88,8 +92,9 @@ def test_kappa_term_reduces_disagreement(rng):
     z = np.zeros_like(w0)
     state = alg.DGTDState(z, z, z, w0)
     phi = np.zeros((1, N, q))
-    out0 = alg.update(state, phi, phi, np.zeros((1, N)), np.ones((1, N)), lambda X: lap(X, None), 0.1, 0.9, 0.0, 0.0, (1e9,) * 4)
-    out1 = alg.update(state, phi, phi, np.zeros((1, N)), np.ones((1, N)), lambda X: lap(X, None), 0.1, 0.9, 1.0, 0.0, (1e9,) * 4)
+    sample = Sample(phi, phi, np.zeros((1, N)), np.ones((1, N)), 0.9)
+    out0 = DGTD(kappa=0.0, boxes=(1e9,) * 4).update(state, sample, Links.fixed(lap, 1), 0.1)
+    out1 = DGTD(kappa=1.0, boxes=(1e9,) * 4).update(state, sample, Links.fixed(lap, 1), 0.1)
     before = exact.consensus_error(w0)[0]
     assert_allclose(exact.consensus_error(out0.w)[0], before)  # kappa = 0: w does not move here
     assert exact.consensus_error(out1.w)[0] < 0.95 * before
@@ -101,6 +106,7 @@ def test_projection_keeps_iterates_in_boxes(rng):
     state = alg.DGTDState(*(100 * rng.standard_normal((2, N, q)) for _ in range(4)))
     phi = rng.standard_normal((2, N, q))
     boxes = (1.0, 2.0, 3.0, 4.0)
-    out = alg.update(state, phi, phi, rng.random((2, N)), np.ones((2, N)), lambda X: lap(X, None), 1.0, 0.9, 1.0, 0.0, boxes)
+    sample = Sample(phi, phi, rng.random((2, N)), np.ones((2, N)), 0.9)
+    out = DGTD(kappa=1.0, boxes=boxes).update(state, sample, Links.fixed(lap, 2), 1.0)
     for x, b in zip(out, boxes):
         assert np.abs(x).max() <= b

@@ -11,7 +11,7 @@ from dgtd.graphs.random import laplacian_pinv, random_edges
 from dgtd.problems import exact
 from dgtd.problems.generators import random_mdp_problem, random_problem
 from dgtd.problems.model import make_problem
-from dgtd.problems.scenarios import get_scenario
+from dgtd.scenarios import get_scenario
 
 
 def test_w_star_two_state_chain_by_hand():

@@ -139,7 +139,7 @@ def test_every_command_line_option_is_a_field():
 
 def test_problem_files_are_recorded_with_absolute_paths(tmp_path, monkeypatch, run_cli):
     from dgtd.problems.io import save_problem
-    from dgtd.problems.scenarios import get_scenario
+    from dgtd.scenarios import get_scenario
 
     monkeypatch.chdir(tmp_path)
     save_problem("chain.npz", get_scenario("paper-example-1").problem)

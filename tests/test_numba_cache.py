@@ -8,7 +8,7 @@ import numpy as np
 from conftest import cli_env
 from numba.core.runtime import rtsys
 
-from dgtd.backends import numba_cache
+from dgtd.backends.compiled import cache as numba_cache
 
 
 class FakeContext:
@@ -53,7 +53,7 @@ def test_load_quickly_leaves_dispatchers_without_these_internals_alone():
 SECOND_PROCESS = """
 import sys
 import numpy as np
-from dgtd.problems.scenarios import get_scenario
+from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 sc = get_scenario("paper-example-1")

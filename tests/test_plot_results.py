@@ -6,7 +6,7 @@ import numpy as np
 
 from dgtd.config import RunSpec, resolve
 from dgtd.experiments import parse
-from dgtd.plot_results import load_run
+from dgtd.plots.results import load_run
 from dgtd.run.loop import run
 from dgtd.run.results import write_results
 from dgtd.sweep import run_sweep

@@ -12,7 +12,7 @@ from dgtd.problems import exact
 from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_star
 from dgtd.problems.features import tabular
 from dgtd.problems.model import make_problem
-from dgtd.problems.robots import (
+from dgtd.scenarios.robots import (
     PatrolSource, PatrolWorld, cell_index, map_correlation, move, patrol_scenario, region_cells, reward_table,
     simulate_reference, trajectory,
 )
@@ -240,7 +240,7 @@ def test_small_grid_agents_agree_with_each_other_and_with_the_reference():
 
 
 def test_paper_example_2_scenario():
-    from dgtd.problems.scenarios import get_scenario
+    from dgtd.scenarios import get_scenario
 
     sc = get_scenario("paper-example-2")
     p = sc.problem

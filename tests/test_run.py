@@ -13,7 +13,7 @@ from dgtd.algorithms.dgtd import DGTD
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.generators import random_mdp_problem, random_problem
-from dgtd.problems.scenarios import get_scenario
+from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 

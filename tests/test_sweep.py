@@ -16,7 +16,7 @@ from conftest import cli_env, dgtd_cmd
 
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import load, parse
-from dgtd.store import SweepStore, read_table
+from dgtd.run.store import SweepStore, read_table
 from dgtd.sweep import expand, run_sweep
 
 SWEEP = """scenario = "paper-example-1"
@@ -129,9 +129,9 @@ def test_sweep_resumes_and_tables_agree_across_formats(tmp_path, reference, run_
 
 
 def test_csv_is_used_without_pyarrow(tmp_path, monkeypatch):
-    import dgtd.store
+    import dgtd.run.store
 
-    monkeypatch.setattr(dgtd.store, "have_pyarrow", lambda: False)
+    monkeypatch.setattr(dgtd.run.store, "have_pyarrow", lambda: False)
     assert SweepStore(tmp_path, "auto").format == "csv"
     with pytest.raises(DgtdInputError, match="needs pyarrow"):
         SweepStore(tmp_path, "parquet")

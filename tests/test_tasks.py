@@ -13,7 +13,7 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
 from dgtd.problems.model import chain_period, make_problem
-from dgtd.problems.scenarios import SCENARIOS, get_scenario
+from dgtd.scenarios import SCENARIOS, get_scenario
 from dgtd.algorithms import make_algorithm
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling

@@ -18,7 +18,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
-from dgtd.problems.scenarios import get_scenario
+from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings
 from dgtd.sources.model import Sampling
 
@@ -196,7 +196,7 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
     Parameters not given take the factory's defaults, and the resolved spec records them all, so that a
     later change of a default does not change what a saved config means.
     """
-    from dgtd.problems.scenarios import SCENARIOS
+    from dgtd.scenarios import SCENARIOS
 
     if name not in SCENARIOS:
         get_scenario(name)  # raises the error that lists the known names

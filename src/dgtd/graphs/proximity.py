@@ -7,7 +7,7 @@ moves agents in a metric space can use this: pass positions (..., N, dim) to `Pr
 The run loop still needs a `RandomEdges` for the mean Laplacian (mu* of Proposition 5), the
 connectivity assumption and the kernels' edge list: `LinkStats.mean_network()` gives the complete graph
 with p_e = the observed frequency of each link (the mean graph), while a sample source supplies the actual
-per-step masks over the same edge list (see `dgtd.problems.robots.PatrolSource`).
+per-step masks over the same edge list (see `dgtd.scenarios.robots.PatrolSource`).
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def compare(problem, network, sampling, configs: dict, cs: CompareSettings, prog
             source_factory=None):
     """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
 
-    ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.problems.scenarios.Scenario.source`);
+    ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.scenarios.Scenario.source`);
     each run gets a fresh one, so every algorithm sees the same samples and links.
     """
     results, used, tables = {}, {}, {}

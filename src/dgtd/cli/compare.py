@@ -41,7 +41,7 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
     """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots."""
     from tqdm import tqdm
 
-    from dgtd.problems.scenarios import get_scenario
+    from dgtd.scenarios import get_scenario
     from dgtd.run.compare import CompareSettings, compare as run_compare, configs_for, write_compare
     from dgtd.run.loop import RunSettings
     from dgtd.sources.model import Sampling
@@ -73,7 +73,7 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
             "checkpoints": checkpoints}
     write_compare(out, p, sc.network, results, used, tables, spec)
     if plots:
-        from dgtd.plots_compare import plot_compare, plot_consensus
+        from dgtd.plots.compare import plot_compare, plot_consensus
 
         title = f"{p.name}, N={p.n_agents}, {seeds} seeds"
         plot_compare(results, out / "compare.png", title)

@@ -73,14 +73,14 @@ class PreparedRun:
             bar.close()
 
     def save(self, result, plots: bool | None = None) -> list[str]:
-        """Write the results (and figures), then drop the checkpoint; returns the names written."""
+        """Write the results, then the figures, then drop the checkpoint; returns the names written."""
         from dgtd.run.results import write_results
 
         plots = self.exp.output.plots if plots is None else plots
         sc = scenario_of(self.resolved)
         extra = None
-        if sc is not None and sc.report is not None:  # a scenario's own figures and numbers (e.g. the robots' maps)
-            extra, self.report_text = sc.report(result, self.source, self.out, plots)
+        if sc is not None and sc.report is not None:  # a scenario's own numbers (e.g. the robots' map correlations)
+            extra, self.report_text = sc.report(result, self.source)
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra)
         names = ["summary.json", "metrics.csv", "trajectory.npz"]
         if plots:
@@ -90,6 +90,13 @@ class PreparedRun:
                 names.append("iterates.png")
             plot_errors(result, self.out / "errors.png")
             names.append("errors.png")
+            if sc is not None and sc.report is not None:
+                from dgtd.plots import scenario_figures
+
+                files = scenario_figures(sc.report, result, self.source, self.out)
+                names += files
+                if files:
+                    self.report_text += f"\nwrote {', '.join(files)}"
         (self.out / CHECKPOINT).unlink(missing_ok=True)
         return names
 

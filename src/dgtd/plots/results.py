@@ -171,7 +171,7 @@ def plot_directory(directory: Path) -> list[Path]:
     directory = Path(directory)
     written = []
     if (directory / "sweep.json").exists():
-        from dgtd.store import read_table
+        from dgtd.run.store import read_table
 
         index = json.loads((directory / "sweep.json").read_text())
         if not index.get("table"):

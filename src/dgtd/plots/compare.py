@@ -13,8 +13,11 @@ import numpy as np  # noqa: E402
 
 from dgtd.plots import _save  # noqa: E402
 
-COLORS = {"dgtd": "#d62728", "gtd2": "#1f77b4", "tdc": "#17becf", "td0": "#7f7f7f", "consensus-td0": "#2ca02c",
-          "pd-td": "#9467bd", "local": "#ff7f0e"}
+def color(name: str) -> str | None:
+    """The algorithm's own colour (`dgtd.algorithms.base`), the same in every figure."""
+    from dgtd.algorithms import ALGORITHMS
+
+    return getattr(ALGORITHMS.get(name), "color", None)
 
 
 def _median_band(Y: np.ndarray):
@@ -33,13 +36,13 @@ def _curve(ax, x, Y, name, floor, top):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         xm = np.nanmedian(x, axis=1) if x.ndim == 2 else x
-    color = COLORS.get(name)
-    ax.plot(xm, np.minimum(med, top), label=name, color=color, lw=1.4)
+    colour = color(name)
+    ax.plot(xm, np.minimum(med, top), label=name, color=colour, lw=1.4)
     if Y.shape[1] > 1:
-        ax.fill_between(xm, np.minimum(lo, top), np.minimum(hi, top), color=color, alpha=0.15, lw=0)
+        ax.fill_between(xm, np.minimum(lo, top), np.minimum(hi, top), color=colour, alpha=0.15, lw=0)
     dead = np.flatnonzero(~np.isfinite(med))
     if dead.size and dead[0] > 0:  # the median run stopped here: it diverged
-        ax.plot(xm[dead[0] - 1], min(med[dead[0] - 1], top), "x", color=color, ms=9, mew=2)
+        ax.plot(xm[dead[0] - 1], min(med[dead[0] - 1], top), "x", color=colour, ms=9, mew=2)
 
 
 def _limits(results: dict, metric: str) -> tuple[float, float]:
@@ -67,10 +70,10 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
             if r.info["messages"].max() > 0:
                 _curve(axes[row, 1], r.info["counts"]["messages"], Y, name, floor, top)
             elif np.isfinite(_median_band(Y)[0][-1]):
-                axes[row, 1].axhline(max(_median_band(Y)[0][-1], floor), color=COLORS.get(name), ls=":", lw=1.2,
+                axes[row, 1].axhline(max(_median_band(Y)[0][-1], floor), color=color(name), ls=":", lw=1.2,
                                      label=f"{name} (no messages; final level)")
             else:
-                axes[row, 1].plot([], [], "x", color=COLORS.get(name), label=f"{name} (no messages; diverged)")
+                axes[row, 1].plot([], [], "x", color=color(name), label=f"{name} (no messages; diverged)")
         axes[row, 0].set_ylabel(label)
         axes[row, 0].set_xlabel("agent-samples consumed (N per step)")
         axes[row, 1].set_xlabel("parameter vectors sent over links")

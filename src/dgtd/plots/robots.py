@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from dgtd.plots import band  # noqa: E402
-from dgtd.problems.robots import map_correlation  # noqa: E402
+from dgtd.scenarios.robots import PatrolReport, map_correlation  # noqa: E402
 from dgtd.run.results import atomic_write  # noqa: E402
 
 AGENT_COLOURS = ("tab:blue", "tab:red", "black", "tab:green", "tab:purple", "tab:orange")
@@ -246,3 +246,10 @@ def write_figures(world, network, reference, result, source, out) -> list[str]:
     if plot_curves(result, reference.d, out / "curves.png"):
         names.append("curves.png")
     return names
+
+
+def report_figures(report, result, source, out) -> list[str]:
+    """`write_figures` for a patrol world's `PatrolReport`; nothing for another report."""
+    if not isinstance(report, PatrolReport):
+        return []
+    return write_figures(report.world, report.network, report.reference, result, source, out)

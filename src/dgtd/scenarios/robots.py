@@ -305,9 +305,9 @@ def map_correlation(W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class PatrolReport:
-    """After a run: the numbers summary.json records for the patrol world, and (with plots) its figures.
+    """After a run: the numbers summary.json records for the patrol world (its figures: `dgtd.plots.robots`).
 
-    Called as ``report(result, source, out, plots) -> (dict, text)``; ``source`` is the run's `PatrolSource`.
+    Called as ``report(result, source) -> (dict, text)``; ``source`` is the run's `PatrolSource`.
     """
 
     world: PatrolWorld
@@ -336,7 +336,7 @@ class PatrolReport:
             "w_td_reference": self.reference.w_td.tolist(),
         }
 
-    def __call__(self, result, source: PatrolSource, out, plots: bool = True) -> tuple[dict, str]:
+    def __call__(self, result, source: PatrolSource) -> tuple[dict, str]:
         info = self.numbers(result, source)
         corr = np.asarray(info["correlation_last"])
         links = info["links_during_run"]
@@ -350,11 +350,6 @@ class PatrolReport:
                 f"{info['reference']['transitions']:,} transitions (w* standard error "
                 f"{info['reference']['w_star_stderr_relative']:.2%} of max |w*|, TD cross-check "
                 f"{info['reference']['td_vs_w_star_relative']:.2%})")
-        if plots:
-            from dgtd.plots_robots import write_figures
-
-            files = write_figures(self.world, self.network, self.reference, result, source, out)
-            text += f"\nwrote {', '.join(files)}"
         return info, text
 
 
@@ -367,7 +362,7 @@ def patrol_scenario(world: PatrolWorld = PatrolWorld(), radius: float = 5.0, *, 
 
     from dgtd.problems.features import tabular
     from dgtd.problems.model import make_problem
-    from dgtd.problems.scenarios import Scenario
+    from dgtd.scenarios import Scenario
     from dgtd.sources.model import Sampling
 
     proximity = ProximityNetwork(world.n_robots, radius)

@@ -19,7 +19,7 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import RandomEdges, random_edges
 from dgtd.problems.generators import random_problem
 from dgtd.problems.model import Problem
-from dgtd.problems.scenarios import get_scenario
+from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 

@@ -82,3 +82,11 @@ def plot_errors(result: RunResult, path: Path) -> None:
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     _save(fig, path)
+
+
+def scenario_figures(report, result, source, out) -> list[str]:
+    """The figures of a scenario's own report (the patrol world's maps, ...) into ``out``; returns the names
+    written, none for a report without figures."""
+    from dgtd.plots.robots import report_figures
+
+    return report_figures(report, result, source, out)

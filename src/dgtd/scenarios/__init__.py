@@ -38,8 +38,8 @@ class Scenario:
     that runs an algorithm on the scenario should pass a fresh one as ``run(..., source=...)``
     (`dgtd.config.make_source`), so that every algorithm sees the same samples and links."""
     report: Callable[..., tuple] | None = None
-    """Optional ``report(result, source, out, plots) -> (dict, text)`` after a run: scenario-specific numbers for
-    summary.json (under "scenario"), figures written to ``out`` when ``plots``, and lines to print."""
+    """Optional ``report(result, source) -> (dict, text)`` after a run: scenario-specific numbers for summary.json
+    (under "scenario") and lines to print; its figures, if any, are drawn by `dgtd.plots.scenario_figures`."""
     compare_settings: dict = field(default_factory=dict)
     """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario;
     for "dgtd" they override ``algorithm``'s only in comparisons (`dgtd.run.compare.configs_for`)."""
@@ -83,7 +83,7 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
 def paper_example_2(edge_prob: float | None = None) -> Scenario:
     """The paper's Example 2: three robots patrol a 20 m x 20 m area on a 20 x 20 grid, talking within 5 m.
 
-    World, regions and the estimated reference chain: `dgtd.problems.robots`. Tabular features, gamma = 0.5,
+    World, regions and the estimated reference chain: `dgtd.scenarios.robots`. Tabular features, gamma = 0.5,
     50 000 iterations as in the paper; samples and links come from the simulated robots (`PatrolSource`).
     The paper gives no step sizes for this example; we keep its schedule alpha_k = alpha0 / sqrt(k + beta) with
     alpha0 = 10, beta = 1000 and kappa = 3. When all three robots are linked, L(k) has eigenvalue 3, and the
@@ -95,7 +95,7 @@ def paper_example_2(edge_prob: float | None = None) -> Scenario:
     if edge_prob is not None:
         raise DgtdInputError("the links of paper-example-2 come from the robots' positions (5 m radius); "
                              "--edge-prob does not apply")
-    from dgtd.problems.robots import PatrolWorld, patrol_scenario
+    from dgtd.scenarios.robots import PatrolWorld, patrol_scenario
 
     return patrol_scenario(
         PatrolWorld(), 5.0, algorithm=DGTD(alpha0=10.0, beta=1000.0, schedule="sqrt", kappa=3.0),

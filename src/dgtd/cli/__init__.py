@@ -87,7 +87,7 @@ def run(ctx, scenario, resume_dir, **_):
     """
     from dgtd.config import scenario_of
     from dgtd.experiments import experiment_from
-    from dgtd.run.resumable import CONFIG, prepare
+    from dgtd.cli.job import CONFIG, prepare
 
     flags = given_flags(ctx, exclude=("scenario", "resume_dir"))
     file = scenario if _is_experiment_file(scenario) else None
@@ -194,13 +194,13 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 
 @cli.command()
-@click.option("--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.bench.CASES).")
+@click.option("--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.cli.bench.CASES).")
 @click.option("--backend", "backends", default="numba,numpy", show_default=True, help="Backends to measure.")
 @click.option("--repeats", type=int, default=3, show_default=True, help="Runs per measurement; the median is reported.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench", show_default=True)
 def bench(cases, backends, repeats, out):
     """Measure agent-steps per second on the standard configurations; writes JSON and a Markdown table."""
-    from dgtd.bench import CASES, markdown, measure
+    from dgtd.cli.bench import CASES, markdown, measure
     from dgtd.run.results import atomic_write, atomic_write_json
 
     keys = [k.strip().upper() for k in cases.split(",")]
@@ -256,7 +256,7 @@ def sweep(ctx, experiment, **_):
 @click.argument("directory", type=click.Path(file_okay=False, exists=True))
 def plot(directory):
     """Draw the figures of a results DIRECTORY (of `dgtd run` or `dgtd sweep`) from its saved files alone."""
-    from dgtd.plot_results import plot_directory
+    from dgtd.plots.results import plot_directory
 
     for path in plot_directory(Path(directory)):
         click.echo(f"wrote {path}")
@@ -265,13 +265,13 @@ def plot(directory):
 @cli.command()
 def scenarios():
     """List the named scenarios."""
-    from dgtd.problems.scenarios import SCENARIOS
+    from dgtd.scenarios import SCENARIOS
 
     for name, builder in SCENARIOS.items():  # the builders' first doc lines: listing builds nothing
         click.echo(f"{name:<20} {(builder.__doc__ or '').strip().splitlines()[0]}")
 
 
-from dgtd.cli_compare import compare as _compare  # noqa: E402
+from dgtd.cli.compare import compare as _compare  # noqa: E402
 
 cli.add_command(_compare)
 

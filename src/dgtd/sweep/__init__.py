@@ -1,7 +1,7 @@
 """Sweeps: the runs of a [grid] of run fields, handed as jobs to a `concurrent.futures` executor.
 
 Each grid point is one job: a `RunSpec` run with all its seeds side by side. Jobs go to a local process
-pool by default, or to Ray (`dgtd.ray_executor`); the driver alone writes files (`dgtd.store`), so workers
+pool by default, or to Ray (`dgtd.sweep.ray`); the driver alone writes files (`dgtd.run.store`), so workers
 on other machines need no shared disk. A job whose worker dies is run again: Ray retries it itself, and a
 broken process pool is replaced and the unfinished jobs resubmitted.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 from dgtd.config import ALGORITHM_FIELDS, RunSpec, field_types, resolve, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import TABLES, Experiment, Output, absolute_paths, to_toml
-from dgtd.store import SweepStore
+from dgtd.run.store import SweepStore
 
 MAX_ATTEMPTS = 3
 
@@ -117,7 +117,7 @@ def make_executor(exp: Experiment, n_jobs: int) -> Executor:
     """A process pool on the local cores, or a `RayExecutor` (local on 127.0.0.1, or ``address``)."""
     opts = exp.sweep
     if opts.executor == "ray":
-        from dgtd.ray_executor import RayExecutor
+        from dgtd.sweep.ray import RayExecutor
 
         return RayExecutor(address=opts.address, num_cpus=opts.workers)
     if opts.address is not None:
