@@ -1,5 +1,26 @@
-"""dgtd: distributed policy evaluation with the primal-dual distributed GTD method and its baselines."""
+"""dgtd: distributed policy evaluation with the primal-dual distributed GTD method and its baselines.
 
+The names a user needs, each documented where it is defined::
+
+    import dgtd
+
+    sc = dgtd.scenario("paper-example-1")                     # a named, ready-to-run setting
+    result = dgtd.evaluate(sc.problem, sc.network, dgtd.DGTD(alpha0=1.0), iterations=100_000, seeds=4)
+    result.metrics["error_avg"][-1]                           # max_i |w_i - w*| / |w*| per seed, averaged iterate
+
+- runs: `evaluate` (`dgtd.run.loop.run` is the loop itself, with checkpoints and resume), `RunSettings`,
+  `Sampling`, `RunResult`;
+- scenarios: `scenario`, `SCENARIOS`;
+- algorithms: `DGTD`, `GTD2`, `TDC`, `TD0`, `ConsensusTD0`, `PDTD`, `TDTracking`, `Local`, `make_algorithm`,
+  `ALGORITHMS`;
+- problems: `make_problem`, `from_mdp`, `load_problem`, `save_problem`, `tasks`, `exact`;
+- graphs and links: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`, `Links`;
+- results: `read_results`.
+
+Names load on first use, so ``import dgtd`` stays quick (the compiled kernels load only when a run needs them).
+"""
+
+import importlib as _importlib
 import os as _os
 
 # When agents are spread over the cores, the compiled kernels synchronise their threads at every step. Threads
@@ -11,3 +32,32 @@ if "OMP_WAIT_POLICY" not in _os.environ and "GOMP_SPINCOUNT" not in _os.environ:
     _os.environ["GOMP_SPINCOUNT"] = "10000"
 
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "evaluate": "dgtd.run.loop", "RunSettings": "dgtd.run.loop", "RunResult": "dgtd.run.loop",
+    "Sampling": "dgtd.sources.model",
+    "scenario": ("dgtd.scenarios", "get_scenario"), "SCENARIOS": "dgtd.scenarios",
+    "DGTD": "dgtd.algorithms", "GTD2": "dgtd.algorithms", "TDC": "dgtd.algorithms", "TD0": "dgtd.algorithms",
+    "ConsensusTD0": "dgtd.algorithms", "PDTD": "dgtd.algorithms", "TDTracking": "dgtd.algorithms",
+    "Local": "dgtd.algorithms", "make_algorithm": "dgtd.algorithms", "ALGORITHMS": "dgtd.algorithms",
+    "make_problem": "dgtd.problems.model", "from_mdp": "dgtd.problems.mdp", "load_problem": "dgtd.problems.io",
+    "save_problem": "dgtd.problems.io", "tasks": ("dgtd.problems", "tasks"), "exact": ("dgtd.problems", "exact"),
+    "ring": "dgtd.graphs.topologies", "path": "dgtd.graphs.topologies", "star": "dgtd.graphs.topologies",
+    "complete": "dgtd.graphs.topologies", "from_edges": "dgtd.graphs.topologies",
+    "from_networkx": "dgtd.graphs.topologies", "random_edges": "dgtd.graphs.random", "Links": "dgtd.graphs.links",
+    "read_results": "dgtd.run.results",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'dgtd' has no attribute {name!r}")
+    module, attr = _EXPORTS[name] if isinstance(_EXPORTS[name], tuple) else (_EXPORTS[name], name)
+    value = getattr(_importlib.import_module(module), attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -53,8 +53,11 @@ class DGTD(StepSizes):
         check_nonnegative("rho", self.rho)
         if not (np.isfinite(self.box_scale) and self.box_scale > 1.0):
             raise DgtdInputError(f"box_scale must be > 1 (the boxes must contain the saddle point), got {self.box_scale}")
-        if self.boxes is not None and (len(self.boxes) != 4 or any(not b > 0 for b in self.boxes)):
-            raise DgtdInputError(f"boxes must be four positive half-widths (theta, v, mu, w), got {self.boxes}")
+        # v and mu may be pinned at 0 (no links: their bounds of Lemma 2 are 0); theta and w may not
+        if self.boxes is not None and (len(self.boxes) != 4 or not all(b >= 0 for b in self.boxes)
+                                       or not (self.boxes[0] > 0 and self.boxes[3] > 0)):
+            raise DgtdInputError("boxes must be four half-widths (theta, v, mu, w), theta and w positive, v and mu "
+                                 f">= 0, got {self.boxes}")
 
     def init(self, seeds: int, agents: int, features: int) -> "DGTDState":
         """Algorithm 1 line 3: all variables start at zero."""

@@ -337,3 +337,21 @@ def kernel_for(backend: str, algorithm: str):
                       stacklevel=3)
         return run_block
     return KERNELS[algorithm]
+
+
+def evaluate(problem: Problem, network: RandomEdges, algorithm, *, sampling: Sampling = Sampling(),
+             iterations: int = RunSettings.iterations, seeds: int = RunSettings.seeds, seed: int = RunSettings.seed,
+             backend: str = RunSettings.backend, **settings) -> RunResult:
+    """Run ``algorithm`` on ``problem`` over ``network``: `run` with its `RunSettings` given as keywords.
+
+    Example::
+
+        >>> import dgtd
+        >>> sc = dgtd.scenario("paper-example-1")
+        >>> result = dgtd.evaluate(sc.problem, sc.network, dgtd.DGTD(alpha0=1.0), iterations=2000, seeds=2,
+        ...                        backend="numpy")
+        >>> result.w_last.shape  # (seeds, agents, features)
+        (2, 5, 2)
+    """
+    return run(problem, network, algorithm, sampling,
+               RunSettings(iterations=iterations, seeds=seeds, seed=seed, backend=backend, **settings))

@@ -7,6 +7,7 @@ import io
 import json
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -104,3 +105,39 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "
     np.savez_compressed(buf, **arrays)
     atomic_write(out / "trajectory.npz", buf.getvalue())
     atomic_write_json(out / "summary.json", summary(result, config) | ({"scenario": extra} if extra else {}))
+
+
+@dataclass(frozen=True)
+class Results:
+    """A results directory as written by `dgtd run` (`write_results`): ``summary`` (summary.json), ``metrics``
+    (metrics.csv, a column name -> array mapping) and ``trajectory`` (trajectory.npz's arrays, empty if absent)."""
+
+    summary: dict
+    metrics: dict
+    trajectory: dict
+
+
+def read_results(out) -> Results:
+    """The results of a run directory, or a `DgtdInputError` saying which file is missing or damaged.
+
+    Example, after ``dgtd run paper-example-1``::
+
+        results = dgtd.read_results("runs/paper-example-1")
+        results.metrics["error_avg"][-1], results.summary["w_star"]
+    """
+    from dgtd.errors import DgtdInputError
+    from dgtd.run.store import read_table
+
+    out = Path(out)
+    try:
+        summary = json.loads((out / "summary.json").read_text())
+        metrics = read_table(out / "metrics.csv")
+    except FileNotFoundError as e:
+        raise DgtdInputError(f"{out} holds no results of a run ({Path(e.filename).name} is missing)") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise DgtdInputError(f"{out}: a results file is damaged ({e}); run it again") from None
+    trajectory = {}
+    if (out / "trajectory.npz").exists():
+        with np.load(out / "trajectory.npz", allow_pickle=False) as z:
+            trajectory = {k: z[k] for k in z.files}
+    return Results(summary, metrics, trajectory)
