@@ -76,3 +76,42 @@ def test_a_second_process_loads_the_cached_kernel_without_refresh(tmp_path):
         outs.append((r.stdout.strip(), np.load(out)))
     assert outs[1][0] == "not refreshed"
     np.testing.assert_array_equal(outs[0][1], outs[1][1])
+
+
+EDITED_HELPER = """
+import sys
+import numpy as np
+from dgtd.algorithms import TD0
+from dgtd.scenarios import get_scenario
+from dgtd.run.loop import RunSettings, run
+from dgtd.sources.model import Sampling
+sc = get_scenario("paper-example-1")
+res = run(sc.problem, sc.network, TD0(), Sampling(), RunSettings(iterations=200, seeds=1, checkpoints=1))
+print(repr(float(res.w_last.sum())))
+"""
+
+
+def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path):
+    """numba keys a cached kernel by its own file; editing `primitives.feature_dot`, which the TD(0) kernel
+    inlines, must still change what a fresh process computes (the package clears its cache when any module of it
+    changed), and an unchanged package loads from the cache."""
+    import shutil
+    from pathlib import Path
+
+    src = tmp_path / "src"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "src" / "dgtd", src / "dgtd",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**cli_env(), "PYTHONPATH": str(src)}
+
+    def value() -> str:
+        r = subprocess.run([sys.executable, "-c", EDITED_HELPER], capture_output=True, text=True, env=env)
+        assert r.returncode == 0, r.stderr
+        return r.stdout.strip()
+
+    before = value()
+    assert value() == before
+    helper = src / "dgtd" / "backends" / "compiled" / "primitives.py"
+    text = helper.read_text()
+    assert "        acc += Phi[s, f] * x[b, e, f]\n" in text
+    helper.write_text(text.replace("        acc += Phi[s, f] * x[b, e, f]\n", "        acc += 0.5 * Phi[s, f] * x[b, e, f]\n"))
+    assert value() != before

@@ -1,9 +1,16 @@
-"""The compiled DGTD kernel (Algorithm 1, `dgtd.algorithms.dgtd.DGTD.update`): one fused loop over a block of steps.
+"""The compiled DGTD kernel: Algorithm 1 (section 7 of the paper) over a block of steps, `DGTD.update` line for line.
 
-The kernels draw their own samples from the seeds' PCG64 streams (`dgtd.backends.compiled.sampling`), the same
-samples as the reference backend, and apply the same updates, so for the same seed both backends give the same
-numbers up to floating-point summation order. Two layouts: seeds spread over the cores (`_dgtd_by_seed`, small N)
-or agents (`_dgtd_by_agent`, large N and few seeds).
+`_agent_step` is the update of one agent: its neighbour sums, the TD terms, then for each feature the lines of
+`dgtd.algorithms.dgtd.direction` and `DGTD.update` in the same order and with the same names, as plain numba
+expressions (LLVM vectorises the loop over features; no fastmath, so every process gets the same bits). The
+generic vector primitives it calls, a dot product in a fixed lane order and the neighbour sums, are in
+`dgtd.backends.compiled.simd`. Two differences from the reference, both exact in real arithmetic: (L(k) v)_i +
+(L(k) mu)_i is one neighbour sum of v + mu, which the agents share instead of v and mu.
+
+Samples are drawn inside the kernel from the seeds' PCG64 streams (`dgtd.backends.compiled.sampling`), the same
+samples as the reference backend's. Two layouts: seeds spread over the cores (`_dgtd_by_seed`, small N, many
+seeds) or agents (`_dgtd_by_agent`, large N, few seeds). The shared rows (w and v + mu, which neighbours read) are
+double-buffered: every agent reads step k's while writing step k + 1's (the Jacobi form of Algorithm 1).
 """
 
 from __future__ import annotations
@@ -16,32 +23,29 @@ from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.graph import per_run, storage_graph, storage_order
 from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
-from dgtd.backends.compiled.simd import (MU, SUM_W, THETA, V, VMU, W, _agent_pass, _dots3, from_blocks, shared_index,
-                                         state_index, to_blocks)
+from dgtd.backends.compiled.simd import dot, neighbour_sums
 from dgtd.samples import Draws
 
-
-@njit(cache=True, inline="always")
-def _clip(x, b):
-    return -b if x < -b else (b if x > b else x)
-
-
-# No fastmath: with reassociation or fused multiply-adds, the rounding of a sum depends on how LLVM vectorised
-# one compiled specialisation, and the same seed gave results one ulp apart in different processes. The dense
-# agent step is written in vector instructions by hand (`dgtd.backends.compiled.simd._agent_pass`), in one pass over the
-# features. Elements of the shared arrays are indexed directly (S[b, i, k]), never through row views (S[b, i]):
-# numba counts references to every view with an atomic update, and two threads updating the same count stall
-# each other.
+# Every variable is a C-contiguous array (B, N, q) of its own. With the variables side by side in one row, LLVM can
+# prove the feature loop's stores and loads apart only at run time, and its check fails: the loop ran scalar.
 
 
 @njit(cache=True, inline="always")
-def _up_neighbours(J, up, ub, indptr, nbr, eid, i):
-    """The rows of agent i's neighbours whose edges are up (row ub of the step's edge mask ``up``; all ones for a
-    fixed graph) into J; returns how many. Without a branch: edges are up at random, a branch mispredicts."""
+def _clip(x, bound):
+    """Projection onto [-bound, bound] (Algorithm 1 line 9); NaN stays NaN. Testing the inner result rather than x
+    twice lets LLVM emit one min and one max instruction (a compare and a blend per test otherwise)."""
+    inner = bound if x > bound else x
+    return -bound if inner < -bound else inner
+
+
+@njit(cache=True, inline="always")
+def _up_neighbours(J, up, row, indptr, nbr, eid, i):
+    """The rows of agent i's neighbours whose links are up (row ``row`` of the step's edge mask) into J; returns how
+    many. Without a branch: links are up at random, and a branch would be mispredicted."""
     count = 0
     for p in range(indptr[i], indptr[i + 1]):
         J[count] = nbr[p]
-        count += up[ub, eid[p]]
+        count += up[row, eid[p]]
     return count
 
 
@@ -53,137 +57,127 @@ def _max_degree(indptr):
     return d
 
 
-@njit(cache=True)
-def _td_scalars(dots, ratio, r, gamma):
-    """(c_theta, ratio phi^T theta) from the TD terms (phi^T theta, phi^T w, phi'^T w): Algorithm 1 line 7's theta
-    update is phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r) = phi * c_theta, and line 8's TD
-    part of w is ratio (phi - gamma phi') phi^T theta."""
-    phi_theta, phi_w, phin_w = dots
-    return phi_theta + ratio * (phi_w - gamma * phin_w - r), ratio * phi_theta
+@njit(cache=True, inline="always")
+def _csr_dot(ptr, idx, val, s, X, b, i):
+    """phi(s)^T X[b, i] from the CSR rows of Phi (its few nonzero features, in increasing order)."""
+    acc = 0.0
+    for p in range(ptr[s], ptr[s + 1]):
+        acc += val[p] * X[b, i, idx[p]]
+    return acc
 
 
-@njit(cache=True)
-def _row_value(ptr, idx, val, s, f):
-    """phi_f(s) from the CSR rows of Phi (a row's features are in increasing order and few)."""
+@njit(cache=True, inline="always")
+def _csr_value(ptr, idx, val, s, f):
+    """phi_f(s) from the CSR rows of Phi."""
     for p in range(ptr[s], ptr[s + 1]):
         if idx[p] == f:
             return val[p]
     return 0.0
 
 
-@njit(cache=True)
-def _sparse_td_feature(b, i, f, phs, phsn, c_theta, rt, alpha, S, Zi, Zo, J, count, gamma, kappa, rho, b_th, b_w):
-    """Feature f of w and theta with its nonzero phi_f(s) = phs or phi_f(s') = phsn, after a pass without the TD
-    terms (`_sparse_step`): the arithmetic of `numba_simd._agent_pass`, from the same inputs."""
-    c = float(count)
-    w = Zi[b, i, shared_index(f, W)]
-    lw, lvm = c * w, c * Zi[b, i, shared_index(f, VMU)]
-    for n in range(count):
-        lw -= Zi[b, J[n], shared_index(f, W)]
-        lvm -= Zi[b, J[n], shared_index(f, VMU)]
-    g_w = rt * (phs - gamma * phsn) - lvm - kappa * lw - rho * w
-    Zo[b, i, shared_index(f, W)] = _clip(w + alpha * g_w, b_w)
-    if phs != 0.0:  # theta_f moves only where phi_f is nonzero
-        S[b, i, state_index(f, THETA)] = _clip(S[b, i, state_index(f, THETA)] - alpha * (phs * c_theta), b_th)
-
-
-@njit(cache=True)
-def _sparse_step(b, i, s, sn, r, ratio, alpha, S, Zi, Zo, J, count, q, ptr, idx, val, gamma, kappa, rho, boxes):
-    """Algorithm 1 lines 7-9 for agent i of seed b with sparse features (CSR rows ptr/idx/val of Phi): the dot
-    products cost O(nnz(phi) + nnz(phi')), the rest O(q) in vector instructions. A pass of `_agent_pass` without
-    the TD terms does everything that does not depend on phi, and the features where phi or phi' is nonzero are
-    then done again with their values."""
-    phi_theta = 0.0
-    phi_w = 0.0
-    phin_w = 0.0
-    for p in range(ptr[s], ptr[s + 1]):
-        phi_theta += val[p] * S[b, i, state_index(idx[p], THETA)]
-        phi_w += val[p] * Zi[b, i, shared_index(idx[p], W)]
-    for p in range(ptr[sn], ptr[sn + 1]):
-        phin_w += val[p] * Zi[b, i, shared_index(idx[p], W)]
-    c_theta, rt = _td_scalars((phi_theta, phi_w, phin_w), ratio, r, gamma)
-    b_th, b_w = boxes[0], boxes[3]
-    _agent_pass(Zi, Zo, S, b, i, J, count, None, 0, 0, None, None, q, alpha, rho, kappa, gamma, rt, c_theta, b_th,
-                boxes[1], boxes[2], b_w)
-    for p in range(ptr[s], ptr[s + 1]):
-        _sparse_td_feature(b, i, idx[p], val[p], _row_value(ptr, idx, val, sn, idx[p]), c_theta, rt, alpha, S, Zi, Zo,
-                           J, count, gamma, kappa, rho, b_th, b_w)
-    for p in range(ptr[sn], ptr[sn + 1]):
-        if _row_value(ptr, idx, val, s, idx[p]) == 0.0:  # not done above
-            _sparse_td_feature(b, i, idx[p], 0.0, val[p], c_theta, rt, alpha, S, Zi, Zo, J, count, gamma, kappa,
-                               rho, b_th, b_w)
+@njit(cache=True, inline="always")
+def _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, b, i, s, sn, r, ratio, alpha,
+                q, Phi, sparse, ptr, idx, val, params):
+    """Algorithm 1 lines 7-9 for agent i of seed b at step k: `DGTD.update` for one agent. theta, v, mu and the
+    running sum of w are updated in place; w_in and vmu_in (v + mu) are the shared rows at step k, w_out and
+    vmu_out receive agent i's at step k + 1. J[:count] are its neighbours up at step k; Lw and Lvmu are scratch for
+    its neighbour sums. q, the number of features, comes from the caller: computed here from a shape,
+    LLVM cannot prove the feature loop's indices in range and leaves it scalar."""
+    gamma, kappa, rho, b_theta, b_v, b_mu, b_w = params
+    neighbour_sums(w_in, b, i, J, count, Lw)  # (L(k) w)_i
+    neighbour_sums(vmu_in, b, i, J, count, Lvmu)  # (L(k) v)_i + (L(k) mu)_i = (L(k) (v + mu))_i
+    if sparse:
+        phi_theta = _csr_dot(ptr, idx, val, s, theta, b, i)
+        phi_w, phin_w = _csr_dot(ptr, idx, val, s, w_in, b, i), _csr_dot(ptr, idx, val, sn, w_in, b, i)
+    else:
+        phi_theta = dot(Phi, s, theta, (b, i), q)
+        phi_w, phin_w = dot(Phi, s, w_in, (b, i), q), dot(Phi, sn, w_in, (b, i), q)
+    # Line 7's theta direction is phi c_theta; line 8's TD part of w is ratio phi^T theta (phi - gamma phi')
+    c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
+    ratio_phi_theta = ratio * phi_theta
+    for f in range(q):
+        w = w_in[b, i, f]
+        sum_w[b, i, f] += w  # the running sum of w_k behind the averaged iterates
+        # Line 7, v: g_v = v - (L(k) w)_i
+        v_new = _clip(v[b, i, f] - alpha * (v[b, i, f] - Lw[f]), b_v)
+        # Line 8, mu: g_mu = -(L(k) w)_i + rho mu
+        mu_new = _clip(mu[b, i, f] - alpha * (-Lw[f] + rho * mu[b, i, f]), b_mu)
+        v[b, i, f] = v_new
+        mu[b, i, f] = mu_new
+        vmu_out[b, i, f] = v_new + mu_new
+        # Line 8, w: g_w = ratio phi^T theta (phi - gamma phi') - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
+        phi, phi_next = (0.0, 0.0) if sparse else (Phi[s, f], Phi[sn, f])
+        g_w = ratio_phi_theta * (phi - gamma * phi_next) - Lvmu[f] - kappa * Lw[f] - rho * w
+        w_out[b, i, f] = _clip(w + alpha * g_w, b_w)
+        # Line 7, theta: g_theta = phi (phi^T theta + ratio (phi^T w - gamma phi'^T w - r)) = phi c_theta
+        theta[b, i, f] = _clip(theta[b, i, f] - alpha * (phi * c_theta), b_theta)
+    if sparse:  # the loop took phi = phi' = 0; w and theta again where phi(s) or phi(s') is not zero
+        for p in range(ptr[s], ptr[s + 1]):
+            _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, b, i, idx[p], val[p], _csr_value(ptr, idx, val, sn, idx[p]),
+                               alpha, gamma, kappa, rho, ratio_phi_theta, c_theta, b_theta, b_w)
+        for p in range(ptr[sn], ptr[sn + 1]):
+            if _csr_value(ptr, idx, val, s, idx[p]) == 0.0:  # not done above
+                _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, b, i, idx[p], 0.0, val[p], alpha, gamma, kappa, rho,
+                                   ratio_phi_theta, c_theta, b_theta, b_w)
 
 
 @njit(cache=True, inline="always")
-def _dense_step(b, i, s, sn, s_next, sn_next, r, ratio, alpha, dots, S, Zi, Zo, J, count, q, Phi, gamma, kappa,
-                rho, boxes):
-    """Algorithm 1 lines 7-9 for agent i of seed b with dense features, from its TD terms ``dots`` at step k;
-    returns those of step k + 1 (from the features of s_next, sn_next; zeros when they are None: `_agent_pass`)."""
-    c_theta, rt = _td_scalars(dots, ratio, r, gamma)
-    return _agent_pass(Zi, Zo, S, b, i, J, count, Phi, s, sn, s_next, sn_next, q, alpha, rho, kappa, gamma, rt, c_theta,
-                       boxes[0], boxes[1], boxes[2], boxes[3])
+def _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, b, i, f, phi, phi_next, alpha, gamma, kappa, rho,
+                       ratio_phi_theta, c_theta, b_theta, b_w):
+    """Feature f of w and theta, the lines of `_agent_step`'s loop, with phi_f(s) and phi_f(s') not both zero."""
+    w = w_in[b, i, f]
+    g_w = ratio_phi_theta * (phi - gamma * phi_next) - Lvmu[f] - kappa * Lw[f] - rho * w
+    w_out[b, i, f] = _clip(w + alpha * g_w, b_w)
+    theta[b, i, f] = _clip(theta[b, i, f] - alpha * (phi * c_theta), b_theta)
 
 
 @njit(cache=True, parallel=True)
-def _dgtd_by_seed(S, Z, Z2, q, alphas, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
-                  sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi, sparse, ptr, idx, val,
-                  ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of):
-    """Seeds spread over the cores; within a seed, steps and agents run in order (small N, many seeds). The
-    shared rows, which neighbours read, are double-buffered (Z at even steps, Z2 at odd ones), so every agent
-    reads step k's while writing step k + 1's (Jacobi form). Each step first draws the next step's samples, so
-    that an agent's pass can leave behind the TD terms of its next step (`_agent_pass`). Row i of the arrays
-    holds agent agent_of[i] (`storage_order`). Returns the number of steps (odd: the result is in Z2)."""
-    B, N = Z.shape[0], Z.shape[1]
+def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, params):
+    """Seeds spread over the cores; within a seed, steps and agents run in order. Row i of the arrays holds agent
+    agent_of[i] (`storage_order`). Returns the number of steps (odd: the shared rows' result is in Z2)."""
+    (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
+     sn_blk, r_blk, up_blk, n_up) = sampler
+    indptr, nbr, eid, agent_of = graph
+    Phi, sparse, ptr, idx, val = model
+    theta, v, mu, sum_w = state
+    w0, vmu0, w1, vmu1 = shared  # step k reads (w0, vmu0) and writes (w1, vmu1) at even k, the other way at odd k
+    B, N = theta.shape[0], theta.shape[1]
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     degree = _max_degree(indptr)
     for b in prange(B):
         J = np.empty(degree, np.int64)
-        dots = np.zeros((N, 3))
-        s_t, a_t, sn_t = np.empty((2, n_obs), np.int64), np.empty((2, n_obs), np.int64), np.empty((2, n_obs), np.int64)
-        r_t = np.empty((2, N))
-        up_t = np.ones((2, E), np.bool_)
+        Lw, Lvmu = np.empty(q), np.empty(q)
+        s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
+        r_t = np.empty((1, N))
+        up_t = np.ones((1, E), np.bool_)
         for t in range(T):
-            # this step's samples are there (at t = 0, drawn now, with its TD terms), and the next step's are drawn
-            # ahead (not past the block: the streams must stay at its end); one call site compiles once
-            for u in range(0 if t == 0 else t + 1, min(t + 2, T)):
-                n_up[b] += _step_samples(b, u % 2, u, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias,
-                                         R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t,
-                                         sn_t, r_t, up_t)
-            if t == 0 and not sparse:
-                for i in range(N):
-                    o = agent_of[i] if n_obs == N else 0
-                    dots[i, 0], dots[i, 1], dots[i, 2] = _dots3(Phi, s_t[0, o], sn_t[0, o], S, Z, b, i, q)
-            Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
-            now, nxt = t % 2, (t + 1) % 2
+            n_up[b] += _step_samples(b, 0, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                                     sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t,
+                                     up_t)
+            w_in, vmu_in, w_out, vmu_out = (w0, vmu0, w1, vmu1) if t % 2 == 0 else (w1, vmu1, w0, vmu0)
             for i in range(N):
-                count = _up_neighbours(J, up_t, now, indptr, nbr, eid, i)
+                count = _up_neighbours(J, up_t, 0, indptr, nbr, eid, i)
                 o = agent_of[i] if n_obs == N else 0
-                s, a, sn = s_t[now, o], a_t[now, o], sn_t[now, o]
-                r = r_t[now, agent_of[i]]
-                if sparse:
-                    _sparse_step(b, i, s, sn, r, ratio_tab[s, a], alphas[t], S, Zi, Zo, J, count, q, ptr, idx, val,
-                                 gamma, kappa, rho, boxes)
-                else:
-                    # after the block's last step the next TD terms are not needed; s_next = s keeps one compiled pass
-                    s_next, sn_next = (s_t[nxt, o], sn_t[nxt, o]) if t + 1 < T else (s, sn)
-                    dots[i, 0], dots[i, 1], dots[i, 2] = _dense_step(
-                        b, i, s, sn, s_next, sn_next, r, ratio_tab[s, a], alphas[t],
-                        (dots[i, 0], dots[i, 1], dots[i, 2]), S, Zi, Zo, J, count, q, Phi, gamma, kappa, rho, boxes)
+                s, a, sn = s_t[0, o], a_t[0, o], sn_t[0, o]
+                _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, b, i, s, sn,
+                            r_t[0, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val, params)
     return T
 
 
 @njit(cache=True, parallel=True)
-def _dgtd_by_agent(S, Z, Z2, q, alphas, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
-                   sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi, sparse, ptr, idx, val,
-                   ratio_tab, gamma, kappa, rho, boxes, indptr, nbr, eid, agent_of, n_chunks):
-    """Agents spread over the cores at every step (large N, few seeds). The shared rows, which neighbours read,
-    are double-buffered so that every agent reads step k's values while others write step k + 1's. Samples
-    are double-buffered too: while the agents update with step k's, the chunks also draw step k + 1's, each
-    seed's state and reward streams in one chunk and its edge stream in another (a stream is sequential, but
-    the streams are independent), so that no core waits while another samples. Returns the number of buffer
-    swaps (odd: the result is in Z2)."""
-    B, N = Z.shape[0], Z.shape[1]
+def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, params, n_chunks):
+    """Agents spread over the cores at every step. Samples are double-buffered too: while the agents update with
+    step k's, the chunks also draw step k + 1's, each seed's state and reward streams in one chunk and its edge
+    stream in another (a stream is sequential, but the streams are independent), so that no core waits while
+    another samples. Returns the number of buffer swaps (odd: the result is in Z2)."""
+    (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
+     sn_blk, r_blk, up_blk, n_up) = sampler
+    indptr, nbr, eid, agent_of = graph
+    Phi, sparse, ptr, idx, val = model
+    theta, v, mu, sum_w = state
+    w0, vmu0, w1, vmu1 = shared  # step k reads (w0, vmu0) and writes (w1, vmu1) at even k, the other way at odd k
+    B, N = theta.shape[0], theta.shape[1]
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     degree = _max_degree(indptr)
@@ -198,25 +192,20 @@ def _dgtd_by_agent(S, Z, Z2, q, alphas, fused, rng, markov, current, d_prob, d_a
         n_up[b] += _step_samples(b, b, 0, fused, words, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
                                  sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t)
     for t in range(T):
-        Zi, Zo = (Z, Z2) if t % 2 == 0 else (Z2, Z)
+        w_in, vmu_in, w_out, vmu_out = (w0, vmu0, w1, vmu1) if t % 2 == 0 else (w1, vmu1, w0, vmu0)
         now, nxt = (t % 2) * B, ((t + 1) % 2) * B  # rows of this step's samples and the next step's
         for c in prange(n_chunks):
             J = np.empty(degree, np.int64)
-            hi = (c + 1) * total // n_chunks
-            for flat in range(c * total // n_chunks, hi):
+            Lw, Lvmu = np.empty(q), np.empty(q)
+            for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
                 b = flat // N
                 i = flat % N
                 o = agent_of[i] if n_obs == N else 0
                 s, a, sn = s_t[now + b, o], a_t[now + b, o], sn_t[now + b, o]
-                r = r_t[now + b, agent_of[i]]
                 count = _up_neighbours(J, up_t, now + b, indptr, nbr, eid, i)
-                if sparse:
-                    _sparse_step(b, i, s, sn, r, ratio_tab[s, a], alphas[t], S, Zi, Zo, J, count, q, ptr, idx, val,
-                                 gamma, kappa, rho, boxes)
-                else:
-                    _dense_step(b, i, s, sn, None, None, r, ratio_tab[s, a], alphas[t],
-                                _dots3(Phi, s, sn, S, Zi, b, i, q), S, Zi, Zo, J, count, q, Phi, gamma, kappa,
-                                rho, boxes)
+                _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, b, i, s, sn,
+                            r_t[now + b, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val,
+                            params)
             if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over chunks
                 for j in range(2 * B):
                     if j * n_chunks // (2 * B) == c:
@@ -236,7 +225,7 @@ load_quickly(_dgtd_by_seed, _dgtd_by_agent)
 
 def feature_arrays(ctx):
     """(Phi, sparse, CSR rows of Phi): sparse when rows hold at most a quarter of the features (tabular: one); the
-    sparse kernels read the features from the CSR rows only (`_sparse_step`), and get a row of zeros for Phi."""
+    sparse kernels read the features from the CSR rows only, and get a row of zeros for Phi."""
 
     def build():
         Phi = np.ascontiguousarray(ctx.Phi, dtype=np.float64)
@@ -272,28 +261,25 @@ def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
     rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
     back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
     B, N, q = state.w.shape
-    # the blocked rows of `simd`: the agents' state rows, and the shared rows neighbours read (w, v + mu)
-    S = to_blocks([rows(state.theta), rows(state.v), rows(state.mu), rows(w_sum)], q)
-    Z = to_blocks([rows(state.w), rows(state.v + state.mu)], q)
-    Z2 = np.zeros_like(Z)
-    indptr, nbr, eid, agent_of = storage_graph(ctx)
-    Phi, sparse, ptr, idx, val = feature_arrays(ctx)
-    sampling = sample_args(ctx, blk, B)
+    copy = lambda x: np.array(rows(x), dtype=np.float64, order="C")  # noqa: E731  (updated in place: never the caller's)
+    arrays = tuple(copy(x) for x in (state.theta, state.v, state.mu, w_sum))
+    w, vmu = copy(state.w), copy(state.v + state.mu)
+    shared = (w, vmu, np.zeros_like(w), np.zeros_like(vmu))
+    sampler = sample_args(ctx, blk, B)
     boxes = (np.inf,) * 4 if algorithm.boxes is None else algorithm.boxes
-    common = (np.ascontiguousarray(alphas), *sampling, Phi, sparse, ptr, idx, val, np.ascontiguousarray(ctx.ratio),
-              float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), np.asarray(boxes, dtype=np.float64),
-              indptr, nbr, eid, agent_of)
+    params = (float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), *(float(x) for x in boxes))
+    args = (np.ascontiguousarray(alphas), sampler, feature_arrays(ctx), np.ascontiguousarray(ctx.ratio),
+            storage_graph(ctx), params)
     if by_agent(B, N, q):
-        steps = _dgtd_by_agent(S, Z, Z2, q, *common, 4 * get_num_threads())
+        steps = _dgtd_by_agent(arrays, shared, q, *args, 4 * get_num_threads())
     else:
-        steps = _dgtd_by_seed(S, Z, Z2, q, *common)
-    if steps % 2:
-        Z = Z2
+        steps = _dgtd_by_seed(arrays, shared, q, *args)
+    w = shared[2] if steps % 2 else shared[0]
     if isinstance(blk, Draws):
-        _, rng, markov, current = sampling[:4]
-        blk.settle(rng, current if markov else None, sampling[-1])
-    theta, v, mu, sum_w = (back(from_blocks(S, var, 4, q)) for var in (THETA, V, MU, SUM_W))
-    return DGTDState(theta, v, mu, back(from_blocks(Z, W, 2, q))), sum_w
+        _, rng, markov, current = sampler[:4]
+        blk.settle(rng, current if markov else None, sampler[-1])
+    theta, v, mu, sum_w = (back(x) for x in arrays)
+    return DGTDState(theta, v, mu, back(w)), sum_w
 
 
 dgtd_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
