@@ -61,24 +61,26 @@ def test_dot_reads_only_the_first_n_elements_of_its_rows():
 
 
 @njit
-def sums(Z, b, i, J, count, out):
-    neighbour_sums(Z, b, i, J, count, out)
+def sums(Z, b, i, J, count, out, at):
+    neighbour_sums(Z, b, i, J, count, out, at)
 
 
 @pytest.mark.parametrize("count", [0, 1, 3, UNROLLED_NEIGHBOURS, UNROLLED_NEIGHBOURS + 1, 12])
 @pytest.mark.parametrize("K", [1, LANES - 1, 2 * LANES + 3, 64])
 def test_neighbour_sums_are_the_laplacian_rows_in_order(count, K):
-    """out = count Z[b, i] - Z[b, J[0]] - ... in this order, for straight-line counts and the general loop."""
+    """out[at] = count Z[b, i] - Z[b, J[at, 0]] - ... in this order, for straight-line counts and the general loop;
+    the other scratch rows stay untouched."""
     rng = np.random.default_rng(count * 100 + K)
     Z = rng.standard_normal((2, 14, K))
-    J = rng.permutation(np.delete(np.arange(14), 4))[:12].astype(np.int64)
-    out = np.full(K + 2, 7.0)
-    sums(Z, 1, 4, J, count, out)
+    J = np.zeros((3, 12), np.int64)
+    J[1] = rng.permutation(np.delete(np.arange(14), 4))[:12]
+    out = np.full((3, K + 2), 7.0)
+    sums(Z, 1, 4, J, count, out, 1)
     want = count * Z[1, 4]
     for n in range(count):
-        want = want - Z[1, J[n]]
-    assert np.array_equal(out[:K], want)
-    assert np.all(out[K:] == 7.0)  # nothing past the row
+        want = want - Z[1, J[1, n]]
+    assert np.array_equal(out[1, :K], want)
+    assert np.all(out[1, K:] == 7.0) and np.all(out[[0, 2]] == 7.0)  # nothing past the row, nor in other rows
 
 
 @njit
@@ -86,8 +88,8 @@ def agent_step(state, shared, Lw, Lvmu, J, count, i, s, sn, r, ratio, alpha, q, 
     theta, v, mu, sum_w = state
     w_in, vmu_in, w_out, vmu_out = shared
     e, ef = np.zeros(1, np.int64), np.zeros(1)
-    _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, 0, i, s, sn, r, ratio, alpha,
-                q, Phi, False, e, e, ef, params)
+    _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, 0, count, 0, i, s, sn, r, ratio,
+                alpha, q, Phi, False, e, e, ef, params)
 
 
 @pytest.mark.parametrize("count", [0, 2, UNROLLED_NEIGHBOURS + 2])
@@ -109,9 +111,9 @@ def test_agent_step_is_dgtd_update_for_one_agent(count, boxes):
                                                           Links(LaplacianOperator(graph), up, 1), alpha)
     state = tuple(x.copy() for x in (theta, v, mu, np.full((1, N, q), 2.0)))
     shared = (w.copy(), v + mu, np.zeros((1, N, q)), np.zeros((1, N, q)))
-    J_full = np.zeros(N, np.int64)
-    J_full[:count] = J
-    agent_step(state, shared, np.empty(q), np.empty(q), J_full, count, i, s, sn, r, ratio, alpha, q, Phi,
+    J_full = np.zeros((1, N), np.int64)
+    J_full[0, :count] = J
+    agent_step(state, shared, np.empty((1, q)), np.empty((1, q)), J_full, count, i, s, sn, r, ratio, alpha, q, Phi,
                (gamma, kappa, rho, *(float(b) for b in boxes)))
     for got, ref in zip(state[:3], want[:3]):
         assert_allclose(got[0, i], ref[0, i], rtol=1e-12, atol=1e-15)

@@ -30,6 +30,8 @@ class RunSpec:
     ``algorithm`` names an entry of `dgtd.algorithms.ALGORITHMS` (default: the scenario's); ``alpha0`` ..
     ``rho`` set the fields of that name of its config and ``algorithm_params`` any other field (e.g.
     ``box_scale``). ``params`` are the scenario's own keyword arguments (``edge_prob`` stays a field of its own).
+    Defaults of the run's length and seeds are `RunSettings`'; None takes the scenario's value. The command-line
+    options of ``dgtd run`` take their defaults and choices from here (`dgtd.cli.spec_default`, `CHOICES`).
     """
 
     scenario: str | None = None
@@ -37,8 +39,8 @@ class RunSpec:
     graph: str | None = None
     edge_prob: float | None = None
     iterations: int | None = None
-    seeds: int = 1
-    seed: int = 0
+    seeds: int = RunSettings.seeds
+    seed: int = RunSettings.seed
     alpha0: float | None = None
     beta: float | None = None
     schedule: str | None = None
@@ -47,10 +49,10 @@ class RunSpec:
     sampling: str | None = None
     shared: bool | None = None
     reward_noise: str | None = None
-    backend: str = "numba"
-    checkpoints: int = 200
-    tail_fraction: float = 0.5
-    block_size: int = 4096
+    backend: str = RunSettings.backend
+    checkpoints: int = RunSettings.checkpoints
+    tail_fraction: float = RunSettings.tail_fraction
+    block_size: int = RunSettings.block_size
     algorithm: str | None = None
     params: dict | None = None
     algorithm_params: dict | None = None
@@ -60,6 +62,19 @@ class RunSpec:
 
 
 ALGORITHM_FIELDS = ("alpha0", "beta", "schedule", "kappa", "rho")
+
+
+def _choices() -> dict:
+    from dgtd.algorithms.stepsizes import SCHEDULES
+    from dgtd.problems.model import REWARD_NOISES
+    from dgtd.run.loop import BACKENDS
+    from dgtd.sources.model import SAMPLING_MODES
+
+    return {"schedule": SCHEDULES, "sampling": SAMPLING_MODES, "reward_noise": REWARD_NOISES, "backend": BACKENDS}
+
+
+CHOICES = _choices()
+"""RunSpec field -> its valid values, from the modules that check them."""
 STEP_SIZE_FIELDS = ("alpha0", "beta", "schedule")
 
 

@@ -9,7 +9,9 @@ from pathlib import Path
 import click
 import numpy as np
 
+from dgtd.config import CHOICES, RunSpec
 from dgtd.errors import DgtdInputError
+from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
 
 
 def _problem_options(f):
@@ -19,7 +21,7 @@ def _problem_options(f):
                      help="ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the scenario's, else ring).")(f)
     f = click.option("--edge-prob", type=float, default=None,
                      help="Probability that each edge of the graph is up at each step (1 = fixed graph).")(f)
-    f = click.option("--kappa", type=float, default=None, help="Weight of the consensus term of eq. (Lagrangian2).")(f)
+    f = click.option("--kappa", type=float, default=None, help="Weight of the consensus term of the Lagrangian (section 5).")(f)
     f = click.option("--rho", type=float, default=None, help="Regulariser (rho/2)|mu|^2 - (rho/2)|w|^2 (0 = none).")(f)
     return f
 
@@ -42,26 +44,33 @@ def _is_experiment_file(arg: str | None) -> bool:
     return arg is not None and arg.endswith(".toml")
 
 
+def spec_default(name: str):
+    """The default of `RunSpec` field ``name``: the command line's, so that it has no defaults of its own."""
+    return RunSpec.__dataclass_fields__[name].default
+
+
 def _spec_options(f):
-    """Options that set run-spec fields; `dgtd run` and `dgtd sweep` share them (a sweep's base run)."""
+    """Options that set run-spec fields; `dgtd run` and `dgtd sweep` share them (a sweep's base run). Defaults and
+    choices come from `dgtd.config.RunSpec` and `dgtd.config.CHOICES` (tests/test_config_cli.py checks)."""
+    d = spec_default
     options = [
         click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
         click.option("--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."),
-        click.option("--seeds", type=int, default=1, show_default=True, help="Independent runs, side by side."),
-        click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))."),
+        click.option("--seeds", type=int, default=d("seeds"), show_default=True, help="Independent runs, side by side."),
+        click.option("--seed", type=int, default=d("seed"), show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))."),
         click.option("--alpha0", type=float, default=None, help="Step-size scale alpha0."),
         click.option("--beta", type=float, default=None, help="Step-size offset beta in alpha0/sqrt(k+beta)."),
-        click.option("--schedule", type=click.Choice(["sqrt", "harmonic", "constant"]), default=None,
+        click.option("--schedule", type=click.Choice(CHOICES["schedule"]), default=None,
                      help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0."),
-        click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."),
+        click.option("--sampling", type=click.Choice(CHOICES["sampling"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."),
         click.option("--shared/--independent", default=None,
                      help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2)."),
-        click.option("--reward-noise", type=click.Choice(["none", "bernoulli", "uniform"]), default=None,
+        click.option("--reward-noise", type=click.Choice(CHOICES["reward_noise"]), default=None,
                      help="Random rewards in [0, sigma] with the model's mean (default: deterministic)."),
-        click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True),
-        click.option("--checkpoints", type=int, default=200, show_default=True, help="How many times to record metrics."),
-        click.option("--tail-fraction", type=float, default=0.5, show_default=True, help="Final fraction of the run averaged for w_tail."),
-        click.option("--block-size", type=int, default=4096, show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
+        click.option("--backend", type=click.Choice(CHOICES["backend"]), default=d("backend"), show_default=True),
+        click.option("--checkpoints", type=int, default=d("checkpoints"), show_default=True, help="How many times to record metrics."),
+        click.option("--tail-fraction", type=float, default=d("tail_fraction"), show_default=True, help="Final fraction of the run averaged for w_tail."),
+        click.option("--block-size", type=int, default=d("block_size"), show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
     ]
     for option in reversed(options):
         f = option(f)
@@ -72,9 +81,9 @@ def _spec_options(f):
 @click.argument("scenario", required=False, metavar="SCENARIO|EXPERIMENT.toml")
 @_spec_options
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
-@click.option("--progress/--no-progress", default=True, show_default=True)
-@click.option("--plots/--no-plots", default=True, show_default=True)
-@click.option("--checkpoint-every", type=int, default=0, show_default=True,
+@click.option("--progress/--no-progress", default=Output.progress, show_default=True)
+@click.option("--plots/--no-plots", default=Output.plots, show_default=True)
+@click.option("--checkpoint-every", type=int, default=Output.checkpoint_every, show_default=True,
               help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never).")
 @click.option("--resume", "resume_dir", type=click.Path(file_okay=False), default=None,
               help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run.")
@@ -217,16 +226,16 @@ def bench(cases, backends, repeats, out):
 @click.argument("experiment", type=click.Path(dir_okay=False))
 @_spec_options
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file).")
-@click.option("--executor", type=click.Choice(["process", "ray"]), default="process", show_default=True,
+@click.option("--executor", type=click.Choice(EXECUTORS), default=SweepOptions.executor, show_default=True,
               help="A pool of local processes, or Ray (pip install 'dgtd[ray]').")
 @click.option("--address", type=str, default=None,
               help="Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1.")
 @click.option("--workers", type=int, default=None, help="Jobs at once (default: the local cores / the local Ray's CPUs).")
 @click.option("--resume/--no-resume", default=None,
               help="Skip jobs already finished in OUT (default: on when OUT exists).")
-@click.option("--format", "format", type=click.Choice(["auto", "parquet", "csv"]), default="auto", show_default=True,
+@click.option("--format", "format", type=click.Choice(TABLE_FORMATS), default=SweepOptions.format, show_default=True,
               help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.")
-@click.option("--progress/--no-progress", default=True, show_default=True)
+@click.option("--progress/--no-progress", default=Output.progress, show_default=True)
 @click.pass_context
 def sweep(ctx, experiment, **_):
     """Run every point of EXPERIMENT.toml's [grid] as a job; one long table and per-job summaries in OUT.

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import click
 
+from dgtd.algorithms import ALGORITHMS
+from dgtd.config import CHOICES
+from dgtd.run.loop import RunSettings
 
 
 def _names(text: str | None) -> tuple[str, ...]:
-    from dgtd.algorithms import ALGORITHMS
-
     if text is None:
         return tuple(ALGORITHMS)
     return tuple(a.strip() for a in text.split(",") if a.strip())
@@ -20,19 +21,20 @@ def _names(text: str | None) -> tuple[str, ...]:
 @click.command()
 @click.argument("scenario")
 @click.option("--algorithms", "-a", type=str, default=None,
-              help="Comma-separated: dgtd, gtd2, tdc, td0, consensus-td0, pd-td, local (default: all).")
+              help=f"Comma-separated: {', '.join(ALGORITHMS)} (default: all).")
 @click.option("--seeds", type=int, default=5, show_default=True, help="Independent runs per algorithm, the same for all.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).")
+@click.option("--seed", type=int, default=RunSettings.seed, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).")
 @click.option("--iterations", "-T", type=int, default=None, help="Iterations T (default: the scenario's).")
 @click.option("--edge-prob", type=float, default=None, help="Probability that each link is up at each step.")
-@click.option("--sampling", type=click.Choice(["iid", "markov"]), default=None, help="i.i.d. s ~ d or Markovian trajectories.")
+@click.option("--sampling", type=click.Choice(CHOICES["sampling"]), default=None, help="i.i.d. s ~ d or Markovian trajectories.")
 @click.option("--shared/--independent", default=None,
               help="All agents observe one state trajectory, or each its own copy (default: the scenario's).")
 @click.option("--tune/--no-tune", default=False, show_default=True,
               help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.")
 @click.option("--tune-seeds", type=int, default=2, show_default=True, help="Seeds per tuning run.")
-@click.option("--backend", type=click.Choice(["numba", "numpy"]), default="numba", show_default=True)
-@click.option("--checkpoints", type=int, default=100, show_default=True, help="How many times to record metrics.")
+@click.option("--backend", type=click.Choice(CHOICES["backend"]), default=RunSettings.backend, show_default=True)
+@click.option("--checkpoints", type=int, default=RunSettings.checkpoints, show_default=True,
+              help="How many times to record metrics.")
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO).")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @click.option("--plots/--no-plots", default=True, show_default=True)
@@ -43,13 +45,12 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
 
     from dgtd.scenarios import get_scenario
     from dgtd.run.compare import CompareSettings, compare as run_compare, configs_for, write_compare
-    from dgtd.run.loop import RunSettings
     from dgtd.sources.model import Sampling
 
     sc = get_scenario(scenario, **({} if edge_prob is None else {"edge_prob": edge_prob}))
     samp = Sampling(mode=sampling or sc.sampling.mode, shared=sc.sampling.shared if shared is None else shared)
     settings = RunSettings(iterations=int(iterations or sc.iterations), seeds=seeds, seed=seed, checkpoints=checkpoints,
-                           block_size=4096, backend=backend)
+                           backend=backend)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
     p = sc.problem

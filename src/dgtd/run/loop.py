@@ -25,14 +25,22 @@ COUNTS = ("samples", "messages", "diverged")
 
 @dataclass(frozen=True)
 class RunSettings:
-    """How long and how many: iterations T, seeds (B), base seed, checkpoints, averaging window, backend."""
+    """How long and how many: the only defaults of these fields in dgtd (`dgtd.config.RunSpec`, the CLI and
+    `dgtd compare` take theirs from here).
+
+    - ``iterations`` T, ``seeds`` B run side by side, base ``seed`` (seed k uses SeedSequence(seed, spawn_key=(k,)));
+    - ``checkpoints``: about how many times metrics are recorded (`checkpoint_steps`);
+    - ``tail_fraction``: the final fraction of the run averaged for w_tail;
+    - ``block_size``: steps drawn and advanced per block (no effect on results);
+    - ``backend``: one of `BACKENDS`, the compiled kernels or the NumPy reference.
+    """
 
     iterations: int = 10_000
     seeds: int = 1
     seed: int = 0
-    checkpoints: int = 100
+    checkpoints: int = 200
     tail_fraction: float = 0.5
-    block_size: int = 2048
+    block_size: int = 4096
     backend: str = "numba"
 
     def __post_init__(self):

@@ -112,26 +112,27 @@ def dot(typingctx, X, x_at, Y, y_at, n):
 
 
 @intrinsic
-def neighbour_sums(typingctx, Z, b, i, J, count, out):
-    """out[k] = count Z[b, i, k] - Z[b, J[0], k] - ... - Z[b, J[count - 1], k] for every element k of the row
-    Z[b, i] (length Z.shape[2], at most out's): (L(k) X)_i of the rows of seed b when J lists agent i's
-    neighbours up at step k. Every element takes the subtractions in this order, so the result does not depend
+def neighbour_sums(typingctx, Z, b, i, J, count, out, at):
+    """out[at, k] = count Z[b, i, k] - Z[b, J[at, 0], k] - ... - Z[b, J[at, count - 1], k] for every element k of
+    the row Z[b, i] (length Z.shape[2], at most out's): (L(k) X)_i of the rows of seed b when J[at] lists agent i's
+    neighbours up at step k. J and out are scratch with a row per thread (row ``at``): numba may hoist an array
+    allocated inside a parallel loop out of it, and the threads would share it. Every element takes the subtractions in this order, so the result does not depend
     on the vector width. Up to UNROLLED_NEIGHBOURS neighbours the code branches on the count once and runs
     straight-line code for it (a loop over a count that changes from agent to agent is mispredicted)."""
-    if not _c_contiguous(Z, J, out) or Z.ndim != 3 or out.ndim != 1:
+    if not _c_contiguous(Z, J, out) or Z.ndim != 3 or out.ndim != 2 or J.ndim != 2:
         return None
-    sig = types.void(Z, b, i, J, count, out)
+    sig = types.void(Z, b, i, J, count, out, at)
 
     def codegen(context, builder, signature, args):
         i64, f64 = ir.IntType(64), ir.DoubleType()
         vec = ir.VectorType(f64, LANES)
         ta = signature.args
-        b_, i_, n_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (1, 2, 4))
+        b_, i_, n_, at_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (1, 2, 4, 6))
         zary = context.make_array(ta[0])(context, builder, args[0])
         K = cgutils.unpack_tuple(builder, zary.shape)[2]
         pz = _row(context, builder, ta[0], args[0], [b_, i_])
-        pout = _row(context, builder, ta[5], args[5], [])
-        pj = _row(context, builder, ta[3], args[3], [])
+        pout = _row(context, builder, ta[5], args[5], [at_])
+        pj = _row(context, builder, ta[3], args[3], [at_])
         c = builder.sitofp(n_, f64)
 
         def neighbour_row(n):

@@ -39,12 +39,12 @@ def _clip(x, bound):
 
 
 @njit(cache=True, inline="always")
-def _up_neighbours(J, up, row, indptr, nbr, eid, i):
-    """The rows of agent i's neighbours whose links are up (row ``row`` of the step's edge mask) into J; returns how
-    many. Without a branch: links are up at random, and a branch would be mispredicted."""
+def _up_neighbours(J, at, up, row, indptr, nbr, eid, i):
+    """The rows of agent i's neighbours whose links are up (row ``row`` of the step's edge mask) into J[at]; returns
+    how many. Without a branch: links are up at random, and a branch would be mispredicted."""
     count = 0
     for p in range(indptr[i], indptr[i + 1]):
-        J[count] = nbr[p]
+        J[at, count] = nbr[p]
         count += up[row, eid[p]]
     return count
 
@@ -76,16 +76,16 @@ def _csr_value(ptr, idx, val, s, f):
 
 
 @njit(cache=True, inline="always")
-def _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, b, i, s, sn, r, ratio, alpha,
-                q, Phi, sparse, ptr, idx, val, params):
+def _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, at, count, b, i, s, sn, r, ratio,
+                alpha, q, Phi, sparse, ptr, idx, val, params):
     """Algorithm 1 lines 7-9 for agent i of seed b at step k: `DGTD.update` for one agent. theta, v, mu and the
     running sum of w are updated in place; w_in and vmu_in (v + mu) are the shared rows at step k, w_out and
-    vmu_out receive agent i's at step k + 1. J[:count] are its neighbours up at step k; Lw and Lvmu are scratch for
-    its neighbour sums. q, the number of features, comes from the caller: computed here from a shape,
+    vmu_out receive agent i's at step k + 1. J[at, :count] are its neighbours up at step k; rows ``at`` of Lw and
+    Lvmu are the calling thread's scratch for its neighbour sums. q, the number of features, comes from the caller: computed here from a shape,
     LLVM cannot prove the feature loop's indices in range and leaves it scalar."""
     gamma, kappa, rho, b_theta, b_v, b_mu, b_w = params
-    neighbour_sums(w_in, b, i, J, count, Lw)  # (L(k) w)_i
-    neighbour_sums(vmu_in, b, i, J, count, Lvmu)  # (L(k) v)_i + (L(k) mu)_i = (L(k) (v + mu))_i
+    neighbour_sums(w_in, b, i, J, count, Lw, at)  # (L(k) w)_i
+    neighbour_sums(vmu_in, b, i, J, count, Lvmu, at)  # (L(k) v)_i + (L(k) mu)_i = (L(k) (v + mu))_i
     if sparse:
         phi_theta = _csr_dot(ptr, idx, val, s, theta, b, i)
         phi_w, phin_w = _csr_dot(ptr, idx, val, s, w_in, b, i), _csr_dot(ptr, idx, val, sn, w_in, b, i)
@@ -99,34 +99,35 @@ def _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, 
         w = w_in[b, i, f]
         sum_w[b, i, f] += w  # the running sum of w_k behind the averaged iterates
         # Line 7, v: g_v = v - (L(k) w)_i
-        v_new = _clip(v[b, i, f] - alpha * (v[b, i, f] - Lw[f]), b_v)
+        v_new = _clip(v[b, i, f] - alpha * (v[b, i, f] - Lw[at, f]), b_v)
         # Line 8, mu: g_mu = -(L(k) w)_i + rho mu
-        mu_new = _clip(mu[b, i, f] - alpha * (-Lw[f] + rho * mu[b, i, f]), b_mu)
+        mu_new = _clip(mu[b, i, f] - alpha * (-Lw[at, f] + rho * mu[b, i, f]), b_mu)
         v[b, i, f] = v_new
         mu[b, i, f] = mu_new
         vmu_out[b, i, f] = v_new + mu_new
         # Line 8, w: g_w = ratio phi^T theta (phi - gamma phi') - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
         phi, phi_next = (0.0, 0.0) if sparse else (Phi[s, f], Phi[sn, f])
-        g_w = ratio_phi_theta * (phi - gamma * phi_next) - Lvmu[f] - kappa * Lw[f] - rho * w
+        g_w = ratio_phi_theta * (phi - gamma * phi_next) - Lvmu[at, f] - kappa * Lw[at, f] - rho * w
         w_out[b, i, f] = _clip(w + alpha * g_w, b_w)
         # Line 7, theta: g_theta = phi (phi^T theta + ratio (phi^T w - gamma phi'^T w - r)) = phi c_theta
         theta[b, i, f] = _clip(theta[b, i, f] - alpha * (phi * c_theta), b_theta)
     if sparse:  # the loop took phi = phi' = 0; w and theta again where phi(s) or phi(s') is not zero
         for p in range(ptr[s], ptr[s + 1]):
-            _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, b, i, idx[p], val[p], _csr_value(ptr, idx, val, sn, idx[p]),
-                               alpha, gamma, kappa, rho, ratio_phi_theta, c_theta, b_theta, b_w)
+            _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, at, b, i, idx[p], val[p],
+                               _csr_value(ptr, idx, val, sn, idx[p]), alpha, gamma, kappa, rho, ratio_phi_theta,
+                               c_theta, b_theta, b_w)
         for p in range(ptr[sn], ptr[sn + 1]):
             if _csr_value(ptr, idx, val, s, idx[p]) == 0.0:  # not done above
-                _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, b, i, idx[p], 0.0, val[p], alpha, gamma, kappa, rho,
-                                   ratio_phi_theta, c_theta, b_theta, b_w)
+                _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, at, b, i, idx[p], 0.0, val[p], alpha, gamma, kappa,
+                                   rho, ratio_phi_theta, c_theta, b_theta, b_w)
 
 
 @njit(cache=True, inline="always")
-def _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, b, i, f, phi, phi_next, alpha, gamma, kappa, rho,
+def _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, at, b, i, f, phi, phi_next, alpha, gamma, kappa, rho,
                        ratio_phi_theta, c_theta, b_theta, b_w):
     """Feature f of w and theta, the lines of `_agent_step`'s loop, with phi_f(s) and phi_f(s') not both zero."""
     w = w_in[b, i, f]
-    g_w = ratio_phi_theta * (phi - gamma * phi_next) - Lvmu[f] - kappa * Lw[f] - rho * w
+    g_w = ratio_phi_theta * (phi - gamma * phi_next) - Lvmu[at, f] - kappa * Lw[at, f] - rho * w
     w_out[b, i, f] = _clip(w + alpha * g_w, b_w)
     theta[b, i, f] = _clip(theta[b, i, f] - alpha * (phi * c_theta), b_theta)
 
@@ -145,9 +146,8 @@ def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, pa
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     degree = _max_degree(indptr)
+    J, Lw, Lvmu = np.empty((B, degree), np.int64), np.empty((B, q)), np.empty((B, q))  # a row per seed
     for b in prange(B):
-        J = np.empty(degree, np.int64)
-        Lw, Lvmu = np.empty(q), np.empty(q)
         s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
         r_t = np.empty((1, N))
         up_t = np.ones((1, E), np.bool_)
@@ -157,10 +157,10 @@ def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, pa
                                      up_t)
             w_in, vmu_in, w_out, vmu_out = (w0, vmu0, w1, vmu1) if t % 2 == 0 else (w1, vmu1, w0, vmu0)
             for i in range(N):
-                count = _up_neighbours(J, up_t, 0, indptr, nbr, eid, i)
+                count = _up_neighbours(J, b, up_t, 0, indptr, nbr, eid, i)
                 o = agent_of[i] if n_obs == N else 0
                 s, a, sn = s_t[0, o], a_t[0, o], sn_t[0, o]
-                _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, b, i, s, sn,
+                _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, b, count, b, i, s, sn,
                             r_t[0, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val, params)
     return T
 
@@ -191,19 +191,19 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
     for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
         n_up[b] += _step_samples(b, b, 0, fused, words, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
                                  sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t)
+    J, Lw, Lvmu = np.empty((n_chunks, degree), np.int64), np.empty((n_chunks, q)), np.empty((n_chunks, q))
     for t in range(T):
         w_in, vmu_in, w_out, vmu_out = (w0, vmu0, w1, vmu1) if t % 2 == 0 else (w1, vmu1, w0, vmu0)
         now, nxt = (t % 2) * B, ((t + 1) % 2) * B  # rows of this step's samples and the next step's
         for c in prange(n_chunks):
-            J = np.empty(degree, np.int64)
-            Lw, Lvmu = np.empty(q), np.empty(q)
-            for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
+            hi = (c + 1) * total // n_chunks
+            for flat in range(c * total // n_chunks, hi):
                 b = flat // N
                 i = flat % N
                 o = agent_of[i] if n_obs == N else 0
                 s, a, sn = s_t[now + b, o], a_t[now + b, o], sn_t[now + b, o]
-                count = _up_neighbours(J, up_t, now + b, indptr, nbr, eid, i)
-                _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, count, b, i, s, sn,
+                count = _up_neighbours(J, c, up_t, now + b, indptr, nbr, eid, i)
+                _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, c, count, b, i, s, sn,
                             r_t[now + b, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val,
                             params)
             if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over chunks
@@ -216,7 +216,11 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
                                                s_t, a_t, sn_t, r_t)
                         else:
                             n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, up_blk, up_t)
-    rng[:, :, :] = words[:, :, :4]
+    # element by element: in a parallel function, numba loses a slice assignment to an array unpacked from a tuple
+    for b in range(B):
+        for k in range(3):
+            for x in range(4):
+                rng[b, k, x] = words[b, k, x]
     return T
 
 
