@@ -261,3 +261,27 @@ def test_td_tracking_reaches_w_star_on_random_links(backend):
     assert r.w_tail.shape == (4, 3, 2)
     assert exact.relative_error(r.w_tail, r.w_star).max() < 0.02
     assert r.info["counts"]["messages"][-1].min() > 0  # two vectors per link up, both ways
+
+
+def test_an_algorithm_without_a_compiled_kernel_runs_on_the_reference_with_a_notice():
+    """A new algorithm is one file: the run loop finds no compiled kernel under its name, says so in one line, and
+    runs it on the reference backend (the same numbers as --backend numpy)."""
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    @dataclass(frozen=True)
+    class HalfStepTD0(TD0):
+        name: ClassVar[str] = "half-step-td0"
+
+        def update(self, state, sample, links, alpha):
+            return super().update(state, sample, links, 0.5 * alpha)
+
+    p = chain_problem()
+    net = random_edges(topologies.ring(3), 1.0)
+    settings = dict(iterations=500, seeds=2, checkpoints=2)
+    with pytest.warns(UserWarning, match="has no compiled kernel") as notices:
+        compiled = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numba"))
+    assert len(notices) == 1 and "half-step-td0" in str(notices[0].message)
+    reference = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numpy"))
+    assert_allclose(compiled.w_last, reference.w_last, rtol=0, atol=0)
+    assert not np.allclose(compiled.w_last, run(p, net, TD0(), Sampling(), RunSettings(**settings)).w_last)

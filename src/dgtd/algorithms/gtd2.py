@@ -48,6 +48,13 @@ class GTDConfig(StepSizes):
     def init(self, seeds: int, agents: int, features: int) -> GTDState:
         return GTDState(*zeros(seeds, 1, features, 2))
 
+    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
+        """One step of the centralised learner: its value terms (``value_terms``) and the auxiliary terms, both
+        averaged over the N observed transitions and both at the values of step k."""
+        N = sample.r.shape[1]
+        dw, dtheta = agent_mean(self.value_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
+        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * dtheta)
+
 
 def theta_terms(state: GTDState, sample: Sample) -> np.ndarray:
     """Per-agent auxiliary terms (ratio_i delta_i - phi_i^T theta) phi_i, shape (B, N, q)."""
@@ -69,8 +76,6 @@ class GTD2(GTDConfig):
     description: ClassVar[str] = "centralised GTD2 on the average reward (Sutton et al. 2009)"
     color: ClassVar[str] = "#1f77b4"
 
-    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
-        """One GTD2 step averaged over the N transitions; both updates use the values at step k."""
-        N = sample.r.shape[1]
-        dw, dtheta = agent_mean(w_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
-        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * dtheta)
+    @staticmethod
+    def value_terms(state: GTDState, sample: Sample) -> np.ndarray:
+        return w_terms(state, sample)

@@ -17,8 +17,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from dgtd.algorithms.base import agent_mean, dot, td_error
-from dgtd.algorithms.gtd2 import GTDConfig, GTDState, theta_terms
+from dgtd.algorithms.base import dot, td_error
+from dgtd.algorithms.gtd2 import GTDConfig, GTDState
 from dgtd.samples import Sample
 
 
@@ -38,8 +38,6 @@ class TDC(GTDConfig):
     description: ClassVar[str] = "centralised TDC on the average reward (Sutton et al. 2009)"
     color: ClassVar[str] = "#17becf"
 
-    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
-        """One TDC step, averaged over the N observed transitions; both updates use the values at step k."""
-        N = sample.r.shape[1]
-        dw, dtheta = agent_mean(w_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
-        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * dtheta)
+    @staticmethod
+    def value_terms(state: GTDState, sample: Sample) -> np.ndarray:
+        return w_terms(state, sample)

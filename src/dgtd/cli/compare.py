@@ -40,39 +40,38 @@ def _names(text: str | None) -> tuple[str, ...]:
 @click.option("--plots/--no-plots", default=True, show_default=True)
 def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
             checkpoints, out, progress, plots):
-    """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots."""
+    """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots.
+
+    The run is described, checked and recorded as the `RunSpec` of `dgtd run` (the same fields, defaults and
+    checks), plus the algorithms compared and the tuning."""
     from tqdm import tqdm
 
-    from dgtd.scenarios import get_scenario
+    from dgtd.config import RunSpec, resolve, scenario_of, spec_record
     from dgtd.run.compare import CompareSettings, compare as run_compare, configs_for, write_compare
-    from dgtd.sources.model import Sampling
 
-    sc = get_scenario(scenario, **({} if edge_prob is None else {"edge_prob": edge_prob}))
-    samp = Sampling(mode=sampling or sc.sampling.mode, shared=sc.sampling.shared if shared is None else shared)
-    settings = RunSettings(iterations=int(iterations or sc.iterations), seeds=seeds, seed=seed, checkpoints=checkpoints,
-                           backend=backend)
+    spec = RunSpec(scenario=scenario, edge_prob=edge_prob, iterations=iterations, seeds=seeds, seed=seed,
+                   sampling=sampling, shared=shared, backend=backend, checkpoints=checkpoints)
+    p, network, _, samp, settings, resolved = resolve(spec)
+    sc = scenario_of(resolved)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
-    p = sc.problem
     out = Path(out) if out else Path("runs") / f"compare-{scenario}"
     click.echo(f"{p.name}: {p.n_states} states, {p.n_agents} agents, {p.n_features} features, gamma {p.gamma:g}"
-               f"{', off-policy' if p.off_policy else ''}; network: {sc.network.describe()}; {samp.mode} sampling, "
+               f"{', off-policy' if p.off_policy else ''}; network: {network.describe()}; {samp.mode} sampling, "
                f"{'shared' if samp.shared else 'independent'} states")
     click.echo(f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
                f"{', step sizes tuned first' if tune else ''}")
     bar = tqdm(total=settings.iterations * len(cs.algorithms), unit="it", unit_scale=True, disable=not progress,
                file=sys.stderr, mininterval=0.5)
     try:
-        results, used, tables = run_compare(p, sc.network, samp, configs, cs,
+        results, used, tables = run_compare(p, network, samp, configs, cs,
                                             progress=lambda name, n: bar.update(n), log=bar.write if tune else None,
                                             source_factory=sc.source)
     finally:
         bar.close()
-    spec = {"scenario": scenario, "algorithms": list(cs.algorithms), "seeds": seeds, "seed": seed,
-            "iterations": settings.iterations, "edge_prob": float(sc.network.p.max()), "sampling": samp.mode,
-            "shared": samp.shared, "tune": tune, "tune_seeds": tune_seeds if tune else None, "backend": backend,
-            "checkpoints": checkpoints}
-    write_compare(out, p, sc.network, results, used, tables, spec)
+    record = {**spec_record(resolved), "algorithms": list(cs.algorithms), "tune": tune,
+              "tune_seeds": tune_seeds if tune else None}
+    write_compare(out, p, network, results, used, tables, record)
     if plots:
         from dgtd.plots.compare import plot_compare, plot_consensus
 

@@ -33,6 +33,20 @@ def feature_dot(Phi, s, x, b, e):
 
 
 @njit(cache=True, inline="always")
+def transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N):
+    """(s, s', ratio) of agent i's transition at step t of seed b: its own, or the one all agents share."""
+    o = i if s_blk.shape[2] == N else 0
+    s = s_blk[t, b, o]
+    return s, sn_blk[t, b, o], ratio_tab[s, a_blk[t, b, o]]
+
+
+@njit(cache=True, inline="always")
+def td_error(Phi, s, sn, r, gamma, w, b, e):
+    """delta = r + gamma phi(s')^T w[b, e] - phi(s)^T w[b, e] (`dgtd.algorithms.base.td_error`)."""
+    return r + gamma * feature_dot(Phi, sn, w, b, e) - feature_dot(Phi, s, w, b, e)
+
+
+@njit(cache=True, inline="always")
 def degrees(up, t, b, has_up, indptr, eid, deg):
     """deg[i] = agent i's number of links up at step t (all its edges on a fixed graph)."""
     for i in range(deg.shape[0]):

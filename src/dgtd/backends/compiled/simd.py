@@ -14,7 +14,6 @@ NumPy in tests/test_simd.py. The vector width is the machine's (`LANES`): 8 doub
 from __future__ import annotations
 
 import llvmlite.binding as llvm
-import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils

@@ -8,13 +8,14 @@ from numba import njit, prange
 from dgtd.algorithms.consensus_td0 import ConsensusState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, degrees, f64, feature_dot, laplacian_rows, link_arrays, model_arrays
+from dgtd.backends.compiled.primitives import (add_rows, degrees, f64, laplacian_rows,
+                                              link_arrays, model_arrays, td_error, transition)
 
 
 @njit(cache=True, parallel=True)
 def _consensus_td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, up, indptr, nbr, eid):
     B, N, q = w.shape
-    T, n_obs, has_up = alphas.shape[0], s_blk.shape[2], up.shape[0] > 0
+    T, has_up = alphas.shape[0], up.shape[0] > 0
     for b in prange(B):
         Lw = np.empty((N, q))
         deg = np.zeros(N, np.int64)
@@ -23,10 +24,8 @@ def _consensus_td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab
             degrees(up, t, b, has_up, indptr, eid, deg)
             laplacian_rows(w, b, up, t, has_up, indptr, nbr, eid, True, deg, Lw)  # L_W(k) w, before any w moves
             for i in range(N):
-                o = i if n_obs == N else 0
-                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
-                ratio = ratio_tab[s, a_blk[t, b, o]]
-                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, i) - feature_dot(Phi, s, w, b, i)
+                s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, i)
                 for f in range(q):  # w - L_W(k) w + alpha ratio delta phi
                     w[b, i, f] = w[b, i, f] - Lw[i, f] + alphas[t] * (ratio * delta * Phi[s, f])
 

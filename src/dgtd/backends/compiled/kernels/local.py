@@ -9,23 +9,21 @@ from dgtd.algorithms.gtd2 import GTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.kernels.gtd2 import gtd2_terms
-from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays
+from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays, td_error, transition
 
 
 @njit(cache=True, parallel=True)
 def _local(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
     B, N, q = w.shape
-    T, n_obs = alphas.shape[0], s_blk.shape[2]
+    T = alphas.shape[0]
     for b in prange(B):
         dw, dtheta = np.empty(q), np.empty(q)
         for t in range(T):
             add_rows(w, b, w_sum)
             alpha = alphas[t]
             for i in range(N):  # agent i reads only its own w_i, theta_i: updating in place is the Jacobi step
-                o = i if n_obs == N else 0
-                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
-                ratio = ratio_tab[s, a_blk[t, b, o]]
-                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, i) - feature_dot(Phi, s, w, b, i)
+                s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, i)
                 dw[:] = 0.0
                 dtheta[:] = 0.0
                 gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, i), gamma, dw, dtheta)

@@ -8,13 +8,14 @@ from numba import njit, prange
 from dgtd.algorithms.pd_td import PDTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, laplacian_rows, link_arrays, model_arrays
+from dgtd.backends.compiled.primitives import (add_rows, f64, laplacian_rows, link_arrays,
+                                              model_arrays, td_error, transition)
 
 
 @njit(cache=True, parallel=True)
 def _pd_td(w, mu, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, up, indptr, nbr, eid):
     B, N, q = w.shape
-    T, n_obs, has_up = alphas.shape[0], s_blk.shape[2], up.shape[0] > 0
+    T, has_up = alphas.shape[0], up.shape[0] > 0
     for b in prange(B):
         Lw, Lmu = np.empty((N, q)), np.empty((N, q))
         deg = np.zeros(N, np.int64)  # unused by the plain Laplacian
@@ -24,10 +25,8 @@ def _pd_td(w, mu, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_ta
             laplacian_rows(mu, b, up, t, has_up, indptr, nbr, eid, False, deg, Lmu)
             alpha = alphas[t]
             for i in range(N):
-                o = i if n_obs == N else 0
-                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
-                ratio = ratio_tab[s, a_blk[t, b, o]]
-                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, i) - feature_dot(Phi, s, w, b, i)
+                s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, i)
                 for f in range(q):
                     w[b, i, f] += alpha * (ratio * delta * Phi[s, f] - eta * Lw[i, f] - eta * Lmu[i, f])
                     mu[b, i, f] += alpha * eta * Lw[i, f]

@@ -8,23 +8,21 @@ from numba import njit, prange
 from dgtd.algorithms.td0 import TD0State
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays
+from dgtd.backends.compiled.primitives import add_rows, f64, model_arrays, td_error, transition
 
 
 @njit(cache=True, parallel=True)
 def _td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
     B, _, q = w.shape
-    T, N, n_obs = alphas.shape[0], r_blk.shape[2], s_blk.shape[2]
+    T, N = alphas.shape[0], r_blk.shape[2]
     for b in prange(B):
         dw = np.empty(q)
         for t in range(T):
             add_rows(w, b, w_sum)
             dw[:] = 0.0
             for i in range(N):
-                o = i if n_obs == N else 0
-                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
-                ratio = ratio_tab[s, a_blk[t, b, o]]
-                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, 0) - feature_dot(Phi, s, w, b, 0)
+                s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, 0)
                 for f in range(q):
                     dw[f] += ratio * delta * Phi[s, f]  # ratio_i delta_i phi_i
             for f in range(q):

@@ -8,14 +8,15 @@ from numba import njit, prange
 from dgtd.algorithms.td_tracking import TrackingState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, degrees, f64, feature_dot, laplacian_rows, link_arrays, model_arrays
+from dgtd.backends.compiled.primitives import (add_rows, degrees, f64, laplacian_rows,
+                                              link_arrays, model_arrays, td_error, transition)
 
 
 @njit(cache=True, parallel=True)
 def _td_tracking(w, z, g_prev, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, up, indptr, nbr,
                  eid):
     B, N, q = w.shape
-    T, n_obs, has_up = alphas.shape[0], s_blk.shape[2], up.shape[0] > 0
+    T, has_up = alphas.shape[0], up.shape[0] > 0
     for b in prange(B):
         Lw, Lz = np.empty((N, q)), np.empty((N, q))
         deg = np.zeros(N, np.int64)
@@ -25,10 +26,8 @@ def _td_tracking(w, z, g_prev, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, 
             laplacian_rows(w, b, up, t, has_up, indptr, nbr, eid, True, deg, Lw)
             laplacian_rows(z, b, up, t, has_up, indptr, nbr, eid, True, deg, Lz)
             for i in range(N):
-                o = i if n_obs == N else 0
-                s, sn = s_blk[t, b, o], sn_blk[t, b, o]
-                ratio = ratio_tab[s, a_blk[t, b, o]]
-                delta = r_blk[t, b, i] + gamma * feature_dot(Phi, sn, w, b, i) - feature_dot(Phi, s, w, b, i)
+                s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, i)
                 for f in range(q):
                     g = ratio * delta * Phi[s, f]  # g_i(k)
                     z_new = z[b, i, f] - Lz[i, f] + g - g_prev[b, i, f]  # the tracker z_i(k)
