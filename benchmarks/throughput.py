@@ -80,7 +80,7 @@ def since_process_start():
     start = int(open("/proc/self/stat").read().rsplit(")", 1)[1].split()[19]) / ticks
     return float(open("/proc/uptime").read().split()[0]) - start
 import dgtd.run.loop as loop
-kernel_of = loop._kernel
+kernel_of = loop.kernel_for
 def first_call_reports(backend, algorithm):
     kernel = kernel_of(backend, algorithm)
     def wrapped(*args, **kw):
@@ -91,7 +91,7 @@ def first_call_reports(backend, algorithm):
         return out
     wrapped.draws_samples = getattr(kernel, "draws_samples", False)
     return wrapped
-loop._kernel = first_call_reports
+loop.kernel_for = first_call_reports
 from dgtd.cli import main
 main(["run", "paper-example-1", "-T", "1", "--no-progress", "--no-plots", "--out", "/tmp/dgtd-startup"])
 """
