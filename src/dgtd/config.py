@@ -115,8 +115,13 @@ def field_types(cls) -> dict:
 
 
 def _network(graph: str, n_agents: int, edge_prob: float):
+    from pathlib import Path
+
     if graph in topologies.TOPOLOGIES:
         base = topologies.TOPOLOGIES[graph](n_agents)
+    elif not Path(graph).is_file():
+        raise DgtdInputError(f"graph {graph!r} is neither a known graph nor an edge-list file (known graphs: "
+                             f"{', '.join(topologies.TOPOLOGIES)}){closest(Path(graph).name, topologies.TOPOLOGIES)}")
     else:
         base = topologies.read_edge_list(graph)
         if base.n_nodes > n_agents:

@@ -146,6 +146,8 @@ def check_choices(exp: Experiment) -> None:
         raise DgtdInputError(f"executor must be one of {', '.join(EXECUTORS)}, got {exp.sweep.executor!r}")
     if exp.sweep.format not in TABLE_FORMATS:
         raise DgtdInputError(f"format must be one of {', '.join(TABLE_FORMATS)}, got {exp.sweep.format!r}")
+    if exp.sweep.workers is not None and exp.sweep.workers < 1:
+        raise DgtdInputError(f"workers must be >= 1 (leave it out to use every core), got {exp.sweep.workers}")
     if exp.output.checkpoint_every < 0:
         raise DgtdInputError(f"checkpoint_every must be >= 0 (0: no checkpoints), got {exp.output.checkpoint_every}")
 

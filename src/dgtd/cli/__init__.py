@@ -103,6 +103,9 @@ def run(ctx, scenario, resume_dir, **_):
     if scenario is not None and file is None:
         flags["scenario"] = scenario
     if resume_dir is not None:
+        if "out" in flags and Path(flags["out"]).resolve() != Path(resume_dir).resolve():
+            raise DgtdInputError(f"--resume continues the run in {resume_dir} and writes there; leave out --out "
+                                 f"{flags['out']} (or resume that directory instead)")
         flags.update(out=resume_dir, resume=True)
         if file is None and "scenario" not in flags and "problem_file" not in flags:
             file = str(Path(resume_dir) / CONFIG)
@@ -125,6 +128,13 @@ def run(ctx, scenario, resume_dir, **_):
     result = job.run()
     names = job.save(result)
     click.echo(final_table(result))
+    from dgtd.run.results import pinned_to_boxes
+
+    pinned = pinned_to_boxes(result)
+    if pinned:
+        click.echo("warning: at the end of the run " + ", ".join(f"{frac:.0%} of {name}" for name, frac in pinned.items())
+                   + " sit on the projection boxes: the step sizes are likely too large (lower --alpha0 or raise "
+                   "--beta), or the boxes too small", err=True)
     if job.report_text:
         click.echo(job.report_text)
     click.echo(f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({result.seconds:.1f} s)")
@@ -216,7 +226,13 @@ def bench(cases, backends, repeats, out):
     unknown = [k for k in keys if k not in CASES]
     if unknown:
         raise DgtdInputError(f"unknown benchmark case(s) {', '.join(unknown)}; choose from {', '.join(CASES)}")
-    report = measure(keys, tuple(b.strip() for b in backends.split(",")), repeats, progress=click.echo)
+    chosen = tuple(b.strip() for b in backends.split(","))
+    bad = [b for b in chosen if b not in CHOICES["backend"]]
+    if bad:
+        raise DgtdInputError(f"unknown backend(s) {', '.join(bad)}; choose from {', '.join(CHOICES['backend'])}")
+    if repeats < 1:
+        raise DgtdInputError(f"--repeats must be >= 1, got {repeats}")
+    report = measure(keys, chosen, repeats, progress=click.echo)
     atomic_write_json(Path(out) / "throughput.json", report)
     atomic_write(Path(out) / "throughput.md", (markdown(report) + "\n").encode())
     click.echo(markdown(report))
@@ -297,11 +313,10 @@ def main(argv=None) -> None:
     except click.ClickException as e:
         click.echo(f"dgtd: error: {e.format_message()}", err=True)
         sys.exit(e.exit_code)
-    except click.exceptions.Abort:
-        click.echo("dgtd: interrupted; files already written are complete", err=True)
-        sys.exit(130)
-    except KeyboardInterrupt:
-        click.echo("dgtd: interrupted; files already written are complete", err=True)
+    except (click.exceptions.Abort, KeyboardInterrupt) as e:
+        cause = e.__cause__ if isinstance(e, click.exceptions.Abort) else e  # click wraps Ctrl-C in Abort
+        said = cause.args[0] if isinstance(cause, KeyboardInterrupt) and cause.args else None
+        click.echo(f"dgtd: {said or 'interrupted; files already written are complete'}", err=True)
         sys.exit(130)
     except (MemoryError, OSError) as e:
         click.echo(f"dgtd: error: {e}", err=True)

@@ -83,22 +83,37 @@ class PreparedRun:
             extra, self.report_text = sc.report(result, self.source)
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra)
         names = ["summary.json", "metrics.csv", "trajectory.npz"]
+        (self.out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
         if plots:
-            from dgtd.plots import plot_errors, plot_iterates
-
-            if plot_iterates(result, self.out / "iterates.png"):
-                names.append("iterates.png")
-            plot_errors(result, self.out / "errors.png")
-            names.append("errors.png")
-            if sc is not None and sc.report is not None:
-                from dgtd.plots import scenario_figures
-
-                files = scenario_figures(sc.report, result, self.source, self.out)
-                names += files
-                if files:
-                    self.report_text += f"\nwrote {', '.join(files)}"
-        (self.out / CHECKPOINT).unlink(missing_ok=True)
+            try:
+                names += self._figures(result, sc)
+            except KeyboardInterrupt:
+                raise FiguresInterrupted(self.out) from None
         return names
+
+    def _figures(self, result, sc) -> list[str]:
+        from dgtd.plots import plot_errors, plot_iterates, scenario_figures
+
+        names = []
+        if plot_iterates(result, self.out / "iterates.png"):
+            names.append("iterates.png")
+        plot_errors(result, self.out / "errors.png")
+        names.append("errors.png")
+        if sc is not None and sc.report is not None:
+            files = scenario_figures(sc.report, result, self.source, self.out)
+            names += files
+            if files:
+                self.report_text += f"\nwrote {', '.join(files)}"
+        return names
+
+
+class FiguresInterrupted(KeyboardInterrupt):
+    """Ctrl-C while the figures were drawn: the numbers are all written already, and the message says so."""
+
+    def __init__(self, out):
+        super().__init__(f"interrupted while drawing the figures: the results (summary.json, metrics.csv, "
+                         f"trajectory.npz) are complete in {out}; some figures are missing, and `dgtd plot {out}` "
+                         "draws the error and iterate figures again")
 
 
 def prepare(exp: Experiment) -> PreparedRun:

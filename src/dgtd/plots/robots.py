@@ -25,7 +25,7 @@ from matplotlib.patches import Rectangle  # noqa: E402
 
 from dgtd.plots import band  # noqa: E402
 from dgtd.scenarios.robots import PatrolReport, map_correlation  # noqa: E402
-from dgtd.run.results import atomic_write  # noqa: E402
+from dgtd.run.results import atomic_write, file_mode  # noqa: E402
 
 AGENT_COLOURS = ("tab:blue", "tab:red", "black", "tab:green", "tab:purple", "tab:orange")
 CMAP = "viridis"
@@ -191,6 +191,7 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
     os.close(fd)
     try:
         anim.save(tmp, writer=PillowWriter(fps=fps), dpi=90)
+        os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     finally:
         plt.close(fig)

@@ -16,8 +16,16 @@ from dgtd.problems import exact
 from dgtd.run.loop import RunResult
 
 
+def file_mode() -> int:
+    """The mode a new file gets under the user's umask (what open() would give it): a temporary file is made 0600."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a crash or Ctrl-C leaves either the old file or the new one, never half."""
+    """Write ``data`` to ``path`` so that a crash or Ctrl-C leaves either the old file or the new one, never half;
+    the file gets the mode the user's umask gives new files."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -25,6 +33,7 @@ def atomic_write(path: Path, data: bytes) -> None:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
+            os.fchmod(f.fileno(), file_mode())
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
@@ -105,6 +114,24 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "
     np.savez_compressed(buf, **arrays)
     atomic_write(out / "trajectory.npz", buf.getvalue())
     atomic_write_json(out / "summary.json", summary(result, config) | ({"scenario": extra} if extra else {}))
+
+
+def pinned_to_boxes(result: RunResult, share: float = 0.5) -> dict:
+    """Variable -> the fraction of its last iterate's components (all seeds and agents) that sit on their
+    projection box, for the variables where that is at least ``share``: a sign that the step size is too large
+    (the iterates jump from box to box) or that a box the user set excludes the solution."""
+    names = ("theta", "v", "mu", "w")
+    if not result.boxes:
+        return {}
+    out = {}
+    for name, bound in zip(names, result.boxes):
+        x = np.asarray(result.final_state.get(name))
+        if x.size == 0 or not np.isfinite(bound) or bound == 0:
+            continue
+        frac = float(np.mean(np.abs(x[np.isfinite(x)]) >= bound * (1 - 1e-12))) if np.isfinite(x).any() else 0.0
+        if frac >= share:
+            out[name] = frac
+    return out
 
 
 @dataclass(frozen=True)

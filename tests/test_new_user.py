@@ -1,0 +1,82 @@
+"""What a new user hits (the first items of the new-user review): options that did something else without a word,
+tracebacks instead of one line, results lost to a Ctrl-C during the figures, files written 0600."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+
+def one_line_error(code, out, err, *words):
+    assert code == 2, (out, err)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("dgtd: error:"), err
+    assert "Traceback" not in out + err
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+def test_compare_with_zero_iterations_is_refused(run_cli, tmp_path):
+    one_line_error(*run_cli("compare", "baird", "-T", "0", "--out", tmp_path / "c"), "iterations must be >= 1")
+    assert not (tmp_path / "c").exists()
+
+
+def test_resume_with_another_out_is_refused(run_cli, tmp_path):
+    one_line_error(*run_cli("run", "--resume", tmp_path / "a", "--out", tmp_path / "b"), "--resume", "leave out --out")
+
+
+def test_sweep_with_zero_workers_is_refused(run_cli, tmp_path):
+    from pathlib import Path
+
+    file = Path(__file__).resolve().parents[1] / "experiments" / "sweep-example-1.toml"
+    one_line_error(*run_cli("sweep", file, "--workers", "0", "--out", tmp_path / "s"), "workers must be >= 1")
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("graph, hint", [("rnig", "did you mean 'ring'?"), ("no-such-file.txt", "known graphs: path")])
+def test_an_unknown_graph_name_lists_the_known_ones(run_cli, tmp_path, graph, hint):
+    one_line_error(*run_cli("run", "paper-example-1", "--graph", graph, "-T", "10", "--out", tmp_path / "r"),
+                   "neither a known graph nor an edge-list file", hint)
+
+
+def test_bench_with_an_unknown_backend_is_one_line(run_cli, tmp_path):
+    one_line_error(*run_cli("bench", "--backend", "foo", "--cases", "A", "--out", tmp_path), "unknown backend(s) foo")
+
+
+def test_a_huge_step_size_that_pins_the_iterates_to_the_boxes_is_reported(run_cli, tmp_path):
+    code, out, err = run_cli("run", "paper-example-1", "-T", "200", "--alpha0", "1e300", "--no-plots",
+                             "--no-progress", "--out", tmp_path / "r")
+    assert code == 0
+    assert "warning:" in err and "100% of w" in err and "--alpha0" in err
+    code, out, err = run_cli("run", "paper-example-1", "-T", "100000", "--no-plots", "--no-progress",
+                             "--out", tmp_path / "ok")
+    assert code == 0 and "warning" not in err  # the paper's settings leave the boxes by then
+
+
+def test_ctrl_c_while_drawing_keeps_the_numbers_and_says_so(run_cli, tmp_path, monkeypatch):
+    import dgtd.plots
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dgtd.plots, "plot_errors", interrupted)
+    code, out, err = run_cli("run", "paper-example-1", "-T", "500", "--no-progress", "--out", tmp_path / "r")
+    assert code == 130
+    for name in ("summary.json", "metrics.csv", "trajectory.npz", "config.toml"):
+        assert (tmp_path / "r" / name).exists(), name
+    assert "results (summary.json, metrics.csv, trajectory.npz) are complete" in err and "dgtd plot" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_results_files_take_the_users_umask(run_cli, tmp_path, umask, mode):
+    old = os.umask(umask)
+    try:
+        code, _, _ = run_cli("run", "paper-example-1", "-T", "200", "--no-progress", "--out", tmp_path / "r")
+    finally:
+        os.umask(old)
+    assert code == 0
+    for name in ("summary.json", "metrics.csv", "trajectory.npz", "config.toml", "errors.png"):
+        assert stat.S_IMODE((tmp_path / "r" / name).stat().st_mode) == mode, name
