@@ -98,7 +98,7 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     code, out_text, err = run_cli("run", "--resume", out)
     assert code == 0 and "resuming" in out_text, err
     code, _, err = run_cli("run", "--resume", tmp_path / "nothing")
-    assert code == 2 and "does not exist" in err
+    assert code == 2 and "is not a directory" in err
 
 
 def test_checkpoint_of_another_format_is_refused(tmp_path):

@@ -117,13 +117,13 @@ def test_bad_files_and_networks(capsys, tmp_path):
     three = tmp_path / "three.npz"
     np.savez(three, P=np.array([[0.5, 0.5], [0.2, 0.8]]), R=np.ones((3, 2)), Phi=np.array([[1.0], [2.0]]), gamma=0.9)
     cases = [
-        (("solve", "--problem", str(tmp_path / "missing.npz")), "does not exist"),
-        (("solve", "--problem", str(garbage)), "not a valid .npz"),
-        (("solve", "--problem", str(pickled)), "not a valid .npz"),
+        (("solve", "--problem", str(tmp_path / "missing.npz")), "is missing"),
+        (("solve", "--problem", str(garbage)), "not an .npz file of plain arrays"),
+        (("solve", "--problem", str(pickled)), "not an .npz file of plain arrays"),
         (("run", "--problem", good, "--graph", "ring", "--edge-prob", "0"), "disconnected"),
         (("run", "--problem", good, "--graph", str(far), "-T", "10"), "names agent 5"),
         (("run", "--problem", str(three), "--graph", str(cut), "-T", "10"), "disconnected"),
-        (("run", "--problem", good, "--graph", "hypercube"), "edge-list file"),
+        (("run", "--problem", good, "--graph", "hypercube"), "neither a known graph nor an edge-list file"),
         (("run", "no-such-scenario"), "unknown scenario"),
         (("run", "paper-example-1", "--iterations", "0"), "iterations"),
         (("run", "paper-example-1", "--alpha0", "-1"), "alpha0"),
@@ -140,7 +140,7 @@ def test_real_process_exit_code_and_no_traceback(tmp_path):
     r = subprocess.run([sys.executable, "-m", "dgtd.cli", "solve", "--problem", str(tmp_path / "nope.npz")],
                        capture_output=True, text=True)
     assert r.returncode == 2
-    assert r.stderr.count("\n") == 1 and "does not exist" in r.stderr
+    assert r.stderr.count("\n") == 1 and "is missing" in r.stderr
 
 
 def test_scenarios_lists_paper_example(capsys):

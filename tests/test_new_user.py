@@ -80,3 +80,68 @@ def test_results_files_take_the_users_umask(run_cli, tmp_path, umask, mode):
     assert code == 0
     for name in ("summary.json", "metrics.csv", "trajectory.npz", "config.toml", "errors.png"):
         assert stat.S_IMODE((tmp_path / "r" / name).stat().st_mode) == mode, name
+
+
+def test_a_damaged_checkpoint_is_one_line_without_pickle_advice(run_cli, tmp_path):
+    out = tmp_path / "r"
+    code, _, _ = run_cli("run", "paper-example-1", "-T", "100", "--no-progress", "--no-plots", "--out", out)
+    assert code == 0
+    import numpy as np
+
+    np.savez(out / "checkpoint.npz", x=np.zeros(3))  # then cut off, then full of Python objects
+    (out / "checkpoint.npz").write_bytes((out / "checkpoint.npz").read_bytes()[:100])
+    one_line_error(*run_cli("run", "--resume", out), "not a complete .npz file", "start the run afresh")
+    np.save(out / "checkpoint.npz", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    (out / "checkpoint.npz.npy").rename(out / "checkpoint.npz")
+    code, o, err = run_cli("run", "--resume", out)
+    one_line_error(code, o, err)
+    assert "allow_pickle" not in err
+
+
+def test_resuming_a_directory_without_a_run_says_so(run_cli, tmp_path):
+    one_line_error(*run_cli("run", "--resume", tmp_path / "none"), "is not a directory")
+    (tmp_path / "empty").mkdir()
+    one_line_error(*run_cli("run", "--resume", tmp_path / "empty"), "holds no run (no config.toml)")
+
+
+@pytest.mark.parametrize("damage, words", [
+    (lambda d: (d / "metrics.csv").write_text((d / "metrics.csv").read_text()[:300]), "lacks the metric(s)"),
+    (lambda d: (d / "metrics.csv").write_text("algorithm,seed,step,metric,value\ndgtd,0,x,error_avg,1\n"),
+     "is not a number"),
+    (lambda d: (d / "metrics.csv").write_text("algorithm,seed\ndgtd,0\n"), "lacks the column(s)"),
+    (lambda d: (d / "summary.json").write_text('{"w_star": '), "is not valid JSON"),
+    (lambda d: (d / "trajectory.npz").write_bytes(b"PK\x03\x04junk"), "not a complete .npz file"),
+    (lambda d: (d / "trajectory.npz").write_text("not arrays"), "is not an .npz file of plain arrays"),
+])
+def test_plot_on_damaged_results_is_one_line(run_cli, tmp_path, damage, words):
+    out = tmp_path / "r"
+    code, _, _ = run_cli("run", "paper-example-1", "-T", "300", "--no-progress", "--no-plots", "--out", out)
+    assert code == 0
+    damage(out)
+    one_line_error(*run_cli("plot", out), words)
+
+
+def test_a_single_agent_problem_runs(run_cli, tmp_path):
+    import numpy as np
+
+    np.savez(tmp_path / "one.npz", P=np.array([[0.5, 0.5], [0.5, 0.5]]), R=np.array([[1.0, 0.0]]), Phi=np.eye(2),
+             gamma=0.9)
+    code, out, err = run_cli("run", "--problem", tmp_path / "one.npz", "-T", "300", "--no-progress", "--out",
+                             tmp_path / "r")
+    assert code == 0, err
+    assert "1 agent, no links" in out and (tmp_path / "r" / "summary.json").exists()
+
+
+def test_a_directory_never_mixes_two_runs(run_cli, tmp_path):
+    """The same run again into its directory is fine; another configuration there is refused unless --overwrite,
+    and the new run's directory holds its own files only (no figures of the previous run beside its numbers)."""
+    out = tmp_path / "r"
+    base = ("run", "paper-example-1", "-T", "300", "--no-progress", "--out", out)
+    assert run_cli(*base)[0] == 0 and (out / "errors.png").exists()
+    (out / "notes.txt").write_text("mine")
+    assert run_cli(*base)[0] == 0  # the same configuration: redone
+    one_line_error(*run_cli(*base, "--kappa", "0"), "holds the results of another run", "kappa", "--overwrite")
+    code, _, err = run_cli(*base, "--kappa", "0", "--overwrite", "--no-plots")
+    assert code == 0, err
+    assert not (out / "errors.png").exists() and not (out / "iterates.png").exists()  # no stale figures
+    assert (out / "summary.json").exists() and (out / "notes.txt").read_text() == "mine"  # the user's files stay

@@ -49,6 +49,9 @@ class Output:
     - ``progress``, ``plots``: progress bar on stderr; figures in the results directory.
     - ``checkpoint_every``: save the whole run state every K iterations (0: never), for ``resume``.
     - ``resume``: continue the run saved in ``out`` from its last checkpoint.
+    - ``overwrite``: replace the results of another run (another configuration) in ``out``; without it that is
+      refused. Rerunning the same configuration into its own directory needs no flag. Either way the previous
+      run's files go first, so a directory never mixes two runs.
     """
 
     out: str | None = None
@@ -56,6 +59,7 @@ class Output:
     plots: bool = True
     checkpoint_every: int = 0
     resume: bool = False
+    overwrite: bool = False
 
 
 @dataclass(frozen=True)

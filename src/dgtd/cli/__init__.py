@@ -83,6 +83,8 @@ def _spec_options(f):
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
 @click.option("--progress/--no-progress", default=Output.progress, show_default=True)
 @click.option("--plots/--no-plots", default=Output.plots, show_default=True)
+@click.option("--overwrite/--no-overwrite", default=Output.overwrite, show_default=True,
+              help="Replace the results of another run in OUT (refused without it; the same run is simply redone).")
 @click.option("--checkpoint-every", type=int, default=Output.checkpoint_every, show_default=True,
               help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never).")
 @click.option("--resume", "resume_dir", type=click.Path(file_okay=False), default=None,
@@ -107,6 +109,10 @@ def run(ctx, scenario, resume_dir, **_):
             raise DgtdInputError(f"--resume continues the run in {resume_dir} and writes there; leave out --out "
                                  f"{flags['out']} (or resume that directory instead)")
         flags.update(out=resume_dir, resume=True)
+        if not (Path(resume_dir) / CONFIG).is_file():
+            what = "is not a directory" if not Path(resume_dir).is_dir() else f"holds no run (no {CONFIG})"
+            raise DgtdInputError(f"--resume {resume_dir}: {what}; start a run there with `dgtd run SCENARIO --out "
+                                 f"{resume_dir} --checkpoint-every K`, then resume it")
         if file is None and "scenario" not in flags and "problem_file" not in flags:
             file = str(Path(resume_dir) / CONFIG)
     if file is None and "scenario" not in flags and "problem_file" not in flags:

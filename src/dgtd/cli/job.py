@@ -139,6 +139,31 @@ def prepare(exp: Experiment) -> PreparedRun:
         if diff:
             raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
     else:
-        ckpt.unlink(missing_ok=True)  # a stale checkpoint of an earlier run must never be resumed into this one
+        clear_previous_run(out, record, exp.output.overwrite)
         atomic_write(out / CONFIG, run.config_toml.encode())
     return run
+
+
+# What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's
+# copies of them go before a new run writes. Nothing else in the directory is touched.
+RUN_FILES = ("summary.json", "metrics.csv", "trajectory.npz", CHECKPOINT, "iterates.png", "errors.png", "maps.png",
+             "reference.png", "snapshots.png", "patrol.gif", "curves.png")
+
+
+def clear_previous_run(out: Path, record: dict, overwrite: bool) -> None:
+    """Refuse to write over the finished results of another configuration unless ``overwrite``; then remove the
+    previous run's results, checkpoint and figures, so that the directory holds this run's files only."""
+    summary = out / "summary.json"
+    if summary.is_file() and not overwrite:
+        from dgtd.files import read_json
+
+        try:
+            saved = read_json(summary, "results file", "").get("config", {})
+        except DgtdInputError:
+            saved = {}  # damaged: nothing readable to protect
+        diff = _first_difference(saved, record) if saved else ""
+        if diff:
+            raise DgtdInputError(f"{out} holds the results of another run ({diff}); choose another --out, or pass "
+                                 "--overwrite to replace them")
+    for name in RUN_FILES:
+        (out / name).unlink(missing_ok=True)

@@ -43,6 +43,8 @@ class RandomEdges:
         return u < self.p
 
     def describe(self) -> str:
+        if self.n_edges == 0:
+            return f"{self.base.name} on {self.n_nodes} agent{'s' if self.n_nodes != 1 else ''}, no links"
         p = np.unique(self.p)
         ps = f"p={p[0]:g}" if p.size == 1 else f"p in [{p.min():g}, {p.max():g}]"
         return f"{self.base.name} on {self.n_nodes} agents, {self.n_edges} edges, each up with {ps}"

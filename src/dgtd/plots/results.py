@@ -7,14 +7,13 @@ parameters: a line plot over one parameter, a heat map over two.
 
 from __future__ import annotations
 
-import csv
-import json
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.files import numbers, read_csv, read_json, read_npz
 from dgtd.plots import _save, band, plot_errors, plot_iterates, plt
 
 CURVES = (("error_avg", "max relative error, averaged iterate"), ("consensus", "consensus error"),
@@ -23,19 +22,28 @@ CURVES = (("error_avg", "max relative error, averaged iterate"), ("consensus", "
 
 def load_run(directory: Path) -> SimpleNamespace:
     """What the figures of a run need, read back from metrics.csv, trajectory.npz and summary.json."""
-    with open(directory / "metrics.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    steps = np.unique([int(r["step"]) for r in rows])
-    seeds = 1 + max(int(r["seed"]) for r in rows)
+    fix = f"run it again (dgtd run {directory / 'config.toml'})"
+    path = directory / "metrics.csv"
+    rows = read_csv(path, "results file", fix, required=("seed", "step", "metric", "value"))
+    if not rows:
+        raise DgtdInputError(f"results file {path} holds no rows; {fix}")
+    step_of, seed_of = numbers(rows, "step", int, path, "results file", fix), numbers(rows, "seed", int, path, "results file", fix)
+    values = numbers(rows, "value", float, path, "results file", fix)
+    if step_of.min() < 0 or seed_of.min() < 0:
+        raise DgtdInputError(f"results file {path} has negative steps or seeds; {fix}")
+    steps = np.unique(step_of)
+    seeds = 1 + int(seed_of.max())
     metrics = {}
-    for r in rows:
+    for r, k, b, x in zip(rows, step_of, seed_of, values):
         m = metrics.setdefault(r["metric"], np.full((len(steps), seeds), np.nan))
-        m[np.searchsorted(steps, int(r["step"])), int(r["seed"])] = float(r["value"])
-    summary = json.loads((directory / "summary.json").read_text())
+        m[np.searchsorted(steps, k), b] = x
+    missing = [k for k in ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg") if k not in metrics]
+    if missing:
+        raise DgtdInputError(f"results file {path} lacks the metric(s) {', '.join(missing)} (cut off?); {fix}")
+    summary = read_json(directory / "summary.json", "results file", fix, required=("w_star",))
     w_trace = None
     if (directory / "trajectory.npz").exists():
-        with np.load(directory / "trajectory.npz", allow_pickle=False) as data:
-            w_trace = data["w_trace"] if "w_trace" in data.files else None
+        w_trace = read_npz(directory / "trajectory.npz", "results file", fix).get("w_trace")
     return SimpleNamespace(steps=steps, metrics=metrics, w_trace=w_trace, w_star=np.asarray(summary["w_star"]))
 
 
@@ -173,7 +181,8 @@ def plot_directory(directory: Path) -> list[Path]:
     if (directory / "sweep.json").exists():
         from dgtd.run.store import read_table
 
-        index = json.loads((directory / "sweep.json").read_text())
+        index = read_json(directory / "sweep.json", "sweep index", "run the sweep again (it skips finished jobs)",
+                          required=("jobs", "grid"))
         if not index.get("table"):
             raise DgtdInputError(f"{directory} holds no finished job yet; run the sweep first")
         points = {j["job"]: j["point"] for j in index["jobs"]}

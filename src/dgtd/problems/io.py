@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import hashlib
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.files import read_npz
 from dgtd.problems.model import Problem, make_problem
 
 REQUIRED = ("P", "R", "Phi", "gamma")
@@ -17,16 +17,8 @@ REQUIRED = ("P", "R", "Phi", "gamma")
 def load_problem(path: str, reward_noise: str = "none") -> Problem:
     """Load and validate a problem file; every failure is a one-line `DgtdInputError`."""
     p = Path(path)
-    if not p.is_file():
-        raise DgtdInputError(f"problem file {path} does not exist; give the path of an .npz with arrays {', '.join(REQUIRED)}")
-    try:
-        with np.load(p, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as e:
-        raise DgtdInputError(f"{path} is not a valid .npz file ({type(e).__name__}: {e}); save it with numpy.savez") from None
-    missing = [k for k in REQUIRED if k not in arrays]
-    if missing:
-        raise DgtdInputError(f"{path} lacks {', '.join(missing)}; it must hold arrays P (S, S), R (N, S), Phi (S, q) and scalar gamma")
+    arrays = read_npz(p, "problem file", "give an .npz saved with numpy.savez that holds arrays P (S, S), R (N, S), "
+                      "Phi (S, q) and a scalar gamma", required=REQUIRED)
     for k in ("gamma", "sigma"):
         if k in arrays and np.asarray(arrays[k]).size != 1:
             raise DgtdInputError(f"{k} in {path} must be a scalar, got shape {np.asarray(arrays[k]).shape}")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.files import read_npz
 from dgtd.run.results import atomic_write
 
 FORMAT = 2  # 2: one running sum of w_k and the copy taken at the tail's start (1 kept a second sum)
@@ -55,12 +56,12 @@ def save_checkpoint(path: Path, snap: dict, config: dict) -> None:
 
 def load_checkpoint(path: Path) -> tuple[dict, dict]:
     """(snapshot, config) from a checkpoint file, or a `DgtdInputError` saying what is wrong with it."""
+    fix = "delete it and start the run afresh (without --resume)"
+    arrays = read_npz(path, "checkpoint", fix, required=("__meta__",))
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
         meta = json.loads(str(arrays.pop("__meta__")))
-    except (OSError, ValueError, KeyError, EOFError) as e:
-        raise DgtdInputError(f"checkpoint {path} cannot be read ({type(e).__name__}: {e}); start the run afresh") from None
+    except ValueError:
+        raise DgtdInputError(f"checkpoint {path} is damaged (its description is not JSON); {fix}") from None
     if meta.get("format") != FORMAT:
         raise DgtdInputError(f"checkpoint {path} has format {meta.get('format')}, this dgtd reads {FORMAT}")
     return _join(meta["snapshot"], arrays), meta["config"]

@@ -152,19 +152,15 @@ def read_results(out) -> Results:
         results = dgtd.read_results("runs/paper-example-1")
         results.metrics["error_avg"][-1], results.summary["w_star"]
     """
-    from dgtd.errors import DgtdInputError
-    from dgtd.run.store import read_table
+    from dgtd.files import numbers, read_csv, read_json, read_npz
 
     out = Path(out)
-    try:
-        summary = json.loads((out / "summary.json").read_text())
-        metrics = read_table(out / "metrics.csv")
-    except FileNotFoundError as e:
-        raise DgtdInputError(f"{out} holds no results of a run ({Path(e.filename).name} is missing)") from None
-    except (ValueError, UnicodeDecodeError) as e:
-        raise DgtdInputError(f"{out}: a results file is damaged ({e}); run it again") from None
-    trajectory = {}
-    if (out / "trajectory.npz").exists():
-        with np.load(out / "trajectory.npz", allow_pickle=False) as z:
-            trajectory = {k: z[k] for k in z.files}
+    fix = "run it again"
+    summary = read_json(out / "summary.json", "results file", fix)
+    rows = read_csv(out / "metrics.csv", "results file", fix, required=("seed", "step", "metric", "value"))
+    metrics = {"seed": numbers(rows, "seed", int, out / "metrics.csv", "results file", fix),
+               "step": numbers(rows, "step", int, out / "metrics.csv", "results file", fix),
+               "metric": [r["metric"] for r in rows],
+               "value": numbers(rows, "value", float, out / "metrics.csv", "results file", fix)}
+    trajectory = read_npz(out / "trajectory.npz", "results file", fix) if (out / "trajectory.npz").exists() else {}
     return Results(summary, metrics, trajectory)

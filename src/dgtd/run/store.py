@@ -145,16 +145,26 @@ def _cell(text: str):
 
 
 def read_table(path: Path) -> dict:
-    """A sweep table (Parquet or CSV) as columns {name: list or array}."""
+    """A sweep table (Parquet or CSV) as columns {name: list or array}; a damaged table is a `DgtdInputError`."""
+    from dgtd.errors import DgtdInputError
+    from dgtd.files import read_csv
+
     path = Path(path)
+    fix = "delete it and run the sweep again (finished jobs are kept and skipped)"
+    required = ("job", "seed", "step", "metric", "value")
     if path.suffix == ".parquet":
         import pyarrow.parquet as pq
 
-        return {k: np.asarray(v) if k in ("seed", "step", "value") else v
-                for k, v in pq.read_table(path).to_pydict().items()}
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    cols = {name: [r[i] for r in rows[1:]] for i, name in enumerate(rows[0])}
+        try:
+            cols = pq.read_table(path).to_pydict()
+        except (OSError, ValueError) as e:  # pyarrow's ArrowInvalid is a ValueError
+            raise DgtdInputError(f"sweep table {path} cannot be read ({type(e).__name__}); {fix}") from None
+        missing = [k for k in required if k not in cols]
+        if missing:
+            raise DgtdInputError(f"sweep table {path} lacks the column(s) {', '.join(missing)}; {fix}")
+        return {k: np.asarray(v) if k in ("seed", "step", "value") else v for k, v in cols.items()}
+    rows = read_csv(path, "sweep table", fix, required=required)
+    cols = {name: [r[name] for r in rows] for name in (rows[0] if rows else {k: None for k in required})}
     for k in cols:
         if k not in ("job", "algorithm", "metric", *METRIC_COLUMNS):
             cols[k] = [_cell(x) for x in cols[k]]
