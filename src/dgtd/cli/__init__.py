@@ -117,7 +117,11 @@ def run(ctx, scenario, resume_dir, **_):
             file = str(Path(resume_dir) / CONFIG)
     if file is None and "scenario" not in flags and "problem_file" not in flags:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an EXPERIMENT.toml")
+    import time
+
+    t_start = time.perf_counter()
     job = prepare(experiment_from(file, flags))
+    t_prepared = time.perf_counter()
     if job.finished:
         click.echo(f"{job.out}: the run is already finished (summary.json); nothing to resume")
         return
@@ -132,7 +136,11 @@ def run(ctx, scenario, resume_dir, **_):
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
+    t_ran = time.perf_counter()
+    if job.exp.output.plots:
+        print("writing the results, then drawing the figures ...", file=sys.stderr, flush=True)
     names = job.save(result)
+    t_saved = time.perf_counter()
     click.echo(final_table(result))
     from dgtd.run.results import pinned_to_boxes
 
@@ -143,7 +151,10 @@ def run(ctx, scenario, resume_dir, **_):
                    "--beta), or the boxes too small", err=True)
     if job.report_text:
         click.echo(job.report_text)
-    click.echo(f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({result.seconds:.1f} s)")
+    kernels = result.info.get("kernel_seconds", 0.0)
+    click.echo(f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({t_saved - t_start:.1f} s in all: setup "
+               f"{t_prepared - t_start:.1f} s, kernels {kernels:.1f} s, run {t_ran - t_prepared - kernels:.1f} s, "
+               f"results and figures {t_saved - t_ran:.1f} s)")
 
 
 def describe_algorithm(algorithm) -> str:

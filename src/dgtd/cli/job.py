@@ -60,17 +60,32 @@ class PreparedRun:
 
         show = self.exp.output.progress if progress is None else progress
         done = 0 if self.snapshot is None else int(self.snapshot["k"])
-        bar = tqdm(total=self.settings.iterations, initial=done, unit="it", unit_scale=True, disable=not show,
-                   file=sys.stderr, mininterval=0.5)
+        bars = []
+
+        def start_bar(kernel_seconds: float) -> None:
+            """The kernels are loaded (or compiled): only now does the bar start, so that its rate is the run's."""
+            if kernel_seconds > 1.0 and show:
+                print(f"compiled the {self.settings.backend} kernels in {kernel_seconds:.1f} s (once per machine: "
+                      "later runs load them from the cache)", file=sys.stderr, flush=True)
+            bars.append(tqdm(total=self.settings.iterations, initial=done, unit="it", unit_scale=True,
+                             disable=not show, file=sys.stderr, mininterval=0.5))
+
+        def advance(n: int) -> None:
+            if not bars:  # a simulator's source: no warm-up block, so the bar starts here
+                start_bar(0.0)
+            bars[0].update(n)
+
         every = self.exp.output.checkpoint_every
         ckpt = self.out / CHECKPOINT
         self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
         try:
             return run_loop(self.problem, self.network, self.algorithm, self.sampling, self.settings,
-                            progress=bar.update, source=self.source, checkpoint_every=every,
-                            on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record), resume=self.snapshot)
+                            progress=advance, source=self.source, checkpoint_every=every,
+                            on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record), resume=self.snapshot,
+                            kernel_ready=start_bar)
         finally:
-            bar.close()
+            for bar in bars:
+                bar.close()
 
     def save(self, result, plots: bool | None = None) -> list[str]:
         """Write the results, then the figures, then drop the checkpoint; returns the names written."""
@@ -95,7 +110,7 @@ class PreparedRun:
         from dgtd.plots import plot_errors, plot_iterates, scenario_figures
 
         names = []
-        if plot_iterates(result, self.out / "iterates.png"):
+        if plot_iterates(result, self.out / "iterates.png", algorithm=self.algorithm.name):
             names.append("iterates.png")
         plot_errors(result, self.out / "errors.png")
         names.append("errors.png")

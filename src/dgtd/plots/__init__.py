@@ -23,30 +23,50 @@ def _save(fig, path: Path) -> None:
     atomic_write(path, buf.getvalue())
 
 
-def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: int = 6) -> bool:
-    """Every agent's w_k components against k for one seed, with w* dashed (the paper's Fig. 2)."""
+def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: int = 4, max_agents: int = 10,
+                  algorithm: str = "dgtd") -> bool:
+    """Every agent's w_k components against k for one seed, with w* dotted (the paper's Fig. 2): one colour per
+    agent, one line style per component; the title says which components and agents are shown."""
     if result.w_trace is None:
         return False
     W = result.w_trace[:, seed]
     C, N, q = W.shape
-    fig, ax = plt.subplots(figsize=(7, 4))
+    shown_q, shown_n = min(q, max_components), min(N, max_agents)
+    fig, ax = plt.subplots(figsize=(8, 4.6))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for f in range(min(q, max_components)):
-        col = colors[f % len(colors)]
-        for i in range(N):
-            ax.plot(result.steps, W[:, i, f], color=col, lw=0.8, alpha=0.8, label=f"w[{f}], agents 1..{N}" if i == 0 else None)
-        ax.axhline(result.w_star[f], color=col, ls="--", lw=1.2, label=f"w*[{f}] = {result.w_star[f]:.3f}")
-    settled = W[len(W) // 3:, :, : min(q, max_components)]
+    styles = ["-", "--", ":", "-."]
+    shown = W[:, :shown_n, :shown_q]
+    settled = shown[len(W) // 3:]
     settled = settled[np.isfinite(settled)]  # a diverged run is NaN from where it was stopped
-    lo = min(settled.min(initial=np.inf), result.w_star[:max_components].min())
-    hi = max(settled.max(initial=-np.inf), result.w_star[:max_components].max())
+    lo = min(settled.min(initial=np.inf), result.w_star[:shown_q].min())
+    hi = max(settled.max(initial=-np.inf), result.w_star[:shown_q].max())
     pad = 0.15 * (hi - lo) + 1e-9
-    ax.set_ylim(lo - pad, hi + pad)  # the early transient can reach the projection box; keep the settling readable
+    lo, hi = lo - pad, hi + pad
+    # The early transient can sit on the projection boxes, far off this scale: those checkpoints are shaded and
+    # named rather than drawn as a comb of vertical lines.
+    off = np.any((shown < lo) | (shown > hi), axis=(1, 2))
+    early = int(np.flatnonzero(off).max()) + 1 if off[: max(1, len(W) // 3)].any() else 0
+    if early:
+        ax.axvspan(result.steps[0], result.steps[early - 1], color="0.9", lw=0)
+        ax.text(np.sqrt(result.steps[0] * result.steps[early - 1]), hi - 0.05 * (hi - lo),
+                f"k < {result.steps[early - 1]:,}: off this scale\n(the iterates swing between the boxes)",
+                ha="center", va="top", fontsize=7, color="0.35")
+    for i in range(shown_n):
+        for f in range(shown_q):
+            ax.plot(result.steps[early:], shown[early:, i, f], color=colors[i % len(colors)],
+                    ls=styles[f % len(styles)], lw=0.9, alpha=0.85, label=f"agent {i + 1}" if f == 0 else None)
+    for f in range(shown_q):
+        ax.axhline(result.w_star[f], color="black", ls=styles[f % len(styles)], lw=1.6, alpha=0.6,
+                   label=f"w*[{f + 1}] = {result.w_star[f]:.3g} ({styles[f % len(styles)]})")
+    ax.set_ylim(lo, hi)
+    ax.set_xlim(result.steps[0], result.steps[-1])
     ax.set_xscale("log")
     ax.set_xlabel("iteration k (log scale)")
-    ax.set_ylabel("w_k of every agent")
-    ax.set_title(f"DGTD iterates (seed {seed}, {N} agents)")
-    ax.legend(fontsize=7, ncol=2)
+    ax.set_ylabel("w_k")
+    what = f"components 1-{shown_q} of {q}" if shown_q < q else f"all {q} component{'s' if q > 1 else ''}"
+    who = f"agents 1-{shown_n} of {N}" if shown_n < N else f"{N} agent{'s' if N > 1 else ''}"
+    ax.set_title(f"{algorithm} iterates, seed {seed}: {what}, {who}", fontsize=10)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.grid(alpha=0.3)
     _save(fig, path)
     return True
@@ -60,27 +80,44 @@ def band(ax, x, Y, label, color=None):
         ax.fill_between(x, Y.min(axis=1), Y.max(axis=1), color=line.get_color(), alpha=0.2)
 
 
+def _log_or_zero(ax, x, Y, label):
+    """Y on a log axis, or, when it is zero throughout (a single learner, exact consensus), a note saying so."""
+    if not np.any(np.nan_to_num(Y, nan=0.0) > 0):
+        ax.text(0.5, 0.5, "zero throughout", transform=ax.transAxes, ha="center", va="center", color="gray")
+        return False
+    positive = Y[np.isfinite(Y) & (Y > 0)]
+    band(ax, x, np.maximum(Y, positive.min()), label)  # log axes need > 0; NaN marks checkpoints after a divergence
+    ax.set_yscale("log")
+    return True
+
+
 def plot_errors(result: RunResult, path: Path) -> None:
     """Relative error (last and averaged, worst agent), consensus error and MSPBE against k, log scales."""
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), gridspec_kw={"wspace": 0.32})
     x = result.steps
     m = result.metrics
     band(axes[0], x, m["error_last"], "last iterate")
     band(axes[0], x, m["error_avg"], "averaged iterate")
-    axes[0].set_title("max over agents of |w_i - w*|_inf / |w*|_inf")
-    # log axes need > 0; NaN marks checkpoints after a run diverged
-    floor = lambda Y: np.maximum(Y, 1e-12 * max(float(np.nanmax(Y, initial=0.0)), 1e-300))  # noqa: E731
-    band(axes[1], x, floor(m["consensus"]), "sum_i |w_i - mean w|^2")
+    axes[0].set_yscale("log")
+    axes[0].set_title("worst agent's relative error")
+    axes[0].set_ylabel("max_i |w_i - w*|_inf / |w*|_inf")
+    _log_or_zero(axes[1], x, m["consensus"], "sum_i |w_i - mean w|^2")
     axes[1].set_title("consensus error")
-    band(axes[2], x, floor(m["mspbe_last"]), "last iterate")
-    band(axes[2], x, floor(m["mspbe_avg"]), "averaged iterate")
+    axes[1].set_ylabel("sum_i |w_i - mean_j w_j|^2")
+    _log_or_zero(axes[2], x, m["mspbe_last"], "last iterate")
+    _log_or_zero(axes[2], x, m["mspbe_avg"], "averaged iterate")
     axes[2].set_title("MSPBE of the average reward (worst agent)")
+    axes[2].set_ylabel("MSPBE")
+    seeds = m["error_last"].shape[1]
     for ax in axes:
         ax.set_xscale("log")
-        ax.set_yscale("log")
+        ax.set_xlim(x[0], x[-1])
         ax.set_xlabel("iteration k")
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
+    fig.suptitle(f"median over {seeds} seed{'s' if seeds > 1 else ''}" + (", band: min to max" if seeds > 1 else ""),
+                 fontsize=9)
     _save(fig, path)
 
 

@@ -162,11 +162,15 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
 
 def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = Sampling(),
         settings: RunSettings = RunSettings(), progress=None, source=None, *, checkpoint_every: int = 0,
-        on_checkpoint=None, resume: dict | None = None) -> RunResult:
+        on_checkpoint=None, resume: dict | None = None, kernel_ready=None) -> RunResult:
     """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
 
     ``source`` supplies the samples (default: a `ModelSource` drawing from the problem's model); a simulator
     with hidden state or position-dependent networks passes its own.
+
+    ``kernel_ready(seconds)`` is called once the block kernel is loaded, or compiled the first time on a machine
+    (an empty block runs first, which changes nothing), with the seconds that took, before the first iteration:
+    so a progress bar started then does not count the compilation into its first step.
 
     With ``checkpoint_every`` = K > 0, ``on_checkpoint(snapshot)`` is called at every multiple of K below T with
     the loop's whole state (`snapshot`: step, checkpoint index, algorithm state, running sums, metrics so far,
@@ -222,6 +226,12 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         block = block_steps(settings.block_size, N, 0, B, budget=1 << 24)
     else:
         block = block_steps(settings.block_size, N, network.n_edges, B)
+    t_kernel = time.perf_counter()
+    if isinstance(source, ModelSource):  # an empty block: the kernel loads or compiles now, nothing moves
+        kernel(ctx, state, sums["all"], np.zeros(0), source.draws(0) if fused else source.next_block(0))
+    kernel_seconds = time.perf_counter() - t_kernel
+    if kernel_ready is not None:
+        kernel_ready(kernel_seconds)
     t_loop = time.perf_counter()
     while k < T:
         if k == ctx.tail_start and tail_base is None:
@@ -288,7 +298,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
               "samples_per_step": N, "messages": messages, "counts": counts,
-              "loop_seconds": time.perf_counter() - t_loop},
+              "loop_seconds": time.perf_counter() - t_loop, "kernel_seconds": kernel_seconds},
     )
 
 
