@@ -170,3 +170,15 @@ def test_the_kernels_load_before_the_first_iteration_and_the_times_are_reported(
     assert code == 0
     assert "s in all: setup" in out and "kernels" in out and "results and figures" in out
     assert "drawing the figures" in err
+
+
+def test_plot_on_a_compare_directory_redraws_the_comparison(run_cli, tmp_path):
+    out = tmp_path / "c"
+    code, _, err = run_cli("compare", "boyan", "-T", "2000", "--seeds", "2", "-a", "dgtd,gtd2", "--no-progress",
+                           "--no-plots", "--out", out)
+    assert code == 0, err
+    assert not (out / "compare.png").exists()
+    code, text, err = run_cli("plot", out)
+    assert code == 0, err
+    assert (out / "compare.png").stat().st_size > 10_000 and (out / "consensus.png").exists()
+    assert not (out / "errors.png").exists()  # not a single run's figure

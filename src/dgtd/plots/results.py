@@ -47,6 +47,39 @@ def load_run(directory: Path) -> SimpleNamespace:
     return SimpleNamespace(steps=steps, metrics=metrics, w_trace=w_trace, w_star=np.asarray(summary["w_star"]))
 
 
+def load_compare(directory: Path):
+    """({algorithm: what `plot_compare` reads}, title) from a `dgtd compare` directory's metrics.csv and summary."""
+    fix = "run the comparison again"
+    path = directory / "metrics.csv"
+    rows = read_csv(path, "comparison results", fix, required=("algorithm", "seed", "step", "metric", "value"))
+    step_of, seed_of = numbers(rows, "step", int, path, "comparison results", fix), numbers(rows, "seed", int, path, "comparison results", fix)
+    values = numbers(rows, "value", float, path, "comparison results", fix)
+    summary = read_json(directory / "summary.json", "comparison results", fix, required=("problem",))
+    tables: dict = {}
+    for r, k, b, x in zip(rows, step_of, seed_of, values):
+        tables.setdefault(r["algorithm"], {}).setdefault(r["metric"], []).append((k, b, x))
+    results = {}
+    for name, metrics in tables.items():
+        need = ("error_last", "mspbe_last", "consensus", "samples", "messages")
+        missing = [m for m in need if m not in metrics]
+        if missing:
+            raise DgtdInputError(f"comparison results {path} lack {', '.join(missing)} for {name}; {fix}")
+        arrays = {}
+        for metric, entries in metrics.items():
+            steps = np.unique([k for k, _, _ in entries])
+            seeds = 1 + max(b for _, b, _ in entries)
+            Y = np.full((len(steps), seeds), np.nan)
+            for k, b, x in entries:
+                Y[np.searchsorted(steps, k), b] = x
+            arrays[metric] = Y
+        counts = {m: arrays[m] for m in ("samples", "messages", "diverged") if m in arrays}
+        one_estimate = not np.any(np.nan_to_num(arrays["consensus"]) > 0)  # a centralised learner
+        results[name] = SimpleNamespace(metrics=arrays, info={"counts": counts, "messages": np.nan_to_num(
+            arrays["messages"][-1])}, w_last=np.zeros((arrays["error_last"].shape[1], 1 if one_estimate else 2, 1)))
+    seeds = next(iter(results.values())).metrics["error_last"].shape[1] if results else 0
+    return results, f"{summary['problem']}, {seeds} seeds"
+
+
 def job_metrics(table: dict) -> dict:
     """{job: (steps (C,), {metric: (C, seeds)})} from the columns of a sweep table."""
     jobs = np.asarray(table["job"])
@@ -72,23 +105,35 @@ def _label(point: dict) -> str:
 
 def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
     """Each job's median curve over seeds with its min-max band, one panel per metric."""
-    fig, axes = plt.subplots(1, len(CURVES), figsize=(13, 3.8))
-    colors = plt.cm.viridis(np.linspace(0, 0.95, max(len(jobs), 1)))
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(13, 4.2))
+    # Up to 12 jobs each get a colour and a legend entry; more are coloured by the value of the first swept
+    # parameter, and the legend names those values (each colour then holds every job with that value).
+    keys = sorted({k for j in jobs for k in points[j]})
+    by = keys[0] if len(jobs) > 12 and keys else None
+    groups = sorted({repr(points[j].get(by)) for j in jobs}) if by else list(jobs)
+    palette = plt.cm.viridis(np.linspace(0, 0.95, max(len(groups), 1)))
+    color_of = {g: c for g, c in zip(groups, palette)}
     # log axes need values > 0: floor at 1e-12 of the panel's largest value (consensus is exactly 0 at k = 1)
     floor = {name: 1e-12 * max([float(np.nanmax(ms[name])) for _, ms in jobs.values() if name in ms] + [1e-300])
              for name, _ in CURVES}
-    for (job, (steps, ms)), color in zip(jobs.items(), colors, strict=True):
+    labelled = set()
+    for job, (steps, ms) in jobs.items():
+        group = repr(points[job].get(by)) if by else job
+        label = (f"{by} = {points[job].get(by)}" if by else _label(points[job])) if group not in labelled else None
+        labelled.add(group)
         for ax, (name, _) in zip(axes, CURVES, strict=True):
             if name in ms:
-                band(ax, steps, np.maximum(ms[name], floor[name]), _label(points[job]), color=color)
+                band(ax, steps, np.maximum(ms[name], floor[name]), label if ax is axes[0] else None,
+                     color=color_of[group])
     for ax, (_, title) in zip(axes, CURVES, strict=True):
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("iteration k")
         ax.set_title(title)
         ax.grid(alpha=0.3, which="both")
-    if len(jobs) <= 12:
-        axes[0].legend(fontsize=6)
+    axes[0].legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
+    note = f"{len(jobs)} jobs, median over seeds" + (f"; colour: {by} (every job with that value)" if by else "")
+    fig.suptitle(note, fontsize=9)
     _save(fig, path)
 
 
@@ -194,7 +239,15 @@ def plot_directory(directory: Path) -> list[Path]:
                 written.append(directory / f"final_{metric}.png")
         return written
     if not (directory / "metrics.csv").exists():
-        raise DgtdInputError(f"{directory} is not a results directory of dgtd run or dgtd sweep (no metrics.csv or sweep.json)")
+        raise DgtdInputError(f"{directory} is not a results directory of dgtd run, compare or sweep (no metrics.csv "
+                             "or sweep.json)")
+    if (directory / "agent_errors.npz").exists():  # a comparison: its own figures, one curve per algorithm
+        from dgtd.plots.compare import plot_compare, plot_consensus
+
+        results, title = load_compare(directory)
+        plot_compare(results, directory / "compare.png", title)
+        plot_consensus(results, directory / "consensus.png", title)
+        return [directory / "compare.png", directory / "consensus.png"]
     run = load_run(directory)
     plot_errors(run, directory / "errors.png")
     written.append(directory / "errors.png")
