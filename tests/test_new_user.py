@@ -182,3 +182,50 @@ def test_plot_on_a_compare_directory_redraws_the_comparison(run_cli, tmp_path):
     assert code == 0, err
     assert (out / "compare.png").stat().st_size > 10_000 and (out / "consensus.png").exists()
     assert not (out / "errors.png").exists()  # not a single run's figure
+
+
+def test_a_problem_too_large_to_solve_exactly_is_refused_before_anything_is_computed(monkeypatch):
+    """A 20 000-state problem with identity features would take tens of GB and hours of dense linear algebra:
+    refused in one line at once (the arrays below take no memory), naming the limit and how to raise it."""
+    import time
+
+    import numpy as np
+
+    from dgtd.errors import DgtdInputError
+    from dgtd.problems.model import make_problem
+
+    S = 20_000
+    t = time.perf_counter()
+    with pytest.raises(DgtdInputError, match=r"about \d+\.\d GB .* DGTD_MEMORY_LIMIT_GB"):
+        make_problem(np.broadcast_to(1.0 / S, (S, S)), np.ones((2, S)), np.broadcast_to(0.0, (S, S)), 0.9)
+    assert time.perf_counter() - t < 1.0
+    monkeypatch.setenv("DGTD_MEMORY_LIMIT_GB", "1e-6")
+    with pytest.raises(DgtdInputError, match="over the limit of 1e-06 GB"):
+        make_problem(np.full((4, 4), 0.25), np.ones((2, 4)), np.eye(4), 0.9)
+
+
+def test_long_linear_algebra_keeps_ctrl_c_working():
+    """The exact solution runs in a worker thread while the caller waits in short steps, so an interrupt is taken
+    within a fraction of a second even while the worker is busy (here: sleeping) for seconds."""
+    import signal
+    import time
+
+    from dgtd.run.loop import interruptible
+
+    assert interruptible(lambda: 42) == 42
+    with pytest.raises(ZeroDivisionError):
+        interruptible(lambda: 1 / 0)
+
+    def interrupt(*_):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGALRM, interrupt)
+    signal.setitimer(signal.ITIMER_REAL, 0.3)
+    t = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            interruptible(lambda: time.sleep(5))
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert time.perf_counter() - t < 1.5

@@ -15,7 +15,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import laplacian_pinv
-from dgtd.problems.model import Problem
+from dgtd.problems.model import Problem, check_size
 
 
 def stationary_distribution(P: np.ndarray) -> np.ndarray:
@@ -34,6 +34,9 @@ class Moments:
     """The model's exact moments: d of the behaviour chain and the matrices M, A, b of the MSPBE."""
 
     problem: Problem
+
+    def __post_init__(self):
+        check_size(self.problem)
 
     @cached_property
     def d(self) -> np.ndarray:

@@ -139,6 +139,40 @@ def check_irreducible(name: str, P: np.ndarray) -> None:
         )
 
 
+MEMORY_LIMIT_GB = 8.0
+"""Default largest memory the dense exact solution may take; the environment variable DGTD_MEMORY_LIMIT_GB
+raises (or lowers) it."""
+
+
+def size_estimate(problem) -> tuple[float, float]:
+    """(bytes, seconds) the dense exact solution of ``problem`` takes, roughly: the stationary distribution is a
+    least-squares solve on an (S + 1) x S matrix (several copies of it in LAPACK's workspace, O(S^3) flops), and
+    A = Phi^T D (I - gamma P) Phi needs P Phi (O(S^2 q)); the seconds assume 20 GFLOP/s."""
+    S, q = problem if isinstance(problem, tuple) else (problem.n_states, problem.n_features)
+    n_bytes = 8.0 * (5.0 * S * S + 4.0 * S * q + 4.0 * q * q)
+    flops = 4.0 * S**3 + 2.0 * S * S * q + 2.0 * S * q * q + 10.0 * q**3
+    return n_bytes, flops / 20e9
+
+
+def check_size(problem) -> None:
+    """Refuse, in one line, a problem (or its (states, features)) whose exact solution would take more memory
+    than the limit, before anything of that size is computed."""
+    import os
+
+    raw = os.environ.get("DGTD_MEMORY_LIMIT_GB")
+    try:
+        limit = MEMORY_LIMIT_GB if raw is None else float(raw)
+    except ValueError:
+        raise DgtdInputError(f"DGTD_MEMORY_LIMIT_GB must be a number of gigabytes, got {raw!r}") from None
+    S, q = problem if isinstance(problem, tuple) else (problem.n_states, problem.n_features)
+    n_bytes, seconds = size_estimate((S, q))
+    if n_bytes > limit * 1e9:
+        raise DgtdInputError(
+            f"the exact solution of this problem ({S:,} states, {q:,} features) "
+            f"takes about {n_bytes / 1e9:.1f} GB and {seconds / 60:.0f} min of dense linear algebra, over the limit of "
+            f"{limit:g} GB; use fewer states or features, or raise the limit with DGTD_MEMORY_LIMIT_GB")
+
+
 def make_problem(
     P,
     R,
@@ -169,6 +203,9 @@ def make_problem(
       7 states). The exact solution is then the one reached from ``w0``: every update moves w along feature
       vectors, so w - w0 stays in the row space of Phi (`dgtd.problems.exact.w_star`).
     """
+    shape_P, shape_Phi = np.shape(P), np.shape(Phi)
+    if len(shape_P) == 2 and len(shape_Phi) == 2:
+        check_size((shape_P[0], shape_Phi[1]))  # first: even checking arrays this large takes long
     P = _as_float_array("P", P, 2)
     R = _as_float_array("R", R, 2)
     Phi = _as_float_array("Phi", Phi, 2)

@@ -126,8 +126,31 @@ def _model_tables(problem: Problem):
     it (comparisons run several algorithms on one problem; the tables of a 400-state MDP take seconds)."""
     if problem not in _MODEL_CACHE:
         moments = exact.Moments(problem)
-        _MODEL_CACHE[problem] = (moments, SamplerTables.build(problem, moments.d))
+        _MODEL_CACHE[problem] = interruptible(lambda: (moments, SamplerTables.build(problem, moments.d)))
     return _MODEL_CACHE[problem]
+
+
+def interruptible(compute):
+    """``compute()`` in a worker thread, the caller waiting in short steps: a long LAPACK call does not look at
+    Ctrl-C, but the waiting thread does, so the interrupt is taken at once (the worker is left to the process's
+    exit)."""
+    import threading
+
+    box = {}
+
+    def work():
+        try:
+            box["value"] = compute()
+        except BaseException as e:  # noqa: BLE001  (handed to the caller)
+            box["error"] = e
+
+    worker = threading.Thread(target=work, daemon=True, name="dgtd-exact")
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.1)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
 
 
 def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling, settings: RunSettings):
