@@ -28,3 +28,26 @@ def test_the_library_example_runs_and_every_method_gets_close():
     # measured with the seeds of the example: 7.9 %, 24.7 % and 6.0 %; a wrong update stays near 100 %
     assert max(errors) < 40, lines
     assert lines[3].startswith("w* =")
+
+
+def test_read_results_gives_back_what_dgtd_run_wrote(run_cli, tmp_path):
+    import numpy as np
+    import pytest
+
+    import dgtd
+    from dgtd.errors import DgtdInputError
+
+    out = tmp_path / "r"
+    code, _, err = run_cli("run", "paper-example-1", "-T", "500", "--seeds", "2", "--no-progress", "--no-plots",
+                           "--out", out)
+    assert code == 0, err
+    results = dgtd.read_results(out)
+    last = (np.asarray(results.metrics["metric"]) == "error_avg") & (results.metrics["step"] == 500)
+    by_seed = results.metrics["value"][last][np.argsort(results.metrics["seed"][last])]
+    worst_agent = np.max(results.summary["error_avg"], axis=1)  # summary: per seed and agent; metrics: worst agent
+    np.testing.assert_allclose(by_seed, worst_agent, rtol=1e-12)
+    assert np.allclose(results.summary["w_star"], [15.903, 21.028], atol=1e-3)
+    assert results.trajectory and all(isinstance(v, np.ndarray) for v in results.trajectory.values())
+    (out / "metrics.csv").write_text("algorithm,seed\n")
+    with pytest.raises(DgtdInputError, match="lacks the column"):
+        dgtd.read_results(out)

@@ -44,9 +44,3 @@ class Links:
         graph = self.operator.graph
         up = np.ones((self.n_seeds, graph.n_edges), dtype=bool) if self.up is None else self.up
         return self.operator(X, metropolis_weights(graph.edges, up, graph.n_nodes))
-
-    def count(self) -> np.ndarray:
-        """Links up per seed, (B,)."""
-        if self.up is None:
-            return np.full(self.n_seeds, self.operator.graph.n_edges)
-        return self.up.sum(axis=1)
