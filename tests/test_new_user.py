@@ -229,3 +229,27 @@ def test_long_linear_algebra_keeps_ctrl_c_working():
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
     assert time.perf_counter() - t < 1.5
+
+
+def test_an_interrupted_compare_keeps_the_finished_algorithms(run_cli, tmp_path, monkeypatch):
+    import json
+
+    import dgtd.run.compare as compare_module
+
+    real_run, calls = compare_module.run, []
+
+    def interrupted_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_run(*args, **kwargs)
+
+    monkeypatch.setattr(compare_module, "run", interrupted_second)
+    out = tmp_path / "c"
+    code, _, err = run_cli("compare", "boyan", "-T", "1000", "--seeds", "2", "-a", "gtd2,td0,dgtd", "--no-progress",
+                           "--no-plots", "--out", out)
+    assert code == 130
+    assert "the results of gtd2 are written" in err and "td0, dgtd did not run to the end" in err, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["algorithms"]) == {"gtd2"} and summary["config"]["missing"] == ["td0", "dgtd"]
+    assert "gtd2" in (out / "metrics.csv").read_text()

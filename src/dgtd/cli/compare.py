@@ -63,14 +63,24 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
                f"{', step sizes tuned first' if tune else ''}")
     bar = tqdm(total=settings.iterations * len(cs.algorithms), unit="it", unit_scale=True, disable=not progress,
                file=sys.stderr, mininterval=0.5)
-    try:
-        results, used, tables = run_compare(p, network, samp, configs, cs,
-                                            progress=lambda name, n: bar.update(n), log=bar.write if tune else None,
-                                            source_factory=sc.source)
-    finally:
-        bar.close()
     record = {**spec_record(resolved), "algorithms": list(cs.algorithms), "tune": tune,
               "tune_seeds": tune_seeds if tune else None}
+    results, used, tables = {}, {}, {}
+    try:
+        run_compare(p, network, samp, configs, cs, progress=lambda name, n: bar.update(n),
+                    log=bar.write if tune else None, source_factory=sc.source, done=(results, used, tables))
+    except KeyboardInterrupt:
+        bar.close()
+        finished = [name for name in cs.algorithms if name in results]
+        if not finished:
+            raise
+        missing = [name for name in cs.algorithms if name not in results]
+        write_compare(out, p, network, results, used, tables, {**record, "interrupted": True, "missing": missing})
+        raise KeyboardInterrupt(f"interrupted: the results of {', '.join(finished)} are written to {out} "
+                                f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
+                                f"to the end: run the command again with -a {','.join(missing)} --out OTHER_DIR") from None
+    finally:
+        bar.close()
     write_compare(out, p, network, results, used, tables, record)
     if plots:
         from dgtd.plots.compare import plot_compare, plot_consensus

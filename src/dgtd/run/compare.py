@@ -92,13 +92,15 @@ def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE
 
 
 def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None,
-            source_factory=None):
+            source_factory=None, done=None):
     """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
 
     ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.scenarios.Scenario.source`);
-    each run gets a fresh one, so every algorithm sees the same samples and links.
+    each run gets a fresh one, so every algorithm sees the same samples and links. ``done``: the three dicts to
+    fill in as each algorithm finishes (default: new ones), so that a caller interrupted half-way still holds the
+    finished algorithms' results.
     """
-    results, used, tables = {}, {}, {}
+    results, used, tables = ({}, {}, {}) if done is None else done
     for name in cs.algorithms:
         alg = configs[name]
         if cs.tune:
