@@ -88,7 +88,8 @@ class PreparedRun:
                 bar.close()
 
     def save(self, result, plots: bool | None = None) -> list[str]:
-        """Write the results, then the figures, then drop the checkpoint; returns the names written."""
+        """Write the results, drop the checkpoint (nothing is left to resume), then draw the figures; returns the names
+        written."""
         from dgtd.run.results import write_results
 
         plots = self.exp.output.plots if plots is None else plots
@@ -136,7 +137,8 @@ def prepare(exp: Experiment) -> PreparedRun:
     if exp.grid:
         raise DgtdInputError("this experiment has a [grid]: run it with `dgtd sweep FILE`")
     if exp.spec.scenario is None and exp.spec.problem_file is None:
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an experiment file")
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an experiment "
+                             "file")
     problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(exp.spec))
     out = Path(exp.output.out) if exp.output.out else Path("runs") / problem.name
     out = out.resolve()

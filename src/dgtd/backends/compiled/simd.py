@@ -114,9 +114,9 @@ def dot(typingctx, X, x_at, Y, y_at, n):
 def neighbour_sums(typingctx, Z, b, i, J, count, out, at):
     """out[at, k] = count Z[b, i, k] - Z[b, J[at, 0], k] - ... - Z[b, J[at, count - 1], k] for every element k of
     the row Z[b, i] (length Z.shape[2], at most out's): (L(k) X)_i of the rows of seed b when J[at] lists agent i's
-    neighbours up at step k. J and out are scratch with a row per thread (row ``at``): numba may hoist an array
-    allocated inside a parallel loop out of it, and the threads would share it. Every element takes the subtractions in this order, so the result does not depend
-    on the vector width. Up to UNROLLED_NEIGHBOURS neighbours the code branches on the count once and runs
+    neighbours up at step k. J and out are scratch with a row per thread (row ``at``), allocated once per block
+    rather than once per chunk and step. Every element takes the subtractions in this order, so the result does
+    not depend on the vector width. Up to UNROLLED_NEIGHBOURS neighbours the code branches on the count once and runs
     straight-line code for it (a loop over a count that changes from agent to agent is mispredicted)."""
     if not _c_contiguous(Z, J, out) or Z.ndim != 3 or out.ndim != 2 or J.ndim != 2:
         return None

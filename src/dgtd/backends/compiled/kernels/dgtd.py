@@ -81,8 +81,8 @@ def _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, 
     """Algorithm 1 lines 7-9 for agent i of seed b at step k: `DGTD.update` for one agent. theta, v, mu and the
     running sum of w are updated in place; w_in and vmu_in (v + mu) are the shared rows at step k, w_out and
     vmu_out receive agent i's at step k + 1. J[at, :count] are its neighbours up at step k; rows ``at`` of Lw and
-    Lvmu are the calling thread's scratch for its neighbour sums. q, the number of features, comes from the caller: computed here from a shape,
-    LLVM cannot prove the feature loop's indices in range and leaves it scalar."""
+    Lvmu are the calling thread's scratch for its neighbour sums. q, the number of features, comes from the caller:
+    computed here from a shape, LLVM cannot prove the feature loop's indices in range and leaves it scalar."""
     gamma, kappa, rho, b_theta, b_v, b_mu, b_w = params
     neighbour_sums(w_in, b, i, J, count, Lw, at)  # (L(k) w)_i
     neighbour_sums(vmu_in, b, i, J, count, Lvmu, at)  # (L(k) v)_i + (L(k) mu)_i = (L(k) (v + mu))_i
@@ -135,7 +135,7 @@ def _sparse_td_feature(theta, w_in, w_out, Lw, Lvmu, at, b, i, f, phi, phi_next,
 @njit(cache=True, parallel=True)
 def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, params):
     """Seeds spread over the cores; within a seed, steps and agents run in order. Row i of the arrays holds agent
-    agent_of[i] (`storage_order`). Returns the number of steps (odd: the shared rows' result is in Z2)."""
+    agent_of[i] (`storage_order`). Returns the number of steps (odd: the last w is in the second buffer, w1)."""
     (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
      sn_blk, r_blk, up_blk, n_up) = sampler
     indptr, nbr, eid, agent_of = graph
@@ -146,7 +146,7 @@ def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, pa
     T = alphas.shape[0]
     n_obs, E = current.shape[1], indptr[N] // 2
     degree = _max_degree(indptr)
-    J, Lw, Lvmu = np.empty((B, degree), np.int64), np.empty((B, q)), np.empty((B, q))  # a row per seed
+    J, Lw, Lvmu = np.empty((B, degree), np.int64), np.empty((B, q)), np.empty((B, q))  # a row per seed, once per block
     for b in prange(B):
         s_t, a_t, sn_t = np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64), np.empty((1, n_obs), np.int64)
         r_t = np.empty((1, N))
@@ -170,7 +170,7 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
     """Agents spread over the cores at every step. Samples are double-buffered too: while the agents update with
     step k's, the chunks also draw step k + 1's, each seed's state and reward streams in one chunk and its edge
     stream in another (a stream is sequential, but the streams are independent), so that no core waits while
-    another samples. Returns the number of buffer swaps (odd: the result is in Z2)."""
+    another samples. Returns the number of buffer swaps (odd: the last w is in w1)."""
     (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
      sn_blk, r_blk, up_blk, n_up) = sampler
     indptr, nbr, eid, agent_of = graph
@@ -182,7 +182,8 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
     n_obs, E = current.shape[1], indptr[N] // 2
     degree = _max_degree(indptr)
     total = B * N
-    s_t, a_t, sn_t = np.empty((2 * B, n_obs), np.int64), np.empty((2 * B, n_obs), np.int64), np.empty((2 * B, n_obs), np.int64)
+    s_t, a_t = np.empty((2 * B, n_obs), np.int64), np.empty((2 * B, n_obs), np.int64)
+    sn_t = np.empty((2 * B, n_obs), np.int64)
     r_t = np.empty((2 * B, N))
     up_t = np.ones((2 * B, E), np.bool_)
     # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
@@ -265,7 +266,7 @@ def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
     rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
     back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
     B, N, q = state.w.shape
-    copy = lambda x: np.array(rows(x), dtype=np.float64, order="C")  # noqa: E731  (updated in place: never the caller's)
+    copy = lambda x: np.array(rows(x), dtype=np.float64, order="C")  # noqa: E731  (updated in place: not the caller's)
     arrays = tuple(copy(x) for x in (state.theta, state.v, state.mu, w_sum))
     w, vmu = copy(state.w), copy(state.v + state.mu)
     shared = (w, vmu, np.zeros_like(w), np.zeros_like(vmu))
