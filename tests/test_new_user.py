@@ -253,3 +253,44 @@ def test_an_interrupted_compare_keeps_the_finished_algorithms(run_cli, tmp_path,
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["algorithms"]) == {"gtd2"} and summary["config"]["missing"] == ["td0", "dgtd"]
     assert "gtd2" in (out / "metrics.csv").read_text()
+
+
+def test_an_interrupted_compare_resumes_in_place(run_cli, tmp_path, monkeypatch):
+    """The same command again runs only the algorithms that did not finish, and gives the numbers an uninterrupted
+    comparison gives (every algorithm replays the same streams, so the finished ones need not run again)."""
+    import json
+
+    import dgtd.run.compare as compare_module
+
+    args = ("compare", "boyan", "-T", "1000", "--seeds", "2", "-a", "gtd2,td0,dgtd", "--no-progress", "--no-plots")
+    assert run_cli(*args, "--out", tmp_path / "whole")[0] == 0
+    real_run, names, armed = compare_module.run, [], [True]
+
+    def interrupted_second(problem, network, alg, *rest, **kwargs):
+        names.append(alg.name)
+        if len(names) == 2 and armed.pop():
+            raise KeyboardInterrupt
+        return real_run(problem, network, alg, *rest, **kwargs)
+
+    monkeypatch.setattr(compare_module, "run", interrupted_second)
+    out = tmp_path / "c"
+    assert run_cli(*args, "--out", out)[0] == 130
+    names.clear()
+    armed.append(False)
+    code, text, err = run_cli(*args, "--out", out)
+    assert code == 0, err
+    assert names == ["td0", "dgtd"] and "resuming" in text, (names, text)
+    assert not (out / "parts").exists()
+    whole, resumed = (json.loads((d / "summary.json").read_text()) for d in (tmp_path / "whole", out))
+    assert "missing" not in resumed["config"]
+    for name in ("gtd2", "td0", "dgtd"):
+        assert resumed["algorithms"][name]["final"] == whole["algorithms"][name]["final"], name
+    assert (out / "metrics.csv").read_text() == (tmp_path / "whole" / "metrics.csv").read_text()
+
+
+def test_compare_into_a_directory_of_another_comparison_is_refused(run_cli, tmp_path):
+    out = tmp_path / "c"
+    args = ("compare", "boyan", "-T", "500", "--seeds", "1", "-a", "gtd2", "--no-progress", "--no-plots", "--out", out)
+    assert run_cli(*args)[0] == 0
+    one_line_error(*run_cli(*args[:3], "600", *args[4:]), "holds the results of another", "--overwrite")
+    assert run_cli(*args[:3], "600", *args[4:], "--overwrite")[0] == 0

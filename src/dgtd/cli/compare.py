@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -38,16 +39,20 @@ def _names(text: str | None) -> tuple[str, ...]:
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO).")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @click.option("--plots/--no-plots", default=True, show_default=True)
+@click.option("--overwrite", is_flag=True, default=False,
+              help="Replace another comparison's results in --out (otherwise refused).")
 def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
-            checkpoints, out, progress, plots):
+            checkpoints, out, progress, plots, overwrite):
     """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots.
 
     The run is described, checked and recorded as the `RunSpec` of `dgtd run` (the same fields, defaults and
-    checks), plus the algorithms compared and the tuning."""
+    checks), plus the algorithms compared and the tuning. Each algorithm's numbers are saved as it finishes: after
+    an interrupt, the same command again runs only the algorithms that had not finished."""
     from tqdm import tqdm
 
     from dgtd.config import RunSpec, resolve, scenario_of, spec_record
-    from dgtd.run.compare import CompareSettings, compare as run_compare, configs_for, write_compare
+    from dgtd.run.compare import (CompareSettings, compare as run_compare, configs_for, finish_directory,
+                                  prepare_directory, save_part, write_compare)
 
     spec = RunSpec(scenario=scenario, edge_prob=edge_prob, iterations=iterations, seeds=seeds, seed=seed,
                    sampling=sampling, shared=shared, backend=backend, checkpoints=checkpoints)
@@ -61,14 +66,19 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
                f"{'shared' if samp.shared else 'independent'} states")
     click.echo(f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
                f"{', step sizes tuned first' if tune else ''}")
-    bar = tqdm(total=settings.iterations * len(cs.algorithms), unit="it", unit_scale=True, disable=not progress,
-               file=sys.stderr, mininterval=0.5)
     record = {**spec_record(resolved), "algorithms": list(cs.algorithms), "tune": tune,
               "tune_seeds": tune_seeds if tune else None}
-    results, used, tables = {}, {}, {}
+    record = json.loads(json.dumps(record))  # as summary.json holds it (lists, not tuples), to compare with it
+    results, used, tables = prepare_directory(out, record, overwrite)
+    if results:
+        click.echo(f"resuming the interrupted comparison in {out}: {', '.join(results)} finished before; running "
+                   f"{', '.join(a for a in cs.algorithms if a not in results)}")
+    bar = tqdm(total=settings.iterations * len(cs.algorithms), initial=settings.iterations * len(results), unit="it",
+               unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
     try:
         run_compare(p, network, samp, configs, cs, progress=lambda name, n: bar.update(n),
-                    log=bar.write if tune else None, source_factory=sc.source, done=(results, used, tables))
+                    log=bar.write if tune else None, source_factory=sc.source, done=(results, used, tables),
+                    on_finished=lambda *part: save_part(out, *part, record))
     except KeyboardInterrupt:
         bar.close()
         finished = [name for name in cs.algorithms if name in results]
@@ -78,10 +88,11 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
         write_compare(out, p, network, results, used, tables, {**record, "interrupted": True, "missing": missing})
         raise KeyboardInterrupt(f"interrupted: the results of {', '.join(finished)} are written to {out} "
                                 f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
-                                f"to the end: run the command again with -a {','.join(missing)} --out OTHER_DIR") from None
+                                f"to the end: run the same command again to run only those") from None
     finally:
         bar.close()
     write_compare(out, p, network, results, used, tables, record)
+    finish_directory(out)
     if plots:
         from dgtd.plots.compare import plot_compare, plot_consensus
 

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import csv
 import io
+import json
+import shutil
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -92,16 +95,19 @@ def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE
 
 
 def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None,
-            source_factory=None, done=None):
+            source_factory=None, done=None, on_finished=None):
     """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
 
     ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.scenarios.Scenario.source`);
     each run gets a fresh one, so every algorithm sees the same samples and links. ``done``: the three dicts to
     fill in as each algorithm finishes (default: new ones), so that a caller interrupted half-way still holds the
-    finished algorithms' results.
+    finished algorithms' results; algorithms already in ``done`` (a resumed comparison) are not run again.
+    ``on_finished(name, result, config, table)`` is called as each algorithm finishes (to save it).
     """
     results, used, tables = ({}, {}, {}) if done is None else done
     for name in cs.algorithms:
+        if name in results:
+            continue
         alg = configs[name]
         if cs.tune:
             alg, tables[name] = tune(problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds,
@@ -113,6 +119,8 @@ def compare(problem, network, sampling, configs: dict, cs: CompareSettings, prog
         results[name] = run(problem, network, alg, sampling, cs.settings,
                             progress=None if progress is None else (lambda n, name=name: progress(name, n)),
                             source=_source(source_factory, cs.settings))
+        if on_finished is not None:
+            on_finished(name, results[name], used[name], tables.get(name, []))
     return results, used, tables
 
 
@@ -191,3 +199,81 @@ def write_compare(out, problem, network, results: dict, used: dict, tables: dict
     atomic_write(out / "metrics.csv", compare_csv(results))
     atomic_write(out / "agent_errors.npz", agent_errors_npz(results))
     atomic_write_json(out / "summary.json", summary(problem, network, results, used, tables, spec))
+
+
+# A comparison's directory: these files, and while it runs `PARTS/NAME.npz` for each finished algorithm, from which
+# the same command, run again after an interrupt, resumes (every algorithm replays the same streams, so a finished
+# one's numbers are final).
+COMPARE_FILES = ("metrics.csv", "agent_errors.npz", "summary.json", "compare.png", "consensus.png")
+PARTS = "parts"
+_ARRAYS = ("steps", "agent_error_last", "agent_error_avg", "w_last", "w_avg", "w_tail", "w_star")
+
+
+def save_part(out: Path, name: str, result: RunResult, alg, table, record: dict) -> None:
+    """One finished algorithm's numbers, its config and tuning, and the comparison's record, as plain arrays."""
+    arrays = {k: getattr(result, k) for k in _ARRAYS}
+    arrays |= {f"metrics/{k}": v for k, v in result.metrics.items()}
+    arrays |= {f"counts/{k}": v for k, v in result.info["counts"].items()}
+    arrays |= {k: np.asarray(result.info[k]) for k in ("diverged_at", "messages", "samples_per_step", "mspbe_w_star")}
+    meta = {"record": record, "config": config_dict(alg), "tuning": [list(t) for t in table],
+            "seconds": result.seconds, "tail_window": result.tail_window}
+    arrays["meta"] = np.asarray(json.dumps(meta))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write(Path(out) / PARTS / f"{name}.npz", buf.getvalue())
+
+
+def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:
+    """The finished algorithms of an interrupted comparison of the same ``record`` in ``out`` (empty if none)."""
+    from dgtd.files import read_npz
+
+    results, used, tables = {}, {}, {}
+    paths = [Path(out) / PARTS / f"{name}.npz" for name in record.get("algorithms", ())]
+    for path in filter(Path.is_file, paths):  # in the comparison's order, so that the files come out the same
+        a = read_npz(path, "saved part of a comparison", f"delete it (or {path.parent}) to run that algorithm again",
+                     required=(*_ARRAYS, "meta"))
+        meta = json.loads(str(a["meta"]))
+        if meta["record"] != record:
+            continue
+        config = {k: (tuple(v) if isinstance(v, list) else v) for k, v in meta["config"].items() if k != "name"}
+        name = meta["config"]["name"]
+        used[name] = make_algorithm(name, **config)
+        tables[name] = [tuple(t) for t in meta["tuning"]]
+        info = {k: a[k] for k in ("diverged_at", "messages")}
+        info |= {"samples_per_step": int(a["samples_per_step"]), "mspbe_w_star": float(a["mspbe_w_star"]),
+                 "counts": {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("counts/")}}
+        results[name] = RunResult(
+            **{k: a[k] for k in _ARRAYS}, metrics={k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("metrics/")},
+            w_trace=None, tail_window=int(meta["tail_window"]), saddle=None, boxes=(), final_state={}, kkt_last={},
+            seconds=float(meta["seconds"]), info=info)
+    return results, used, tables
+
+
+def prepare_directory(out: Path, record: dict, overwrite: bool) -> tuple[dict, dict, dict]:
+    """Refuse a directory that holds another comparison unless ``overwrite``; return the finished algorithms of an
+    interrupted run of this one (to resume), else clear the previous comparison's files so that none is stale."""
+    from dgtd.files import read_json
+
+    out = Path(out)
+    summary = out / "summary.json"
+    if summary.is_file() and not overwrite:
+        try:
+            saved = read_json(summary, "results file", "").get("config", {})
+        except DgtdInputError:
+            saved = {}  # damaged: nothing readable to protect
+        saved = {k: v for k, v in saved.items() if k not in ("interrupted", "missing")}
+        if saved and saved != record:
+            key = next(k for k in sorted(set(saved) | set(record)) if saved.get(k) != record.get(k))
+            raise DgtdInputError(f"{out} holds the results of another comparison ({key} = {saved.get(key)!r} there, "
+                                 f"{record.get(key)!r} here); choose another --out, or pass --overwrite to replace them")
+    done = ({}, {}, {}) if overwrite else load_parts(out, record)
+    if not done[0]:
+        shutil.rmtree(out / PARTS, ignore_errors=True)
+    for name in COMPARE_FILES:
+        (out / name).unlink(missing_ok=True)
+    return done
+
+
+def finish_directory(out: Path) -> None:
+    """The comparison's files are complete: the saved parts are no longer needed."""
+    shutil.rmtree(Path(out) / PARTS, ignore_errors=True)
