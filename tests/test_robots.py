@@ -257,3 +257,26 @@ def test_paper_example_2_scenario():
     assert get_scenario("paper-example-2") is sc  # built once per process
     with pytest.raises(DgtdInputError, match="edge-prob does not apply"):
         get_scenario("paper-example-2", edge_prob=0.5)
+
+
+def test_a_simulators_kernel_is_loaded_before_the_first_step_not_inside_it(monkeypatch):
+    """With a simulator's source the compiled kernel runs first on an empty block (it loads or compiles there, and
+    is announced), then on the steps: a compilation inside the first step showed as a stalled run with an ETA of
+    hundreds of hours."""
+    import dgtd.run.loop as loop
+
+    real, lengths = loop.kernel_for, []
+
+    def recording(backend, name):
+        kernel = real(backend, name)
+        return lambda ctx, state, sums, alpha, block: (lengths.append(len(alpha)), kernel(ctx, state, sums, alpha,
+                                                                                          block))[1]
+
+    monkeypatch.setattr(loop, "kernel_for", recording)
+    sc = small_scenario()
+    events = []
+    settings = RunSettings(iterations=300, seeds=1, checkpoints=3, backend="numba", block_size=100)
+    run(sc.problem, sc.network, sc.algorithm, sc.sampling, settings, source=sc.source(0, range(1)),
+        progress=lambda n: events.append("step"), kernel_ready=lambda s: events.append("ready"))
+    assert lengths[0] == 0 and sum(lengths) == 300, lengths
+    assert events[0] == "ready" and events.count("ready") == 1 and "step" in events

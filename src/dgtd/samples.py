@@ -41,6 +41,12 @@ class Block(NamedTuple):
     r: np.ndarray
     up: np.ndarray | None
 
+    @classmethod
+    def empty(cls, seeds: int, observations: int, agents: int, edges: int) -> "Block":
+        """A block of no steps with the documented dtypes: run through a kernel, it loads or compiles it."""
+        s = np.zeros((0, seeds, observations), np.int64)
+        return cls(s, s.copy(), s.copy(), np.zeros((0, seeds, agents)), np.zeros((0, seeds, edges), bool))
+
     def sample(self, t: int, Phi: np.ndarray, ratio: np.ndarray, gamma) -> Sample:
         """Step t as a `Sample`, with the features ``Phi`` (S, q) and the ratio table (S, A) of the problem."""
         s, a, sn = self.s[t], self.a[t], self.s_next[t]

@@ -71,8 +71,6 @@ class PreparedRun:
                              disable=not show, file=sys.stderr, mininterval=0.5))
 
         def advance(n: int) -> None:
-            if not bars:  # a simulator's source: no warm-up block, so the bar starts here
-                start_bar(0.0)
             bars[0].update(n)
 
         every = self.exp.output.checkpoint_every

@@ -14,6 +14,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import LaplacianOperator, RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
+from dgtd.samples import Block
 from dgtd.sources.model import ModelSource, Sampling, SamplerTables
 
 BACKENDS = ("numpy", "numba")
@@ -250,8 +251,12 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     else:
         block = block_steps(settings.block_size, N, network.n_edges, B)
     t_kernel = time.perf_counter()
-    if isinstance(source, ModelSource):  # an empty block: the kernel loads or compiles now, nothing moves
+    # An empty block: the kernel loads or compiles now (not inside the first step, where it would look like a
+    # stalled run), and nothing moves. A simulator's agents each observe their own state.
+    if isinstance(source, ModelSource):
         kernel(ctx, state, sums["all"], np.zeros(0), source.draws(0) if fused else source.next_block(0))
+    else:
+        kernel(ctx, state, sums["all"], np.zeros(0), Block.empty(B, N, N, network.n_edges))
     kernel_seconds = time.perf_counter() - t_kernel
     if kernel_ready is not None:
         kernel_ready(kernel_seconds)

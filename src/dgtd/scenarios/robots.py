@@ -24,9 +24,11 @@ exact w* is the right reference).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm import tqdm
 
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.proximity import LinkStats, ProximityNetwork, count_links, empty_stats
@@ -275,6 +277,9 @@ def simulate_reference(world: PatrolWorld, network: ProximityNetwork, teams: int
     w_td, n_seen = np.zeros(S), np.zeros(S, np.int64)
     links = empty_stats(network.n_edges)
     done = -burn_in
+    # A few seconds before any run starts: said on a terminal, so that the wait is not silent.
+    bar = tqdm(total=burn_in + steps, desc=f"simulating the reference map ({teams} teams)", unit="step",
+               disable=None, file=sys.stderr, leave=False, mininterval=0.5)
     while done < steps:
         T = min(block, steps - done) if done >= 0 else min(block, -done)
         X, r = trajectory(world, x, r, rng.random((T, teams, N, 2)))
@@ -287,6 +292,8 @@ def simulate_reference(world: PatrolWorld, network: ProximityNetwork, teams: int
             for t in range(T):
                 w_td, n_seen = minibatch_td(w_td, n_seen, s[t].ravel(), s_next[t].ravel(), r_mean, world.gamma, omega)
         done += T
+        bar.update(T)
+    bar.close()
     per_group = counts.reshape(replicates, S, S)
     total = per_group.sum(axis=0)
     P = chain_from_counts(total)
