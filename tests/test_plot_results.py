@@ -45,3 +45,50 @@ def test_a_sweep_directory_gives_curves_and_final_errors(tmp_path, run_cli):
 def test_plot_refuses_a_directory_without_results(tmp_path, run_cli):
     code, _, err = run_cli("plot", tmp_path)
     assert code == 2 and "not a results directory" in err
+
+
+def _drawn(monkeypatch, draw):
+    """The figure that ``draw()`` would save, kept open to be read."""
+    import dgtd.plots
+
+    figures = []
+    monkeypatch.setattr(dgtd.plots, "_save", lambda fig, path: figures.append(fig))
+    draw()
+    return figures[0]
+
+
+def _result(steps, w_star, w_trace=None, consensus=None):
+    from types import SimpleNamespace
+
+    C = len(steps)
+    ones = np.ones((C, 2))
+    metrics = {"error_last": ones, "error_avg": ones, "consensus": ones if consensus is None else consensus,
+               "mspbe_last": ones, "mspbe_avg": ones}
+    return SimpleNamespace(steps=np.asarray(steps), w_star=np.asarray(w_star, float), w_trace=w_trace, metrics=metrics)
+
+
+def test_iterates_of_many_components_show_those_with_the_largest_values(monkeypatch):
+    """Of 400 tabular components, the first ones are corner cells with w* near 0: the figure draws the components
+    with the largest |w*| and names them."""
+    from dgtd.plots import plot_iterates
+
+    w_star = np.zeros(400)
+    w_star[[10, 304, 305, 399]] = [5.0, 64.5, 63.9, -70.0]
+    trace = np.broadcast_to(w_star, (3, 1, 2, 400)).copy()
+    fig = _drawn(monkeypatch, lambda: plot_iterates(_result([1, 2, 3], w_star, trace), "unused"))
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert [lab.split(" =")[0] for lab in labels if lab.startswith("w*")] == ["w*[11]", "w*[305]", "w*[306]", "w*[400]"]
+    assert "largest |w*|" in fig.axes[0].get_title()
+
+
+def test_an_exact_zero_consensus_is_left_out_of_its_log_axis_and_said(monkeypatch):
+    """Before any link is up the agents agree exactly: zero has no place on a log axis, so those checkpoints are not
+    drawn (they were drawn at an invented floor) and the legend says until when it was zero."""
+    from dgtd.plots import plot_errors
+
+    consensus = np.array([[0.0, 0.0], [0.0, 0.0], [3.0, 5.0], [1.0, 2.0]])
+    fig = _drawn(monkeypatch, lambda: plot_errors(_result([1, 10, 100, 1000], [1.0], consensus=consensus), "unused"))
+    line = fig.axes[1].get_lines()[0]
+    y = np.asarray(line.get_ydata(), float)
+    assert np.isnan(y[:2]).all() and np.allclose(y[2:], [4.0, 1.5])
+    assert "zero at 2 checkpoints up to k = 10" in line.get_label()

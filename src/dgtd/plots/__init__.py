@@ -32,14 +32,18 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
     W = result.w_trace[:, seed]
     C, N, q = W.shape
     shown_q, shown_n = min(q, max_components), min(N, max_agents)
+    # Of many components, the largest |w*|: the first ones can be all near zero (Example 2's corner cells).
+    picked = np.arange(q) if shown_q == q else np.sort(np.argsort(-np.abs(result.w_star), kind="stable")[:shown_q])
+    W = W[:, :, picked]
+    w_star = result.w_star[picked]
     fig, ax = plt.subplots(figsize=(8, 4.6))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = ["-", "--", ":", "-."]
-    shown = W[:, :shown_n, :shown_q]
+    shown = W[:, :shown_n]
     settled = shown[len(W) // 3:]
     settled = settled[np.isfinite(settled)]  # a diverged run is NaN from where it was stopped
-    lo = min(settled.min(initial=np.inf), result.w_star[:shown_q].min())
-    hi = max(settled.max(initial=-np.inf), result.w_star[:shown_q].max())
+    lo = min(settled.min(initial=np.inf), w_star.min())
+    hi = max(settled.max(initial=-np.inf), w_star.max())
     pad = 0.15 * (hi - lo) + 1e-9
     lo, hi = lo - pad, hi + pad
     # The early transient can sit on the projection boxes, far off this scale: those checkpoints are shaded and
@@ -56,14 +60,15 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
             ax.plot(result.steps[early:], shown[early:, i, f], color=colors[i % len(colors)],
                     ls=styles[f % len(styles)], lw=0.9, alpha=0.85, label=f"agent {i + 1}" if f == 0 else None)
     for f in range(shown_q):
-        ax.axhline(result.w_star[f], color="black", ls=styles[f % len(styles)], lw=1.6, alpha=0.6,
-                   label=f"w*[{f + 1}] = {result.w_star[f]:.3g} ({styles[f % len(styles)]})")
+        ax.axhline(w_star[f], color="black", ls=styles[f % len(styles)], lw=1.6, alpha=0.6,
+                   label=f"w*[{picked[f] + 1}] = {w_star[f]:.3g} ({styles[f % len(styles)]})")
     ax.set_ylim(lo, hi)
     ax.set_xlim(result.steps[0], result.steps[-1])
     ax.set_xscale("log")
     ax.set_xlabel("iteration k (log scale)")
     ax.set_ylabel("w_k")
-    what = f"components 1-{shown_q} of {q}" if shown_q < q else f"all {q} component{'s' if q > 1 else ''}"
+    what = (f"the {shown_q} of {q} components with the largest |w*|" if shown_q < q
+            else f"all {q} component{'s' if q > 1 else ''}")
     who = f"agents 1-{shown_n} of {N}" if shown_n < N else f"{N} agent{'s' if N > 1 else ''}"
     ax.set_title(f"{algorithm} iterates, seed {seed}: {what}, {who}", fontsize=10)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
@@ -72,21 +77,38 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
     return True
 
 
+def median_band(Y: np.ndarray):
+    """Median over seeds (NaN where half the seeds or more are NaN: diverged, or a value left out) and the min-max
+    band of the others; Y is (checkpoints, seeds)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        alive = np.isfinite(Y).sum(axis=1)
+        med = np.where(alive * 2 > Y.shape[1], np.nanmedian(Y, axis=1), np.nan)
+        return med, np.nanmin(Y, axis=1), np.nanmax(Y, axis=1)
+
+
 def band(ax, x, Y, label, color=None):
-    """Median over seeds with the min-max band; Y is (checkpoints, seeds)."""
-    med = np.median(Y, axis=1)
+    """Median over seeds with the min-max band (`median_band`)."""
+    med, lo, hi = median_band(Y)
     line, = ax.plot(x, med, label=label, color=color)
     if Y.shape[1] > 1:
-        ax.fill_between(x, Y.min(axis=1), Y.max(axis=1), color=line.get_color(), alpha=0.2)
+        ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
 
 
 def _log_or_zero(ax, x, Y, label):
-    """Y on a log axis, or, when it is zero throughout (a single learner, exact consensus), a note saying so."""
+    """Y on a log axis, or, when it is zero throughout (a single learner, exact consensus), a note saying so.
+
+    Exact zeros (agents that have not exchanged anything yet) have no place on a log axis: they are left out, not
+    drawn at an invented floor, and the legend says until when the value was zero."""
     if not np.any(np.nan_to_num(Y, nan=0.0) > 0):
         ax.text(0.5, 0.5, "zero throughout", transform=ax.transAxes, ha="center", va="center", color="gray")
         return False
-    positive = Y[np.isfinite(Y) & (Y > 0)]
-    band(ax, x, np.maximum(Y, positive.min()), label)  # log axes need > 0; NaN marks checkpoints after a divergence
+    zero = np.all(Y == 0, axis=1)
+    if zero.any():
+        label += f" (zero at {int(zero.sum())} checkpoints up to k = {int(x[np.flatnonzero(zero).max()]):,}, not drawn)"
+    band(ax, x, np.where(Y > 0, Y, np.nan), label)  # NaN also marks checkpoints after a divergence
     ax.set_yscale("log")
     return True
 

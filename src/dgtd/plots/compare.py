@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from dgtd.plots import _save  # noqa: E402
+from dgtd.plots import _save, median_band  # noqa: E402
 
 def color(name: str) -> str | None:
     """The algorithm's own colour (`dgtd.algorithms.base`), the same in every figure."""
@@ -20,19 +20,10 @@ def color(name: str) -> str | None:
     return getattr(ALGORITHMS.get(name), "color", None)
 
 
-def _median_band(Y: np.ndarray):
-    """Median over seeds (NaN once half the seeds have diverged) and the min-max band of the live seeds."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        alive = np.isfinite(Y).sum(axis=1)
-        med = np.where(alive * 2 > Y.shape[1], np.nanmedian(Y, axis=1), np.nan)
-        return med, np.nanmin(Y, axis=1), np.nanmax(Y, axis=1)
-
-
 def _curve(ax, x, Y, name, floor, top):
     """Median and band of Y (checkpoints, seeds) against x; values above ``top`` (diverging runs) are cut at
     ``top`` so that the converging curves stay readable, and an x marks where the median run stopped."""
-    med, lo, hi = _median_band(np.maximum(Y, floor))
+    med, lo, hi = median_band(np.maximum(Y, floor))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         xm = np.nanmedian(x, axis=1) if x.ndim == 2 else x
@@ -69,8 +60,8 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
             _curve(axes[row, 0], r.info["counts"]["samples"], Y, name, floor, top)
             if r.info["messages"].max() > 0:
                 _curve(axes[row, 1], r.info["counts"]["messages"], Y, name, floor, top)
-            elif np.isfinite(_median_band(Y)[0][-1]):
-                axes[row, 1].axhline(max(_median_band(Y)[0][-1], floor), color=color(name), ls=":", lw=1.2,
+            elif np.isfinite(median_band(Y)[0][-1]):
+                axes[row, 1].axhline(max(median_band(Y)[0][-1], floor), color=color(name), ls=":", lw=1.2,
                                      label=f"{name} (no messages; final level)")
             else:
                 axes[row, 1].plot([], [], "x", color=color(name), label=f"{name} (no messages; diverged)")

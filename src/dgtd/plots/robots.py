@@ -85,6 +85,8 @@ def plot_maps(world, result, path: Path, seed: int = 0) -> None:
                           f"correlation with w*: {corr[i]:.3f}", fontsize=9, color=agent_colour(i))
     draw_map(axes[N], world, result.w_star, 0.0, vmax)
     axes[N].set_title("reference w* (estimated chain)\naverage reward of all robots", fontsize=9)
+    axes[0].set_xlabel("x (m)", fontsize=8)
+    axes[0].set_ylabel("y (m)", fontsize=8)
     fig.colorbar(im, ax=axes, shrink=0.85, label="value")
     fig.suptitle(f"value maps after {int(result.steps[-1]):,} iterations (seed {seed})", fontsize=10)
     _save(fig, path)
@@ -218,6 +220,9 @@ def plot_curves(result, d: np.ndarray, path: Path) -> bool:
         band(axes[1], x, corr[:, :, i], f"agent {i + 1}", color=agent_colour(i))
     axes[0].set_yscale("log")
     axes[0].set_title("relative error of the last iterate")
+    axes[0].set_ylabel("|w_i - w*| / |w*| (sup norm; D-weighted)")
+    axes[1].set_ylabel("Pearson correlation")
+    axes[2].set_ylabel("sum_i |w_i - mean_j w_j|^2")
     axes[1].set_title("correlation of agent i's map with w*")
     axes[1].set_ylim(min(0.0, float(np.nanmin(corr))), 1.0)
     cons = result.metrics["consensus"]
