@@ -22,8 +22,9 @@ def color(name: str) -> str | None:
 
 def _curve(ax, x, Y, name, floor, top):
     """Median and band of Y (checkpoints, seeds) against x; values above ``top`` (diverging runs) are cut at
-    ``top`` so that the converging curves stay readable, and an x marks where the median run stopped."""
-    med, lo, hi = median_band(np.maximum(Y, floor))
+    ``top`` so that the converging curves stay readable, and an x marks where the median run stopped. Exact zeros
+    (agents that have not exchanged anything yet) have no place on a log axis and are left out."""
+    med, lo, hi = median_band(np.where(Y > 0, Y, np.nan))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         xm = np.nanmedian(x, axis=1) if x.ndim == 2 else x
@@ -31,7 +32,7 @@ def _curve(ax, x, Y, name, floor, top):
     ax.plot(xm, np.minimum(med, top), label=name, color=colour, lw=1.4)
     if Y.shape[1] > 1:
         ax.fill_between(xm, np.minimum(lo, top), np.minimum(hi, top), color=colour, alpha=0.15, lw=0)
-    dead = np.flatnonzero(~np.isfinite(med))
+    dead = np.flatnonzero(~np.isfinite(median_band(Y)[0]))  # NaN in Y itself: the seeds were stopped
     if dead.size and dead[0] > 0:  # the median run stopped here: it diverged
         ax.plot(xm[dead[0] - 1], min(med[dead[0] - 1], top), "x", color=colour, ms=9, mew=2)
 
@@ -72,8 +73,12 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    fig.suptitle(title + "  (median over seeds, band: min-max; x: divergence)", fontsize=10)
+    # One legend for the four panels, below them, where it covers no curve; the message panel names every algorithm.
+    handles, labels = axes[0, 1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
+    fig.subplots_adjust(bottom=0.12)
+    fig.suptitle(title + "\nmedian over seeds, band: min to max; x: the median run diverged; curves beyond 1000x the "
+                 "largest starting value are cut at the frame's top", fontsize=10)
     _save(fig, path)
 
 
@@ -88,7 +93,7 @@ def plot_consensus(results: dict, path: Path, title: str = "") -> None:
     ax.set_yscale("log")
     ax.set_xlabel("agent-samples consumed")
     ax.set_ylabel("sum_i |w_i - mean_j w_j|^2")
-    ax.set_title(title + " consensus error", fontsize=10)
+    ax.set_title(title + ": consensus error\n(median over seeds, band: min to max; exact zeros not drawn)", fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _save(fig, path)
