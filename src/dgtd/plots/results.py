@@ -16,8 +16,12 @@ from dgtd.errors import DgtdInputError
 from dgtd.files import numbers, read_csv, read_json, read_npz
 from dgtd.plots import _save, band, plot_errors, plot_iterates, plt
 
-CURVES = (("error_avg", "max relative error, averaged iterate"), ("consensus", "consensus error"),
+# What each metric of a run is, in words, for titles and axes.
+METRIC_WORDS = {"error_avg": "worst agent's relative error (max norm) of the averaged iterate",
+                "error_last": "worst agent's relative error (max norm) of the last iterate"}
+CURVES = (("error_avg", "max relative error, averaged iterate"), ("consensus", "consensus error (zeros not drawn)"),
           ("mspbe_avg", "MSPBE, averaged iterate"))
+CURVE_AXES = ("max_i |w_i - w*|_inf / |w*|_inf", "sum_i |w_i - mean_j w_j|^2", "MSPBE")
 
 
 def load_run(directory: Path) -> SimpleNamespace:
@@ -105,7 +109,7 @@ def _label(point: dict) -> str:
 
 def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
     """Each job's median curve over seeds with its min-max band, one panel per metric."""
-    fig, axes = plt.subplots(1, len(CURVES), figsize=(13, 4.2))
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(14, 4.2), gridspec_kw={"wspace": 0.38})
     # Up to 12 jobs each get a colour and a legend entry; more are coloured by the value of the first swept
     # parameter, and the legend names those values (each colour then holds every job with that value).
     keys = sorted({k for j in jobs for k in points[j]})
@@ -113,9 +117,6 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
     groups = sorted({repr(points[j].get(by)) for j in jobs}) if by else list(jobs)
     palette = plt.cm.viridis(np.linspace(0, 0.95, max(len(groups), 1)))
     color_of = {g: c for g, c in zip(groups, palette)}
-    # log axes need values > 0: floor at 1e-12 of the panel's largest value (consensus is exactly 0 at k = 1)
-    floor = {name: 1e-12 * max([float(np.nanmax(ms[name])) for _, ms in jobs.values() if name in ms] + [1e-300])
-             for name, _ in CURVES}
     labelled = set()
     for job, (steps, ms) in jobs.items():
         group = repr(points[job].get(by)) if by else job
@@ -123,16 +124,18 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
         labelled.add(group)
         for ax, (name, _) in zip(axes, CURVES, strict=True):
             if name in ms:
-                band(ax, steps, np.maximum(ms[name], floor[name]), label if ax is axes[0] else None,
+                # exact zeros (consensus before any link) have no place on a log axis: left out, not floored
+                band(ax, steps, np.where(ms[name] > 0, ms[name], np.nan), label if ax is axes[0] else None,
                      color=color_of[group])
-    for ax, (_, title) in zip(axes, CURVES, strict=True):
+    for ax, (_, title), ylabel in zip(axes, CURVES, CURVE_AXES, strict=True):
+        ax.set_ylabel(ylabel)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("iteration k")
         ax.set_title(title)
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
-    note = f"{len(jobs)} jobs, median over seeds" + (f"; colour: {by} (every job with that value)" if by else "")
+    note = f"{len(jobs)} jobs, median over seeds, band: min to max" + (f"; colour: {by} (every job with that value)" if by else "")
     fig.suptitle(note, fontsize=9)
     _save(fig, path)
 
@@ -160,14 +163,19 @@ def _heat_maps(final: dict, points: dict, kx: str, ky: str, panels: dict, metric
     for ax, Z, group in zip(axes[0], grids, panels, strict=True):
         im = ax.imshow(Z, origin="lower", cmap="viridis", norm=norm, aspect="auto")
         for (iy, ix), z in np.ndenumerate(Z):
-            if np.isfinite(z):
-                ax.text(ix, iy, f"{z:.2g}", ha="center", va="center", color="w", fontsize=7)
+            if np.isfinite(z):  # dark text on the bright end of viridis, white on the dark end
+                bright = im.norm(z) > 0.6 if norm is not None else False
+                ax.text(ix, iy, f"{z:.2g}", ha="center", va="center", color="k" if bright else "w", fontsize=7)
         ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
         ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
         ax.set_xlabel(kx)
         ax.set_ylabel(ky)
         ax.set_title(_label(dict(group)) or f"k = {k_end:,}", fontsize=9)
     fig.colorbar(im, ax=axes[0].tolist(), label=f"final {metric} at k = {k_end:,} (median over seeds)")
+    best = min(final, key=lambda j: np.median(final[j]))
+    fig.suptitle(f"{METRIC_WORDS.get(metric, metric)} after {k_end:,} iterations, median over seeds; the smallest, "
+                 f"{np.median(final[best]):.2g}, at {_label({k: points[best][k] for k in (kx, ky, *dict(next(iter(panels))))})}",
+                 fontsize=9)
     _save(fig, path)
 
 
@@ -211,7 +219,7 @@ def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metr
     ax.set_yscale("log")
     ax.set_xlabel(kx or "job")
     ax.set_ylabel(f"final {metric}")
-    ax.set_title(f"final {metric} (median over seeds, band: min to max)")
+    ax.set_title(f"{METRIC_WORDS.get(metric, metric)} at the end\n(median over seeds, band: min to max)", fontsize=9)
     ax.grid(alpha=0.3, which="both")
     if len(groups) > 1:
         ax.legend(fontsize=7)

@@ -165,8 +165,8 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
     index = {int(s): c for c, s in enumerate(result.steps)}
     N = result.w_last.shape[1]
     vmax = float(max(result.w_star.max(), result.w_last[0].max()))
-    fig, axes = plt.subplots(1, N, figsize=(2.6 * N, 2.9), squeeze=False)
-    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.08, top=0.84, wspace=0.18)
+    fig, axes = plt.subplots(1, N, figsize=(2.6 * N + 0.8, 3.1), squeeze=False)
+    fig.subplots_adjust(left=0.05, right=0.88, bottom=0.08, top=0.80, wspace=0.18)
     axes = axes[0]
     ims, robots = [], []
     for i, ax in enumerate(axes):
@@ -174,6 +174,7 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
         ax.set_title(f"agent {i + 1}", color=agent_colour(i), fontsize=9)
         ax.set_xlim(0, world.size)
         ax.set_ylim(0, world.size)
+    fig.colorbar(ims[0], cax=fig.add_axes([0.90, 0.12, 0.015, 0.64]), label="value")
 
     def draw(frame):
         k = chosen[frame]
@@ -185,7 +186,8 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
         robots.clear()
         for i in range(N):
             robots.extend(draw_robots(axes[i], trail, up, network.base.edges))
-        fig.suptitle(f"k = {k:,}", fontsize=10)
+        fig.suptitle(f"each agent's value map at k = {k:,} (seed 0)\ndots: robots; white lines: links up "
+                     f"(within {network.radius:g} m)", fontsize=9)
         return ims + robots
 
     anim = FuncAnimation(fig, draw, frames=len(chosen), init_func=lambda: [], blit=False)
