@@ -144,6 +144,9 @@ def run(ctx, scenario, resume_dir, **_):
     click.echo(final_table(result))
     from dgtd.run.results import pinned_to_boxes
 
+    for name, (lemma, used) in result.info.get("boxes_grown", {}).items():
+        click.echo(f"note: the {name} box grew from {lemma:.4g} (Lemma 2's bound) to {used:.4g} "
+                   f"(box_scale x |{name}*|_inf), so that it contains the saddle point", err=True)
     pinned = pinned_to_boxes(result)
     if pinned:
         click.echo("warning: at the end of the run " + ", ".join(f"{frac:.0%} of {name}" for name, frac in pinned.items())
@@ -214,6 +217,7 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
     L = network.mean_laplacian()
     sp = exact.saddle_point(m, L, algorithm.kappa, algorithm.rho)
     w = exact.w_star(m)
+    boxes, grown = resolve_boxes(algorithm, m, network, sp)
     out = {
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
         "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
@@ -223,7 +227,8 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
         "value_function": exact.value_function(m).tolist(), "approximate_values": (problem.Phi @ w).tolist(),
         "mean_laplacian": L.tolist(),
         "kkt_residuals": exact.kkt_residuals(m, L, algorithm.kappa, algorithm.rho, sp),
-        "boxes": dict(zip(("theta", "v", "mu", "w"), resolve_boxes(algorithm, m, network), strict=True)),
+        "boxes": dict(zip(("theta", "v", "mu", "w"), boxes, strict=True)),
+        "boxes_grown": {k: {"lemma": a, "used": b} for k, (a, b) in grown.items()},
         "kappa": algorithm.kappa, "rho": algorithm.rho,
     }
     click.echo(json.dumps(out, indent=2))

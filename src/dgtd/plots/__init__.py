@@ -107,7 +107,8 @@ def _log_or_zero(ax, x, Y, label):
         return False
     zero = np.all(Y == 0, axis=1)
     if zero.any():
-        label += f" (zero at {int(zero.sum())} checkpoints up to k = {int(x[np.flatnonzero(zero).max()]):,}, not drawn)"
+        n = int(zero.sum())
+        label += f" (zero at {n} checkpoint{'s' if n > 1 else ''} up to k = {int(x[np.flatnonzero(zero).max()]):,}, not drawn)"
     band(ax, x, np.where(Y > 0, Y, np.nan), label)  # NaN also marks checkpoints after a divergence
     ax.set_yscale("log")
     return True

@@ -78,6 +78,7 @@ class Context:
     lap: LaplacianOperator
     boxes: tuple
     tail_start: int
+    boxes_grown: dict = field(default_factory=dict)  # name -> (the lemma's box, the box used), see `resolve_boxes`
 
     def __post_init__(self):
         p = self.problem
@@ -108,15 +109,35 @@ class RunResult:
     info: dict = field(default_factory=dict)
 
 
-def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges) -> tuple:
-    """Projection half-widths (theta, v, mu, w): the algorithm's own, else box_scale x the lemma's bounds."""
+BOX_NAMES = ("theta", "v", "mu", "w")
+
+
+def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges, saddle: exact.SaddlePoint) -> tuple:
+    """(projection half-widths (theta, v, mu, w), {name: (the lemma's box, the box used)} for the boxes grown).
+
+    The algorithm's own boxes are used as given, and refused if one excludes the saddle point. Otherwise each box
+    is box_scale x the bound of Lemma 2 (section 6), grown to box_scale x |x*|_inf where the bound is smaller than
+    |x*|_inf: the lemma assumes on-policy sampling, and off-policy w* can exceed it, where the iterates could never
+    reach w*.
+    """
     if getattr(algorithm, "box_scale", None) is None:
-        return ()
+        return (), {}
+    needed = tuple(float(np.abs(getattr(saddle, name)).max()) for name in BOX_NAMES)
     if algorithm.boxes is not None:
-        return tuple(float(b) for b in algorithm.boxes)
+        boxes = tuple(float(b) for b in algorithm.boxes)
+        for name, box, x in zip(BOX_NAMES, boxes, needed):
+            if box < x:
+                raise DgtdInputError(f"the {name} box {box:g} excludes the saddle point (|{name}*|_inf = {x:.6g}), so "
+                                     f"the iterates could never reach it; give a {name} box of at least "
+                                     f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or leave "
+                                     "the boxes to dgtd")
+        return boxes, {}
     max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
     c = exact.lemma_bounds(moments, network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N), max_degree)
-    return tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
+    lemma = tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
+    boxes = tuple(max(box, algorithm.box_scale * x) for box, x in zip(lemma, needed))
+    grown = {name: (a, b) for name, a, b in zip(BOX_NAMES, lemma, boxes) if b > a}
+    return boxes, grown
 
 
 _MODEL_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -174,13 +195,13 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
         rho = 0.0  # too large to solve densely: report the unregularised saddle point, the problem's own
     saddle = exact.saddle_point(moments, L_mean, getattr(algorithm, "kappa", 0.0), rho)
     w_star = exact.w_star(moments)
-    boxes = resolve_boxes(algorithm, moments, network)
+    boxes, grown = resolve_boxes(algorithm, moments, network, saddle)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
     if boxes and hasattr(algorithm, "with_boxes"):  # the kernels project onto the resolved boxes
         algorithm = algorithm.with_boxes(boxes)
     ctx = Context(problem, network, algorithm, sampling, tables,
-                  LaplacianOperator(network.base), boxes, T - tail_window)
+                  LaplacianOperator(network.base), boxes, T - tail_window, grown)
     return ctx, moments, L_mean, saddle, w_star, tail_window
 
 
@@ -325,7 +346,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt,
         seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
-              "samples_per_step": N, "messages": messages, "counts": counts,
+              "samples_per_step": N, "messages": messages, "counts": counts, "boxes_grown": ctx.boxes_grown,
               "loop_seconds": time.perf_counter() - t_loop, "kernel_seconds": kernel_seconds},
     )
 

@@ -94,6 +94,7 @@ def summary(result: RunResult, config: dict) -> dict:
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "kkt_residuals_last": result.kkt_last,
         "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes)),
+        "boxes_grown": {k: {"lemma": a, "used": b} for k, (a, b) in result.info.get("boxes_grown", {}).items()},
         "stationary_distribution": result.info["d"].tolist(),
         "seconds": result.seconds,
         "config": config,
