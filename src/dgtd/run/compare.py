@@ -20,7 +20,7 @@ from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.errors import DgtdInputError
 from dgtd.problems import exact
 from dgtd.run.loop import RunResult, RunSettings, run
-from dgtd.run.results import atomic_write, atomic_write_json, metrics_rows
+from dgtd.run.results import atomic_write, atomic_write_json, metrics_rows, reference
 
 TUNE_SEED_OFFSET = 1_000_003
 TUNE_GRID = (0.1, 1 / 3, 1.0, 3.0, 10.0)
@@ -172,7 +172,7 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
             "config": config_dict(used[name]),
             "tuning": [{"alpha0": a, "score": (s if np.isfinite(s) else None)} for a, s in tables.get(name, [])],
             "final": final,
-            "error_tail_averaged": _stats(exact.relative_error(r.w_tail, r.w_star).max(-1)),
+            "error_tail_averaged": _stats(exact.relative_error(r.w_tail, reference(r)).max(-1)),
             "diverged_seeds": [int(b) for b in np.flatnonzero(div >= 0)],
             "diverged_at_step": [int(k) for k in div[div >= 0]],
             "samples_per_step": int(r.info["samples_per_step"]),
@@ -206,7 +206,7 @@ def write_compare(out, problem, network, results: dict, used: dict, tables: dict
 # one's numbers are final).
 COMPARE_FILES = ("metrics.csv", "agent_errors.npz", "summary.json", "compare.png", "consensus.png")
 PARTS = "parts"
-_ARRAYS = ("steps", "agent_error_last", "agent_error_avg", "w_last", "w_avg", "w_tail", "w_star")
+_ARRAYS = ("steps", "agent_error_last", "agent_error_avg", "w_last", "w_avg", "w_tail", "w_star", "w_ref")
 
 
 def save_part(out: Path, name: str, result: RunResult, alg, table, record: dict) -> None:

@@ -57,6 +57,11 @@ def atomic_write_json(path: Path, obj) -> None:
     atomic_write(path, (json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n").encode())
 
 
+def reference(result: RunResult) -> np.ndarray:
+    """What a run's errors are measured against (`RunResult.w_ref`): w* unless rho > 0."""
+    return result.w_star if result.w_ref is None else result.w_ref
+
+
 def metrics_rows(result: RunResult, algorithm: str):
     """Long format: (algorithm, seed, step, metric, value), one row per checkpoint, seed and metric."""
     for name, values in result.metrics.items():
@@ -75,9 +80,11 @@ def metrics_csv(result: RunResult, algorithm: str = "dgtd") -> bytes:
 
 def summary(result: RunResult, config: dict) -> dict:
     """What summary.json holds: the exact solution, each seed's and agent's estimates and errors, the config."""
-    rel = lambda W: exact.relative_error(W, result.w_star).tolist()  # noqa: E731
+    rel = lambda W: exact.relative_error(W, reference(result)).tolist()  # noqa: E731
     return {
         "w_star": result.w_star.tolist(),
+        "w_reference": reference(result).tolist(),
+        "regularisation_shift": result.info.get("regularisation_shift", 0.0),
         "theta_star": result.saddle.theta.tolist(),
         "mu_star": result.saddle.mu.tolist(),
         "mspbe_w_star": result.info["mspbe_w_star"],
