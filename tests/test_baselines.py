@@ -181,7 +181,8 @@ def test_centralised_learners_reach_the_exact_fixed_point(name, alpha0):
 def test_dgtd_with_one_agent_is_gtd2_on_the_same_samples():
     """With N = 1 the Laplacian terms vanish, v and mu stay 0, and Algorithm 1 is GTD2 with eta = 1 (its
     theta is GTD2's auxiliary vector): identical iterates on the same samples while the projection does
-    not bind. The known difference is the projection: with a small box DGTD stays inside it, GTD2 does not."""
+    not bind. The known difference is the projection: with a small box DGTD's update stays inside it, GTD2 does not
+    (a run refuses a box that excludes the saddle point: `tests/test_boxes.py`)."""
     p = chain_problem(n_agents=1)
     net = random_edges(topologies.path(1), 1.0)
     st = RunSettings(iterations=5000, seeds=3, checkpoints=4, backend="numpy")
@@ -191,8 +192,19 @@ def test_dgtd_with_one_agent_is_gtd2_on_the_same_samples():
     assert_allclose(d.final_state["theta"], g.final_state["theta"], rtol=1e-12, atol=1e-12)
     assert_allclose(d.w_avg, g.w_avg, rtol=1e-12, atol=1e-12)
     c = 0.5 * float(np.abs(g.w_last).max())
-    boxed = run(p, net, DGTD(alpha0=1.0, beta=10.0, boxes=(1e6, 1e6, 1e6, c)), Sampling(), st)
-    assert np.abs(boxed.w_last).max() <= c + 1e-12 < np.abs(g.w_last).max()
+    boxed = DGTD(alpha0=1.0, beta=10.0, boxes=(1e6, 1e6, 1e6, c))
+    with pytest.raises(DgtdInputError, match="excludes the saddle point"):
+        run(p, net, boxed, Sampling(), st)
+    from dgtd.algorithms.dgtd import DGTDState
+    from dgtd.graphs.links import Links
+    from dgtd.graphs.random import LaplacianOperator
+    from dgtd.samples import Sample
+
+    state = DGTDState(*(d.final_state[f] for f in DGTDState._fields))._replace(w=g.w_last.copy())
+    B, q = g.w_last.shape[0], g.w_last.shape[-1]
+    sample = Sample(np.ones((B, 1, q)), np.zeros((B, 1, q)), np.ones((B, 1)), np.ones((B, 1)), p.gamma)
+    after = boxed.update(state, sample, Links.fixed(LaplacianOperator(net.base), B), 0.0)  # step 0: projection only
+    assert np.abs(after.w).max() <= c + 1e-12 < np.abs(g.w_last).max()
 
 
 def test_registry_and_messages():

@@ -149,3 +149,28 @@ def test_sparse_laplacian_paths_match_dense(rng, monkeypatch):
     assert_allclose(c.mu, np.abs(dense_mu).max(), rtol=1e-9)
     monkeypatch.setattr(exact, "DENSE_N", 2000)
     assert exact.lemma_bounds(m, L, 4).mu >= c.mu
+
+
+def _iid_problem():
+    """Three states drawn i.i.d. from d = (0.5, 0.25, 0.25) (every row of P is d), features (1, 0), (0, 1), (1, 1),
+    gamma 0.5, mean rewards (1, 0, 0) split over two agents: J = r + 0.5 d.J 1 = (1.5, 0.5, 0.5)."""
+    from dgtd.problems.model import make_problem
+
+    d = np.array([0.5, 0.25, 0.25])
+    return make_problem(np.tile(d, (3, 1)), np.array([[2.0, 0, 0], [0, 0, 0]]),
+                        np.array([[1.0, 0], [0, 1], [1, 1]]), 0.5, name="iid")
+
+
+def test_value_error_is_the_d_weighted_norm_of_the_value_difference():
+    """|Phi (w - w_ref)|_d / |Phi w_ref|_d by hand: Phi (1, 0) = (1, 0, 1), norm^2 0.5 + 0.25 = 0.75; Phi (1, 2) =
+    (1, 2, 3), norm^2 0.5 + 1 + 2.25 = 3.75; the ratio is sqrt(0.2)."""
+    m = exact.Moments(_iid_problem())
+    W = np.array([[[2.0, 2.0], [1.0, 2.0]]])  # one seed, two agents: off by (1, 0), and exact
+    assert np.allclose(exact.value_error(m, W, np.array([1.0, 2.0])), [[np.sqrt(0.2), 0.0]])
+
+
+def test_true_value_error_is_measured_against_the_value_function():
+    """J = (1.5, 0.5, 0.5); Phi (1, 0) = (1, 0, 1) misses it by (-0.5, -0.5, 0.5): norm^2 0.25 against |J|_d^2 1.25."""
+    m = exact.Moments(_iid_problem())
+    assert np.allclose(exact.value_function(m), [1.5, 0.5, 0.5])
+    assert np.allclose(exact.true_value_error(m, np.array([[1.0, 0.0]])), [np.sqrt(0.2)])

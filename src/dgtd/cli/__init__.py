@@ -195,6 +195,12 @@ def final_table(result) -> str:
         rows.append(f"{i + 1:>5}  {_vec(result.w_last[0, i]):<34}{e_last[0, i]:>8.2%}  {_vec(result.w_avg[0, i]):<34}"
                     f"{e_avg[0, i]:>8.2%}  {e_tail[0, i]:>10.2%}")
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
+    moments = result.info.get("moments")
+    if moments is not None:
+        v = {k: exact.value_error(moments, W, ref).max() for k, W in
+             (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))}
+        rows.append("value error |Phi (w_i - w*)|_d / |Phi w*|_d (d: the sampled states' distribution), worst agent "
+                    "over seeds: " + ", ".join(f"{k} {x:.2%}" for k, x in v.items()))
     if result.w_last.shape[0] > 1:
         rows.append(f"over {result.w_last.shape[0]} seeds, worst agent: last {e_last.max():.2%}, averaged {e_avg.max():.2%}, "
                     f"tail-averaged {e_tail.max():.2%}; consensus error max {cons.max():.3g}")

@@ -104,14 +104,17 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
 
 
 def table(results: dict, used: dict) -> str:
-    """Final worst-agent errors (median over seeds) and divergence, one line per algorithm."""
+    """Final worst-agent errors (median over seeds) and divergence, one line per algorithm: weight errors in the max
+    norm, value errors |Phi (w_i - w*)|_d / |Phi w*|_d."""
     import numpy as np
 
-    rows = [f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'MSPBE last':>12}{'messages':>12}  diverged"]
+    rows = [f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'value last':>12}{'value avg':>12}"
+            f"{'MSPBE last':>12}{'messages':>12}  diverged"]
     for name, r in results.items():
         med = lambda k: np.nanmedian(r.metrics[k][-1]) if np.isfinite(r.metrics[k][-1]).any() else float("nan")  # noqa: E731
         div = r.info["diverged_at"]
         d = "no" if not np.any(div >= 0) else f"{int(np.sum(div >= 0))}/{len(div)} seeds (first at step {int(div[div >= 0].min()):,})"
         rows.append(f"{name:<14}{used[name].alpha0:>8.3g}{med('error_last'):>12.3g}{med('error_avg'):>12.3g}"
+                    f"{med('value_error_last'):>12.3g}{med('value_error_avg'):>12.3g}"
                     f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}  {d}")
     return "\n".join(rows)

@@ -119,11 +119,14 @@ def plot_errors(result: RunResult, path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), gridspec_kw={"wspace": 0.32})
     x = result.steps
     m = result.metrics
-    band(axes[0], x, m["error_last"], "last iterate")
-    band(axes[0], x, m["error_avg"], "averaged iterate")
+    for key, label, style in (("error_last", "last, weights", "-"), ("error_avg", "averaged, weights", "-"),
+                              ("value_error_last", "last, values", "--"), ("value_error_avg", "averaged, values", "--")):
+        if key in m:  # results saved before the value errors existed have the weight errors only
+            band(axes[0], x, m[key], label, color="C0" if "last" in key else "C1")
+            axes[0].get_lines()[-1].set_linestyle(style)
     axes[0].set_yscale("log")
     axes[0].set_title("worst agent's relative error")
-    axes[0].set_ylabel("max_i |w_i - w*|_inf / |w*|_inf")
+    axes[0].set_ylabel("weights: |w_i - w*|_inf / |w*|_inf\nvalues: |Phi (w_i - w*)|_d / |Phi w*|_d")
     _log_or_zero(axes[1], x, m["consensus"], "sum_i |w_i - mean w|^2")
     axes[1].set_title("consensus error")
     axes[1].set_ylabel("sum_i |w_i - mean_j w_j|^2")

@@ -249,6 +249,30 @@ def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
     return 0.5 * np.einsum("...j,...j->...", np.einsum("...i,ij->...j", e, m.M_inv), e)
 
 
+def value_error(m: Moments, W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
+    """The relative value error |Phi w_i - Phi w_ref|_d / |Phi w_ref|_d of each agent, shape (..., N).
+
+    The RMSVE of the field (root mean squared value error, Sutton and Barto 2018, section 9.2) weighted by d, the
+    stationary distribution of the states the agents sample (the behaviour chain's), relative to the size of the
+    reference values: directions of w that barely change the values barely count, unlike in the max-norm weight
+    error. |Phi x|_d^2 = x^T M x, so no S-sized array is formed. ``w_ref`` (q,) or one row per agent (N, q).
+    """
+    diff = W - w_ref
+    sq = np.einsum("...j,...j->...", np.einsum("...i,ij->...j", diff, m.M), diff)
+    ref = np.atleast_2d(w_ref)
+    scale = float(np.sqrt(np.einsum("ni,ij,nj->n", ref, m.M, ref).max()))
+    return np.sqrt(np.maximum(sq, 0.0)) / max(scale, 1e-300)
+
+
+def true_value_error(m: Moments, W: np.ndarray) -> np.ndarray:
+    """|Phi w_i - J|_d / |J|_d for each agent, shape (..., N): the error to the true value function J of the average
+    reward, which the features may not represent (then even w* has a floor, |Phi w* - J|_d / |J|_d)."""
+    p = m.problem
+    J = value_function(m)
+    err = W @ p.Phi.T - J  # (..., N, S): only for the final estimates, not at every checkpoint
+    return np.sqrt((m.d * err**2).sum(-1)) / max(float(np.sqrt((m.d * J**2).sum())), 1e-300)
+
+
 def value_function(m: Moments) -> np.ndarray:
     """J^pi of the average reward: J = r_mean + gamma P J, solved exactly."""
     p = m.problem

@@ -243,7 +243,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     tail_base = None
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
-    names = ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg")
+    names = ("error_last", "error_avg", "value_error_last", "value_error_avg", "consensus", "mspbe_last", "mspbe_avg")
     metrics = {m: np.zeros((C, B)) for m in names}
     counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
@@ -318,6 +318,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                 err_avg[c, alive] = exact.relative_error(wv, w_ref)
                 metrics["error_last"][c, alive] = err_last[c, alive].max(-1)
                 metrics["error_avg"][c, alive] = err_avg[c, alive].max(-1)
+                metrics["value_error_last"][c, alive] = exact.value_error(moments, wa, w_ref).max(-1)
+                metrics["value_error_avg"][c, alive] = exact.value_error(moments, wv, w_ref).max(-1)
                 metrics["consensus"][c, alive] = exact.consensus_error(wa)
                 metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
                 metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
@@ -350,7 +352,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         w_tail=(sums["all"] - (np.nan if tail_base is None else tail_base)) / tail_window, tail_window=tail_window,
         w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt, w_ref=w_ref,
         seconds=seconds_before + time.perf_counter() - t_start,
-        info={"d": moments.d, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
+        info={"d": moments.d, "moments": moments, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
               "samples_per_step": N, "messages": messages, "counts": counts, "boxes_grown": ctx.boxes_grown,
               "regularisation_shift": float(exact.relative_error(w_ref, w_star).max()),
               "loop_seconds": time.perf_counter() - t_loop, "kernel_seconds": kernel_seconds},

@@ -81,6 +81,8 @@ def metrics_csv(result: RunResult, algorithm: str = "dgtd") -> bytes:
 def summary(result: RunResult, config: dict) -> dict:
     """What summary.json holds: the exact solution, each seed's and agent's estimates and errors, the config."""
     rel = lambda W: exact.relative_error(W, reference(result)).tolist()  # noqa: E731
+    moments = result.info["moments"]
+    verr = lambda W: exact.value_error(moments, W, reference(result)).tolist()  # noqa: E731
     return {
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
@@ -98,6 +100,16 @@ def summary(result: RunResult, config: dict) -> dict:
         "max_error_last": float(np.max(rel(result.w_last))),
         "max_error_avg": float(np.max(rel(result.w_avg))),
         "max_error_tail": float(np.max(rel(result.w_tail))),
+        # the d-weighted value error (RMSVE relative to |Phi w*|_d; `exact.value_error`), and the error to the true
+        # value function, which the features may not represent
+        "value_error_last": verr(result.w_last),
+        "value_error_avg": verr(result.w_avg),
+        "value_error_tail": verr(result.w_tail),
+        "max_value_error_last": float(np.max(verr(result.w_last))),
+        "max_value_error_avg": float(np.max(verr(result.w_avg))),
+        "max_value_error_tail": float(np.max(verr(result.w_tail))),
+        "true_value_error_tail": exact.true_value_error(moments, result.w_tail).tolist(),
+        "true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0]),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "kkt_residuals_last": result.kkt_last,
         "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes)),
