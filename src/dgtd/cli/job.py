@@ -16,17 +16,10 @@ from dgtd.config import make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
-from dgtd.run.results import atomic_write
+from dgtd.run.results import atomic_write, first_difference, refuse_other_results
 
 CONFIG, CHECKPOINT = "config.toml", "checkpoint.npz"
 HEADER = "The fully resolved config of a dgtd run: `dgtd run THIS_FILE` reproduces it exactly."
-
-
-def _first_difference(a: dict, b: dict) -> str:
-    for key in sorted(set(a) | set(b)):
-        if a.get(key) != b.get(key):
-            return f"{key} = {a.get(key)!r} there, {b.get(key)!r} here"
-    return ""
 
 
 @dataclass
@@ -150,7 +143,7 @@ def prepare(exp: Experiment) -> PreparedRun:
                 return run
             raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
         run.snapshot, saved = load_checkpoint(ckpt)
-        diff = _first_difference(saved, record)
+        diff = first_difference(saved, record)
         if diff:
             raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
     else:
@@ -168,17 +161,7 @@ RUN_FILES = ("summary.json", "metrics.csv", "trajectory.npz", CHECKPOINT, "itera
 def clear_previous_run(out: Path, record: dict, overwrite: bool) -> None:
     """Refuse to write over the finished results of another configuration unless ``overwrite``; then remove the
     previous run's results, checkpoint and figures, so that the directory holds this run's files only."""
-    summary = out / "summary.json"
-    if summary.is_file() and not overwrite:
-        from dgtd.files import read_json
-
-        try:
-            saved = read_json(summary, "results file", "").get("config", {})
-        except DgtdInputError:
-            saved = {}  # damaged: nothing readable to protect
-        diff = _first_difference(saved, record) if saved else ""
-        if diff:
-            raise DgtdInputError(f"{out} holds the results of another run ({diff}); choose another --out, or pass "
-                                 "--overwrite to replace them")
+    if not overwrite:
+        refuse_other_results(out, record, "run")
     for name in RUN_FILES:
         (out / name).unlink(missing_ok=True)

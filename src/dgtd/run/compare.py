@@ -20,7 +20,7 @@ from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.errors import DgtdInputError
 from dgtd.problems import exact
 from dgtd.run.loop import RunResult, RunSettings, run
-from dgtd.run.results import atomic_write, atomic_write_json, metrics_rows, reference
+from dgtd.run.results import atomic_write, atomic_write_json, metrics_rows, reference, refuse_other_results
 
 TUNE_SEED_OFFSET = 1_000_003
 TUNE_GRID = (0.1, 1 / 3, 1.0, 3.0, 10.0)
@@ -252,20 +252,9 @@ def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:
 def prepare_directory(out: Path, record: dict, overwrite: bool) -> tuple[dict, dict, dict]:
     """Refuse a directory that holds another comparison unless ``overwrite``; return the finished algorithms of an
     interrupted run of this one (to resume), else clear the previous comparison's files so that none is stale."""
-    from dgtd.files import read_json
-
     out = Path(out)
-    summary = out / "summary.json"
-    if summary.is_file() and not overwrite:
-        try:
-            saved = read_json(summary, "results file", "").get("config", {})
-        except DgtdInputError:
-            saved = {}  # damaged: nothing readable to protect
-        saved = {k: v for k, v in saved.items() if k not in ("interrupted", "missing")}
-        if saved and saved != record:
-            key = next(k for k in sorted(set(saved) | set(record)) if saved.get(k) != record.get(k))
-            raise DgtdInputError(f"{out} holds the results of another comparison ({key} = {saved.get(key)!r} there, "
-                                 f"{record.get(key)!r} here); choose another --out, or pass --overwrite to replace them")
+    if not overwrite:
+        refuse_other_results(out, record, "comparison", ignore=("interrupted", "missing"))
     done = ({}, {}, {}) if overwrite else load_parts(out, record)
     if not done[0]:
         shutil.rmtree(out / PARTS, ignore_errors=True)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dgtd.errors import DgtdInputError
+from dgtd.files import read_json
 from dgtd.problems import exact
 from dgtd.run.loop import RunResult
 
@@ -39,6 +41,31 @@ def atomic_write(path: Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def first_difference(a: dict, b: dict) -> str:
+    """The first key (in sorted order) where two configs differ, as 'key = A there, B here'; '' if none."""
+    for key in sorted(set(a) | set(b)):
+        if a.get(key) != b.get(key):
+            return f"{key} = {a.get(key)!r} there, {b.get(key)!r} here"
+    return ""
+
+
+def refuse_other_results(out: Path, record: dict, what: str, ignore=()) -> None:
+    """A one-line refusal unless ``out`` holds no summary.json, a damaged one (nothing readable to protect), or the
+    results of this very config ``record`` (keys in ``ignore`` aside): a directory never mixes two runs."""
+    summary = Path(out) / "summary.json"
+    if not summary.is_file():
+        return
+    try:
+        saved = read_json(summary, "results file", "").get("config", {})
+    except DgtdInputError:
+        return
+    saved = {k: v for k, v in saved.items() if k not in ignore}
+    diff = first_difference(saved, record) if saved else ""
+    if diff:
+        raise DgtdInputError(f"{out} holds the results of another {what} ({diff}); choose another --out, or pass "
+                             "--overwrite to replace them")
 
 
 def json_ready(obj):
