@@ -73,7 +73,9 @@ def test_boyan_w_star_by_hand():
     assert_allclose(Phi[0], [1, 0, 0, 0])
     assert_allclose(Phi[13], [0, 0, 0, 1])
     assert_allclose(Phi[4], [1 / 13, 12 / 13, 0, 0])  # |5 - 1| / (13/3) = 12/13, |5 - 16/3| / (13/3) = 1/13
-    A = sum(d[s] * P[s, t] * np.outer(Phi[s], Phi[s] - 0.95 * Phi[t]) for s in range(S) for t in range(S))
+    # state 13 is terminal: no discount into it or out of it (the restart), gamma(s, t) = 0.95 c(s) c(t)
+    gamma = lambda s, t: 0.95 * (s != 13) * (t != 13)  # noqa: E731
+    A = sum(d[s] * P[s, t] * np.outer(Phi[s], Phi[s] - gamma(s, t) * Phi[t]) for s in range(S) for t in range(S))
     b = sum(d[s] * r[s] * Phi[s] for s in range(S))
     w_hand = np.linalg.solve(A, b)
 
@@ -142,3 +144,30 @@ def test_signed_rewards_and_dependent_features_only_on_request():
     noisy = replace(tasks.boyan(n_agents=2), reward_noise="uniform")
     with pytest.raises(DgtdInputError, match="negative mean rewards"):
         run(noisy, random_edges(topologies.path(2), 1.0), make_algorithm("td0"), Sampling(), RunSettings(iterations=5))
+
+
+def test_boyan_chain_has_the_published_values():
+    """Boyan (2002), Dann et al. (2014): the last state is terminal (value 0) and the return ends there. With 14
+    states and gamma 0.95 the true values run from -21.479 through -3.950 and -2 to 0; with 13 states and gamma 1
+    they are linear, -2 per state from the end, and the 4 triangular features represent them: w* = (-24, -16, -8, 0)."""
+    from dgtd.problems import exact
+    from dgtd.problems.tasks import boyan
+
+    J = exact.value_function(exact.Moments(boyan()))
+    assert J[0] == pytest.approx(-21.479, abs=5e-4)
+    assert J[-3:] == pytest.approx([-3.95, -2.0, 0.0], abs=1e-12)
+    m13 = exact.Moments(boyan(n_states=13, gamma=1.0))
+    assert exact.value_function(m13) == pytest.approx(-2.0 * np.arange(12, -1, -1), abs=1e-9)
+    assert exact.w_star(m13) == pytest.approx([-24.0, -16.0, -8.0, 0.0], abs=1e-9)
+
+
+def test_an_episodic_task_needs_its_terminal_states_to_be_reached_with_gamma_one():
+    from dgtd.errors import DgtdInputError
+    from dgtd.problems.model import make_problem
+
+    P = np.array([[0.0, 1.0], [1.0, 0.0]])
+    with pytest.raises(DgtdInputError, match="strictly between 0 and 1"):
+        make_problem(P, np.ones((1, 2)), np.eye(2), 1.0)
+    make_problem(P, np.ones((1, 2)), np.eye(2), 1.0, terminal=[0, 1])
+    with pytest.raises(DgtdInputError, match="terminal must be 2 flags"):
+        make_problem(P, np.ones((1, 2)), np.eye(2), 0.9, terminal=[0, 2])

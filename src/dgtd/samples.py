@@ -18,7 +18,8 @@ class Sample(NamedTuple):
     - ``phi``, ``phi_next`` (B, n, q): features phi(s_i) and phi(s'_i) of each agent's transition;
     - ``r`` (B, N): each agent's local reward (the paper's r-hat_i, section 3);
     - ``ratio`` (B, n): the importance ratio pi(a|s) / beta(a|s) (1 on-policy);
-    - ``gamma``: the discount of the transition, a float or an array broadcasting against ``ratio``.
+    - ``gamma``: the discount of the transition, a float or an array (B, n) like ``ratio`` (an episodic task's
+      gamma(s, s'), 0 at its terminal states).
     """
 
     phi: np.ndarray
@@ -47,10 +48,12 @@ class Block(NamedTuple):
         s = np.zeros((0, seeds, observations), np.int64)
         return cls(s, s.copy(), s.copy(), np.zeros((0, seeds, agents)), np.zeros((0, seeds, edges), bool))
 
-    def sample(self, t: int, Phi: np.ndarray, ratio: np.ndarray, gamma) -> Sample:
-        """Step t as a `Sample`, with the features ``Phi`` (S, q) and the ratio table (S, A) of the problem."""
+    def sample(self, t: int, Phi: np.ndarray, ratio: np.ndarray, gamma, continuing: np.ndarray | None = None) -> Sample:
+        """Step t as a `Sample`, with the features ``Phi`` (S, q) and the ratio table (S, A) of the problem; with
+        ``continuing`` c (S,), each transition's discount is gamma c(s) c(s') (an episodic task's terminals)."""
         s, a, sn = self.s[t], self.a[t], self.s_next[t]
-        return Sample(Phi[s], Phi[sn], self.r[t], ratio[s, a], gamma)
+        discount = gamma if continuing is None else gamma * continuing[s] * continuing[sn]
+        return Sample(Phi[s], Phi[sn], self.r[t], ratio[s, a], discount)
 
 
 @dataclass(eq=False)

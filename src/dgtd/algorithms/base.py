@@ -74,6 +74,11 @@ def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.einsum("bnq,bnq->bn", *np.broadcast_arrays(x, y))
 
 
+def discount(sample: Sample) -> np.ndarray:
+    """The step's discount gamma(s, s'), shaped to multiply (B, n, q) features: (B, n, 1), or (1,) for a float."""
+    return np.asarray(sample.gamma)[..., None]
+
+
 def td_error(sample: Sample, w: np.ndarray) -> np.ndarray:
     """delta_i = r_i + gamma phi'_i^T w - phi_i^T w, (B, N); ``w`` is (B, 1 or N, q)."""
     return sample.r + sample.gamma * dot(sample.phi_next, w) - dot(sample.phi, w)

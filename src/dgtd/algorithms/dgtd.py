@@ -14,7 +14,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, check_nonnegative, dot, zeros
+from dgtd.algorithms.base import StepSizes, check_nonnegative, discount, dot, zeros
 from dgtd.errors import DgtdInputError
 from dgtd.samples import Sample
 
@@ -113,5 +113,5 @@ def direction(state: DGTDState, sample: Sample, links, kappa: float, rho: float)
     # Line 8, mu: descent on -(L(k) w)_i, plus rho mu
     g_mu = -Lw + rho * mu
     # Line 8, w: ascent on ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
-    g_w = (ratio * phi_theta)[..., None] * (phi - gamma * phi_next) - Lv - Lmu - kappa * Lw - rho * w
+    g_w = (ratio * phi_theta)[..., None] * (phi - discount(sample) * phi_next) - Lv - Lmu - kappa * Lw - rho * w
     return g_theta, g_v, g_mu, g_w

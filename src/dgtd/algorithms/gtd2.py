@@ -20,7 +20,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, agent_mean, check_nonnegative, dot, td_error, zeros
+from dgtd.algorithms.base import StepSizes, agent_mean, check_nonnegative, discount, dot, td_error, zeros
 from dgtd.samples import Sample
 
 
@@ -64,8 +64,8 @@ def theta_terms(state: GTDState, sample: Sample) -> np.ndarray:
 
 def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
     """Per-agent GTD2 value terms ratio_i (phi_i - gamma phi'_i) (phi_i^T theta), shape (B, N or 1, q)."""
-    phi, phi_next, _, ratio, gamma = sample
-    return (ratio * dot(phi, state.theta))[..., None] * (phi - gamma * phi_next)
+    phi, phi_next, _, ratio, _ = sample
+    return (ratio * dot(phi, state.theta))[..., None] * (phi - discount(sample) * phi_next)
 
 
 @dataclass(frozen=True)

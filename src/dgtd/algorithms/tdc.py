@@ -17,17 +17,17 @@ from typing import ClassVar
 
 import numpy as np
 
-from dgtd.algorithms.base import dot, td_error
+from dgtd.algorithms.base import discount, dot, td_error
 from dgtd.algorithms.gtd2 import GTDConfig, GTDState
 from dgtd.samples import Sample
 
 
 def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
     """Per-agent TDC value terms ratio_i (delta_i phi_i - gamma phi'_i (phi_i^T theta)), shape (B, N, q)."""
-    phi, phi_next, _, ratio, gamma = sample
+    phi, phi_next, _, ratio, _ = sample
     delta = td_error(sample, state.w)
     ratio = np.broadcast_to(ratio, delta.shape)
-    return (ratio * delta)[..., None] * phi - gamma * (ratio * dot(phi, state.theta))[..., None] * phi_next
+    return (ratio * delta)[..., None] * phi - discount(sample) * (ratio * dot(phi, state.theta))[..., None] * phi_next
 
 
 @dataclass(frozen=True)

@@ -22,5 +22,5 @@ def run_block(ctx, state, w_sum: np.ndarray, alphas: np.ndarray, blk: Block):
     for t in range(len(alphas)):
         w_sum += algorithm.estimate(state)
         links = Links(ctx.lap, None if blk.up is None else blk.up[t], n_seeds)
-        state = algorithm.update(state, blk.sample(t, ctx.Phi, ctx.ratio, ctx.gamma), links, alphas[t])
+        state = algorithm.update(state, blk.sample(t, ctx.Phi, ctx.ratio, ctx.gamma, ctx.continuing), links, alphas[t])
     return state, w_sum

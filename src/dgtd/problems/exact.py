@@ -1,7 +1,10 @@
 """Exact quantities by linear algebra on the model: never by counting samples.
 
 Notation (one agent's block of the paper's stacked matrices; L is the mean Laplacian bold-L, N x N):
-    D = diag(d),  M = Phi^T D Phi,  A = Phi^T D (I - gamma P) Phi,  b_i = Phi^T D r_i.
+    D = diag(d),  M = Phi^T D Phi,  A = Phi^T D (I - gamma P) Phi,  b_i = Phi^T D r_i,
+
+with gamma P the discounted transition matrix gamma(s, s') P(s, s') (`Problem.P_discounted`; gamma P itself in a
+continuing task).
 Stacked over agents the paper's bar-B is I_N kron A and bar-L is L kron I_q; here agents are the leading
 axis of (N, q) arrays, so bar-L x is ``L @ X`` and bar-B x is ``X @ A.T``.
 """
@@ -57,7 +60,7 @@ class Moments:
     @cached_property
     def A(self) -> np.ndarray:
         p = self.problem
-        return p.Phi.T @ (self.d[:, None] * (p.Phi - p.gamma * p.P @ p.Phi))
+        return p.Phi.T @ (self.d[:, None] * (p.Phi - p.P_discounted @ p.Phi))
 
     @cached_property
     def b(self) -> np.ndarray:
@@ -274,9 +277,9 @@ def true_value_error(m: Moments, W: np.ndarray) -> np.ndarray:
 
 
 def value_function(m: Moments) -> np.ndarray:
-    """J^pi of the average reward: J = r_mean + gamma P J, solved exactly."""
+    """J^pi of the average reward: J = r_mean + gamma P J (gamma P: `Problem.P_discounted`), solved exactly."""
     p = m.problem
-    return np.linalg.solve(np.eye(p.n_states) - p.gamma * p.P, p.R.mean(axis=0))
+    return np.linalg.solve(np.eye(p.n_states) - p.P_discounted, p.R.mean(axis=0))
 
 
 def consensus_error(W: np.ndarray) -> np.ndarray:
@@ -315,7 +318,8 @@ def lemma_bounds(m: Moments, L, max_degree: int) -> Bounds:
     J = value_function(m)
     PiJ = p.Phi @ _solve(m, m.M, p.Phi.T @ (m.d * J))
     proj_err = float(np.sqrt(np.sum(m.d * (PiJ - J) ** 2)))
-    c_w = np.sqrt(S / lam) * (proj_err / np.sqrt(xi) + p.sigma) / (1.0 - p.gamma)
+    # gamma = 1 (an episodic task) has no bound of this form: the box is then set by the saddle point alone
+    c_w = np.sqrt(S / lam) * (proj_err / np.sqrt(xi) + p.sigma) / (1.0 - p.gamma) if p.gamma < 1.0 else np.inf
     if not m.full_rank:  # plus the part of w* along the null space of Phi, set by w0 (see `w_star`)
         c_w += float(np.abs(m.null_projector @ w_star(m)).max())
     c_theta = 2.0 * p.sigma * S * np.sqrt(N / (xi * lam))

@@ -26,7 +26,8 @@ class Problem:
     - ``P`` (S, S): target-policy transition matrix P^pi.
     - ``R`` (N, S): expected reward of each agent under the target policy, r_i^pi(s).
     - ``Phi`` (S, q): features, full column rank; row s is phi(s).
-    - ``gamma``: discount factor in (0, 1).
+    - ``gamma``: discount factor in (0, 1); 1 is allowed for an episodic task (``terminal``), whose every
+      state reaches a terminal one.
     - ``P_sample`` (S, A, S): behaviour probability of (a, s') given s, beta(a|s) P(s, a, s').
     - ``ratio`` (S, A): importance ratio pi(a|s) / beta(a|s) (ones on-policy).
     - ``R_sample`` (N, S, A): mean reward of agent i given (s, a). The updates use the reward only through
@@ -36,6 +37,11 @@ class Problem:
       'uniform' (uniform on [m - h, m + h], h = min(m, sigma - m)); each has the stated mean and support.
     - ``w0`` (q,) or None: the task's prescribed initial value weights (Baird's counterexample starts at
       (1, 1, 1, 1, 1, 1, 10, 1)); None means zero, Algorithm 1 line 3.
+    - ``terminal`` (S,) bool: terminal states of an episodic task. The discount of a transition s -> s' is
+      gamma(s, s') = gamma c(s) c(s') with c = 0 at a terminal state, 1 elsewhere: a transition into a terminal
+      state ends the return (the terminal's value is 0), and the terminal's own transition is the restart, whose
+      row of P is the restart distribution and which carries nothing over into the next episode (Sutton and
+      Barto 2018, section 3.4; White 2017, transition-based discounting). All False: a continuing task.
     """
 
     P: np.ndarray
@@ -50,6 +56,18 @@ class Problem:
     name: str = "problem"
     state_labels: tuple = field(default=())
     w0: np.ndarray | None = None
+    terminal: np.ndarray | None = None
+
+    @property
+    def continuing(self) -> np.ndarray:
+        """c (S,): 0 at a terminal state, 1 elsewhere; gamma(s, s') = gamma c(s) c(s')."""
+        return np.ones(self.P.shape[0]) if self.terminal is None else 1.0 - self.terminal
+
+    @property
+    def P_discounted(self) -> np.ndarray:
+        """The discounted transition matrix gamma(s, s') P(s, s') of the Bellman equation J = r + P_discounted J."""
+        c = self.continuing
+        return self.gamma * (c[:, None] * self.P * c[None, :])
 
     @property
     def n_states(self) -> int:
@@ -189,6 +207,7 @@ def make_problem(
     w0=None,
     signed_rewards: bool = False,
     dependent_features: bool = False,
+    terminal=None,
 ) -> Problem:
     """Validate and build a `Problem`; on-policy when no sampling model is given.
 
@@ -213,9 +232,17 @@ def make_problem(
         gamma = float(gamma)
     except (TypeError, ValueError):
         raise DgtdInputError(f"gamma must be a number, got {gamma!r}") from None
-    if not np.isfinite(gamma) or not 0.0 < gamma < 1.0:
-        raise DgtdInputError(f"gamma must lie strictly between 0 and 1, got {gamma}")
     S = P.shape[0]
+    if terminal is not None:
+        terminal = np.asarray(terminal)
+        if terminal.shape != (S,) or terminal.dtype.kind not in "biu" or not np.isin(terminal, (0, 1)).all():
+            raise DgtdInputError(f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
+                                 f"shape {terminal.shape}")
+        terminal = terminal.astype(bool) if terminal.any() else None
+    episodic = terminal is not None
+    if not np.isfinite(gamma) or not (0.0 < gamma < 1.0 or (episodic and gamma == 1.0)):
+        raise DgtdInputError(f"gamma must lie strictly between 0 and 1 (or be 1 in an episodic task, with terminal "
+                             f"states), got {gamma}")
     if P.shape != (S, S):
         raise DgtdInputError(f"P must be square (S, S), got shape {P.shape}")
     if R.shape[1] != S:
@@ -225,6 +252,10 @@ def make_problem(
     if R.shape[0] < 1:
         raise DgtdInputError("R must hold at least one agent (one row)")
     check_stochastic("P", P)
+    if episodic and gamma == 1.0:
+        c = 1.0 - terminal
+        if np.max(np.abs(np.linalg.eigvals(c[:, None] * P * c[None, :]))) >= 1.0 - 1e-12:
+            raise DgtdInputError("with gamma = 1 every state must reach a terminal state, or its return is unbounded")
     if not dependent_features and np.linalg.matrix_rank(Phi) < Phi.shape[1]:
         raise DgtdInputError(
             f"Phi ({Phi.shape[0]} x {Phi.shape[1]}) does not have full column rank "
@@ -272,6 +303,7 @@ def make_problem(
         if w0.shape != (Phi.shape[1],):
             raise DgtdInputError(f"w0 must have one entry per feature ({Phi.shape[1]}), got shape {w0.shape}")
         w0.setflags(write=False)
-    for a in (P, R, Phi, P_sample, ratio, R_sample):
+    for a in (P, R, Phi, P_sample, ratio, R_sample) + ((terminal,) if episodic else ()):
         a.setflags(write=False)
-    return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels), w0)
+    return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels), w0,
+                   terminal)

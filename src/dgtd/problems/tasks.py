@@ -4,7 +4,8 @@ Each builder returns a validated `Problem` whose N agents' rewards average exact
 but differ across agents (`split_rewards`), so that no agent can learn w* alone.
 
 - `baird`: Baird's counterexample as in Sutton and Barto (2018), section 11.2, off-policy.
-- `boyan`: the Boyan chain as in Dann, Neumann and Peters (2014), with a restart after the terminal state.
+- `boyan`: the episodic Boyan chain of Boyan (2002) and Dann, Neumann and Peters (2014): the last state is
+  terminal (the return ends there) and the next episode starts at the first state.
 - `random_mdp`: the 400-state, 10-action random MDP with 200 random features of Dann et al. (2014).
 - `garnet`: random ergodic chains with a given number of states and successors per state.
 """
@@ -85,8 +86,9 @@ def triangular_features(n_states: int, n_features: int) -> np.ndarray:
 
 
 def boyan_chain(n_states: int = 14) -> tuple[np.ndarray, np.ndarray]:
-    """(P, r) of the Boyan chain with restart: from s <= S - 3 to s + 1 or s + 2 with probability 1/2 and
-    reward -3; from S - 2 to the terminal state S - 1 with reward -2; from S - 1 back to 0 with reward 0."""
+    """(P, r) of the Boyan chain: from s <= S - 3 to s + 1 or s + 2 with probability 1/2 and reward -3; from S - 2
+    to the terminal state S - 1 with reward -2; from S - 1 the next episode starts at state 0 (reward 0), a
+    transition that carries no discount (`dgtd.problems.model.Problem.terminal`)."""
     S = n_states
     P = np.zeros((S, S))
     r = np.full(S, -3.0)
@@ -99,16 +101,20 @@ def boyan_chain(n_states: int = 14) -> tuple[np.ndarray, np.ndarray]:
     return P, r
 
 
-def boyan(n_agents: int = 10, seed: int = 0) -> Problem:
-    """The Boyan chain of Dann et al. (2014): 14 states, 4 triangular features, gamma 0.95, on-policy.
+def boyan(n_agents: int = 10, seed: int = 0, n_states: int = 14, gamma: float = 0.95) -> Problem:
+    """The Boyan chain of Dann et al. (2014): 14 states, 4 triangular features, gamma 0.95, on-policy, episodic.
 
-    The terminal state restarts the chain at state 0 (reward 0), so the chain is ergodic and d is its
-    stationary distribution. Agent i's reward is the chain's (-3, or -2 before the terminal state) plus a
-    zero-mean perturbation of up to +-3 (`split_rewards`); the rewards are signed, as the chain's are.
+    The last state is terminal: its value is 0, the return of every episode ends there, and the next episode
+    starts at state 0; d is the stationary distribution of the chain of episodes. The true values are the
+    published ones (-21.479 at state 0 ... -3.950, -2, 0 with 14 states and gamma 0.95; with 13 states and gamma 1
+    they are linear, and w* = (-24, -16, -8, 0)). Agent i's reward is the chain's (-3, or -2 before the terminal
+    state) plus a zero-mean perturbation of up to +-3 (`split_rewards`); the rewards are signed, as the chain's are.
     """
-    P, r = boyan_chain(14)
+    P, r = boyan_chain(n_states)
     R = split_rewards(r, n_agents, np.random.default_rng(seed))
-    return make_problem(P, R, triangular_features(14, 4), 0.95, name="boyan", signed_rewards=True)
+    terminal = np.arange(n_states) == n_states - 1
+    return make_problem(P, R, triangular_features(n_states, 4), gamma, name="boyan", signed_rewards=True,
+                        terminal=terminal)
 
 
 def _normalise(x: np.ndarray) -> np.ndarray:

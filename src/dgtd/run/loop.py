@@ -83,6 +83,7 @@ class Context:
     def __post_init__(self):
         p = self.problem
         self.Phi, self.gamma, self.ratio, self.R_sample = p.Phi, p.gamma, p.ratio, p.R_sample
+        self.continuing = None if p.terminal is None else p.continuing  # None: every transition discounts by gamma
         self.sigma, self.reward_noise = p.sigma, p.reward_noise
         self.n_states, self.n_agents = p.n_states, p.n_agents
 

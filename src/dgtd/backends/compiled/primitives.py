@@ -41,6 +41,12 @@ def transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N):
 
 
 @njit(cache=True, inline="always")
+def discount(gamma, cont, s, sn):
+    """gamma(s, s') = gamma c(s) c(s'): 0 into and out of an episodic task's terminal states (`Block.sample`)."""
+    return gamma * cont[s] * cont[sn]
+
+
+@njit(cache=True, inline="always")
 def td_error(Phi, s, sn, r, gamma, w, b, e):
     """delta = r + gamma phi(s')^T w[b, e] - phi(s)^T w[b, e] (`dgtd.algorithms.base.td_error`)."""
     return r + gamma * feature_dot(Phi, sn, w, b, e) - feature_dot(Phi, s, w, b, e)
@@ -79,9 +85,15 @@ def f64(x) -> np.ndarray:
 
 
 def model_arrays(ctx, blk: Block) -> tuple:
-    """(s, a, s_next, r) of the block and the problem's (Phi, ratio table, gamma): what every kernel reads."""
+    """(s, a, s_next, r) of the block and the problem's (Phi, ratio table, gamma, continuing flags c): what every
+    kernel reads; a transition s -> s' discounts by gamma c(s) c(s') (`discount`)."""
     return (blk.s, blk.a, blk.s_next, blk.r, np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
-            float(ctx.gamma))
+            float(ctx.gamma), continuing_flags(ctx))
+
+
+def continuing_flags(ctx) -> np.ndarray:
+    """c (S,): 0 at an episodic task's terminal states, 1 elsewhere (`dgtd.problems.model.Problem.terminal`)."""
+    return np.ones(ctx.Phi.shape[0]) if ctx.continuing is None else np.ascontiguousarray(ctx.continuing, np.float64)
 
 
 def link_arrays(ctx, blk: Block) -> tuple:

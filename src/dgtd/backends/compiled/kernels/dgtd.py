@@ -22,6 +22,7 @@ from dgtd.algorithms.dgtd import DGTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.graph import per_run, storage_graph, storage_order
+from dgtd.backends.compiled.primitives import continuing_flags, discount
 from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.compiled.simd import dot, neighbour_sums
 from dgtd.samples import Draws
@@ -77,13 +78,14 @@ def _csr_value(ptr, idx, val, s, f):
 
 @njit(cache=True, inline="always")
 def _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, at, count, b, i, s, sn, r, ratio,
-                alpha, q, Phi, sparse, ptr, idx, val, params):
+                alpha, q, Phi, sparse, ptr, idx, val, cont, params):
     """Algorithm 1 lines 7-9 for agent i of seed b at step k: `DGTD.update` for one agent. theta, v, mu and the
     running sum of w are updated in place; w_in and vmu_in (v + mu) are the shared rows at step k, w_out and
     vmu_out receive agent i's at step k + 1. J[at, :count] are its neighbours up at step k; rows ``at`` of Lw and
     Lvmu are the calling thread's scratch for its neighbour sums. q, the number of features, comes from the caller:
     computed here from a shape, LLVM cannot prove the feature loop's indices in range and leaves it scalar."""
     gamma, kappa, rho, b_theta, b_v, b_mu, b_w = params
+    gamma = discount(gamma, cont, s, sn)  # gamma(s, s'): 0 into and out of an episodic task's terminal states
     neighbour_sums(w_in, b, i, J, count, Lw, at)  # (L(k) w)_i
     neighbour_sums(vmu_in, b, i, J, count, Lvmu, at)  # (L(k) v)_i + (L(k) mu)_i = (L(k) (v + mu))_i
     if sparse:
@@ -139,7 +141,7 @@ def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, pa
     (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
      sn_blk, r_blk, up_blk, n_up) = sampler
     indptr, nbr, eid, agent_of = graph
-    Phi, sparse, ptr, idx, val = model
+    Phi, sparse, ptr, idx, val, cont = model
     theta, v, mu, sum_w = state
     w0, vmu0, w1, vmu1 = shared  # step k reads (w0, vmu0) and writes (w1, vmu1) at even k, the other way at odd k
     B, N = theta.shape[0], theta.shape[1]
@@ -161,7 +163,7 @@ def _dgtd_by_seed(state, shared, q, alphas, sampler, model, ratio_tab, graph, pa
                 o = agent_of[i] if n_obs == N else 0
                 s, a, sn = s_t[0, o], a_t[0, o], sn_t[0, o]
                 _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, b, count, b, i, s, sn,
-                            r_t[0, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val, params)
+                            r_t[0, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val, cont, params)
     return T
 
 
@@ -174,7 +176,7 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
     (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
      sn_blk, r_blk, up_blk, n_up) = sampler
     indptr, nbr, eid, agent_of = graph
-    Phi, sparse, ptr, idx, val = model
+    Phi, sparse, ptr, idx, val, cont = model
     theta, v, mu, sum_w = state
     w0, vmu0, w1, vmu1 = shared  # step k reads (w0, vmu0) and writes (w1, vmu1) at even k, the other way at odd k
     B, N = theta.shape[0], theta.shape[1]
@@ -206,7 +208,7 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
                 count = _up_neighbours(J, c, up_t, now + b, indptr, nbr, eid, i)
                 _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, c, count, b, i, s, sn,
                             r_t[now + b, agent_of[i]], ratio_tab[s, a], alphas[t], q, Phi, sparse, ptr, idx, val,
-                            params)
+                            cont, params)
             if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over chunks
                 for j in range(2 * B):
                     if j * n_chunks // (2 * B) == c:
@@ -273,8 +275,8 @@ def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
     sampler = sample_args(ctx, blk, B)
     boxes = (np.inf,) * 4 if algorithm.boxes is None else algorithm.boxes
     params = (float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), *(float(x) for x in boxes))
-    args = (np.ascontiguousarray(alphas), sampler, feature_arrays(ctx), np.ascontiguousarray(ctx.ratio),
-            storage_graph(ctx), params)
+    args = (np.ascontiguousarray(alphas), sampler, (*feature_arrays(ctx), continuing_flags(ctx)),
+            np.ascontiguousarray(ctx.ratio), storage_graph(ctx), params)
     if by_agent(B, N, q):
         steps = _dgtd_by_agent(arrays, shared, q, *args, 4 * get_num_threads())
     else:

@@ -8,7 +8,7 @@ from numba import njit, prange
 from dgtd.algorithms.gtd2 import GTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays, td_error, transition
+from dgtd.backends.compiled.primitives import add_rows, discount, f64, feature_dot, model_arrays, td_error, transition
 
 
 @njit(cache=True, inline="always")
@@ -20,7 +20,7 @@ def gtd2_terms(Phi, s, sn, ratio, delta, phi_theta, gamma, dw, dtheta):
 
 
 @njit(cache=True, parallel=True)
-def _gtd2(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+def _gtd2(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont):
     B, _, q = w.shape
     T, N = alphas.shape[0], r_blk.shape[2]
     for b in prange(B):
@@ -31,8 +31,9 @@ def _gtd2(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_
             dtheta[:] = 0.0
             for i in range(N):
                 s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
-                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, 0)
-                gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, 0), gamma, dw, dtheta)
+                gamma_ss = discount(gamma, cont, s, sn)  # gamma(s, s')
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma_ss, w, b, 0)
+                gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, 0), gamma_ss, dw, dtheta)
             alpha = alphas[t]
             for f in range(q):
                 w[b, 0, f] += alpha * (dw[f] / N)

@@ -9,11 +9,11 @@ from dgtd.algorithms.gtd2 import GTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.kernels.gtd2 import gtd2_terms
-from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays, td_error, transition
+from dgtd.backends.compiled.primitives import add_rows, discount, f64, feature_dot, model_arrays, td_error, transition
 
 
 @njit(cache=True, parallel=True)
-def _local(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+def _local(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont):
     B, N, q = w.shape
     T = alphas.shape[0]
     for b in prange(B):
@@ -23,10 +23,11 @@ def _local(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio
             alpha = alphas[t]
             for i in range(N):  # agent i reads only its own w_i, theta_i: updating in place is the Jacobi step
                 s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
-                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, i)
+                gamma_ss = discount(gamma, cont, s, sn)  # gamma(s, s')
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma_ss, w, b, i)
                 dw[:] = 0.0
                 dtheta[:] = 0.0
-                gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, i), gamma, dw, dtheta)
+                gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, i), gamma_ss, dw, dtheta)
                 for f in range(q):
                     w[b, i, f] += alpha * dw[f]
                     theta[b, i, f] += eta * alpha * dtheta[f]

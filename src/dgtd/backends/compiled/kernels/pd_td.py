@@ -8,12 +8,12 @@ from numba import njit, prange
 from dgtd.algorithms.pd_td import PDTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import (add_rows, f64, laplacian_rows, link_arrays,
-                                              model_arrays, td_error, transition)
+from dgtd.backends.compiled.primitives import (add_rows, discount, f64, laplacian_rows, link_arrays, model_arrays,
+                                              td_error, transition)
 
 
 @njit(cache=True, parallel=True)
-def _pd_td(w, mu, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, up, indptr, nbr, eid):
+def _pd_td(w, mu, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont, up, indptr, nbr, eid):
     B, N, q = w.shape
     T, has_up = alphas.shape[0], up.shape[0] > 0
     for b in prange(B):
@@ -26,7 +26,8 @@ def _pd_td(w, mu, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_ta
             alpha = alphas[t]
             for i in range(N):
                 s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
-                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, i)
+                gamma_ss = discount(gamma, cont, s, sn)  # gamma(s, s')
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma_ss, w, b, i)
                 for f in range(q):
                     w[b, i, f] += alpha * (ratio * delta * Phi[s, f] - eta * Lw[i, f] - eta * Lmu[i, f])
                     mu[b, i, f] += alpha * eta * Lw[i, f]

@@ -8,11 +8,11 @@ from numba import njit, prange
 from dgtd.algorithms.td0 import TD0State
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, f64, model_arrays, td_error, transition
+from dgtd.backends.compiled.primitives import add_rows, discount, f64, model_arrays, td_error, transition
 
 
 @njit(cache=True, parallel=True)
-def _td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+def _td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont):
     B, _, q = w.shape
     T, N = alphas.shape[0], r_blk.shape[2]
     for b in prange(B):
@@ -22,7 +22,8 @@ def _td0(w, w_sum, alphas, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
             dw[:] = 0.0
             for i in range(N):
                 s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
-                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, 0)
+                gamma_ss = discount(gamma, cont, s, sn)  # gamma(s, s')
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma_ss, w, b, 0)
                 for f in range(q):
                     dw[f] += ratio * delta * Phi[s, f]  # ratio_i delta_i phi_i
             for f in range(q):

@@ -8,11 +8,11 @@ from numba import njit, prange
 from dgtd.algorithms.gtd2 import GTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, f64, feature_dot, model_arrays, td_error, transition
+from dgtd.backends.compiled.primitives import add_rows, discount, f64, feature_dot, model_arrays, td_error, transition
 
 
 @njit(cache=True, parallel=True)
-def _tdc(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma):
+def _tdc(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont):
     B, _, q = w.shape
     T, N = alphas.shape[0], r_blk.shape[2]
     for b in prange(B):
@@ -23,11 +23,12 @@ def _tdc(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_t
             dtheta[:] = 0.0
             for i in range(N):
                 s, sn, ratio = transition(s_blk, a_blk, sn_blk, ratio_tab, t, b, i, N)
-                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma, w, b, 0)
+                gamma_ss = discount(gamma, cont, s, sn)  # gamma(s, s')
+                delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma_ss, w, b, 0)
                 phi_theta = feature_dot(Phi, s, theta, b, 0)
                 for f in range(q):
                     # w_terms: ratio (delta phi - gamma phi' phi^T theta); theta_terms as GTD2's
-                    dw[f] += ratio * delta * Phi[s, f] - gamma * (ratio * phi_theta) * Phi[sn, f]
+                    dw[f] += ratio * delta * Phi[s, f] - gamma_ss * (ratio * phi_theta) * Phi[sn, f]
                     dtheta[f] += (ratio * delta - phi_theta) * Phi[s, f]
             alpha = alphas[t]
             for f in range(q):
