@@ -1,4 +1,14 @@
-"""Problem files: an .npz holding P (S, S), R (N, S), Phi (S, q) and scalar gamma (optional scalar sigma)."""
+"""Problem files (.npz), in one of two forms, told apart by the shape of P:
+
+- a Markov reward process: P (S, S), R (N, S), Phi (S, q) and a scalar gamma;
+- a multi-agent MDP: the joint P (S, A, S) over joint actions a = (a_1, ..., a_K) flattened in C order, per-agent
+  rewards R (N, S, A) or (N, S, A, S), Phi (S, q), gamma, the local target policies policy_0 ... policy_{K-1},
+  each (S, A_k), and optionally the local behaviour policies behaviour_0 ... behaviour_{K-1} (off-policy
+  evaluation; same shapes). It is reduced exactly by `dgtd.problems.mdp.from_mdp`.
+
+Both may hold a scalar sigma (the reward bound), terminal (S,), 1 at an episodic task's terminal states, and
+signed_rewards = 1 to allow negative mean rewards (as the Boyan chain's -3 per step; the paper's lie in [0, sigma]).
+"""
 
 from __future__ import annotations
 
@@ -12,14 +22,15 @@ from dgtd.files import read_npz
 from dgtd.problems.model import Problem, make_problem
 
 REQUIRED = ("P", "R", "Phi", "gamma")
+FORMS = ("give an .npz saved with numpy.savez that holds arrays P (S, S), R (N, S), Phi (S, q) and a scalar gamma, "
+         "or for a multi-agent MDP P (S, A, S), R (N, S, A), Phi, gamma and policies policy_0, policy_1, ...")
 
 
 def load_problem(path: str, reward_noise: str = "none") -> Problem:
-    """Load and validate a problem file; every failure is a one-line `DgtdInputError`."""
+    """Load and validate a problem file of either form; every failure is a one-line `DgtdInputError`."""
     p = Path(path)
-    arrays = read_npz(p, "problem file", "give an .npz saved with numpy.savez that holds arrays P (S, S), R (N, S), "
-                      "Phi (S, q) and a scalar gamma", required=REQUIRED)
-    for k in ("gamma", "sigma"):
+    arrays = read_npz(p, "problem file", FORMS, required=REQUIRED)
+    for k in ("gamma", "sigma", "signed_rewards"):
         if k in arrays and np.asarray(arrays[k]).size != 1:
             raise DgtdInputError(f"{k} in {path} must be a scalar, got shape {np.asarray(arrays[k]).shape}")
     sigma = float(arrays["sigma"]) if "sigma" in arrays else None
@@ -27,12 +38,49 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
         gamma = float(np.asarray(arrays["gamma"]).reshape(()))
     except (TypeError, ValueError):
         raise DgtdInputError(f"gamma in {path} must be a number") from None
-    return make_problem(arrays["P"], arrays["R"], arrays["Phi"], gamma, sigma=sigma, reward_noise=reward_noise, name=p.stem)
+    terminal = arrays.get("terminal")
+    signed = bool(np.asarray(arrays.get("signed_rewards", 0)).reshape(()))
+    if np.ndim(arrays["P"]) == 3:
+        return _load_mdp(p, arrays, gamma, sigma, reward_noise, terminal, signed)
+    stray = sorted(k for k in arrays if k.startswith(("policy_", "behaviour_")))
+    if stray:
+        raise DgtdInputError(f"{path} holds {', '.join(stray)} but P has shape {np.shape(arrays['P'])}; policies belong "
+                             "to the multi-agent MDP form, whose P is (S, A, S)")
+    return make_problem(arrays["P"], arrays["R"], arrays["Phi"], gamma, sigma=sigma, reward_noise=reward_noise,
+                        name=p.stem, terminal=terminal, signed_rewards=signed)
+
+
+def _numbered(arrays: dict, prefix: str) -> list:
+    """arrays prefix_0, prefix_1, ... in order; a gap in the numbering is an error."""
+    found = sorted(int(k[len(prefix):]) for k in arrays if k.startswith(prefix) and k[len(prefix):].isdigit())
+    if found != list(range(len(found))):
+        missing = min(set(range(max(found) + 1)) - set(found))
+        raise DgtdInputError(f"{prefix}{missing} is missing: number the arrays {prefix}0, {prefix}1, ... without gaps")
+    return [arrays[f"{prefix}{k}"] for k in found]
+
+
+def _load_mdp(path: Path, arrays: dict, gamma: float, sigma, reward_noise: str, terminal, signed: bool) -> Problem:
+    """The multi-agent MDP form, reduced exactly (`from_mdp`)."""
+    from dgtd.problems.mdp import from_mdp
+
+    policies = _numbered(arrays, "policy_")
+    if not policies:
+        raise DgtdInputError(f"{path} holds a joint P (S, A, S) but no policies: add each agent's local target policy "
+                             "as policy_0, policy_1, ... (arrays (S, A_k) whose rows sum to 1)")
+    behaviour = _numbered(arrays, "behaviour_") or None
+    if behaviour is not None and len(behaviour) != len(policies):
+        raise DgtdInputError(f"{path} holds {len(policies)} target policies but {len(behaviour)} behaviour policies; "
+                             "give one behaviour policy per target policy, or none (on-policy)")
+    return from_mdp(arrays["P"], arrays["R"], arrays["Phi"], gamma, policies, behaviour, sigma=sigma,
+                    reward_noise=reward_noise, name=path.stem, terminal=terminal, signed_rewards=signed)
 
 
 def save_problem(path: str, problem: Problem) -> None:
     """Write a problem's Markov reward process form (P, R, Phi, gamma, sigma) as .npz."""
-    np.savez(path, P=problem.P, R=problem.R, Phi=problem.Phi, gamma=problem.gamma, sigma=problem.sigma)
+    extra = {} if problem.terminal is None else {"terminal": problem.terminal.astype(np.int64)}
+    if min(problem.R.min(), problem.R_sample.min()) < 0:
+        extra["signed_rewards"] = 1
+    np.savez(path, P=problem.P, R=problem.R, Phi=problem.Phi, gamma=problem.gamma, sigma=problem.sigma, **extra)
 
 
 def file_digest(path: str) -> str:

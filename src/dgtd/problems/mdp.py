@@ -34,6 +34,8 @@ def from_mdp(
     sigma: float | None = None,
     reward_noise: str = "none",
     name: str = "mdp",
+    terminal=None,
+    signed_rewards: bool = False,
 ) -> Problem:
     """Reduce a multi-agent MDP to the Markov reward process form, exactly.
 
@@ -41,6 +43,7 @@ def from_mdp(
     - ``rewards`` (N, S, A, S) mean reward r_i(s, a, s'), or (N, S, A) when it does not depend on s'.
     - ``policies``: N arrays pi_i (S, A_i), the target local policies; A = prod_i A_i.
     - ``behaviour``: N arrays beta_i (S, A_i) for off-policy evaluation, or None (on-policy).
+    - ``terminal`` (S,) flags of an episodic task's terminal states (`dgtd.problems.model.Problem`).
 
     Returns P^pi(s, s') = sum_a pi(s, a) P(s, a, s') and r_i^pi(s) = sum_{a, s'} pi(s, a) P(s, a, s') r_i(s, a, s'),
     with the behaviour sampling model beta(s, a) P(s, a, s') and ratios pi(s, a) / beta(s, a).
@@ -74,6 +77,9 @@ def from_mdp(
         beta = pi
     else:
         behaviour = [_as_float_array(f"behaviour policy {i}", b, 2) for i, b in enumerate(behaviour)]
+        if len(behaviour) != len(policies):
+            raise DgtdInputError(f"{len(policies)} target policies but {len(behaviour)} behaviour policies; give one "
+                                 "behaviour policy per target policy")
         for i, (b, p) in enumerate(zip(behaviour, policies, strict=True)):
             if b.shape != p.shape:
                 raise DgtdInputError(f"behaviour policy {i} has shape {b.shape}, its target policy {p.shape}")
@@ -99,4 +105,6 @@ def from_mdp(
         sigma=sigma,
         reward_noise=reward_noise,
         name=name,
+        terminal=terminal,
+        signed_rewards=signed_rewards,
     )

@@ -1,0 +1,84 @@
+"""Problem files of the multi-agent MDP form: off-policy problems from the command line, checked like the MRP form."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dgtd.problems import exact
+from dgtd.problems.io import load_problem
+
+
+def chain_arrays(to_first: float = 0.32) -> dict:
+    """The two-state chain of tests/test_boxes.py as a file: joint actions of agent 0 (2 actions) and agent 1 (one),
+    target always to the second state, behaviour to the first with probability ``to_first``; w* = 105 at 0.32."""
+    P = np.zeros((2, 2, 2))
+    P[:, 0, 0] = P[:, 1, 1] = 1.0
+    return {"P": P, "R": np.stack([np.full((2, 2), 1.5), np.full((2, 2), 0.5)]), "Phi": np.array([[1.0], [2.0]]),
+            "gamma": 0.9, "policy_0": np.array([[0.0, 1.0], [0.0, 1.0]]), "policy_1": np.ones((2, 1)),
+            "behaviour_0": np.array([[to_first, 1 - to_first]] * 2), "behaviour_1": np.ones((2, 1))}
+
+
+def write(tmp_path, name="mdp.npz", **arrays):
+    path = tmp_path / name
+    np.savez(path, **arrays)
+    return path
+
+
+def test_an_mdp_file_is_reduced_exactly_and_runs_off_policy(tmp_path, run_cli):
+    path = write(tmp_path, **chain_arrays())
+    p = load_problem(path)
+    assert p.off_policy and p.n_agents == 2 and exact.w_star(exact.Moments(p)) == pytest.approx([105.0])
+    code, out, err = run_cli("solve", "--problem", path, "--graph", "path")
+    assert code == 0, err
+    solved = json.loads(out)
+    assert solved["off_policy"] and solved["w_star"] == pytest.approx([105.0])
+    code, out, err = run_cli("run", "--problem", path, "--graph", "path", "-T", "2000", "--no-plots", "--no-progress",
+                             "--out", tmp_path / "run")
+    assert code == 0, err
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["w_star"] == pytest.approx([105.0])
+
+
+def test_an_episodic_mrp_file_keeps_its_terminal_states(tmp_path):
+    from dgtd.problems.io import save_problem
+    from dgtd.problems.tasks import boyan
+
+    save_problem(tmp_path / "boyan.npz", boyan(n_agents=3, n_states=13, gamma=1.0))
+    p = load_problem(tmp_path / "boyan.npz")
+    assert p.terminal.tolist() == [False] * 12 + [True]
+    assert exact.w_star(exact.Moments(p)) == pytest.approx([-24.0, -16.0, -8.0, 0.0])
+
+
+def _without(arrays: dict, *keys) -> dict:
+    return {k: v for k, v in arrays.items() if k not in keys}
+
+
+BAD = {
+    "no policies": (_without(chain_arrays(), "policy_0", "policy_1", "behaviour_0", "behaviour_1"),
+                    "no policies: add each agent's local target policy as policy_0"),
+    "a gap in the numbering": (_without(chain_arrays(), "policy_0"), "policy_0 is missing"),
+    "fewer behaviour policies": (_without(chain_arrays(), "behaviour_1"), "2 target policies but 1 behaviour"),
+    "a policy row not summing to 1": ({**chain_arrays(), "policy_0": np.array([[0.5, 0.4], [0.0, 1.0]])},
+                                      "policy 0"),
+    "a policy of the wrong width": ({**chain_arrays(), "policy_1": np.ones((2, 2)) / 2,
+                                     "behaviour_1": np.ones((2, 2)) / 2}, "multiply to 4 joint actions but P has 2"),
+    "rewards of the wrong shape": ({**chain_arrays(), "R": np.ones((2, 2))}, "rewards must have 3 dimensions"),
+    "NaN in P": ({**chain_arrays(), "P": np.full((2, 2, 2), np.nan)}, "NaN"),
+    "P(s, a, .) not summing to 1": ({**chain_arrays(), "P": np.full((2, 2, 2), 0.4)}, "P(s, a, .)"),
+    "a target action the behaviour never takes": ({**chain_arrays(0.32), "behaviour_0": np.array([[1.0, 0.0]] * 2)},
+                                                  "never takes joint action 1"),
+    "policies with an MRP-form P": ({**chain_arrays(), "P": np.full((2, 2), 0.5), "R": np.ones((2, 2))},
+                                    "policies belong to the multi-agent MDP form"),
+    "a terminal flag that is not 0 or 1": ({**chain_arrays(), "terminal": np.array([0, 2])}, "terminal must be"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_a_bad_mdp_file_gets_one_line_and_exit_2(case, tmp_path, run_cli):
+    arrays, words = BAD[case]
+    code, _, err = run_cli("solve", "--problem", write(tmp_path, **arrays), "--graph", "path")
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("dgtd: error:"), err
+    assert words in lines[0], lines[0]
