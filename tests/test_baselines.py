@@ -84,9 +84,11 @@ def test_mean_paths_of_the_centralised_learners(off_policy):
     assert_allclose(e.w[0, 0] - w[0, 0], alpha * A.T @ th[0, 0], atol=1e-12)
     assert_allclose(e.theta[0, 0] - th[0, 0], eta * alpha * (b - A @ w[0, 0] - M @ th[0, 0]), atol=1e-12)
 
-    e = expected(p, TDC(eta=eta), GTDState(w, th), alpha=alpha)
+    tdc = TDC(eta=eta)  # two timescales by default: beta_k = eta alpha0 (alpha_k / alpha0)^(2/3)
+    e = expected(p, tdc, GTDState(w, th), alpha=alpha)
     assert_allclose(e.w[0, 0] - w[0, 0], alpha * (b - A @ w[0, 0] - (M - A.T) @ th[0, 0]), atol=1e-12)
-    assert_allclose(e.theta[0, 0] - th[0, 0], eta * alpha * (b - A @ w[0, 0] - M @ th[0, 0]), atol=1e-12)
+    beta_k = eta * tdc.alpha0 * (alpha / tdc.alpha0) ** (2 / 3)
+    assert_allclose(e.theta[0, 0] - th[0, 0], beta_k * (b - A @ w[0, 0] - M @ th[0, 0]), atol=1e-12)
 
 
 @pytest.mark.parametrize("off_policy", [False, True])
@@ -297,3 +299,16 @@ def test_an_algorithm_without_a_compiled_kernel_runs_on_the_reference_with_a_not
     reference = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numpy"))
     assert_allclose(compiled.w_last, reference.w_last, rtol=0, atol=0)
     assert not np.allclose(compiled.w_last, run(p, net, TD0(), Sampling(), RunSettings(**settings)).w_last)
+
+
+def test_tdc_runs_on_two_timescales_by_default():
+    """Sutton et al. (2009), section 5: alpha_k / beta_k -> 0. With harmonic value steps alpha_k = alpha0 / (k + beta),
+    beta_k = eta alpha0 (alpha_k / alpha0)^(2/3) ~ k^(-2/3): the ratio falls like k^(-1/3); GTD2 keeps a constant one."""
+    tdc, gtd2 = make_algorithm("tdc", schedule="harmonic", alpha0=1.0), make_algorithm("gtd2", schedule="harmonic")
+    k = np.array([1e2, 1e4, 1e6])
+    alpha = 1.0 / (k + 1.0)
+    ratio = alpha / np.array([tdc.aux_step(a) for a in alpha])
+    assert_allclose(ratio, (k + 1.0) ** (-1 / 3), rtol=1e-12)
+    assert gtd2.timescale == 1.0 and gtd2.aux_step(0.25) == 0.25 * gtd2.eta
+    with pytest.raises(DgtdInputError, match="timescale must lie in"):
+        make_algorithm("tdc", timescale=1.5)

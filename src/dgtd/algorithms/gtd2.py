@@ -21,6 +21,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.algorithms.base import StepSizes, agent_mean, check_nonnegative, discount, dot, td_error, zeros
+from dgtd.errors import DgtdInputError
 from dgtd.samples import Sample
 
 
@@ -34,16 +35,27 @@ class GTDConfig(StepSizes):
     """Fields shared by the two-timescale gradient-TD learners (GTD2, TDC, local GTD2).
 
     - ``alpha0``, ``beta``, ``schedule``: the value step sizes alpha_k (see `dgtd.algorithms.stepsizes`).
-    - ``eta``: the auxiliary step size is eta alpha_k (Sutton et al. 2009's beta = eta alpha).
+    - ``eta``, ``timescale`` p in (0, 1]: the auxiliary step size is beta_k = eta alpha0 (alpha_k / alpha0)^p
+      (Sutton et al. 2009's beta). p = 1 keeps a constant ratio beta_k = eta alpha_k (one timescale, which the
+      saddle-point view of GTD2 covers: Liu et al. 2015); p < 1 makes beta_k decay more slowly than alpha_k, so
+      that alpha_k / beta_k -> 0 as the two-timescale convergence proofs of GTD2 and TDC require (Sutton et al.
+      2009, section 5).
     """
 
     eta: float = 1.0
+    timescale: float = 1.0
 
     vectors_per_link: ClassVar[int] = 0
 
     def __post_init__(self):
         super().__post_init__()
         check_nonnegative("eta (auxiliary step size / main step size)", self.eta, strict=True)
+        if not (np.isfinite(self.timescale) and 0.0 < self.timescale <= 1.0):
+            raise DgtdInputError(f"timescale must lie in (0, 1] (1: a constant ratio eta), got {self.timescale}")
+
+    def aux_step(self, alpha: float) -> float:
+        """beta_k = eta alpha0 (alpha_k / alpha0)^timescale; eta alpha_k exactly for timescale 1."""
+        return aux_step(alpha, self.eta, self.alpha0, self.timescale)
 
     def init(self, seeds: int, agents: int, features: int) -> GTDState:
         return GTDState(*zeros(seeds, 1, features, 2))
@@ -53,7 +65,12 @@ class GTDConfig(StepSizes):
         averaged over the N observed transitions and both at the values of step k."""
         N = sample.r.shape[1]
         dw, dtheta = agent_mean(self.value_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
-        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * dtheta)
+        return GTDState(state.w + alpha * dw, state.theta + self.aux_step(alpha) * dtheta)
+
+
+def aux_step(alpha: float, eta: float, alpha0: float, timescale: float) -> float:
+    """The auxiliary step beta_k of `GTDConfig` (the compiled kernels compute the same expression)."""
+    return eta * alpha if timescale == 1.0 else eta * alpha0 * (alpha / alpha0) ** timescale
 
 
 def theta_terms(state: GTDState, sample: Sample) -> np.ndarray:

@@ -31,4 +31,4 @@ class Local(GTDConfig):
         """One GTD2 step of every agent on its own sample and reward."""
         shape = state.w.shape
         dw = np.broadcast_to(w_terms(state, sample), shape)
-        return GTDState(state.w + alpha * dw, state.theta + self.eta * alpha * theta_terms(state, sample))
+        return GTDState(state.w + alpha * dw, state.theta + self.aux_step(alpha) * theta_terms(state, sample))

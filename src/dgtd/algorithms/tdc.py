@@ -32,7 +32,16 @@ def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
 
 @dataclass(frozen=True)
 class TDC(GTDConfig):
-    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTDConfig`."""
+    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTDConfig`.
+
+    Two timescales by default, as in TDC's convergence proof (Sutton et al. 2009, section 5: alpha_k / beta_k -> 0,
+    theta on the faster timescale): timescale 2/3, so beta_k = eta alpha0 (alpha_k / alpha0)^(2/3). With harmonic
+    value steps alpha_k ~ 1/k that is beta_k ~ k^(-2/3), which meets every condition of the proof (both sums
+    infinite, both sums of squares finite, alpha_k / beta_k ~ k^(-1/3) -> 0); with the paper's alpha_k ~ 1/sqrt(k),
+    beta_k ~ k^(-1/3) and the ratio still goes to 0, like k^(-1/6).
+    """
+
+    timescale: float = 2.0 / 3.0
 
     name: ClassVar[str] = "tdc"
     description: ClassVar[str] = "centralised TDC on the average reward (Sutton et al. 2009)"

@@ -47,6 +47,17 @@ def discount(gamma, cont, s, sn):
 
 
 @njit(cache=True, inline="always")
+def aux_step(alpha, eta, alpha0, timescale):
+    """The auxiliary step beta_k of the GTD learners (`dgtd.algorithms.gtd2.aux_step`, the same expression)."""
+    return eta * alpha if timescale == 1.0 else eta * alpha0 * (alpha / alpha0) ** timescale
+
+
+def aux_params(algorithm) -> tuple:
+    """(eta, alpha0, timescale) of a GTD learner, for `aux_step`."""
+    return float(algorithm.eta), float(algorithm.alpha0), float(algorithm.timescale)
+
+
+@njit(cache=True, inline="always")
 def td_error(Phi, s, sn, r, gamma, w, b, e):
     """delta = r + gamma phi(s')^T w[b, e] - phi(s)^T w[b, e] (`dgtd.algorithms.base.td_error`)."""
     return r + gamma * feature_dot(Phi, sn, w, b, e) - feature_dot(Phi, s, w, b, e)

@@ -8,7 +8,8 @@ from numba import njit, prange
 from dgtd.algorithms.gtd2 import GTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.primitives import add_rows, discount, f64, feature_dot, model_arrays, td_error, transition
+from dgtd.backends.compiled.primitives import (add_rows, aux_params, aux_step, discount, f64,
+                                              feature_dot, model_arrays, td_error, transition)
 
 
 @njit(cache=True, inline="always")
@@ -20,7 +21,7 @@ def gtd2_terms(Phi, s, sn, ratio, delta, phi_theta, gamma, dw, dtheta):
 
 
 @njit(cache=True, parallel=True)
-def _gtd2(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont):
+def _gtd2(w, theta, w_sum, alphas, aux, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_tab, gamma, cont):
     B, _, q = w.shape
     T, N = alphas.shape[0], r_blk.shape[2]
     for b in prange(B):
@@ -35,9 +36,10 @@ def _gtd2(w, theta, w_sum, alphas, eta, s_blk, a_blk, sn_blk, r_blk, Phi, ratio_
                 delta = td_error(Phi, s, sn, r_blk[t, b, i], gamma_ss, w, b, 0)
                 gtd2_terms(Phi, s, sn, ratio, delta, feature_dot(Phi, s, theta, b, 0), gamma_ss, dw, dtheta)
             alpha = alphas[t]
+            beta_k = aux_step(alpha, aux[0], aux[1], aux[2])  # the auxiliary step (`GTDConfig.aux_step`)
             for f in range(q):
                 w[b, 0, f] += alpha * (dw[f] / N)
-                theta[b, 0, f] += eta * alpha * (dtheta[f] / N)
+                theta[b, 0, f] += beta_k * (dtheta[f] / N)
 
 
 load_quickly(_gtd2)
@@ -46,5 +48,5 @@ load_quickly(_gtd2)
 @kernel("gtd2")
 def gtd2_block(ctx, state, w_sum, alphas, blk):
     w, theta, w_sum = f64(state.w), f64(state.theta), f64(w_sum)
-    _gtd2(w, theta, w_sum, np.ascontiguousarray(alphas), float(ctx.algorithm.eta), *model_arrays(ctx, blk))
+    _gtd2(w, theta, w_sum, np.ascontiguousarray(alphas), aux_params(ctx.algorithm), *model_arrays(ctx, blk))
     return GTDState(w, theta), w_sum
