@@ -174,3 +174,15 @@ def test_true_value_error_is_measured_against_the_value_function():
     m = exact.Moments(_iid_problem())
     assert np.allclose(exact.value_function(m), [1.5, 0.5, 0.5])
     assert np.allclose(exact.true_value_error(m, np.array([[1.0, 0.0]])), [np.sqrt(0.2)])
+
+
+def test_value_error_is_relative_to_the_start_where_the_task_prescribes_one():
+    """Baird's values are all zero (|Phi w*|_d = 0): the error is relative to that of its start w0, so the start
+    has value error 1."""
+    from dgtd.problems.tasks import baird
+
+    p = baird(n_agents=2)
+    m = exact.Moments(p)
+    w_star = exact.w_star(m)
+    assert np.allclose(p.Phi @ w_star, 0.0, atol=1e-9)
+    assert np.allclose(exact.value_error(m, np.tile(p.w0, (1, 2, 1)), w_star), 1.0)

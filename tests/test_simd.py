@@ -88,8 +88,9 @@ def agent_step(state, shared, Lw, Lvmu, J, count, i, s, sn, r, ratio, alpha, q, 
     theta, v, mu, sum_w = state
     w_in, vmu_in, w_out, vmu_out = shared
     e, ef = np.zeros(1, np.int64), np.zeros(1)
+    continuing = np.ones(Phi.shape[0])  # a continuing task: every transition discounts by gamma
     _agent_step(theta, v, mu, sum_w, w_in, vmu_in, w_out, vmu_out, Lw, Lvmu, J, 0, count, 0, i, s, sn, r, ratio,
-                alpha, q, Phi, False, e, e, ef, params)
+                alpha, q, Phi, False, e, e, ef, continuing, params)
 
 
 @pytest.mark.parametrize("count", [0, 2, UNROLLED_NEIGHBOURS + 2])

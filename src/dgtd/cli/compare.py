@@ -100,7 +100,7 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
         plot_compare(results, out / "compare.png", title)
         plot_consensus(results, out / "consensus.png", title)
     click.echo(table(results, used))
-    click.echo(f"wrote {out}/metrics.csv, agent_errors.npz, summary.json{', compare.png, consensus.png' if plots else ''}")
+    click.echo(f"wrote {out}/metrics.csv, bands.csv, agent_errors.npz, summary.json{', compare.png, consensus.png' if plots else ''}")
 
 
 def table(results: dict, used: dict) -> str:

@@ -89,7 +89,7 @@ class PreparedRun:
         if sc is not None and sc.report is not None:  # a scenario's own numbers (e.g. the robots' map correlations)
             extra, self.report_text = sc.report(result, self.source)
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra)
-        names = ["summary.json", "metrics.csv", "trajectory.npz"]
+        names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz"]
         (self.out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
         if plots:
             try:
@@ -154,7 +154,7 @@ def prepare(exp: Experiment) -> PreparedRun:
 
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's
 # copies of them go before a new run writes. Nothing else in the directory is touched.
-RUN_FILES = ("summary.json", "metrics.csv", "trajectory.npz", CHECKPOINT, "iterates.png", "errors.png", "maps.png",
+RUN_FILES = ("summary.json", "metrics.csv", "bands.csv", "trajectory.npz", CHECKPOINT, "iterates.png", "errors.png", "maps.png",
              "reference.png", "snapshots.png", "patrol.gif", "curves.png")
 
 

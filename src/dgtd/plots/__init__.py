@@ -77,20 +77,25 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
     return True
 
 
+BAND = (5.0, 95.0)  # the percentiles over seeds of every band drawn: a 90 % band
+BAND_WORDS = "band: 5th to 95th percentile over seeds"
+
+
 def median_band(Y: np.ndarray):
-    """Median over seeds (NaN where half the seeds or more are NaN: diverged, or a value left out) and the min-max
-    band of the others; Y is (checkpoints, seeds)."""
+    """Median over seeds (NaN where half the seeds or more are NaN: diverged, or a value left out) and the 90 % band
+    (`BAND`, linear interpolation between seeds) of the others; Y is (checkpoints, seeds)."""
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         alive = np.isfinite(Y).sum(axis=1)
         med = np.where(alive * 2 > Y.shape[1], np.nanmedian(Y, axis=1), np.nan)
-        return med, np.nanmin(Y, axis=1), np.nanmax(Y, axis=1)
+        lo, hi = np.nanpercentile(Y, BAND, axis=1)
+        return med, lo, hi
 
 
 def band(ax, x, Y, label, color=None):
-    """Median over seeds with the min-max band (`median_band`)."""
+    """Median over seeds with the 90 % band (`median_band`)."""
     med, lo, hi = median_band(Y)
     line, = ax.plot(x, med, label=label, color=color)
     if Y.shape[1] > 1:
@@ -142,7 +147,7 @@ def plot_errors(result: RunResult, path: Path) -> None:
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
-    fig.suptitle(f"median over {seeds} seed{'s' if seeds > 1 else ''}" + (", band: min to max" if seeds > 1 else ""),
+    fig.suptitle(f"median over {seeds} seed{'s' if seeds > 1 else ''}" + (f", {BAND_WORDS}" if seeds > 1 else ""),
                  fontsize=9)
     _save(fig, path)
 

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from dgtd.plots import _save, median_band  # noqa: E402
+from dgtd.plots import BAND_WORDS, _save, median_band  # noqa: E402
 
 def color(name: str) -> str | None:
     """The algorithm's own colour (`dgtd.algorithms.base`), the same in every figure."""
@@ -77,7 +77,7 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
     handles, labels = axes[0, 1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
     fig.subplots_adjust(bottom=0.12)
-    fig.suptitle(title + "\nmedian over seeds, band: min to max; x: the median run diverged; curves beyond 1000x the "
+    fig.suptitle(title + "\nmedian over seeds, " + BAND_WORDS + "; x: the median run diverged; curves beyond 1000x the "
                  "largest starting value are cut at the frame's top", fontsize=10)
     _save(fig, path)
 
@@ -93,7 +93,7 @@ def plot_consensus(results: dict, path: Path, title: str = "") -> None:
     ax.set_yscale("log")
     ax.set_xlabel("agent-samples consumed")
     ax.set_ylabel("sum_i |w_i - mean_j w_j|^2")
-    ax.set_title(title + ": consensus error\n(median over seeds, band: min to max; exact zeros not drawn)", fontsize=10)
+    ax.set_title(title + ": consensus error\n(median over seeds, " + BAND_WORDS + "; exact zeros not drawn)", fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _save(fig, path)

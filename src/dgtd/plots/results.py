@@ -14,7 +14,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.files import numbers, read_csv, read_json, read_npz
-from dgtd.plots import _save, band, plot_errors, plot_iterates, plt
+from dgtd.plots import BAND_WORDS, _save, band, median_band, plot_errors, plot_iterates, plt
 
 # What each metric of a run is, in words, for titles and axes.
 METRIC_WORDS = {"error_avg": "worst agent's relative error (max norm) of the averaged iterate",
@@ -108,7 +108,7 @@ def _label(point: dict) -> str:
 
 
 def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
-    """Each job's median curve over seeds with its min-max band, one panel per metric."""
+    """Each job's median curve over seeds with its 90 % band, one panel per metric."""
     fig, axes = plt.subplots(1, len(CURVES), figsize=(14, 4.2), gridspec_kw={"wspace": 0.38})
     # Up to 12 jobs each get a colour and a legend entry; more are coloured by the value of the first swept
     # parameter, and the legend names those values (each colour then holds every job with that value).
@@ -135,7 +135,7 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
         ax.set_title(title)
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
-    note = f"{len(jobs)} jobs, median over seeds, band: min to max" + (f"; colour: {by} (every job with that value)" if by else "")
+    note = f"{len(jobs)} jobs, median over seeds, {BAND_WORDS}" + (f"; colour: {by} (every job with that value)" if by else "")
     fig.suptitle(note, fontsize=9)
     _save(fig, path)
 
@@ -180,7 +180,7 @@ def _heat_maps(final: dict, points: dict, kx: str, ky: str, panels: dict, metric
 
 
 def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metric: str = "error_avg") -> bool:
-    """Final ``metric`` (median over seeds, min-max band) against the swept parameters that vary.
+    """Final ``metric`` (median over seeds, 90 % band) against the swept parameters that vary.
 
     Two numeric parameters or more: heat maps over the first two, one per value of the others (up to six);
     otherwise a line plot over the numeric parameter (or the categories of the first one), one line per
@@ -210,16 +210,16 @@ def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metr
         order = np.argsort(xs) if kx in numeric else np.arange(len(xs))
         x = [xs[i] if kx in numeric else str(xs[i]) for i in order]
         Y = np.array([final[members[i]] for i in order])
-        med = np.median(Y, axis=1)
+        med, lo, hi = median_band(Y)
         line, = ax.plot(x, med, marker="o", label=_label(dict(group)) or None)
         if Y.shape[1] > 1:
-            ax.fill_between(x, Y.min(axis=1), Y.max(axis=1), color=line.get_color(), alpha=0.2)
+            ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
     if kx in numeric and all(points[j][kx] > 0 for j in final):
         ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel(kx or "job")
     ax.set_ylabel(f"final {metric}")
-    ax.set_title(f"{METRIC_WORDS.get(metric, metric)} at the end\n(median over seeds, band: min to max)", fontsize=9)
+    ax.set_title(f"{METRIC_WORDS.get(metric, metric)} at the end\n(median over seeds, {BAND_WORDS})", fontsize=9)
     ax.grid(alpha=0.3, which="both")
     if len(groups) > 1:
         ax.legend(fontsize=7)

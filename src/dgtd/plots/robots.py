@@ -204,7 +204,7 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
 
 
 def plot_curves(result, d: np.ndarray, path: Path) -> bool:
-    """Against k: each agent's relative errors and correlation with w* (median over seeds, band min-max), consensus.
+    """Against k: each agent's relative errors and correlation with w* (median over seeds, 90 % band), consensus.
 
     The sup-norm error is set by the rarest cells; the D-weighted one, |w_i - w*|_D / |w*|_D with d the
     stationary distribution, is the error where the robots actually are."""

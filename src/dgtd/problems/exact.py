@@ -253,16 +253,19 @@ def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
 
 
 def value_error(m: Moments, W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
-    """The relative value error |Phi w_i - Phi w_ref|_d / |Phi w_ref|_d of each agent, shape (..., N).
+    """The relative value error |Phi w_i - Phi w_ref|_d / |Phi (w_ref - w0)|_d of each agent, shape (..., N).
 
     The RMSVE of the field (root mean squared value error, Sutton and Barto 2018, section 9.2) weighted by d, the
     stationary distribution of the states the agents sample (the behaviour chain's), relative to the size of the
     reference values: directions of w that barely change the values barely count, unlike in the max-norm weight
-    error. |Phi x|_d^2 = x^T M x, so no S-sized array is formed. ``w_ref`` (q,) or one row per agent (N, q).
+    error. It is relative to the value error of the start w0 (zero, Algorithm 1 line 3, unless the task prescribes
+    one), which for w0 = 0 is |Phi w_ref|_d, the size of the values; Baird's values are all zero, and its error is
+    relative to that of its prescribed start. |Phi x|_d^2 = x^T M x, so no S-sized array is formed. ``w_ref`` (q,)
+    or one row per agent (N, q).
     """
     diff = W - w_ref
     sq = np.einsum("...j,...j->...", np.einsum("...i,ij->...j", diff, m.M), diff)
-    ref = np.atleast_2d(w_ref)
+    ref = np.atleast_2d(w_ref) - (0.0 if m.problem.w0 is None else m.problem.w0)
     scale = float(np.sqrt(np.einsum("ni,ij,nj->n", ref, m.M, ref).max()))
     return np.sqrt(np.maximum(sq, 0.0)) / max(scale, 1e-300)
 

@@ -20,7 +20,8 @@ from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.errors import DgtdInputError
 from dgtd.problems import exact
 from dgtd.run.loop import RunResult, RunSettings, run
-from dgtd.run.results import atomic_write, atomic_write_json, metrics_rows, reference, refuse_other_results
+from dgtd.run.results import (atomic_write, atomic_write_json, bands_csv, metrics_rows, reference,
+                              refuse_other_results)
 
 TUNE_SEED_OFFSET = 1_000_003
 TUNE_GRID = (0.1, 1 / 3, 1.0, 3.0, 10.0)
@@ -197,6 +198,7 @@ def agent_errors_npz(results: dict) -> bytes:
 def write_compare(out, problem, network, results: dict, used: dict, tables: dict, spec: dict) -> None:
     """metrics.csv (worst agent per seed), agent_errors.npz (each agent), then summary.json (last); each atomic."""
     atomic_write(out / "metrics.csv", compare_csv(results))
+    atomic_write(out / "bands.csv", bands_csv(results))
     atomic_write(out / "agent_errors.npz", agent_errors_npz(results))
     atomic_write_json(out / "summary.json", summary(problem, network, results, used, tables, spec))
 
@@ -204,7 +206,7 @@ def write_compare(out, problem, network, results: dict, used: dict, tables: dict
 # A comparison's directory: these files, and while it runs `PARTS/NAME.npz` for each finished algorithm, from which
 # the same command, run again after an interrupt, resumes (every algorithm replays the same streams, so a finished
 # one's numbers are final).
-COMPARE_FILES = ("metrics.csv", "agent_errors.npz", "summary.json", "compare.png", "consensus.png")
+COMPARE_FILES = ("metrics.csv", "bands.csv", "agent_errors.npz", "summary.json", "compare.png", "consensus.png")
 PARTS = "parts"
 _ARRAYS = ("steps", "agent_error_last", "agent_error_avg", "w_last", "w_avg", "w_tail", "w_star", "w_ref")
 

@@ -244,12 +244,16 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     tail_base = None
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
-    names = ("error_last", "error_avg", "value_error_last", "value_error_avg", "consensus", "mspbe_last", "mspbe_avg")
+    names = ("error_last", "error_avg", "error_tail", "value_error_last", "value_error_avg", "value_error_tail",
+             "consensus", "mspbe_last", "mspbe_avg")
     metrics = {m: np.zeros((C, B)) for m in names}
     counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
     keep_trace = B * n_est * q * C <= 2_000_000
     w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
+    # The running sum at every checkpoint, for the tail average at each checkpoint (`tail_at`); within the same
+    # memory budget as the trace, else the tail metrics are NaN until the end
+    sum_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
     per_edge = messages_per_edge(algorithm)
     messages, diverged_at = np.zeros(B), np.full(B, -1, dtype=np.int64)
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
@@ -265,6 +269,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         metrics = {name: np.array(v) for name, v in resume["metrics"].items()}
         err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
         w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
+        sum_trace = None if resume.get("sum_trace") is None else np.array(resume["sum_trace"])
         messages = np.array(resume.get("messages", messages), dtype=np.float64)
         diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
@@ -321,6 +326,11 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                 metrics["error_avg"][c, alive] = err_avg[c, alive].max(-1)
                 metrics["value_error_last"][c, alive] = exact.value_error(moments, wa, w_ref).max(-1)
                 metrics["value_error_avg"][c, alive] = exact.value_error(moments, wv, w_ref).max(-1)
+                if sum_trace is not None:
+                    sum_trace[c] = sums["all"]
+                    wt = tail_at(c, steps, sum_trace, settings.tail_fraction)[alive]
+                    metrics["error_tail"][c, alive] = exact.relative_error(wt, w_ref).max(-1)
+                    metrics["value_error_tail"][c, alive] = exact.value_error(moments, wt, w_ref).max(-1)
                 metrics["consensus"][c, alive] = exact.consensus_error(wa)
                 metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
                 metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
@@ -342,7 +352,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
             on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
                                    seconds_before + time.perf_counter() - t_start,
                                    extra={"messages": messages, "diverged_at": diverged_at, "counts": counts,
-                                          **({} if tail_base is None else {"tail_base": tail_base})}))
+                                          **({} if tail_base is None else {"tail_base": tail_base}),
+                                          **({} if sum_trace is None else {"sum_trace": sum_trace})}))
     final = state._asdict()
     kkt = {}
     if hasattr(algorithm, "diagnostics"):
@@ -380,6 +391,18 @@ def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budg
     numbers (tens of MB), whatever N and |E|. Results do not depend on it."""
     per_step = n_seeds * (4 * n_agents + n_edges)
     return int(max(1, min(int(block_size), budget // max(per_step, 1))))
+
+
+def tail_at(c: int, steps: np.ndarray, sum_trace: np.ndarray, fraction: float) -> np.ndarray:
+    """The tail average at checkpoint c: the mean of w_j over the steps since the latest checkpoint at or before
+    (1 - fraction) k_c (all of them when there is none), from the running sums recorded at the checkpoints; it
+    approximates the final `RunResult.w_tail` at the last checkpoint, where the window is (1 - fraction) T exactly."""
+    k = steps[c]
+    before = np.flatnonzero(steps[:c] <= (1.0 - fraction) * k)
+    if before.size == 0:
+        return sum_trace[c] / k
+    j = before[-1]
+    return (sum_trace[c] - sum_trace[j]) / (k - steps[j])
 
 
 def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_state, seconds, extra=None) -> dict:

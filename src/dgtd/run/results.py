@@ -97,6 +97,29 @@ def metrics_rows(result: RunResult, algorithm: str):
                 yield algorithm, b, int(step), name, float(values[c, b])
 
 
+BAND = (5.0, 95.0)  # percentiles over seeds in bands.csv: a 90 % band, as the figures draw
+
+
+def bands_csv(results: dict) -> bytes:
+    """Long format over seeds: algorithm, step, metric, median, q05, q95 (the 90 % band, linear interpolation between
+    seeds) and seeds (how many are finite there: diverged seeds are NaN), for every checkpoint and metric."""
+    import warnings
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["algorithm", "step", "metric", "median", "q05", "q95", "seeds"])
+    for name, result in results.items():
+        for metric, Y in result.metrics.items():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a checkpoint where every seed is NaN
+                med = np.nanmedian(Y, axis=1)
+                lo, hi = np.nanpercentile(Y, BAND, axis=1)
+            alive = np.isfinite(Y).sum(axis=1)
+            w.writerows([name, int(k), metric, float(m), float(a), float(b), int(n)]
+                        for k, m, a, b, n in zip(result.steps, med, lo, hi, alive))
+    return buf.getvalue().encode()
+
+
 def metrics_csv(result: RunResult, algorithm: str = "dgtd") -> bytes:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -148,12 +171,14 @@ def summary(result: RunResult, config: dict) -> dict:
 
 
 def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "dgtd", extra: dict | None = None) -> None:
-    """summary.json, metrics.csv and trajectory.npz in ``out``; summary.json is written last.
+    """summary.json, metrics.csv (per seed), bands.csv (median and 90 % band over seeds) and trajectory.npz in
+    ``out``; summary.json is written last.
 
     ``extra``: scenario-specific numbers, stored in summary.json under "scenario".
     """
     out = Path(out)
     atomic_write(out / "metrics.csv", metrics_csv(result, algorithm))
+    atomic_write(out / "bands.csv", bands_csv({algorithm: result}))
     buf = io.BytesIO()
     arrays = {"steps": result.steps, "agent_error_last": result.agent_error_last, "agent_error_avg": result.agent_error_avg}
     if result.w_trace is not None:
