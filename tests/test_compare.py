@@ -122,7 +122,7 @@ def test_cli_compare_writes_csv_summary_and_plots(tmp_path, capsys):
     assert {r["algorithm"] for r in rows} == {"dgtd", "td0", "consensus-td0"}
     assert {"error_last", "error_avg", "mspbe_last", "consensus", "samples", "messages", "diverged"} <= {r["metric"] for r in rows}
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["algorithms"]["td0"]["config"]["alpha0"] == 0.1
+    assert summary["algorithms"]["td0"]["config"]["alpha0"] == 0.02  # the scenario's comparison step (COMPARE_STEPS)
     assert summary["problem"] == "baird" and len(summary["w_star"]) == 8
     for name in ("compare.png", "consensus.png"):
         assert (out / name).stat().st_size > 10_000

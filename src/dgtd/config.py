@@ -18,6 +18,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
+from dgtd.problems.model import with_reward_noise
 from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings
 from dgtd.sources.model import Sampling
@@ -147,7 +148,7 @@ def resolve(spec: RunSpec):
                 raise DgtdInputError(f"scenario {spec.scenario!r} has no random-edge network, so edge_prob does not apply; remove it")
             network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
         if spec.reward_noise not in (None, problem.reward_noise):
-            problem = replace(problem, reward_noise=spec.reward_noise)
+            problem = with_reward_noise(problem, spec.reward_noise)
     else:
         if spec.params:
             raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")

@@ -71,7 +71,9 @@ def _spec_options(f):
         click.option("--shared/--independent", default=None,
                      help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2)."),
         click.option("--reward-noise", type=click.Choice(CHOICES["reward_noise"]), default=None,
-                     help="Random rewards in [0, sigma] with the model's mean (default: deterministic)."),
+                     help="How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in "
+                          "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
+                          "r(s, a, s') where the problem gives rewards per transition (transition)."),
         click.option("--backend", type=click.Choice(CHOICES["backend"]), default=d("backend"), show_default=True),
         click.option("--checkpoints", type=int, default=d("checkpoints"), show_default=True, help="How many times to record metrics."),
         click.option("--tail-fraction", type=float, default=d("tail_fraction"), show_default=True, help="Final fraction of the run averaged for w_tail."),

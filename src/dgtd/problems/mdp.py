@@ -69,8 +69,9 @@ def from_mdp(
         if rewards.shape[1:] != (S, A, S):
             raise DgtdInputError(f"rewards must have shape (N, {S}, {A}, {S}), got {rewards.shape}")
         R_sa = np.einsum("sat,nsat->nsa", P, rewards)
+        R_transition = rewards
     else:
-        R_sa = _as_float_array("rewards", rewards, 3)
+        R_sa, R_transition = _as_float_array("rewards", rewards, 3), None
         if R_sa.shape[1:] != (S, A):
             raise DgtdInputError(f"rewards must have shape (N, {S}, {A}) or (N, {S}, {A}, {S}), got {rewards.shape}")
     if behaviour is None:
@@ -107,4 +108,5 @@ def from_mdp(
         name=name,
         terminal=terminal,
         signed_rewards=signed_rewards,
+        R_transition=R_transition,
     )

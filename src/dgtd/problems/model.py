@@ -8,13 +8,13 @@ dummy action and importance ratio 1.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from dgtd.errors import DgtdInputError
 
 ROW_SUM_TOL = 1e-8
-REWARD_NOISES = ("none", "bernoulli", "uniform")
+REWARD_NOISES = ("none", "bernoulli", "uniform", "transition")
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,8 +33,12 @@ class Problem:
     - ``R_sample`` (N, S, A): mean reward of agent i given (s, a). The updates use the reward only through
       phi(s) and the ratio of (s, a), so this mean is all the sampler needs to be exact in expectation.
     - ``sigma``: rewards lie in [0, sigma] (paper section 3); it sizes the projection boxes.
-    - ``reward_noise``: 'none' (deterministic), 'bernoulli' (sigma * Bernoulli(mean / sigma)) or
-      'uniform' (uniform on [m - h, m + h], h = min(m, sigma - m)); each has the stated mean and support.
+    - ``reward_noise``: how a sample's reward is drawn: 'none' (the mean E[r | s, a], deterministic), 'bernoulli'
+      (sigma * Bernoulli(mean / sigma)), 'uniform' (uniform on [m - h, m + h], h = min(m, sigma - m)), each with
+      the stated mean and support, or 'transition': the reward of the sampled transition r(s, a, s') (the paper's
+      r-hat), for a problem that gives rewards per transition (``R_transition``).
+    - ``R_transition`` (N, S, A, S) or None: agent i's reward r_i(s, a, s') where the problem gives it (a
+      multi-agent MDP with rewards per transition); R_sample is its expectation over s'.
     - ``w0`` (q,) or None: the task's prescribed initial value weights (Baird's counterexample starts at
       (1, 1, 1, 1, 1, 1, 10, 1)); None means zero, Algorithm 1 line 3.
     - ``terminal`` (S,) bool: terminal states of an episodic task. The discount of a transition s -> s' is
@@ -57,6 +61,13 @@ class Problem:
     state_labels: tuple = field(default=())
     w0: np.ndarray | None = None
     terminal: np.ndarray | None = None
+    R_transition: np.ndarray | None = None
+
+    @property
+    def reward_table(self) -> np.ndarray:
+        """(N, S, A, S') of the rewards a sample draws from: r_i(s, a, s') for reward noise 'transition', else the
+        mean E[r_i | s, a] as a table with S' = 1 (a view: the same whichever the next state)."""
+        return self.R_transition if self.reward_noise == "transition" else self.R_sample[..., None]
 
     @property
     def continuing(self) -> np.ndarray:
@@ -191,6 +202,17 @@ def check_size(problem) -> None:
             f"{limit:g} GB; use fewer states or features, or raise the limit with DGTD_MEMORY_LIMIT_GB")
 
 
+def with_reward_noise(problem: Problem, reward_noise: str) -> Problem:
+    """The same problem with another way of drawing rewards, checked as `make_problem` checks it."""
+    if reward_noise not in REWARD_NOISES:
+        raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
+    if reward_noise == "transition" and problem.R_transition is None:
+        raise DgtdInputError("reward noise 'transition' draws the reward of each sampled transition r(s, a, s'), but "
+                             "this problem gives rewards per state (and action) only; give rewards of shape "
+                             "(N, S, A, S) in a multi-agent MDP, or choose another reward noise")
+    return replace(problem, reward_noise=reward_noise)
+
+
 def make_problem(
     P,
     R,
@@ -208,6 +230,7 @@ def make_problem(
     signed_rewards: bool = False,
     dependent_features: bool = False,
     terminal=None,
+    R_transition=None,
 ) -> Problem:
     """Validate and build a `Problem`; on-policy when no sampling model is given.
 
@@ -284,11 +307,25 @@ def make_problem(
         )
     if not np.allclose(np.einsum("sa,nsa->ns", beta * ratio, R_sample), R, atol=1e-8 * max(1.0, np.abs(R).max())):
         raise DgtdInputError("the sampling model does not reproduce R: sum_a pi(a|s) R_sample(i,s,a) must equal R(i,s)")
+    if R_transition is not None:
+        R_transition = _as_float_array("R_transition", R_transition, 4)
+        if R_transition.shape != (R.shape[0], S, A, S):
+            raise DgtdInputError(f"R_transition must have shape (N, S, A, S) = {(R.shape[0], S, A, S)}, got "
+                                 f"{R_transition.shape}")
+        P_sa = np.divide(P_sample, beta[:, :, None], out=np.zeros_like(P_sample), where=beta[:, :, None] > 0)
+        if not np.allclose(np.einsum("sat,nsat->nsa", P_sa, R_transition)[:, beta > 0], R_sample[:, beta > 0],
+                           atol=1e-8 * max(1.0, np.abs(R_sample).max())):
+            raise DgtdInputError("R_sample must be the expectation of R_transition over the next state")
+    if reward_noise == "transition" and R_transition is None:
+        raise DgtdInputError("reward noise 'transition' draws the reward of each sampled transition r(s, a, s'), but "
+                             "this problem gives rewards per state (and action) only; give rewards of shape "
+                             "(N, S, A, S) in a multi-agent MDP, or choose another reward noise")
     P_beh = P_sample.sum(axis=1)
     check_irreducible("the behaviour chain" if A > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
     if not signed_rewards and (np.any(R < 0) or np.any(R_sample < 0)):
         raise DgtdInputError("rewards must be >= 0 (the paper's rewards lie in [0, sigma]); shift them by a constant")
-    r_max = float(max(np.abs(R).max(), np.abs(R_sample).max()))
+    r_max = float(max(np.abs(R).max(), np.abs(R_sample).max(),
+                      0.0 if R_transition is None else np.abs(R_transition).max()))
     if sigma is None:
         sigma = r_max if r_max > 0 else 1.0
     sigma = float(sigma)
@@ -296,14 +333,15 @@ def make_problem(
         raise DgtdInputError(f"sigma must be positive and at least the largest mean reward {r_max:g}, got {sigma}")
     if reward_noise not in REWARD_NOISES:
         raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
-    if signed_rewards and reward_noise != "none":
+    if signed_rewards and reward_noise not in ("none", "transition"):
         raise DgtdInputError("reward noise draws rewards in [0, sigma]; a problem with signed rewards needs reward_noise='none'")
     if w0 is not None:
         w0 = _as_float_array("w0", w0, 1)
         if w0.shape != (Phi.shape[1],):
             raise DgtdInputError(f"w0 must have one entry per feature ({Phi.shape[1]}), got shape {w0.shape}")
         w0.setflags(write=False)
-    for a in (P, R, Phi, P_sample, ratio, R_sample) + ((terminal,) if episodic else ()):
+    for a in (P, R, Phi, P_sample, ratio, R_sample) + ((terminal,) if episodic else ()) + \
+            (() if R_transition is None else (R_transition,)):
         a.setflags(write=False)
     return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels), w0,
-                   terminal)
+                   terminal, R_transition)

@@ -185,7 +185,7 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
         raise DgtdInputError(
             f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them agree"
         )
-    if problem.reward_noise != "none" and (problem.R_sample.min() < 0 or problem.R.min() < 0):
+    if problem.reward_noise not in ("none", "transition") and (problem.R_sample.min() < 0 or problem.R.min() < 0):
         raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; "
                              "use --reward-noise none")
     if sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
@@ -251,9 +251,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
     keep_trace = B * n_est * q * C <= 2_000_000
     w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
-    # The running sum at every checkpoint, for the tail average at each checkpoint (`tail_at`); within the same
-    # memory budget as the trace, else the tail metrics are NaN until the end
-    sum_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
+    # The running sum at every checkpoint, for the tail average at each checkpoint (`tail_at`): up to 160 MB (it is
+    # not saved with the results, unlike the trace), else the tail metrics are NaN
+    sum_trace = np.zeros((C, B, n_est, q)) if B * n_est * q * C <= 20_000_000 else None
     per_edge = messages_per_edge(algorithm)
     messages, diverged_at = np.zeros(B), np.full(B, -1, dtype=np.int64)
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())

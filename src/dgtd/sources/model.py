@@ -91,8 +91,9 @@ class SamplerTables:
 
 
 def reward_from_uniform(mean: np.ndarray, sigma: float, noise: str, u) -> np.ndarray:
-    """A reward in [0, sigma] with the given mean: deterministic, sigma * Bernoulli(mean / sigma), or uniform."""
-    if noise == "none":
+    """A reward in [0, sigma] with the given mean: deterministic, sigma * Bernoulli(mean / sigma), or uniform; a
+    transition's own reward ('transition') is deterministic given the transition."""
+    if noise in ("none", "transition"):
         return mean
     if noise == "bernoulli":
         return np.where(u < mean / sigma, sigma, 0.0)
@@ -166,13 +167,15 @@ def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.
     return s, idx // S, idx % S
 
 
-def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, u_reward) -> np.ndarray:
-    """r (..., N): agent i's reward at its observation (s_i, a_i); shared observations broadcast."""
+def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, sn: np.ndarray, u_reward) -> np.ndarray:
+    """r (..., N): agent i's reward at its observation (s_i, a_i, s'_i); shared observations broadcast."""
     N = problem.n_agents
+    table = problem.reward_table
+    sn = sn if table.shape[3] > 1 else np.zeros_like(sn)
     if s.shape[-1] == N:
-        mean = problem.R_sample[np.arange(N), s, a]
+        mean = table[np.arange(N), s, a, sn]
     else:
-        mean = np.moveaxis(problem.R_sample[:, s[..., 0], a[..., 0]], 0, -1)
+        mean = np.moveaxis(table[:, s[..., 0], a[..., 0], sn[..., 0]], 0, -1)
     return reward_from_uniform(mean, problem.sigma, problem.reward_noise, u_reward)
 
 
@@ -187,7 +190,7 @@ def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dic
         for t in range(T):
             s[t], a[t], sn[t] = pick_states(tables, S, U["state"][t], current)
             current = sn[t]
-    r = rewards(problem, s, a, U.get("reward"))
+    r = rewards(problem, s, a, sn, U.get("reward"))
     up = network.masks_from_uniforms(U["edge"]) if "edge" in U else None
     return Block(s, a, sn, np.ascontiguousarray(r, dtype=np.float64), up), current
 
@@ -205,7 +208,7 @@ class ModelSource:
         N = problem.n_agents
         self.n_obs = 1 if sampling.shared else N
         self.streams = Streams(seed, seed_ids, self.n_obs, N, network.n_edges, mode=sampling.mode,
-                               reward_noise=problem.reward_noise != "none", random_edges=not network.fixed)
+                               reward_noise=problem.reward_noise not in ("none", "transition"), random_edges=not network.fixed)
         self.markov = sampling.mode == "markov"
         self.backend = backend
         self.current = None

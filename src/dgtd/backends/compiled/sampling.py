@@ -13,7 +13,7 @@ from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.rng import pcg_step
 from dgtd.samples import Block, Draws
 
-NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2}
+NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2, "transition": 0}  # a transition's reward: deterministic
 
 
 @njit(cache=True, inline="always")
@@ -86,7 +86,7 @@ def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, 
             # Rewards of the agents that see this observation: agent o, or all agents on a shared trajectory.
             lo, hi = (o, o + 1) if n_obs == N else (0, N)
             for i in range(lo, hi):
-                r = R_sample[i, s, a]
+                r = R_sample[i, s, a, sn if R_sample.shape[3] > 1 else 0]  # (`Problem.reward_table`)
                 r_out[t, b, i] = _reward(r, sigma, noise, u_reward[t, b, i]) if noise != 0 else r
     E = p_edge.shape[0]
     if up_out.shape[0] > 0:
@@ -111,7 +111,7 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
     up = np.empty((T, B, network.n_edges), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
     _sample_kernel(np.ascontiguousarray(U["state"]), U.get("reward", np.zeros((0, 0, 0))), U.get("edge", np.zeros((0, 0, 0))),
                    markov, cur, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-                   np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise],
+                   np.ascontiguousarray(problem.reward_table), float(problem.sigma), NOISE_CODES[problem.reward_noise],
                    np.asarray(network.p, dtype=np.float64), s, a, sn, r, up)
     return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
@@ -157,7 +157,7 @@ def _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, 
     hi, lo, inc_hi, inc_lo = rng[b, 1, 0], rng[b, 1, 1], rng[b, 1, 2], rng[b, 1, 3]
     for i in range(N):
         o = i if n_obs == N else 0
-        r = R_sample[i, s_t[row, o], a_t[row, o]]
+        r = R_sample[i, s_t[row, o], a_t[row, o], sn_t[row, o] if R_sample.shape[3] > 1 else 0]  # (`Problem.reward_table`)
         if noise != 0:
             hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
             r = _reward(r, sigma, noise, u)
@@ -211,5 +211,5 @@ def sample_args(ctx, blk, B: int):
         samples = (blk.s, blk.a, blk.s_next, blk.r, up_mask(blk))
         fused, rng = False, np.zeros((B, 3, 4), np.uint64)
     return (fused, rng, markov, current, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-            np.ascontiguousarray(problem.R_sample), float(problem.sigma), NOISE_CODES[problem.reward_noise], p_edge,
+            np.ascontiguousarray(problem.reward_table), float(problem.sigma), NOISE_CODES[problem.reward_noise], p_edge,
             *samples, np.zeros(B, np.int64))
