@@ -113,8 +113,7 @@ def task_rows(task: str, algorithms, seeds: int, iterations: int | None, backend
         Y = r.metrics[f"value_error_{out}"]
         div = r.info["diverged_at"]
         row = {"task": task, "algorithm": name, "output": out, "alpha0": used[name].alpha0,
-               "schedule": f"{used[name].alpha0:g}/sqrt(k+{used[name].beta:g})" if used[name].schedule == "sqrt"
-               else used[name].schedule, "iterations": T, "seeds": seeds, "agents": sc.problem.n_agents,
+               "schedule": steps_text(used[name]), "iterations": T, "seeds": seeds, "agents": sc.problem.n_agents,
                "samples_budget": T * sc.problem.n_agents, "diverged_seeds": int(np.sum(div >= 0)),
                "final_error": band(np.nan_to_num(Y[-1], nan=np.inf)), "seconds": r.seconds}
         for th in THRESHOLDS:
@@ -127,6 +126,12 @@ def task_rows(task: str, algorithms, seeds: int, iterations: int | None, backend
     print(f"{task}: {wall:.1f} s (tuning and runs) for {len(results)} algorithms x {seeds} seeds x {T:,} iterations",
           flush=True)
     return rows
+
+
+def steps_text(config) -> str:
+    """alpha_k as a formula: alpha0/sqrt(k+beta), alpha0/(k+beta) or the constant alpha0."""
+    a, b = f"{config.alpha0:.3g}", f"{config.beta:g}"
+    return {"sqrt": f"{a}/sqrt(k+{b})", "harmonic": f"{a}/(k+{b})"}.get(config.schedule, f"{a} (constant)")
 
 
 def _num(x: float) -> str:
