@@ -205,11 +205,12 @@ def plot(rows: list, path: Path) -> None:
         ax.grid(alpha=0.3, axis="x", which="both")
     for ax in axes.ravel()[len(tasks):]:
         ax.axis("off")
-    axes.ravel()[0].legend(fontsize=7, loc="lower right")
+    handles, labels = axes.ravel()[0].get_legend_handles_labels()  # below the panels, where it covers no bar
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8, frameon=False)
     fig.suptitle("agent-samples until every agent's value error |Phi (w_i - w*)|_d / |Phi w*|_d stays within 10 % / 1 %"
                  "\n(step sizes tuned on separate seeds; each method's better output, last iterate or tail average)",
                  fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

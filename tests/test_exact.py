@@ -186,3 +186,14 @@ def test_value_error_is_relative_to_the_start_where_the_task_prescribes_one():
     w_star = exact.w_star(m)
     assert np.allclose(p.Phi @ w_star, 0.0, atol=1e-9)
     assert np.allclose(exact.value_error(m, np.tile(p.w0, (1, 2, 1)), w_star), 1.0)
+
+
+def test_rmspbe_is_the_projected_bellman_error_in_the_d_norm():
+    """|Pi T(Phi w) - Phi w|_D by projecting explicitly: Pi = Phi M^-1 Phi^T D, T v = r_mean + gamma P v."""
+    m = exact.Moments(_iid_problem())
+    p = m.problem
+    w = np.array([0.3, -1.2])
+    D = np.diag(m.d)
+    Pi = p.Phi @ np.linalg.solve(m.M, p.Phi.T @ D)
+    err = Pi @ (p.R.mean(0) + p.gamma * p.P @ p.Phi @ w) - p.Phi @ w
+    assert np.isclose(exact.rmspbe(m, w), np.sqrt(err @ D @ err))

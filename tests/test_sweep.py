@@ -63,7 +63,7 @@ def assert_store_intact(out: Path, n_jobs: int) -> None:
     assert not list(out.rglob("*.tmp"))
     rows = table_of(out)
     metrics = {"error_last", "error_avg", "error_tail", "value_error_last", "value_error_avg", "value_error_tail",
-               "consensus", "mspbe_last", "mspbe_avg"}
+               "consensus", "mspbe_last", "mspbe_avg", "rmspbe_last", "rmspbe_avg", "rmspbe_tail"}
     assert set(rows["metric"]) == metrics
     assert len(rows["value"]) == n_jobs * len(metrics) * len(np.unique(rows["step"])) * 2  # jobs x metrics x checkpoints x seeds
 

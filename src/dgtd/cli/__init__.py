@@ -116,7 +116,8 @@ def run(ctx, scenario, resume_dir, **_):
                     weighted by d, the stationary distribution of the sampled
                     states (RMSVE), relative to their size: the error that
                     matters when some weight directions barely change values;
-      MSPBE         the projected Bellman error; and the consensus error;
+      MSPBE, RMSPBE the projected Bellman error, and its root; and the consensus
+                    error;
     each for the last iterate, the average over the whole run, and the tail
     average (the last --tail-fraction of the run, which forgets the start):
     metrics.csv per seed, bands.csv the median and 90 % band over seeds.

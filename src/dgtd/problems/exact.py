@@ -181,7 +181,8 @@ def mu_star(m: Moments, L) -> np.ndarray:
 
 @dataclass(frozen=True)
 class SaddlePoint:
-    """A saddle point of eq. (Lagrangian2): arrays (N, q)."""
+    """A saddle point of the Lagrangian of section 5 (its form with the consensus term -(kappa/2) w^T L w): arrays
+    (N, q)."""
 
     theta: np.ndarray
     v: np.ndarray
@@ -222,7 +223,7 @@ def saddle_point(m: Moments, L, kappa: float = 0.0, rho: float = 0.0) -> SaddleP
 
 
 def lagrangian_gradient(m: Moments, L, kappa, rho, theta, v, mu, w):
-    """Gradient of eq. (Lagrangian2) plus (rho/2)|mu|^2 - (rho/2)|w|^2, at stacked (N, q) points.
+    """Gradient of the Lagrangian of section 5 (with the consensus term -(kappa/2) w^T L w) plus (rho/2)|mu|^2 - (rho/2)|w|^2, at stacked (N, q) points.
 
     Returns (dL/dtheta, dL/dv, dL/dmu, dL/dw); the KKT conditions (eq. `KKT-points`) are that all four vanish.
     """
@@ -241,7 +242,8 @@ def kkt_residuals(m: Moments, L, kappa, rho, point: SaddlePoint) -> dict[str, fl
 
 
 def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
-    """MSPBE(w) = 1/2 |Pi(r + gamma P Phi w) - Phi w|_D^2 = 1/2 (b - A w)^T M^-1 (b - A w), eq. (GDD(0)-loss).
+    """MSPBE(w) = 1/2 |Pi(r + gamma P Phi w) - Phi w|_D^2 = 1/2 (b - A w)^T M^-1 (b - A w), the loss of
+    GTD in section 2 of the paper.
 
     ``b`` defaults to the average reward's b_mean; ``w`` may have any leading axes (..., q).
     """
@@ -250,6 +252,12 @@ def mspbe(m: Moments, w: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
     # operands at a time (a three-operand einsum takes a generic loop, three times slower on 10^4 agents)
     e = b - np.einsum("...j,ij->...i", w, m.A)
     return 0.5 * np.einsum("...j,...j->...", np.einsum("...i,ij->...j", e, m.M_inv), e)
+
+
+def rmspbe(m: Moments, w: np.ndarray) -> np.ndarray:
+    """RMSPBE(w) = |Pi T(Phi w) - Phi w|_D = sqrt(2 MSPBE(w)) (`mspbe` carries the paper's factor 1/2): the root
+    projected Bellman error the field reports (e.g. Ghiassian et al. 2020), shape (...)."""
+    return np.sqrt(2.0 * np.maximum(mspbe(m, w), 0.0))
 
 
 def value_error(m: Moments, W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:

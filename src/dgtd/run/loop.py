@@ -245,7 +245,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
     names = ("error_last", "error_avg", "error_tail", "value_error_last", "value_error_avg", "value_error_tail",
-             "consensus", "mspbe_last", "mspbe_avg")
+             "consensus", "mspbe_last", "mspbe_avg", "rmspbe_last", "rmspbe_avg", "rmspbe_tail")
     metrics = {m: np.zeros((C, B)) for m in names}
     counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
@@ -331,9 +331,12 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                     wt = tail_at(c, steps, sum_trace, settings.tail_fraction)[alive]
                     metrics["error_tail"][c, alive] = exact.relative_error(wt, w_ref).max(-1)
                     metrics["value_error_tail"][c, alive] = exact.value_error(moments, wt, w_ref).max(-1)
+                    metrics["rmspbe_tail"][c, alive] = exact.rmspbe(moments, wt).max(-1)
                 metrics["consensus"][c, alive] = exact.consensus_error(wa)
                 metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
                 metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
+                metrics["rmspbe_last"][c, alive] = exact.rmspbe(moments, wa).max(-1)
+                metrics["rmspbe_avg"][c, alive] = exact.rmspbe(moments, wv).max(-1)
                 counts["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
                 counts["messages"][c, alive] = messages[alive]
             counts["diverged"][c] = ~alive
