@@ -29,11 +29,23 @@ class Sample(NamedTuple):
     gamma: float | np.ndarray
 
 
+class SampleTable(NamedTuple):
+    """The rows a block's indices point into, when they are not the model's states: a simulator's or a data file's
+    samples, each with its own row. ``phi`` (M, q) features, ``ratio`` (M, 1) importance ratios (the block's ``a``
+    is 0), ``continuing`` (M,) the c of gamma(s, s') = gamma c(s) c(s'): 0 at the next state of a transition that
+    ended an episode."""
+
+    phi: np.ndarray
+    ratio: np.ndarray
+    continuing: np.ndarray
+
+
 class Block(NamedTuple):
     """The samples of T steps for B seeds, as state indices: what every block kernel consumes.
 
     ``s``, ``a``, ``s_next`` (T, B, n) int64; ``r`` (T, B, N) rewards; ``up`` (T, B, E) bool, the edges up at each
-    step, or None for a fixed graph.
+    step, or None for a fixed graph; ``table``: the rows the indices point into (`SampleTable`), or None for the
+    model's states (the problem's Phi, ratio table and terminal states).
     """
 
     s: np.ndarray
@@ -41,6 +53,7 @@ class Block(NamedTuple):
     s_next: np.ndarray
     r: np.ndarray
     up: np.ndarray | None
+    table: SampleTable | None = None
 
     @classmethod
     def empty(cls, seeds: int, observations: int, agents: int, edges: int) -> "Block":

@@ -19,8 +19,9 @@ def run_block(ctx, state, w_sum: np.ndarray, alphas: np.ndarray, blk: Block):
     algorithm = ctx.algorithm
     w_sum = w_sum.copy()
     n_seeds = blk.r.shape[1]
+    Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
     for t in range(len(alphas)):
         w_sum += algorithm.estimate(state)
         links = Links(ctx.lap, None if blk.up is None else blk.up[t], n_seeds)
-        state = algorithm.update(state, blk.sample(t, ctx.Phi, ctx.ratio, ctx.gamma, ctx.continuing), links, alphas[t])
+        state = algorithm.update(state, blk.sample(t, Phi, ratio, ctx.gamma, continuing), links, alphas[t])
     return state, w_sum

@@ -98,12 +98,17 @@ def f64(x) -> np.ndarray:
 def model_arrays(ctx, blk: Block) -> tuple:
     """(s, a, s_next, r) of the block and the problem's (Phi, ratio table, gamma, continuing flags c): what every
     kernel reads; a transition s -> s' discounts by gamma c(s) c(s') (`discount`)."""
-    return (blk.s, blk.a, blk.s_next, blk.r, np.ascontiguousarray(ctx.Phi), np.ascontiguousarray(ctx.ratio),
-            float(ctx.gamma), continuing_flags(ctx))
+    Phi, ratio = (ctx.Phi, ctx.ratio) if blk.table is None else blk.table[:2]
+    return (blk.s, blk.a, blk.s_next, blk.r, np.ascontiguousarray(Phi, np.float64), np.ascontiguousarray(ratio),
+            float(ctx.gamma), continuing_flags(ctx, blk))
 
 
-def continuing_flags(ctx) -> np.ndarray:
-    """c (S,): 0 at an episodic task's terminal states, 1 elsewhere (`dgtd.problems.model.Problem.terminal`)."""
+def continuing_flags(ctx, blk: Block | None = None) -> np.ndarray:
+    """c of the rows the block's indices point into: 0 at an episodic task's terminal states (or, for a block with its
+    own `SampleTable`, at the next state of a transition that ended an episode), 1 elsewhere."""
+    table = getattr(blk, "table", None)  # a `Draws` (samples drawn inside the kernel) has none
+    if table is not None:
+        return np.ascontiguousarray(table.continuing, np.float64)
     return np.ones(ctx.Phi.shape[0]) if ctx.continuing is None else np.ascontiguousarray(ctx.continuing, np.float64)
 
 

@@ -230,18 +230,21 @@ def _dgtd_by_agent(state, shared, q, alphas, sampler, model, ratio_tab, graph, p
 load_quickly(_dgtd_by_seed, _dgtd_by_agent)
 
 
-def feature_arrays(ctx):
+def feature_arrays(ctx, blk=None):
     """(Phi, sparse, CSR rows of Phi): sparse when rows hold at most a quarter of the features (tabular: one); the
-    sparse kernels read the features from the CSR rows only, and get a row of zeros for Phi."""
+    sparse kernels read the features from the CSR rows only, and get a row of zeros for Phi. The model's, once per
+    run; a block's own rows (`SampleTable`), for that block."""
 
-    def build():
-        Phi = np.ascontiguousarray(ctx.Phi, dtype=np.float64)
+    def build(Phi=ctx.Phi):
+        Phi = np.ascontiguousarray(Phi, dtype=np.float64)
         rows, cols = np.nonzero(Phi)  # row-major order: CSR rows without importing scipy.sparse
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=Phi.shape[0]))]).astype(np.int64)
         sparse = rows.size <= Phi.size // 4
         dense = np.zeros((1, Phi.shape[1])) if sparse else Phi
         return dense, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64)
 
+    if blk is not None and getattr(blk, "table", None) is not None:
+        return build(blk.table.phi)
     return per_run(ctx, "phi", build)
 
 
@@ -275,8 +278,9 @@ def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
     sampler = sample_args(ctx, blk, B)
     boxes = (np.inf,) * 4 if algorithm.boxes is None else algorithm.boxes
     params = (float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), *(float(x) for x in boxes))
-    args = (np.ascontiguousarray(alphas), sampler, (*feature_arrays(ctx), continuing_flags(ctx)),
-            np.ascontiguousarray(ctx.ratio), storage_graph(ctx), params)
+    ratio = ctx.ratio if getattr(blk, "table", None) is None else blk.table.ratio  # `Draws` have no table
+    args = (np.ascontiguousarray(alphas), sampler, (*feature_arrays(ctx, blk), continuing_flags(ctx, blk)),
+            np.ascontiguousarray(ratio), storage_graph(ctx), params)
     if by_agent(B, N, q):
         steps = _dgtd_by_agent(arrays, shared, q, *args, 4 * get_num_threads())
     else:
