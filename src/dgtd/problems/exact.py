@@ -124,7 +124,7 @@ def fixed_point(m: Moments, b: np.ndarray) -> np.ndarray:
 def theta_star(m: Moments) -> np.ndarray:
     """theta*_i = M^-1 Phi^T D (r_i - r_mean), shape (N, q).
 
-    From the first KKT equation (eq. `KKT-points`): M theta_i - b_i + A w* = 0 and A w* = b_mean. The paper's
+    From the first of the KKT equations of section 6: M theta_i - b_i + A w* = 0 and A w* = b_mean. The paper's
     appendix (the proof of Proposition 4) has this sign; the statement of Proposition 4 carries the opposite
     sign, which does not satisfy the KKT equations. Tests check the KKT residuals to 1e-9.
     """
@@ -225,7 +225,7 @@ def saddle_point(m: Moments, L, kappa: float = 0.0, rho: float = 0.0) -> SaddleP
 def lagrangian_gradient(m: Moments, L, kappa, rho, theta, v, mu, w):
     """Gradient of the Lagrangian of section 5 (with the consensus term -(kappa/2) w^T L w) plus (rho/2)|mu|^2 - (rho/2)|w|^2, at stacked (N, q) points.
 
-    Returns (dL/dtheta, dL/dv, dL/dmu, dL/dw); the KKT conditions (eq. `KKT-points`) are that all four vanish.
+    Returns (dL/dtheta, dL/dv, dL/dmu, dL/dw); the KKT conditions (section 6) are that all four vanish.
     """
     Lw = lap(L, w)
     g_theta = theta @ m.M - m.b + w @ m.A.T
@@ -236,7 +236,7 @@ def lagrangian_gradient(m: Moments, L, kappa, rho, theta, v, mu, w):
 
 
 def kkt_residuals(m: Moments, L, kappa, rho, point: SaddlePoint) -> dict[str, float]:
-    """Max-norm of each KKT equation (eq. `KKT-points`) at ``point``."""
+    """Max-norm of each KKT equation of section 6 at ``point``."""
     g = lagrangian_gradient(m, L, kappa, rho, point.theta, point.v, point.mu, point.w)
     return {k: float(np.abs(x).max()) for k, x in zip(("theta", "v", "mu", "w"), g, strict=True)}
 

@@ -136,6 +136,8 @@ def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges, saddl
                                      f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or leave "
                                      "the boxes to dgtd")
         return boxes, {}
+    if not getattr(moments, "model", True):  # estimated moments: no Lemma 2, the boxes come from the saddle point
+        return tuple(algorithm.box_scale * x for x in needed), {}
     max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
     c = exact.lemma_bounds(moments, network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N), max_degree)
     lemma = tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
@@ -150,6 +152,8 @@ _MODEL_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 def _model_tables(problem: Problem):
     """The problem's `Moments` and sampler tables, built once per problem object and reused by every run on
     it (comparisons run several algorithms on one problem; the tables of a 400-state MDP take seconds)."""
+    if not isinstance(problem, Problem):  # an estimated reference (`dgtd.problems.reference`): no model to sample
+        return problem.moments, None
     if problem not in _MODEL_CACHE:
         moments = exact.Moments(problem)
         _MODEL_CACHE[problem] = interruptible(lambda: (moments, SamplerTables.build(problem, moments.d)))
@@ -188,7 +192,7 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     if problem.reward_noise not in ("none", "transition") and (problem.R_sample.min() < 0 or problem.R.min() < 0):
         raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; "
                              "use --reward-noise none")
-    if sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
+    if isinstance(problem, Problem) and sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
         raise DgtdInputError(
             "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
         )
@@ -232,6 +236,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     ctx, moments, L_mean, saddle, w_star, w_ref, tail_window = prepare(problem, network, algorithm, sampling, settings)
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
+        if ctx.tables is None:
+            raise DgtdInputError(f"{problem.name} has no model to draw samples from; pass its simulator or data as the "
+                                 "source")
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
     kernel = kernel_for(settings.backend, algorithm.name)
     state = algorithm.init(B, N, q)

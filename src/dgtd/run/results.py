@@ -158,19 +158,23 @@ def summary(result: RunResult, config: dict) -> dict:
         "max_value_error_last": float(np.max(verr(result.w_last))),
         "max_value_error_avg": float(np.max(verr(result.w_avg))),
         "max_value_error_tail": float(np.max(verr(result.w_tail))),
-        "true_value_error_last": exact.true_value_error(moments, result.w_last).tolist(),
-        "true_value_error_avg": exact.true_value_error(moments, result.w_avg).tolist(),
-        "true_value_error_tail": exact.true_value_error(moments, result.w_tail).tolist(),
+        **(true_value_errors(moments, result) if getattr(moments, "model", True) else {}),
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
-        "true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0]),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "kkt_residuals_last": result.kkt_last,
         "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes)),
         "boxes_grown": {k: {"lemma": a, "used": b} for k, (a, b) in result.info.get("boxes_grown", {}).items()},
-        "stationary_distribution": result.info["d"].tolist(),
+        "stationary_distribution": None if result.info["d"] is None else result.info["d"].tolist(),
         "seconds": result.seconds,
         "config": config,
     }
+
+
+def true_value_errors(moments, result: RunResult) -> dict:
+    """Each agent's error to the true value function (`exact.true_value_error`), where there is a model."""
+    out = {f"true_value_error_{k}": exact.true_value_error(moments, W).tolist()
+           for k, W in (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))}
+    return out | {"true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0])}
 
 
 def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "dgtd", extra: dict | None = None) -> None:

@@ -210,6 +210,10 @@ def sample_args(ctx, blk, B: int):
         markov, current, p_edge = False, np.zeros((B, blk.s.shape[2]), np.int64), np.zeros(0)
         samples = (blk.s, blk.a, blk.s_next, blk.r, up_mask(blk))
         fused, rng = False, np.zeros((B, 3, 4), np.uint64)
-    return (fused, rng, markov, current, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-            np.ascontiguousarray(problem.reward_table), float(problem.sigma), NOISE_CODES[problem.reward_noise], p_edge,
-            *samples, np.zeros(B, np.int64))
+    if tables is None:  # no model (a simulator's or a data file's samples): the drawing arguments go unread
+        empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
+        model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros((1, 1, 1, 1)), 1.0, 0)
+    else:
+        model = (tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
+                 np.ascontiguousarray(problem.reward_table), float(problem.sigma), NOISE_CODES[problem.reward_noise])
+    return (fused, rng, markov, current, *model, p_edge, *samples, np.zeros(B, np.int64))

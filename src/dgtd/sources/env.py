@@ -1,0 +1,182 @@
+"""Samples from a simulator: a PettingZoo ParallelEnv (each agent's own reward), run under a given policy.
+
+The paper's agents learn from samples and never see a model; PettingZoo's parallel API hands each agent its own
+reward, which is exactly the paper's local reward r-hat_i. `EnvSource` runs one copy of the environment per seed
+(each seeded through ``reset(seed=...)`` from the run's seed and the seed's id, so a seed's samples do not depend
+on the others) and turns its steps into `dgtd.samples.Block` s whose rows (`SampleTable`) hold the features of
+each state, computed in one batch per block:
+
+- the state the value function is defined on is the environment's ``state()`` where it has one, else the agents'
+  observations concatenated in the order of ``possible_agents``; all agents observe it (n = 1);
+- agent i's reward is its PettingZoo reward, or ``reward_map(rewards) -> (N,)`` where the user gives one;
+- episodes end as the field has them end (Sutton and Barto 2018, section 3.4; Pardo et al. 2018): a terminal
+  transition (``terminations``) has discount 0, so its TD target is the reward alone; a time-limit end
+  (``truncations``) is not terminal, so its target bootstraps from the state reached; either way the next
+  transition starts from ``reset``, the environment's restart distribution;
+- links: a `dgtd.graphs.random.RandomEdges` network draws its edges up from the seed's own stream, or
+  ``positions(env) -> (N, dim)`` with a `dgtd.graphs.proximity.ProximityNetwork` links the agents within its
+  radius (the robots' and the particles' case).
+
+The environment packages are an optional extra (``pip install dgtd[envs]``); nothing here imports them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+from dgtd.samples import Block, SampleTable
+
+
+def random_policy(agent: str, observation, space, rng: np.random.Generator):
+    """Uniform over a discrete action space; the policy of ``policy="random"``."""
+    if not hasattr(space, "n"):
+        raise DgtdInputError(f"the random policy needs discrete actions; {agent}'s action space is {space}: give a "
+                             "policy callable(agent, observation, space, rng) -> action")
+    return int(rng.integers(space.n))
+
+
+def env_state(env, agents) -> np.ndarray:
+    """The state the value function is defined on: ``env.state()``, else the observations concatenated."""
+    try:
+        state = env.state()
+    except (NotImplementedError, AttributeError):
+        state = None
+    if state is None:
+        obs = env._dgtd_last_obs  # set by `EnvSource` at every reset and step
+        state = np.concatenate([np.ravel(np.asarray(obs[a], dtype=np.float64)) for a in agents])
+    return np.ravel(np.asarray(state, dtype=np.float64))
+
+
+class EnvSource:
+    """Blocks of samples from B copies of a ParallelEnv (see the module's docstring).
+
+    ``make_env()`` returns a fresh ParallelEnv; ``features(states (K, dim)) -> (K, q)``; ``policy(agent,
+    observation, space, rng) -> action`` or "random"; ``network``: a RandomEdges over the agents, or None with
+    ``positions`` and ``proximity``. ``seed_offset`` separates a reference batch's streams from the run's.
+    """
+
+    def __init__(self, make_env: Callable, features: Callable, seed: int, seed_ids, *, policy="random",
+                 network=None, positions: Callable | None = None, proximity=None,
+                 reward_map: Callable | None = None, seed_offset: int = 0):
+        self.make_env, self.features = make_env, features
+        self.policy = random_policy if policy == "random" else policy
+        self.network, self.positions, self.proximity = network, positions, proximity
+        if network is None and (positions is None or proximity is None):
+            raise DgtdInputError("give the environment's network: a random-edge network over its agents, or "
+                                 "positions(env) with a proximity network")
+        self.reward_map = reward_map
+        self.seed, self.seed_ids, self.seed_offset = int(seed), [int(k) for k in seed_ids], int(seed_offset)
+        self.envs = self.agents = self.current = None
+        self.episodes = 0
+
+    @property
+    def edges(self) -> np.ndarray:
+        return (self.network.base if self.network is not None else self.proximity.base).edges
+
+    def describe(self) -> str:
+        if self.network is not None:
+            return self.network.describe()
+        return f"links between agents within {self.proximity.radius:g} of each other, recomputed at every step"
+
+    def _streams(self, k: int) -> np.random.Generator:
+        """Seed id k's generator for actions and links: its own, so that it does not depend on the other seeds."""
+        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(self.seed_offset + k,))))
+
+    def start(self) -> None:
+        self.envs, self.gens, self.current = [], [], []
+        for k in self.seed_ids:
+            env = self.make_env()
+            gen = self._streams(k)
+            for name in ("reset", "step", "possible_agents", "action_space"):
+                if not hasattr(env, name):
+                    raise DgtdInputError(f"make_env() returned {type(env).__name__}, which has no {name}: give a "
+                                         "PettingZoo ParallelEnv (pettingzoo.ParallelEnv; wrap an AEC env with "
+                                         "pettingzoo.utils.aec_to_parallel)")
+            self.envs.append(env)
+            self.gens.append(gen)
+            self.current.append(self._reset(env, gen))
+        self.agents = list(self.envs[0].possible_agents)
+
+    def _reset(self, env, gen) -> np.ndarray:
+        obs, _ = env.reset(seed=int(gen.integers(2**31 - 1)))
+        env._dgtd_last_obs = obs
+        self.episodes += 1
+        return env_state(env, list(env.possible_agents))
+
+    def next_block(self, T: int) -> Block:
+        B, N = len(self.envs), len(self.agents)
+        E = len(self.edges)
+        states, nexts = np.empty((T, B), dtype=object), np.empty((T, B), dtype=object)
+        r = np.empty((T, B, N))
+        cont_next = np.ones((T, B))
+        up = np.empty((T, B, E), bool)
+        for b, (env, gen) in enumerate(zip(self.envs, self.gens)):
+            for t in range(T):
+                obs = env._dgtd_last_obs
+                actions = {a: self.policy(a, obs[a], env.action_space(a), gen) for a in env.agents}
+                if self.positions is not None:
+                    up[t, b] = self.proximity.masks(np.asarray(self.positions(env), dtype=np.float64))
+                else:
+                    up[t, b] = gen.random(E) < self.network.p
+                obs, rewards, terms, truncs, _ = env.step(actions)
+                env._dgtd_last_obs = obs
+                states[t, b] = self.current[b]
+                r[t, b] = self._rewards(rewards)
+                nexts[t, b] = env_state(env, self.agents)
+                ended = any(terms.get(a, False) for a in self.agents) or not env.agents
+                cont_next[t, b] = 0.0 if any(terms.get(a, False) for a in self.agents) else 1.0
+                if ended or any(truncs.get(a, False) for a in self.agents):
+                    self.current[b] = self._reset(env, gen)
+                else:
+                    self.current[b] = nexts[t, b]
+        rows = np.stack(list(states.ravel()) + list(nexts.ravel()))
+        phi = np.asarray(self.features(rows), dtype=np.float64)
+        if phi.ndim != 2 or phi.shape[0] != len(rows) or not np.isfinite(phi).all():
+            raise DgtdInputError(f"the features of {len(rows)} states came out with shape {np.shape(phi)}"
+                                 f"{'' if np.isfinite(phi).all() else ' and NaN or infinite entries'}; features(states "
+                                 "(K, dim)) must return finite (K, q)")
+        M = T * B
+        index = np.arange(M).reshape(T, B, 1)
+        table = SampleTable(phi, np.ones((2 * M, 1)), np.concatenate([np.ones(M), cont_next.ravel()]))
+        return Block(index, np.zeros_like(index), index + M, r, up, table)
+
+    def _rewards(self, rewards: dict) -> np.ndarray:
+        r = self.reward_map(rewards) if self.reward_map is not None else [rewards.get(a, 0.0) for a in self.agents]
+        r = np.asarray(r, dtype=np.float64)
+        if r.shape != (len(self.agents),) or not np.isfinite(r).all():
+            raise DgtdInputError(f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a "
+                                 "finite reward")
+        return r
+
+    def get_state(self) -> dict:
+        return {}  # a simulator's state cannot be saved: runs on environments take no checkpoints
+
+    def set_state(self, state: dict) -> None:
+        raise DgtdInputError("a run on an environment cannot be resumed from a checkpoint; run it again")
+
+
+def reference_from_env(make_source: Callable, n_features: int, gamma: float, name: str, steps: int, groups: int = 8,
+                       block: int = 2048):
+    """The LSTD reference (`dgtd.problems.reference.estimate`) from ``groups`` independent sources of ``steps``
+    steps each: ``make_source(group)`` returns a fresh `EnvSource` whose streams are separate from the run's."""
+    from dgtd.problems.reference import MomentSums, estimate
+
+    sums = []
+    for g in range(int(groups)):
+        source = make_source(g)
+        source.start()
+        acc = MomentSums(len(source.agents), n_features)
+        done = 0
+        while done < steps:
+            T = min(block, steps - done)
+            blk = source.next_block(T)
+            tab = blk.table
+            s, sn = blk.s.ravel(), blk.s_next.ravel()
+            r = blk.r.reshape(-1, blk.r.shape[-1])
+            acc.add(tab.phi[s], tab.phi[sn], r, gamma * tab.continuing[s] * tab.continuing[sn], tab.ratio[s, 0])
+            done += T
+        sums.append(acc)
+    return estimate(name, gamma, sums)
