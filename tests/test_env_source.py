@@ -71,7 +71,10 @@ def source(seed, seed_ids, offset=0):
 
 @pytest.fixture(scope="module")
 def reference():
-    return reference_from_env(lambda g: source(123, [g], offset=10_000), 4, GAMMA, "chain", steps=20_000, groups=8)
+    reference, links = reference_from_env(lambda g: source(123, [g], offset=10_000), 4, GAMMA, "chain", steps=20_000,
+                                          groups=8)
+    assert np.allclose(links, 0.8, atol=0.01)  # each link up with probability 0.8: 160,000 draws each
+    return reference
 
 
 def test_the_estimated_reference_matches_the_exact_w_star_within_its_standard_error(reference):
@@ -115,3 +118,20 @@ def test_features_of_the_wrong_shape_or_nan_are_refused():
     nan.start()
     with pytest.raises(DgtdInputError, match="NaN"):
         nan.next_block(10)
+
+
+@pytest.mark.slow
+def test_mpe_spread_runs_from_the_command_line_and_says_its_reference_is_estimated(run_cli, tmp_path):
+    """A short `dgtd run mpe-spread` (MPE2's simple_spread, 3 particles linked within a radius): it writes the
+    numbers and says in summary.json that the reference is estimated, and how precisely."""
+    import json
+
+    pytest.importorskip("mpe2", reason="MPE2 is part of the environment extra")
+    out = tmp_path / "mpe"
+    code, text, err = run_cli("run", "mpe-spread", "-T", "600", "--no-plots", "--no-progress", "--out", out)
+    assert code == 0, err
+    assert "w* is estimated (no model)" in text
+    summary = json.loads((out / "summary.json").read_text())
+    ref = summary["reference"]
+    assert ref["estimated"] and ref["transitions"] == 32_000 and 0 < ref["value_stderr_relative"] < 0.05
+    assert len(summary["w_star"]) == 7 and summary["stationary_distribution"] is None

@@ -155,7 +155,8 @@ def run(ctx, scenario, resume_dir, **_):
     links = network.describe()
     if scenario_of(job.resolved) is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
-    click.echo(f"{problem.name}: {problem.n_states} states, {problem.n_agents} agents, {problem.n_features} features, "
+    states = f"{problem.n_states} states" if hasattr(problem, "P") else "a simulator (no model: estimated reference)"
+    click.echo(f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, "
                f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
     click.echo(f"{describe_algorithm(algorithm)}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
                f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
@@ -222,6 +223,12 @@ def final_table(result) -> str:
                     f"{e_avg[0, i]:>8.2%}  {e_tail[0, i]:>10.2%}")
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
     moments = result.info.get("moments")
+    if moments is not None and not getattr(moments, "model", True):
+        est = moments.problem.summary()
+        rows.insert(0, f"w* is estimated (no model): LSTD with ridge {est['ridge']:.2g} on {est['transitions']:,} "
+                       f"independent transitions in {est['groups']} groups; its standard error is "
+                       f"{est['value_stderr_relative']:.2%} of |Phi w*|_d in values ({est['w_star_stderr_relative']:.2%}"
+                       " of |w*|_inf in weights)")
     if moments is not None:
         v = {k: exact.value_error(moments, W, ref).max() for k, W in
              (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))}

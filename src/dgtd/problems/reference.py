@@ -142,13 +142,22 @@ class EstimatedProblem:
         G = len(self.groups)
         return self.groups.std(axis=0, ddof=1) / np.sqrt(G) if G > 1 else np.full(self.n_features, np.nan)
 
+    @property
+    def value_stderr(self) -> float:
+        """The standard error of the reference's values, |Phi (w*_hat - w*)|_d, relative to |Phi w*|_d: from the
+        spread of the groups' w* in the d-weighted norm, sqrt(sum_g |Phi (w_g - mean)|_d^2 / (G (G - 1)))."""
+        G, M = len(self.groups), self.moments.M
+        dev = self.groups - self.groups.mean(axis=0)
+        spread = float(np.einsum("gi,ij,gj->", dev, M, dev)) / (G * (G - 1)) if G > 1 else float("nan")
+        return float(np.sqrt(spread / max(float(self.w_star @ M @ self.w_star), 1e-300)))
+
     def summary(self) -> dict:
         """What summary.json says of the reference: that it is estimated, from how much, and how precisely."""
         w, se = self.w_star, self.w_star_stderr
         scale = max(float(np.abs(w).max()), 1e-300)
         return {"estimated": True, "method": "LSTD with a ridge", "ridge": self.ridge, "transitions": self.transitions,
                 "groups": len(self.groups), "w_star_stderr": se.tolist(),
-                "w_star_stderr_relative": float(np.abs(se).max() / scale)}
+                "w_star_stderr_relative": float(np.abs(se).max() / scale), "value_stderr_relative": self.value_stderr}
 
     # duck-typed Problem fields
     @property

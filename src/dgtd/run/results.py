@@ -158,7 +158,8 @@ def summary(result: RunResult, config: dict) -> dict:
         "max_value_error_last": float(np.max(verr(result.w_last))),
         "max_value_error_avg": float(np.max(verr(result.w_avg))),
         "max_value_error_tail": float(np.max(verr(result.w_tail))),
-        **(true_value_errors(moments, result) if getattr(moments, "model", True) else {}),
+        **(true_value_errors(moments, result) if getattr(moments, "model", True) else
+           {"reference": moments.problem.summary()}),  # no model: the reference is estimated, and says how well
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "kkt_residuals_last": result.kkt_last,

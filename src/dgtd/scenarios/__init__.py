@@ -173,6 +173,13 @@ COMPARE_STEPS: dict[str, dict] = {
                "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 3.0}},
 }
 
+def mpe_spread_scenario(agents: int = 3, radius: float = 1.0, iterations: int = 60_000) -> Scenario:
+    """MPE2 simple_spread: N particles (3) cover N landmarks, linked within a radius; estimated reference (LSTD)."""
+    from dgtd.scenarios.mpe import mpe_spread
+
+    return mpe_spread(agents=agents, radius=radius, iterations=iterations)
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-example-1": paper_example_1,
     "paper-example-2": paper_example_2,
@@ -181,6 +188,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "random-mdp": random_mdp_scenario,
     "random-mdp-off": random_mdp_off_scenario,
     "garnet": garnet_scenario,
+    "mpe-spread": mpe_spread_scenario,
 }
 
 

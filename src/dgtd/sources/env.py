@@ -160,11 +160,12 @@ class EnvSource:
 
 def reference_from_env(make_source: Callable, n_features: int, gamma: float, name: str, steps: int, groups: int = 8,
                        block: int = 2048):
-    """The LSTD reference (`dgtd.problems.reference.estimate`) from ``groups`` independent sources of ``steps``
-    steps each: ``make_source(group)`` returns a fresh `EnvSource` whose streams are separate from the run's."""
+    """(the LSTD reference, how often each link was up): `dgtd.problems.reference.estimate` from ``groups``
+    independent sources of ``steps`` steps each; ``make_source(group)`` returns a fresh `EnvSource` whose streams are
+    separate from the run's. The link frequencies give the mean graph of a proximity network."""
     from dgtd.problems.reference import MomentSums, estimate
 
-    sums = []
+    sums, up, count = [], 0.0, 0
     for g in range(int(groups)):
         source = make_source(g)
         source.start()
@@ -177,6 +178,7 @@ def reference_from_env(make_source: Callable, n_features: int, gamma: float, nam
             s, sn = blk.s.ravel(), blk.s_next.ravel()
             r = blk.r.reshape(-1, blk.r.shape[-1])
             acc.add(tab.phi[s], tab.phi[sn], r, gamma * tab.continuing[s] * tab.continuing[sn], tab.ratio[s, 0])
+            up, count = up + blk.up.sum(axis=(0, 1)), count + blk.up.shape[0] * blk.up.shape[1]
             done += T
         sums.append(acc)
-    return estimate(name, gamma, sums)
+    return estimate(name, gamma, sums), up / max(count, 1)
