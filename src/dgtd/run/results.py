@@ -144,20 +144,10 @@ def summary(result: RunResult, config: dict) -> dict:
         "w_avg": result.w_avg.tolist(),
         "w_tail": result.w_tail.tolist(),
         "tail_window": result.tail_window,
-        "error_last": rel(result.w_last),
-        "error_avg": rel(result.w_avg),
-        "error_tail": rel(result.w_tail),
-        "max_error_last": float(np.max(rel(result.w_last))),
-        "max_error_avg": float(np.max(rel(result.w_avg))),
-        "max_error_tail": float(np.max(rel(result.w_tail))),
+        **per_output("error", rel, result),
         # the d-weighted value error (RMSVE relative to |Phi w*|_d; `exact.value_error`), and the error to the true
         # value function, which the features may not represent
-        "value_error_last": verr(result.w_last),
-        "value_error_avg": verr(result.w_avg),
-        "value_error_tail": verr(result.w_tail),
-        "max_value_error_last": float(np.max(verr(result.w_last))),
-        "max_value_error_avg": float(np.max(verr(result.w_avg))),
-        "max_value_error_tail": float(np.max(verr(result.w_tail))),
+        **per_output("value_error", verr, result),
         **(true_value_errors(moments, result) if getattr(moments, "model", True) else
            {"reference": moments.problem.summary()}),  # no model: the reference is estimated, and says how well
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
@@ -169,6 +159,14 @@ def summary(result: RunResult, config: dict) -> dict:
         "seconds": result.seconds,
         "config": config,
     }
+
+
+def per_output(name: str, error, result: RunResult) -> dict:
+    """NAME_last, NAME_avg, NAME_tail (each agent's ``error`` of the last, averaged and tail-averaged iterates, per
+    seed), then max_NAME_... (the worst over seeds and agents)."""
+    outputs = (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))
+    out = {f"{name}_{k}": error(W) for k, W in outputs}
+    return out | {f"max_{name}_{k}": float(np.max(out[f"{name}_{k}"])) for k, _ in outputs}
 
 
 def true_value_errors(moments, result: RunResult) -> dict:
