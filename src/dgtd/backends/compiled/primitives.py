@@ -99,8 +99,15 @@ def model_arrays(ctx, blk: Block) -> tuple:
     """(s, a, s_next, r) of the block and the problem's (Phi, ratio table, gamma, continuing flags c): what every
     kernel reads; a transition s -> s' discounts by gamma c(s) c(s') (`discount`)."""
     Phi, ratio = (ctx.Phi, ctx.ratio) if blk.table is None else blk.table[:2]
-    return (blk.s, blk.a, blk.s_next, blk.r, np.ascontiguousarray(Phi, np.float64), np.ascontiguousarray(ratio),
-            float(ctx.gamma), continuing_flags(ctx, blk))
+    return blk.s, blk.a, blk.s_next, blk.r, readonly(Phi), readonly(ratio), float(ctx.gamma), continuing_flags(ctx, blk)
+
+
+def readonly(x) -> np.ndarray:
+    """A C-contiguous float64 read-only view, as the model's arrays are: numba compiles a kernel once per array
+    type, and a writable array is another type, so a block's own rows would otherwise cost a second compilation."""
+    view = np.ascontiguousarray(x, np.float64).view()
+    view.setflags(write=False)
+    return view
 
 
 def continuing_flags(ctx, blk: Block | None = None) -> np.ndarray:

@@ -22,7 +22,7 @@ from dgtd.algorithms.dgtd import DGTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.graph import per_run, storage_graph, storage_order
-from dgtd.backends.compiled.primitives import continuing_flags, discount
+from dgtd.backends.compiled.primitives import continuing_flags, discount, readonly
 from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.compiled.simd import dot, neighbour_sums
 from dgtd.samples import Draws
@@ -240,7 +240,7 @@ def feature_arrays(ctx, blk=None):
         rows, cols = np.nonzero(Phi)  # row-major order: CSR rows without importing scipy.sparse
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=Phi.shape[0]))]).astype(np.int64)
         sparse = rows.size <= Phi.size // 4
-        dense = np.zeros((1, Phi.shape[1])) if sparse else Phi
+        dense = np.zeros((1, Phi.shape[1])) if sparse else readonly(Phi)  # the model's Phi is read-only too
         return dense, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64)
 
     if blk is not None and getattr(blk, "table", None) is not None:
@@ -280,7 +280,7 @@ def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
     params = (float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), *(float(x) for x in boxes))
     ratio = ctx.ratio if getattr(blk, "table", None) is None else blk.table.ratio  # `Draws` have no table
     args = (np.ascontiguousarray(alphas), sampler, (*feature_arrays(ctx, blk), continuing_flags(ctx, blk)),
-            np.ascontiguousarray(ratio), storage_graph(ctx), params)
+            readonly(ratio), storage_graph(ctx), params)
     if by_agent(B, N, q):
         steps = _dgtd_by_agent(arrays, shared, q, *args, 4 * get_num_threads())
     else:
