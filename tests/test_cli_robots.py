@@ -10,6 +10,7 @@ from dgtd.config import RunSpec, make_source, resolve
 from dgtd.scenarios.robots import PatrolSource
 
 
+@pytest.mark.slow  # the whole scenario end to end with its figures and GIF: about 30 s
 def test_run_paper_example_2_writes_maps_pictures_and_summary(tmp_path, capsys):
     out = tmp_path / "pe2"
     main(["run", "paper-example-2", "-T", "3000", "--seeds", "2", "--checkpoints", "30", "--no-progress",
