@@ -136,8 +136,10 @@ def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges, saddl
                                      f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or leave "
                                      "the boxes to dgtd")
         return boxes, {}
-    if not getattr(moments, "model", True):  # estimated moments: no Lemma 2, the boxes come from the saddle point
-        return tuple(algorithm.box_scale * x for x in needed), {}
+    if not getattr(moments, "model", True):
+        # Estimated moments: no Lemma 2 without a model, and box_scale x |x*| could pin a variable whose saddle value
+        # is near 0 (v* = 0 always): no projection, which only bounds the early transient
+        return (np.inf,) * 4, {}
     max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
     c = exact.lemma_bounds(moments, network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N), max_degree)
     lemma = tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
