@@ -9,9 +9,10 @@ particles' motion, as in the paper's Example 2.
 
 The value function is linear in features of the global state (`spread_features`): a constant, and for each
 landmark the distance to its nearest particle and its square: the reward is minus the sum of those distances, so
-the values are close to linear in them. DGTD ends within 5 % of the reference after 60,000 steps (docs/environments.md);
-these features are collinear, which makes gradient TD slower here than TD(0), which gets within 1.5 %. There is no model: the reference is LSTD on independent episodes
-(`dgtd.sources.env.reference_from_env`), and the mean graph (for mu* and the connectivity check) is the link
+the values are close to linear in them. DGTD ends within 5 % of the reference after 60,000 steps
+(docs/environments.md); the features are collinear, which makes gradient TD slower here than TD(0) (1.5 %).
+
+There is no model: the reference is LSTD on independent episodes (`dgtd.sources.env.reference_from_env`), and the mean graph (for mu* and the connectivity check) is the link
 frequencies measured on those episodes. Episodes last 25 steps (MPE2's default); a time limit is not terminal,
 so the TD target bootstraps from the state reached.
 """
