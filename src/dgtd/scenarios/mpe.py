@@ -12,9 +12,9 @@ landmark the distance to its nearest particle and its square: the reward is minu
 the values are close to linear in them. DGTD ends within 5 % of the reference after 60,000 steps
 (docs/environments.md); the features are collinear, which makes gradient TD slower here than TD(0) (1.5 %).
 
-There is no model: the reference is LSTD on independent episodes (`dgtd.sources.env.reference_from_env`), and the mean graph (for mu* and the connectivity check) is the link
-frequencies measured on those episodes. Episodes last 25 steps (MPE2's default); a time limit is not terminal,
-so the TD target bootstraps from the state reached.
+There is no model: the reference is LSTD on independent episodes (`dgtd.sources.env.reference_from_env`), and
+the mean graph (for mu* and the connectivity check) is the link frequencies measured on those episodes. Episodes
+last 25 steps (MPE2's default); a time limit is not terminal, so the TD target bootstraps from the state reached.
 """
 
 from __future__ import annotations
