@@ -202,14 +202,19 @@ def check_size(problem) -> None:
             f"{limit:g} GB; use fewer states or features, or raise the limit with DGTD_MEMORY_LIMIT_GB")
 
 
-def with_reward_noise(problem: Problem, reward_noise: str) -> Problem:
-    """The same problem with another way of drawing rewards, checked as `make_problem` checks it."""
+def check_reward_noise(reward_noise: str, R_transition) -> None:
+    """A known way of drawing rewards, and rewards per transition where it draws those."""
     if reward_noise not in REWARD_NOISES:
         raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
-    if reward_noise == "transition" and problem.R_transition is None:
+    if reward_noise == "transition" and R_transition is None:
         raise DgtdInputError("reward noise 'transition' draws the reward of each sampled transition r(s, a, s'), but "
                              "this problem gives rewards per state (and action) only; give rewards of shape "
                              "(N, S, A, S) in a multi-agent MDP, or choose another reward noise")
+
+
+def with_reward_noise(problem: Problem, reward_noise: str) -> Problem:
+    """The same problem with another way of drawing rewards, checked as `make_problem` checks it."""
+    check_reward_noise(reward_noise, problem.R_transition)
     return replace(problem, reward_noise=reward_noise)
 
 
@@ -316,10 +321,7 @@ def make_problem(
         if not np.allclose(np.einsum("sat,nsat->nsa", P_sa, R_transition)[:, beta > 0], R_sample[:, beta > 0],
                            atol=1e-8 * max(1.0, np.abs(R_sample).max())):
             raise DgtdInputError("R_sample must be the expectation of R_transition over the next state")
-    if reward_noise == "transition" and R_transition is None:
-        raise DgtdInputError("reward noise 'transition' draws the reward of each sampled transition r(s, a, s'), but "
-                             "this problem gives rewards per state (and action) only; give rewards of shape "
-                             "(N, S, A, S) in a multi-agent MDP, or choose another reward noise")
+    check_reward_noise(reward_noise, R_transition)
     P_beh = P_sample.sum(axis=1)
     check_irreducible("the behaviour chain" if A > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
     if not signed_rewards and (np.any(R < 0) or np.any(R_sample < 0)):
@@ -331,8 +333,6 @@ def make_problem(
     sigma = float(sigma)
     if not np.isfinite(sigma) or sigma <= 0 or sigma < r_max - 1e-12:
         raise DgtdInputError(f"sigma must be positive and at least the largest mean reward {r_max:g}, got {sigma}")
-    if reward_noise not in REWARD_NOISES:
-        raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
     if signed_rewards and reward_noise not in ("none", "transition"):
         raise DgtdInputError("reward noise draws rewards in [0, sigma]; a problem with signed rewards needs reward_noise='none'")
     if w0 is not None:

@@ -98,8 +98,15 @@ def f64(x) -> np.ndarray:
 def model_arrays(ctx, blk: Block) -> tuple:
     """(s, a, s_next, r) of the block and the problem's (Phi, ratio table, gamma, continuing flags c): what every
     kernel reads; a transition s -> s' discounts by gamma c(s) c(s') (`discount`)."""
-    Phi, ratio = (ctx.Phi, ctx.ratio) if blk.table is None else blk.table[:2]
+    Phi, ratio = rows_of(ctx, blk)
     return blk.s, blk.a, blk.s_next, blk.r, readonly(Phi), readonly(ratio), float(ctx.gamma), continuing_flags(ctx, blk)
+
+
+def rows_of(ctx, blk) -> tuple:
+    """(Phi, ratio table) the block's indices point into: its own rows (`SampleTable`), else the model's; a `Draws`
+    (samples drawn inside the kernel from the model) has no rows of its own."""
+    table = getattr(blk, "table", None)
+    return (ctx.Phi, ctx.ratio) if table is None else (table.phi, table.ratio)
 
 
 def readonly(x) -> np.ndarray:

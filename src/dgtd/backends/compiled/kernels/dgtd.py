@@ -22,7 +22,7 @@ from dgtd.algorithms.dgtd import DGTDState
 from dgtd.backends.compiled import kernel
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.graph import per_run, storage_graph, storage_order
-from dgtd.backends.compiled.primitives import continuing_flags, discount, readonly
+from dgtd.backends.compiled.primitives import continuing_flags, discount, readonly, rows_of
 from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.compiled.simd import dot, neighbour_sums
 from dgtd.samples import Draws
@@ -243,8 +243,8 @@ def feature_arrays(ctx, blk=None):
         dense = np.zeros((1, Phi.shape[1])) if sparse else readonly(Phi)  # the model's Phi is read-only too
         return dense, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64)
 
-    if blk is not None and getattr(blk, "table", None) is not None:
-        return build(blk.table.phi)
+    if getattr(blk, "table", None) is not None:
+        return build(rows_of(ctx, blk)[0])
     return per_run(ctx, "phi", build)
 
 
@@ -278,7 +278,7 @@ def dgtd_block(ctx, state, w_sum, alphas: np.ndarray, blk):
     sampler = sample_args(ctx, blk, B)
     boxes = (np.inf,) * 4 if algorithm.boxes is None else algorithm.boxes
     params = (float(ctx.gamma), float(algorithm.kappa), float(algorithm.rho), *(float(x) for x in boxes))
-    ratio = ctx.ratio if getattr(blk, "table", None) is None else blk.table.ratio  # `Draws` have no table
+    ratio = rows_of(ctx, blk)[1]
     args = (np.ascontiguousarray(alphas), sampler, (*feature_arrays(ctx, blk), continuing_flags(ctx, blk)),
             readonly(ratio), storage_graph(ctx), params)
     if by_agent(B, N, q):
