@@ -126,9 +126,9 @@ class EnvSource:
                 states[t, b] = self.current[b]
                 r[t, b] = self._rewards(rewards)
                 nexts[t, b] = env_state(env, self.agents)
-                ended = any(terms.get(a, False) for a in self.agents) or not env.agents
-                cont_next[t, b] = 0.0 if any(terms.get(a, False) for a in self.agents) else 1.0
-                if ended or any(truncs.get(a, False) for a in self.agents):
+                terminated = any(terms.get(a, False) for a in self.agents)
+                cont_next[t, b] = 0.0 if terminated else 1.0  # a terminal transition's target is its reward alone
+                if terminated or not env.agents or any(truncs.get(a, False) for a in self.agents):
                     self.current[b] = self._reset(env, gen)
                 else:
                     self.current[b] = nexts[t, b]
