@@ -11,7 +11,7 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.run.loop import RunSettings, run
-from dgtd.sources.data import DataSource, read_transitions, reference_from_data
+from dgtd.sources.data import DataSource, TransitionFile
 from dgtd.sources.model import ModelSource, Sampling, SamplerTables
 
 
@@ -47,7 +47,7 @@ def recorded(tmp_path_factory, ):
 def test_recorded_transitions_give_the_models_w_star(recorded):
     """8 recordings x 20,000 steps x 3 agents: the LSTD reference within 4 standard errors of the exact w*."""
     problem, path = recorded
-    ref = reference_from_data(read_transitions(path), problem.gamma)
+    ref = TransitionFile(path).reference(problem.gamma)
     w = exact.w_star(exact.Moments(problem))
     assert np.all(np.abs(ref.w_star - w) <= 4 * ref.w_star_stderr + 1e-9), (ref.w_star, w, ref.w_star_stderr)
 
@@ -55,10 +55,10 @@ def test_recorded_transitions_give_the_models_w_star(recorded):
 def test_dgtd_on_the_recordings_reaches_the_reference(recorded):
     """Each recording is a seed; DGTD's tail average within 3 % of the reference in value error (2 seeds)."""
     problem, path = recorded
-    cols = read_transitions(path)
-    ref = reference_from_data(cols, problem.gamma)
+    data = TransitionFile(path)
+    ref = data.reference(problem.gamma)
     result = run(ref, random_edges(topologies.ring(3), 1.0), make_algorithm("dgtd"), Sampling(),
-                 RunSettings(iterations=20_000, seeds=2, checkpoints=5), source=DataSource(cols, seed_ids=[0, 1]))
+                 RunSettings(iterations=20_000, seeds=2, checkpoints=5), source=DataSource(data, seed_ids=[0, 1]))
     assert result.metrics["value_error_tail"][-1].max() < 0.03
 
 
@@ -75,7 +75,7 @@ def test_a_bad_transitions_file_is_one_line(tmp_path, change, words):
     change(cols)
     np.savez(tmp_path / "t.npz", **cols)
     with pytest.raises(DgtdInputError, match=words.replace("(", r"\(").replace(")", r"\)")):
-        read_transitions(tmp_path / "t.npz")
+        TransitionFile(tmp_path / "t.npz")
 
 
 def test_a_recording_with_a_missing_row_is_refused(tmp_path):
@@ -85,9 +85,42 @@ def test_a_recording_with_a_missing_row_is_refused(tmp_path):
     keep = np.ones(len(cols["seed"]), bool)
     keep[3] = False
     with pytest.raises(DgtdInputError, match="every agent at every step"):
-        DataSource({k: v[keep] for k, v in read_transitions_from(cols, tmp_path).items()})
+        TransitionFile(save({k: v[keep] for k, v in cols.items()}, tmp_path / "t.npz"))
 
 
-def read_transitions_from(cols, tmp_path):
-    np.savez(tmp_path / "t.npz", **cols)
-    return read_transitions(tmp_path / "t.npz")
+def save(cols: dict, path):
+    np.savez(path, **cols)
+    return path
+
+
+def test_a_repeated_row_in_place_of_a_missing_one_is_refused(tmp_path):
+    from dgtd.problems.tasks import garnet
+
+    cols = record(garnet(n_states=5, branching=2, n_agents=2, n_features=3, seed=0), seeds=2, steps=10)
+    cols["step"][3] = cols["step"][5]  # the counts still match; one cell twice, another never
+    cols["agent"][3] = cols["agent"][5]
+    with pytest.raises(DgtdInputError, match="a row is repeated and another missing"):
+        TransitionFile(save(cols, tmp_path / "t.npz"))
+
+
+def test_a_file_read_in_small_batches_gives_the_same_rows_in_every_format(tmp_path, monkeypatch):
+    """Parquet and CSV are streamed in batches of BATCH_ROWS rows; with 100-row batches (and the rows shuffled,
+    so that a batch mixes recordings and steps) the disk-backed rows and the reference equal those of one .npz."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+    import pyarrow.parquet as pq
+
+    import dgtd.sources.data as data
+    from dgtd.problems.tasks import garnet
+
+    cols = record(garnet(n_states=5, branching=2, n_agents=3, n_features=3, seed=0), seeds=3, steps=200)
+    order = np.random.default_rng(0).permutation(len(cols["seed"]))
+    cols = {k: v[order] for k, v in cols.items()}
+    whole = TransitionFile(save(cols, tmp_path / "t.npz"))
+    monkeypatch.setattr(data, "BATCH_ROWS", 100)
+    pq.write_table(pa.table(cols), tmp_path / "t.parquet", row_group_size=100)
+    pcsv.write_csv(pa.table(cols), tmp_path / "t.csv")
+    for name in ("t.parquet", "t.csv"):
+        part = TransitionFile(tmp_path / name)
+        np.testing.assert_array_equal(np.asarray(part.rows), np.asarray(whole.rows))
+        np.testing.assert_allclose(part.reference(0.9).w_star, whole.reference(0.9).w_star, rtol=1e-12)

@@ -12,6 +12,7 @@ import inspect
 import types
 import typing
 from dataclasses import asdict, dataclass, fields, replace
+from functools import lru_cache
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
@@ -26,7 +27,8 @@ from dgtd.sources.model import Sampling
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One run, as data. ``scenario`` or ``problem_file`` names the problem.
+    """One run, as data. ``scenario``, ``problem_file``, ``env`` (the fields of `dgtd.scenarios.user.EnvSpec`: a
+    user's simulator) or ``data`` (a transitions file) names the problem; ``gamma`` is the discount of the last two.
 
     ``algorithm`` names an entry of `dgtd.algorithms.ALGORITHMS` (default: the scenario's); ``alpha0`` ..
     ``rho`` set the fields of that name of its config and ``algorithm_params`` any other field (e.g.
@@ -37,6 +39,9 @@ class RunSpec:
 
     scenario: str | None = None
     problem_file: str | None = None
+    env: dict | None = None
+    data: str | None = None
+    gamma: float | None = None
     graph: str | None = None
     edge_prob: float | None = None
     iterations: int | None = None
@@ -131,14 +136,23 @@ def _network(graph: str, n_agents: int, edge_prob: float):
     return random_edges(base, edge_prob)
 
 
+PROBLEM_FIELDS = ("scenario", "problem_file", "env", "data")
+
+
 def resolve(spec: RunSpec):
     """(problem, network, algorithm, sampling, settings, resolved spec) for a spec."""
-    if (spec.scenario is None) == (spec.problem_file is None):
-        raise DgtdInputError("name exactly one problem: a scenario (e.g. paper-example-1) or --problem FILE.npz")
-    params = None
+    given = [name for name in PROBLEM_FIELDS if getattr(spec, name) is not None]
+    if len(given) != 1:
+        raise DgtdInputError("name exactly one problem: a scenario (e.g. paper-example-1), --problem FILE.npz, "
+                             "--env module:make_env or --data FILE" + (f" (got {', '.join(given)})" if given else ""))
+    params, env = None, None
+    if spec.gamma is not None and spec.env is None and spec.data is None:
+        raise DgtdInputError("gamma is the discount of an --env or --data run; a scenario or problem file has its own")
+    if spec.gamma is not None and not 0.0 <= spec.gamma <= 1.0:
+        raise DgtdInputError(f"gamma must be in [0, 1] (1 only for episodes that end), got {spec.gamma}")
     if spec.scenario is not None:
         kwargs, params, edge_prob = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)
-        sc = get_scenario(spec.scenario, **kwargs)
+        sc = scenario_of(spec)
         problem, network, algorithm, sampling, iterations = sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations
         graph = None  # the scenario's own network, rebuilt from the same parameters
         if sc.source is not None:
@@ -149,12 +163,27 @@ def resolve(spec: RunSpec):
             network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
         if spec.reward_noise not in (None, problem.reward_noise):
             problem = with_reward_noise(problem, spec.reward_noise)
-    else:
+    elif spec.problem_file is not None:
         if spec.params:
             raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")
         problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
         graph, edge_prob, iterations = "ring", 1.0, 100_000
         algorithm, sampling, network = DGTD(), Sampling(), None
+    else:
+        if spec.params:
+            raise DgtdInputError("params are a scenario's parameters; an --env run takes its settings in [env]")
+        env = None if spec.env is None else asdict(env_spec(spec.env))
+        spec = replace(spec, env=env, gamma=DEFAULT_GAMMA if spec.gamma is None else spec.gamma)
+        sc = scenario_of(spec)
+        _refuse_model_overrides(spec, sc, graph_applies=True)
+        problem, network, algorithm, sampling, iterations = sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations
+        proximity = env is not None and env["positions"] is not None
+        if proximity and (spec.graph is not None or spec.edge_prob is not None):
+            raise DgtdInputError("this env links its agents by their positions (env.positions, env.radius); --graph "
+                                 "and --edge-prob do not apply")
+        graph, edge_prob = (None, None) if proximity else (spec.graph or "ring", _edge_prob(spec))
+        if spec.data is not None:
+            _check_recordings(spec, sc)
     if spec.graph is not None or network is None:
         graph = spec.graph or graph
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
@@ -170,28 +199,114 @@ def resolve(spec: RunSpec):
         spec, graph=graph, edge_prob=edge_prob, iterations=settings.iterations,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
         sampling=sampling.mode, shared=sampling.shared, reward_noise=problem.reward_noise, algorithm=algorithm.name,
-        params=params,
+        params=params, env=_plain_env(env),
         algorithm_params={k: _plain(getattr(algorithm, k)) for k in own
                           if k not in ALGORITHM_FIELDS and getattr(algorithm, k) is not None} or None,
     )
     return problem, network, algorithm, sampling, settings, resolved
 
 
-def _refuse_model_overrides(spec: RunSpec, sc) -> None:
+DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given
+
+
+def _edge_prob(spec: RunSpec) -> float:
+    return 1.0 if spec.edge_prob is None else spec.edge_prob
+
+
+def env_spec(table: dict):
+    """The `EnvSpec` of an [env] table (or the --env flags), each field checked: unknown ones name the closest."""
+    from dgtd.scenarios.user import EnvSpec
+
+    types = field_types(EnvSpec)
+    for key in table:
+        if key not in types:
+            raise DgtdInputError(f"unknown field {key!r} in [env]{closest(key, types)} (its fields: {', '.join(types)})")
+    values = {k: check_type(f"env.{k}", v, types[k]) for k, v in table.items() if v is not None}
+    for key in ("agents", "reference_steps", "reference_groups", "pilot_steps"):
+        if values.get(key) is not None and values[key] < (2 if key in ("agents", "reference_groups") else 1):
+            raise DgtdInputError(f"env.{key} must be at least {2 if key in ('agents', 'reference_groups') else 1}, "
+                                 f"got {values[key]}")
+    if values.get("radius") is not None and values["radius"] <= 0:
+        raise DgtdInputError(f"env.radius must be > 0, got {values['radius']}")
+    return EnvSpec(**values)
+
+
+def _plain_env(env: dict | None) -> dict | None:
+    """An env table as TOML-ready data: None fields left out, a make given as a file path made absolute."""
+    if env is None:
+        return None
+    from pathlib import Path
+
+    out = {k: _plain(v) for k, v in env.items() if v is not None}
+    module, sep, name = out["make"].rpartition(":")
+    if module.endswith(".py"):
+        out["make"] = f"{Path(module).resolve()}:{name}"
+    return out
+
+
+def _check_recordings(spec: RunSpec, sc) -> None:
+    """A run on recordings takes one recording per seed and at most as many steps as they hold."""
+    data = sc.data
+    if spec.seeds > data.recordings:
+        raise DgtdInputError(f"{spec.data} holds {data.recordings} recordings, one per seed: run at most --seeds "
+                             f"{data.recordings}")
+    steps = data.steps(range(spec.seeds))
+    if spec.iterations is not None and spec.iterations > steps:
+        raise DgtdInputError(f"the first {spec.seeds} recordings of {spec.data} hold {steps:,} steps each (the "
+                             f"shortest): run at most --iterations {steps}")
+
+
+def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> None:
     """A scenario with its own sample source sets the links, states and rewards itself: flags that would change
-    them could not apply, so they are refused (values equal to the scenario's own, as recorded, are accepted)."""
-    own = {"--graph": None, "--sampling": sc.sampling.mode, "--shared": sc.sampling.shared,
+    them could not apply, so they are refused (values equal to the scenario's own, as recorded, are accepted).
+    The graph of a user's env or recordings is the run's (``graph_applies``)."""
+    own = {"--graph": spec.graph if graph_applies else None, "--sampling": sc.sampling.mode, "--shared": sc.sampling.shared,
            "--reward-noise": sc.problem.reward_noise}
     given = [flag for flag, value in (("--graph", spec.graph), ("--sampling", spec.sampling), ("--shared", spec.shared),
                                       ("--reward-noise", spec.reward_noise)) if value is not None and value != own[flag]]
     if given:
-        raise DgtdInputError(f"scenario {spec.scenario} simulates its own samples and links; {', '.join(given)} "
+        what = f"scenario {spec.scenario}" if spec.scenario else "an --env or --data run"
+        raise DgtdInputError(f"{what} simulates its own samples and links; {', '.join(given)} "
                              f"{'does' if len(given) == 1 else 'do'} not apply to it (leave {'it' if len(given) == 1 else 'them'} out)")
 
 
 def scenario_of(spec: RunSpec):
-    """The named `Scenario` of a spec (cached by its builder where building is costly), or None for a problem file."""
-    return None if spec.scenario is None else get_scenario(spec.scenario)
+    """The `Scenario` of a spec (built once per process for the same parameters), or None for a problem file."""
+    import json
+
+    if spec.scenario is not None:
+        kwargs = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)[0]
+        return _scenario(json.dumps({"scenario": spec.scenario, **kwargs}, sort_keys=True))
+    if spec.env is not None or spec.data is not None:
+        key = {"env": asdict(env_spec(spec.env)) if spec.env is not None else None, "data": spec.data,
+               "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma, "graph": spec.graph,
+               "edge_prob": spec.edge_prob}
+        if spec.data is not None:
+            from pathlib import Path
+
+            path = Path(spec.data)
+            key["data_stat"] = [path.stat().st_mtime_ns, path.stat().st_size] if path.is_file() else None
+        return _scenario(json.dumps(key, sort_keys=True))
+    return None
+
+
+@lru_cache(maxsize=4)
+def _scenario(key: str):
+    """The scenario a `scenario_of` key describes (its reference, for a simulator, is estimated once)."""
+    import json
+
+    from dgtd.scenarios.user import EnvSpec, data_scenario, env_scenario
+
+    d = json.loads(key)
+    if "scenario" in d:
+        return get_scenario(d.pop("scenario"), **d)
+
+    def network_for(n_agents: int):
+        return _network(d["graph"] or "ring", n_agents, 1.0 if d["edge_prob"] is None else d["edge_prob"])
+
+    if d["env"] is not None:
+        return env_scenario(EnvSpec(**d["env"]), d["gamma"], network_for)
+    return data_scenario(d["data"], d["gamma"], network_for)
 
 
 def make_source(spec: RunSpec, settings: RunSettings):

@@ -3,12 +3,16 @@
 An experiment file is a TOML serialisation of a `dgtd.config.RunSpec` plus the output options of
 ``dgtd run``, and for ``dgtd sweep`` a ``[grid]`` table and a ``[sweep]`` table::
 
-    scenario = "paper-example-1"        # or problem_file = "chain.npz"
+    scenario = "paper-example-1"        # or problem_file = "chain.npz", data = "transitions.parquet", or [env]
     algorithm = "dgtd"
     iterations = 20000
     seeds = 4
     alpha0 = 10.0
     out = "runs/example"                # output options: out, progress, plots, checkpoint_every, resume
+
+    [env]                               # a user's simulator: dgtd.scenarios.user.EnvSpec's fields
+    make = "mypackage.envs:make_env"    # (with gamma = 0.9 at the top level, as for data)
+    features = "fourier:3"
 
     [params]                            # the scenario's own parameters, if it has any
     [algorithm_params]                  # algorithm fields beyond alpha0, beta, schedule, kappa, rho
@@ -171,11 +175,27 @@ def load(path: str | Path) -> Experiment:
     return parse(data, str(path))
 
 
+ENV_FLAGS = {"env_make": "make", "features": "features", "policy": "policy", "split": "split"}
+"""Command-line options that set a field of the [env] table (--env, --features, --policy, --split)."""
+
+
 def override(exp: Experiment, values: dict) -> Experiment:
     """``exp`` with the given fields replaced (command-line flags), each routed to the spec, output or sweep
-    options; 'sweep.NAME' names a sweep option whose name a run option also has (resume)."""
+    options; 'sweep.NAME' names a sweep option whose name a run option also has (resume). The --env flags
+    (`ENV_FLAGS`) set fields of the [env] table, and ``agents`` sets env.agents in an env run, else the scenario's
+    parameter of that name."""
     parts = {"spec": {}, "output": {}, "sweep": {}}
+    env = {ENV_FLAGS[k]: v for k, v in values.items() if k in ENV_FLAGS}
+    agents = values.get("agents")
+    if env or exp.spec.env is not None:
+        if agents is not None:
+            env["agents"] = agents
+        parts["spec"]["env"] = {**(exp.spec.env or {}), **env}
+    elif agents is not None:
+        parts["spec"]["params"] = {**(exp.spec.params or {}), "agents": agents}
     for key, value in values.items():
+        if key in ENV_FLAGS or key == "agents":
+            continue
         if key.startswith("sweep.") and key[6:] in SWEEP_TYPES:  # e.g. sweep.resume, not the run's resume
             parts["sweep"][key[6:]] = value
         elif key in SPEC_TYPES:
@@ -197,6 +217,8 @@ def absolute_paths(spec: RunSpec) -> RunSpec:
     over = {}
     if spec.problem_file is not None:
         over["problem_file"] = str(Path(spec.problem_file).resolve())
+    if spec.data is not None:
+        over["data"] = str(Path(spec.data).resolve())
     if spec.graph is not None and spec.graph not in TOPOLOGIES:
         over["graph"] = str(Path(spec.graph).resolve())
     return replace(spec, **over)
@@ -208,7 +230,7 @@ def _drop_none(d: dict) -> dict:
 
 def to_data(exp: Experiment, *, output: bool = True, sweep: bool = True) -> dict:
     """The experiment as TOML-ready data (None fields left out: TOML has no null)."""
-    first = ["scenario", "problem_file", "algorithm"]  # what is run, then how
+    first = ["scenario", "problem_file", "data", "gamma", "algorithm"]  # what is run, then how
     names = first + [f.name for f in fields(RunSpec) if f.name not in first]
     data = _drop_none({name: getattr(exp.spec, name) for name in names})
     if output:

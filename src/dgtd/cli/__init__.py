@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from dgtd.config import CHOICES, RunSpec
+from dgtd.config import CHOICES, DEFAULT_GAMMA, RunSpec
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
 
@@ -79,9 +79,48 @@ def _spec_options(f):
         click.option("--tail-fraction", type=float, default=d("tail_fraction"), show_default=True, help="Final fraction of the run averaged for w_tail."),
         click.option("--block-size", type=int, default=d("block_size"), show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
     ]
-    for option in reversed(options):
+    for option in reversed(options + _env_options()):
         f = option(f)
     return _problem_options(f)
+
+
+def _split(ctx, param, value):
+    """--split: 'random' or shares 'w_1,...,w_N' (a list)."""
+    if value is None or value == "random":
+        return value
+    try:
+        return [float(x) for x in value.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"give 'random' or the agents' shares separated by commas, e.g. 0.5,0.3,0.2; got "
+                                 f"{value!r}") from None
+
+
+def _env_options() -> list:
+    """The user's own simulator (--env ...) or recordings (--data FILE); see docs/environments.md."""
+    from dgtd.scenarios.user import FEATURES_HELP, EnvSpec
+
+    return [
+        click.option("--env", "env_make", type=str, default=None, metavar="MODULE:FUNCTION",
+                     help="Run on your own simulator: a function returning a PettingZoo ParallelEnv or a Gymnasium env "
+                          "(module.path:make_env, path/to/file.py:make_env, or gymnasium:ENV-ID). More fields in "
+                          "an experiment file's [env] table."),
+        click.option("--features", type=str, default=None,
+                     help=f"The env's linear features: {FEATURES_HELP} (default {EnvSpec.features})."),
+        click.option("--policy", type=str, default=None,
+                     help=f"The env's policy: random, or module:function(agent, observation, space, rng) -> action "
+                          f"(default {EnvSpec.policy})."),
+        click.option("--agents", type=int, default=None,
+                     help="Number of agents: of the scenario (mpe-spread), of your env's function, or the agents a "
+                          "Gymnasium env's reward is split among."),
+        click.option("--split", type=str, default=None, callback=_split,
+                     help="How a Gymnasium env's one reward is split: random (fresh shares at every step, averaging to "
+                          "the reward) or the agents' shares, e.g. 0.5,0.3,0.2."),
+        click.option("--data", type=str, default=None, metavar="FILE",
+                     help="Run on recorded transitions (.parquet, .csv, .npz; columns seed, step, agent, phi_j, "
+                          "next_phi_j, reward, and optionally ratio, terminal): one recording per seed."),
+        click.option("--gamma", type=float, default=None,
+                     help=f"Discount factor of an --env or --data run (default {DEFAULT_GAMMA})."),
+    ]
 
 
 @cli.command()
@@ -139,10 +178,11 @@ def run(ctx, scenario, resume_dir, **_):
             what = "is not a directory" if not Path(resume_dir).is_dir() else f"holds no run (no {CONFIG})"
             raise DgtdInputError(f"--resume {resume_dir}: {what}; start a run there with `dgtd run SCENARIO --out "
                                  f"{resume_dir} --checkpoint-every K`, then resume it")
-        if file is None and "scenario" not in flags and "problem_file" not in flags:
+        if file is None and not PROBLEM_FLAGS & set(flags):
             file = str(Path(resume_dir) / CONFIG)
-    if file is None and "scenario" not in flags and "problem_file" not in flags:
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an EXPERIMENT.toml")
+    if file is None and not PROBLEM_FLAGS & set(flags):
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
+                             "module:make_env, --data FILE, or an EXPERIMENT.toml")
     import time
 
     t_start = time.perf_counter()
@@ -153,13 +193,15 @@ def run(ctx, scenario, resume_dir, **_):
         return
     problem, network, algorithm, samp, settings = job.problem, job.network, job.algorithm, job.sampling, job.settings
     links = network.describe()
-    if scenario_of(job.resolved) is not None and scenario_of(job.resolved).source is not None:
+    if job.resolved.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
-    states = f"{problem.n_states} states" if hasattr(problem, "P") else "a simulator (no model: estimated reference)"
+    states = f"{problem.n_states} states" if hasattr(problem, "P") else "no model (an estimated reference)"
     click.echo(f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, "
                f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
     click.echo(f"{describe_algorithm(algorithm)}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
                f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
+    if job.resolved.env is not None or job.resolved.data is not None:
+        click.echo(scenario_of(job.resolved).description)
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
@@ -185,6 +227,9 @@ def run(ctx, scenario, resume_dir, **_):
     click.echo(f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({t_saved - t_start:.1f} s in all: setup "
                f"{t_prepared - t_start:.1f} s, kernels {kernels:.1f} s, run {t_ran - t_prepared - kernels:.1f} s, "
                f"results and figures {t_saved - t_ran:.1f} s)")
+
+
+PROBLEM_FLAGS = {"scenario", "problem_file", "env_make", "data"}
 
 
 def describe_algorithm(algorithm) -> str:

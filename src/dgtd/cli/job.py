@@ -12,7 +12,7 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from dgtd.config import make_source, resolve, scenario_of, spec_record
+from dgtd.config import PROBLEM_FIELDS, make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
@@ -127,9 +127,9 @@ def prepare(exp: Experiment) -> PreparedRun:
     """Resolve an experiment, check a resume against its checkpoint, and write config.toml."""
     if exp.grid:
         raise DgtdInputError("this experiment has a [grid]: run it with `dgtd sweep FILE`")
-    if exp.spec.scenario is None and exp.spec.problem_file is None:
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, or an experiment "
-                             "file")
+    if all(getattr(exp.spec, name) is None for name in PROBLEM_FIELDS):
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
+                             "module:make_env, --data FILE, or an experiment file")
     problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(exp.spec))
     out = Path(exp.output.out) if exp.output.out else Path("runs") / problem.name
     out = out.resolve()

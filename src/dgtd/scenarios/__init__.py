@@ -40,6 +40,8 @@ class Scenario:
     report: Callable[..., tuple] | None = None
     """Optional ``report(result, source) -> (dict, text)`` after a run: scenario-specific numbers for summary.json
     (under "scenario") and lines to print; its figures, if any, are drawn by `dgtd.plots.scenario_figures`."""
+    data: object | None = None
+    """The `dgtd.sources.data.TransitionFile` of a run on recordings (how many there are, and how long)."""
     compare_settings: dict = field(default_factory=dict)
     """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario;
     for "dgtd" they override ``algorithm``'s only in comparisons (`dgtd.run.compare.configs_for`)."""

@@ -55,13 +55,14 @@ class EnvSource:
 
     ``make_env()`` returns a fresh ParallelEnv; ``features(states (K, dim)) -> (K, q)``; ``policy(agent,
     observation, space, rng) -> action`` or "random"; ``network``: a RandomEdges over the agents, or None with
-    ``positions`` and ``proximity``. ``seed_offset`` separates a reference batch's streams from the run's.
+    ``positions`` and ``proximity``. ``seed_offset`` separates a reference batch's streams from the run's;
+    ``n_features``: the width every batch of features must have, when known.
     """
 
     def __init__(self, make_env: Callable, features: Callable, seed: int, seed_ids, *, policy="random",
                  network=None, positions: Callable | None = None, proximity=None,
-                 reward_map: Callable | None = None, seed_offset: int = 0):
-        self.make_env, self.features = make_env, features
+                 reward_map: Callable | None = None, seed_offset: int = 0, n_features: int | None = None):
+        self.make_env, self.features, self.n_features = make_env, features, n_features
         self.policy = random_policy if policy == "random" else policy
         self.network, self.positions, self.proximity = network, positions, proximity
         if network is None and (positions is None or proximity is None):
@@ -132,8 +133,18 @@ class EnvSource:
                     self.current[b] = self._reset(env, gen)
                 else:
                     self.current[b] = nexts[t, b]
-        rows = np.stack(list(states.ravel()) + list(nexts.ravel()))
+        try:
+            rows = np.stack(list(states.ravel()) + list(nexts.ravel()))
+        except ValueError:
+            raise DgtdInputError("the environment's states change size from step to step; its state() (or its "
+                                 "observations) must have one shape") from None
+        if not np.isfinite(rows).all():
+            raise DgtdInputError("the environment returned NaN or infinite states (its state() or observations); "
+                                 "check the env, or wrap it to clip them")
         phi = np.asarray(self.features(rows), dtype=np.float64)
+        if self.n_features is not None and phi.ndim == 2 and phi.shape[1] != self.n_features:
+            raise DgtdInputError(f"the features came out {phi.shape[1]} wide, not {self.n_features} as on the first "
+                                 "states; features(states) must return the same number of columns for every batch")
         if phi.ndim != 2 or phi.shape[0] != len(rows) or not np.isfinite(phi).all():
             raise DgtdInputError(f"the features of {len(rows)} states came out with shape {np.shape(phi)}"
                                  f"{'' if np.isfinite(phi).all() else ' and NaN or infinite entries'}; features(states "

@@ -1,0 +1,317 @@
+"""Scenarios from the user's own simulator (``dgtd run --env module:make_env``) or recordings (``--data FILE``).
+
+`EnvSpec` is the ``[env]`` table of an experiment file, field for field; `env_scenario` turns it into a `Scenario`
+whose problem is the LSTD reference estimated on independent episodes (`dgtd.sources.env.reference_from_env`) and
+whose source steps one copy of the environment per seed. `data_scenario` does the same for a transitions file
+(`dgtd.sources.data.TransitionFile`). Neither has a model, so every error is measured against an estimate, and the
+run's output says how precise it is.
+
+DGTD's default step size alpha0 = 10 is for features of unit scale (|phi(s)|^2 about 1); here it is divided by
+E |phi(s)|^2 measured on the reference's transitions, so that Fourier or tile features of any width work as given,
+and kept within what the graph allows (`scaled_dgtd`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import inspect
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from dgtd.algorithms.dgtd import DGTD
+from dgtd.errors import DgtdInputError
+from dgtd.problems import features as feature_maps
+from dgtd.sources.model import Sampling
+
+FEATURES_HELP = ("fourier:ORDER, rbf:CENTRES, tiles:TILINGS:TILES, one-hot, linear, or module:function "
+                 "(features(states (K, dim)) -> (K, q))")
+AGENT_PARAMETERS = ("N", "n_agents", "num_agents", "agents")  # how make_env functions name their number of agents
+STEP_WORDS = "alpha0 = min(10 / E|phi|^2, sqrt(beta) / lambda_max(L))"
+REFERENCE_SEED_OFFSET = 1_000_003  # the reference's streams: seed ids no run uses
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """A user's environment, as data (the ``[env]`` table of an experiment file).
+
+    - ``make``: "module.path:function" or "path/to/file.py:function" returning a PettingZoo ParallelEnv or a
+      Gymnasium env; "gymnasium:ID" makes a registered Gymnasium env (e.g. "gymnasium:CartPole-v1");
+    - ``args``: keyword arguments of that function;
+    - ``features``: see `FEATURES_HELP`; the box of fourier, rbf and tiles is the state space's where it is
+      finite, else the range of the states seen in ``pilot_steps`` steps;
+    - ``policy``: "random" (uniform over discrete actions) or "module:function" (agent, observation, space, rng)
+      -> action;
+    - ``agents``: a Gymnasium env's reward is split among this many agents (``split``: "random", or a list of
+      shares that sum to 1); a ParallelEnv's function gets it as its N / n_agents / num_agents / agents argument;
+    - ``positions`` ("module:function" (env) -> (N, dim)) with ``radius``: agents are linked while within radius of
+      each other; without them, the run's --graph and --edge-prob link them;
+    - ``reference_steps`` x ``reference_groups``: the independent transitions of the LSTD reference.
+    """
+
+    make: str | None = None
+    args: dict | None = None
+    features: str = "fourier:3"
+    policy: str = "random"
+    agents: int | None = None
+    split: str | list = "random"
+    positions: str | None = None
+    radius: float | None = None
+    reference_steps: int = 5_000
+    reference_groups: int = 8
+    pilot_steps: int = 2_000
+
+
+def load_callable(text: str, what: str):
+    """The object ``module.path:name`` (or ``file.py:name``) names; a one-line error says what is wrong."""
+    module_name, sep, attr = str(text).rpartition(":")
+    if not sep or not module_name or not attr:
+        raise DgtdInputError(f"{what} {text!r} must read module.path:function (or path/to/file.py:function)")
+    try:
+        if module_name.endswith(".py"):
+            path = Path(module_name)
+            if not path.is_file():
+                raise DgtdInputError(f"{what} {text!r}: file {path} does not exist")
+            spec = importlib.util.spec_from_file_location(path.stem, path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(module_name)
+    except DgtdInputError:
+        raise
+    except ImportError as e:
+        raise DgtdInputError(f"{what} {text!r}: cannot import {module_name} ({e}); install it, or check the name "
+                             "(a file is written path/to/file.py:function)") from None
+    except Exception as e:  # noqa: BLE001  (the user's module failed while importing)
+        raise DgtdInputError(f"{what} {text!r}: importing {module_name} failed ({type(e).__name__}: {e})") from None
+    obj = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            if module_name == "gymnasium":
+                return partial(_gymnasium_make, attr)
+            raise DgtdInputError(f"{what} {text!r}: {module_name} has no {attr}")
+        obj = getattr(obj, part)
+    if not callable(obj):
+        raise DgtdInputError(f"{what} {text!r}: {attr} is not a function")
+    return obj
+
+
+def _gymnasium_make(env_id: str, **kwargs):
+    import gymnasium
+
+    try:
+        return gymnasium.make(env_id, **kwargs)
+    except gymnasium.error.Error as e:
+        raise DgtdInputError(f"gymnasium cannot make {env_id!r}: {e}") from None
+
+
+def env_factory(spec: EnvSpec):
+    """(make, n_agents, label): ``make()`` returns a fresh ParallelEnv (a Gymnasium env wrapped in `SplitReward`)."""
+    from dgtd.sources.gym import SplitReward
+
+    if not spec.make:
+        raise DgtdInputError("name the environment: --env module.path:make_env (or make = ... in the [env] table)")
+    function = load_callable(spec.make, "--env")
+    kwargs = dict(spec.args or {})
+    try:
+        params = inspect.signature(function).parameters
+    except (TypeError, ValueError):
+        params = {}
+    named = [p for p in AGENT_PARAMETERS if p in params]
+    if spec.agents is not None and named:
+        kwargs[named[0]] = int(spec.agents)
+
+    def make_raw():
+        try:
+            return function(**kwargs)
+        except DgtdInputError:
+            raise
+        except Exception as e:  # noqa: BLE001  (the user's function failed)
+            raise DgtdInputError(f"--env {spec.make}: making the environment failed ({type(e).__name__}: {e})") from None
+
+    probe = make_raw()
+    label = spec.make.rpartition(":")[2].rpartition(".")[2] or "env"
+    if hasattr(probe, "possible_agents"):
+        n = len(probe.possible_agents)
+        if spec.agents is not None and spec.agents != n:
+            raise DgtdInputError(f"--env {spec.make} made {n} agents, not the {spec.agents} asked for"
+                                 f"{'' if named else ' (it takes no N, n_agents, num_agents or agents argument)'}")
+        return make_raw, n, label
+    if hasattr(probe, "step") and hasattr(probe, "observation_space") and not callable(probe.action_space):
+        if spec.agents is None:
+            raise DgtdInputError(f"--env {spec.make} is a single-agent Gymnasium env: give --agents N to split its "
+                                 "reward among N agents (--split random, or shares)")
+        return (lambda: SplitReward(make_raw(), spec.agents, spec.split)), int(spec.agents), label
+    raise DgtdInputError(f"--env {spec.make} returned {type(probe).__name__}, which is neither a PettingZoo ParallelEnv "
+                         "(possible_agents, reset, step) nor a Gymnasium env; wrap an AEC env with "
+                         "pettingzoo.utils.aec_to_parallel")
+
+
+def _state_box(env, agents) -> tuple[np.ndarray, np.ndarray] | None:
+    """The state space's bounds (low, high), where it declares them (inf where it does not), else None."""
+    space = getattr(env, "state_space", None)
+    if space is None and hasattr(env, "env") and hasattr(env.env, "observation_space"):  # SplitReward
+        space = env.env.observation_space
+    spaces = [space] if space is not None else [env.observation_space(a) for a in agents]
+    if not all(hasattr(s, "low") for s in spaces):
+        return None
+    return (np.concatenate([np.ravel(s.low) for s in spaces]).astype(np.float64),
+            np.concatenate([np.ravel(s.high) for s in spaces]).astype(np.float64))
+
+
+def _discrete_states(env, agents) -> int | None:
+    space = getattr(env, "state_space", None)
+    if space is None and hasattr(env, "env"):
+        space = env.env.observation_space
+    if space is None and len(agents) == 1:
+        space = env.observation_space(agents[0])
+    return int(space.n) if space is not None and hasattr(space, "n") else None
+
+
+def build_features(text: str, probe, pilot_states):
+    """(features(states) -> (K, q), q, description) for a ``--features`` text; ``pilot_states()`` returns states
+    seen under the policy, for a box the state space does not declare."""
+    kind, _, rest = str(text).partition(":")
+    if kind in ("fourier", "rbf", "tiles"):
+        try:
+            sizes = [int(x) for x in rest.split(":")] if rest else []
+        except ValueError:
+            sizes = None
+        wanted = 2 if kind == "tiles" else 1
+        if sizes is None or len(sizes) != wanted or min(sizes) < 1:
+            raise DgtdInputError(f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
+                                 "with positive integers")
+        states = None
+        box = _state_box(probe, list(probe.possible_agents))
+        if box is None or not np.all(np.isfinite(box[0]) & np.isfinite(box[1]) & (box[1] - box[0] < 1e6)):
+            states = pilot_states()
+            low, high = states.min(axis=0), states.max(axis=0)
+            if box is not None:  # keep the declared bounds where they are finite and reasonable
+                keep = np.isfinite(box[0]) & np.isfinite(box[1]) & (box[1] - box[0] < 1e6)
+                low, high = np.where(keep, box[0], low), np.where(keep, box[1], high)
+            box = (low, np.where(high > low, high, low + 1.0))
+        dim = len(box[0])
+        n = {"fourier": (sizes[0] + 1) ** dim, "rbf": 1 + sizes[0] ** dim,
+             "tiles": sizes[0] * (sizes[-1] + 1) ** dim}[kind]
+        if n > 4096:
+            raise DgtdInputError(f"--features {text} on a {dim}-dimensional state makes {n:,} features; lower it, or "
+                                 "give your own features (module:function)")
+        f = {"fourier": lambda: feature_maps.fourier(sizes[0], *box), "rbf": lambda: feature_maps.rbf(sizes[0], *box),
+             "tiles": lambda: feature_maps.tile_coding(sizes[0], sizes[1], *box)}[kind]()
+        where = "the state space's bounds" if states is None else f"the range of {len(states):,} states seen"
+        return f, n, f"{kind} features ({n}) over {where}"
+    if kind == "one-hot":
+        n = _discrete_states(probe, list(probe.possible_agents))
+        if n is None:
+            raise DgtdInputError("--features one-hot needs a discrete state (a Discrete state or observation space); "
+                                 "use fourier, rbf or tiles for continuous states")
+        return feature_maps.one_hot(n), n, f"one-hot features of {n} states"
+    if kind == "linear":
+        def linear(states):
+            s = np.asarray(states, dtype=np.float64)
+            return np.concatenate([np.ones((len(s), 1)), s], axis=1)
+
+        dim = pilot_states(8).shape[1]
+        return linear, dim + 1, f"linear features: 1 and the {dim} state variables"
+    if rest:
+        function = load_callable(text, "--features")
+        states = pilot_states(8)
+        try:
+            phi = np.asarray(function(states), dtype=np.float64)
+        except Exception as e:  # noqa: BLE001  (the user's function failed)
+            raise DgtdInputError(f"--features {text}: it failed on states of shape {states.shape} "
+                                 f"({type(e).__name__}: {e})") from None
+        if phi.ndim != 2 or phi.shape[0] != len(states):
+            raise DgtdInputError(f"--features {text} returned shape {phi.shape} for {len(states)} states; it must return "
+                                 "(K, q): one row of features per state")
+        return function, phi.shape[1], f"features {text} ({phi.shape[1]})"
+    raise DgtdInputError(f"--features {text!r} is not known: give {FEATURES_HELP}")
+
+
+def scaled_dgtd(reference, base_graph) -> DGTD:
+    """DGTD with its default alpha0 divided by E |phi(s)|^2 (the trace of the reference's M) when that is above 1,
+    and at most sqrt(beta) / lambda_max(L) of the graph with every link up: without a model there are no projection
+    boxes (section 7's Lemma 2 needs the model), and a first step alpha_1 above about 1.2 / lambda_max(L) makes the
+    consensus part of the update expand (the ring of 4 agents, lambda_max = 4, diverges at DGTD's default 0.32)."""
+    default = DGTD()
+    alpha0 = default.alpha0 / max(float(np.trace(reference.moments.M)), 1.0)
+    lam = float(np.linalg.eigvalsh(base_graph.laplacian()).max())
+    return DGTD(alpha0=min(alpha0, np.sqrt(default.beta) / lam) if lam > 0 else alpha0)
+
+
+def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | None = None):
+    """The `Scenario` of a user's environment; ``network_for(N)`` is the run's graph over N agents."""
+    from dgtd.graphs.proximity import ProximityNetwork
+    from dgtd.graphs.random import random_edges
+    from dgtd.scenarios import Scenario
+    from dgtd.sources.env import EnvSource, reference_from_env
+    from dgtd.sources.gym import SplitReward
+
+    make, N, label = env_factory(spec)
+    probe = make()
+    policy = spec.policy if spec.policy == "random" else load_callable(spec.policy, "--policy")
+    if (spec.positions is None) != (spec.radius is None):
+        raise DgtdInputError("positions and radius go together: positions = 'module:function' (env) -> (N, dim) "
+                             "and the radius within which agents talk")
+    links = {}
+    if spec.positions is not None:
+        links = dict(positions=load_callable(spec.positions, "positions"), proximity=ProximityNetwork(N, spec.radius))
+        network = None
+    else:
+        network = network_for(N)
+        links = dict(network=network)
+
+    def source(features, seed, seed_ids, offset=0, width=None):
+        return EnvSource(make, features, seed, seed_ids, policy=policy, seed_offset=offset, n_features=width, **links)
+
+    def pilot_states(steps=None):
+        src = source(lambda x: np.asarray(x, dtype=np.float64), 0, [0], REFERENCE_SEED_OFFSET - 1)
+        src.start()
+        blk = src.next_block(min(steps or spec.pilot_steps, spec.pilot_steps))
+        states = blk.table.phi
+        if not np.isfinite(states).all():
+            raise DgtdInputError(f"--env {spec.make}: the environment's states hold NaN or infinite values")
+        return states
+
+    features, q, about = build_features(spec.features, probe, pilot_states)
+    reference, frequency = reference_from_env(
+        lambda g: source(features, 0, [g], REFERENCE_SEED_OFFSET, q), q, gamma, label, steps=spec.reference_steps,
+        groups=spec.reference_groups)
+    if network is None:
+        if np.any(frequency <= 0):
+            raise DgtdInputError(f"within radius {spec.radius:g} some pairs of agents never met in the reference "
+                                 "episodes; raise the radius")
+        network = random_edges(links["proximity"].base, frequency)
+    algorithm = scaled_dgtd(reference, network.base)
+    kind = "Gymnasium" if isinstance(probe, SplitReward) else "PettingZoo"
+    return Scenario(
+        problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov", shared=True),
+        iterations=int(iterations or 50_000),
+        description=f"{kind} env {spec.make}, {N} agents, {about}, policy {spec.policy}; {STEP_WORDS} = "
+                    f"{algorithm.alpha0:.3g}",
+        source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
+    )
+
+
+def data_scenario(path: str, gamma: float, network_for):
+    """The `Scenario` of a transitions file (its `TransitionFile` as ``data``): recording k is seed k, the reference
+    LSTD over every recording."""
+    from dgtd.scenarios import Scenario
+    from dgtd.sources.data import DataSource, TransitionFile
+
+    data = TransitionFile(path)
+    reference = data.reference(gamma, name=Path(path).stem)
+    network = network_for(data.N)
+    algorithm = scaled_dgtd(reference, network.base)
+    return Scenario(
+        problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov"),
+        iterations=data.steps(range(data.recordings)),
+        description=f"recorded transitions {path}: {data.recordings} recordings of {data.N} agents, "
+                    f"{int(data.lengths.min()):,} to {int(data.lengths.max()):,} steps; {STEP_WORDS} = "
+                    f"{algorithm.alpha0:.3g}",
+        source=lambda seed, seed_ids: DataSource(data, seed_ids),
+        data=data,
+    )

@@ -1,0 +1,66 @@
+"""Tiny environments for the tests of `dgtd run --env`: a PettingZoo chain whose model is known, and bad ones."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+P = np.array([[0.1, 0.6, 0.3, 0.0], [0.0, 0.2, 0.5, 0.3], [0.4, 0.0, 0.2, 0.4], [0.5, 0.2, 0.0, 0.3]])
+R = np.array([[1.0, 0.0, 0.0, 2.0], [0.0, 3.0, 0.0, 0.0], [0.5, 0.5, 1.0, 0.0], [0.0, 0.0, 2.0, 1.0]])
+GAMMA = 0.8
+
+
+class Chain(ParallelEnv):
+    """Four states moving by P whatever the agents do; agent i earns R[i, s] at state s; the state is its index."""
+
+    metadata = {"name": "chain_v1"}
+
+    def __init__(self, n_agents: int = 3, nan_after: int | None = None):
+        self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
+        self.agents, self.s, self.steps, self.nan_after = [], 0, 0, nan_after
+        self.rng = np.random.default_rng()
+        self.state_space = spaces.Discrete(4)
+
+    def observation_space(self, agent):
+        return spaces.Discrete(4)
+
+    def action_space(self, agent):
+        return spaces.Discrete(2)
+
+    def state(self):
+        self.steps += 1
+        return np.array([np.nan if self.nan_after is not None and self.steps > self.nan_after else self.s])
+
+    def reset(self, seed=None, options=None):
+        self.rng = np.random.default_rng(seed)
+        self.agents = list(self.possible_agents)
+        self.s = int(self.rng.integers(4))
+        return {a: self.s for a in self.agents}, {a: {} for a in self.agents}
+
+    def step(self, actions):
+        rewards = {a: R[i, self.s] for i, a in enumerate(self.agents)}
+        self.s = int(self.rng.choice(4, p=P[self.s]))
+        return ({a: self.s for a in self.agents}, rewards, {a: False for a in self.agents},
+                {a: False for a in self.agents}, {a: {} for a in self.agents})
+
+
+def make_chain(n_agents: int = 3):
+    return Chain(n_agents)
+
+
+def make_nan_chain():
+    return Chain(3, nan_after=50)
+
+
+def make_nothing():
+    return object()
+
+
+def widening_features(states):
+    """Features whose width changes with the batch: wrong."""
+    return np.ones((len(states), 2 + len(states) % 3))
+
+
+def stay(agent, observation, space, rng):
+    return 0
