@@ -182,3 +182,16 @@ def test_an_unknown_env_field_names_the_closest(run_cli, tmp_path):
     file.write_text(f'[env]\nmake = "{env("make_chain")}"\nfeature = "one-hot"\n')
     one_line_error(*run_cli("run", file, "--out", tmp_path / "r"), "unknown field 'feature' in [env]",
                    "did you mean 'features'?")
+
+
+def test_a_run_on_an_env_draws_every_agents_values_along_a_trajectory(run_cli, tmp_path):
+    """values.png, and in summary.json each agent's RMS value error along that trajectory (measured 0.3 % at 30,000
+    steps; 5 % is what an unconverged run exceeds)."""
+    out = tmp_path / "chain"
+    code, text, err = run_cli("run", "--env", env("make_chain"), "--features", "one-hot", "--gamma", chain.GAMMA,
+                              "-T", 30_000, "--out", out, "--no-progress")
+    assert code == 0, err
+    assert (out / "values.png").stat().st_size > 10_000 and "values.png" in text
+    numbers = summary(out)["scenario"]
+    assert numbers["trajectory_steps"] == 200 and len(numbers["trajectory_value_error"]) == 3
+    assert max(numbers["trajectory_value_error"]) < 0.05

@@ -155,7 +155,7 @@ def prepare(exp: Experiment) -> PreparedRun:
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's
 # copies of them go before a new run writes. Nothing else in the directory is touched.
 RUN_FILES = ("summary.json", "metrics.csv", "bands.csv", "trajectory.npz", CHECKPOINT, "iterates.png", "errors.png", "maps.png",
-             "reference.png", "snapshots.png", "patrol.gif", "curves.png")
+             "reference.png", "snapshots.png", "patrol.gif", "curves.png", "values.png")
 
 
 def clear_previous_run(out: Path, record: dict, overwrite: bool) -> None:

@@ -156,5 +156,6 @@ def scenario_figures(report, result, source, out) -> list[str]:
     """The figures of a scenario's own report (the patrol world's maps, ...) into ``out``; returns the names
     written, none for a report without figures."""
     from dgtd.plots.robots import report_figures
+    from dgtd.plots.values import value_figures
 
-    return report_figures(report, result, source, out)
+    return report_figures(report, result, source, out) + value_figures(report, result, out)

@@ -15,6 +15,7 @@ the values are close to linear in them. DGTD ends within 5 % of the reference af
 There is no model: the reference is LSTD on independent episodes (`dgtd.sources.env.reference_from_env`), and
 the mean graph (for mu* and the connectivity check) is the link frequencies measured on those episodes. Episodes
 last 25 steps (MPE2's default); a time limit is not terminal, so the TD target bootstraps from the state reached.
+After the run, ``values.png`` shows every agent's value estimate along a fresh trajectory against the reference.
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
     from dgtd.graphs.random import random_edges
     from dgtd.scenarios import Scenario
     from dgtd.sources.env import EnvSource, reference_from_env
+    from dgtd.scenarios.user import TRAJECTORY_SEED_OFFSET, TrajectoryReport
     from dgtd.sources.model import Sampling
 
     N = int(agents)
@@ -104,4 +106,6 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
         iterations=int(iterations),
         description=f"MPE2 simple_spread, {N} agents linked within {radius:g}, heuristic policy, LSTD reference",
         source=lambda seed, seed_ids: EnvSource(partial(make_spread, N), features, seed, seed_ids, **common),
+        report=TrajectoryReport(lambda: EnvSource(partial(make_spread, N), features, 0, [0],
+                                                  seed_offset=TRAJECTORY_SEED_OFFSET, **common), steps=100),
     )

@@ -293,6 +293,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
         description=f"{kind} env {spec.make}, {N} agents, {about}, policy {spec.policy}; {STEP_WORDS} = "
                     f"{algorithm.alpha0:.3g}",
         source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
+        report=TrajectoryReport(lambda: source(features, 0, [0], TRAJECTORY_SEED_OFFSET, q)),
     )
 
 
@@ -315,3 +316,39 @@ def data_scenario(path: str, gamma: float, network_for):
         source=lambda seed, seed_ids: DataSource(data, seed_ids),
         data=data,
     )
+
+
+TRAJECTORY_SEED_OFFSET = 2_000_003  # the report's trajectory: streams neither the run nor the reference uses
+
+
+@dataclass(eq=False)
+class TrajectoryReport:
+    """After a run on an environment: every agent's value estimate phi(s)' w_i (seed 0, tail average) along a fresh
+    trajectory of ``steps`` steps under the same policy, beside the reference's phi(s)' w*; figure ``values.png``
+    (`dgtd.plots.values`). Called as ``report(result, source) -> (dict, text)``."""
+
+    make_source: object  # () -> a fresh one-copy source on streams of their own
+    steps: int = 200
+    _values: tuple | None = None
+
+    def trajectory(self, result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(reference values (T,), agents' values (N, T), the steps at which an episode restarted)."""
+        if self._values is None:
+            source = self.make_source()
+            source.start()
+            blk = source.next_block(self.steps)
+            phi = blk.table.phi
+            s, s_next = blk.s[:, 0, 0], blk.s_next[:, 0, 0]
+            restarts = 1 + np.flatnonzero(np.any(phi[s[1:]] != phi[s_next[:-1]], axis=1))
+            self._values = (phi[s] @ result.w_star, result.w_tail[0] @ phi[s].T, restarts)
+        return self._values
+
+    def __call__(self, result, source) -> tuple[dict, str]:
+        ref, agents, restarts = self.trajectory(result)
+        scale = max(float(np.sqrt(np.mean(ref**2))), 1e-300)
+        err = np.sqrt(np.mean((agents - ref) ** 2, axis=1)) / scale
+        numbers = {"trajectory_steps": self.steps, "trajectory_episodes": len(restarts) + 1,
+                   "trajectory_value_error": err.tolist()}
+        text = (f"along a fresh trajectory of {self.steps} steps ({len(restarts) + 1} episode(s)), the agents' values "
+                f"(tail-averaged, seed 0) are within {err.max():.2%} (RMS, relative) of the reference's")
+        return numbers, text
