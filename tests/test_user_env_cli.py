@@ -185,7 +185,7 @@ def test_an_unknown_env_field_names_the_closest(run_cli, tmp_path):
 
 
 def test_a_run_on_an_env_draws_every_agents_values_along_a_trajectory(run_cli, tmp_path):
-    """values.png, and in summary.json each agent's RMS value error along that trajectory (measured 0.3 % at 30,000
+    """values.png, and in summary.json each agent's RMS value error along that trajectory (measured 0.23 % at 30,000
     steps; 5 % is what an unconverged run exceeds)."""
     out = tmp_path / "chain"
     code, text, err = run_cli("run", "--env", env("make_chain"), "--features", "one-hot", "--gamma", chain.GAMMA,

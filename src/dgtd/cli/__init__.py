@@ -285,7 +285,10 @@ def final_table(result) -> str:
     div = np.asarray(result.info.get("diverged_at", []))
     if np.any(div >= 0):  # stopped seeds: their estimates are NaN from then on
         rows.append(f"DIVERGED: seed(s) {np.flatnonzero(div >= 0).tolist()} stopped at step(s) {div[div >= 0].tolist()} "
-                    "(estimates beyond 1e6 x the scale of w*, or not finite)")
+                    "(estimates beyond 1e6 x the scale of w*, or not finite)" + (
+                        "; without a model there are no projection boxes: lower --alpha0 (below sqrt(beta) / "
+                        "lambda_max of the graph's Laplacian is safe)" if moments is not None and
+                        not getattr(moments, "model", True) else ""))
     return "\n".join(rows)
 
 

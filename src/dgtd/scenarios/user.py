@@ -231,15 +231,20 @@ def build_features(text: str, probe, pilot_states):
     raise DgtdInputError(f"--features {text!r} is not known: give {FEATURES_HELP}")
 
 
+def graph_step_cap(base_graph) -> float:
+    """The largest alpha0 the graph allows DGTD without projection boxes: sqrt(beta) / lambda_max(L) of the graph
+    with every link up. Without a model there are no boxes (section 7's Lemma 2 needs the model), and a first step
+    alpha_1 above about 1.2 / lambda_max(L) makes the consensus part of the update expand: the ring of 4 agents
+    (lambda_max = 4) diverges at DGTD's default alpha_1 = 0.32."""
+    lam = float(np.linalg.eigvalsh(base_graph.laplacian()).max())
+    return float(np.sqrt(DGTD().beta) / lam) if lam > 0 else float("inf")
+
+
 def scaled_dgtd(reference, base_graph) -> DGTD:
     """DGTD with its default alpha0 divided by E |phi(s)|^2 (the trace of the reference's M) when that is above 1,
-    and at most sqrt(beta) / lambda_max(L) of the graph with every link up: without a model there are no projection
-    boxes (section 7's Lemma 2 needs the model), and a first step alpha_1 above about 1.2 / lambda_max(L) makes the
-    consensus part of the update expand (the ring of 4 agents, lambda_max = 4, diverges at DGTD's default 0.32)."""
-    default = DGTD()
-    alpha0 = default.alpha0 / max(float(np.trace(reference.moments.M)), 1.0)
-    lam = float(np.linalg.eigvalsh(base_graph.laplacian()).max())
-    return DGTD(alpha0=min(alpha0, np.sqrt(default.beta) / lam) if lam > 0 else alpha0)
+    and at most `graph_step_cap`."""
+    alpha0 = DGTD().alpha0 / max(float(np.trace(reference.moments.M)), 1.0)
+    return DGTD(alpha0=min(alpha0, graph_step_cap(base_graph)))
 
 
 def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | None = None):
