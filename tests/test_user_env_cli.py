@@ -161,6 +161,7 @@ BAD = [
     (["--env", env("make_chain"), "paper-example-1"], ["exactly one problem"]),
     (["paper-example-1", "--gamma", "0.5"], ["gamma is the discount of an --env or --data run"]),
     (["--data", "missing.parquet"], ["is missing"]),
+    (["paper-example-1", "--features", "fourier:2"], ["features set the fields of an env run", "--env"]),
 ]
 
 
@@ -175,6 +176,13 @@ def test_bad_data_runs_are_one_line(run_cli, tmp_path):
     for args, words in ((["--seeds", 4], ["holds 3 recordings", "--seeds 3"]),
                         (["-T", 51], ["run at most --iterations 50"])):
         one_line_error(*run_cli("run", "--data", tmp_path / "t.parquet", *args, "--out", tmp_path / "r"), *words)
+    (tmp_path / "bad.csv").write_text("seed,step,agent,phi_0,next_phi_0,reward\n0,0,one,1.0,1.0,0.5\n")
+    one_line_error(*run_cli("run", "--data", tmp_path / "bad.csv", "--out", tmp_path / "r"),
+                   "column agent must hold integers")
+    (tmp_path / "short.csv").write_text("seed,step,agent,phi_0,reward\n0,0,0,1.0,0.5\n")
+    one_line_error(*run_cli("run", "--data", tmp_path / "short.csv", "--out", tmp_path / "r"),
+                   "lacks the column(s) next_phi_0")
+    assert not (tmp_path / "r" / "summary.json").exists()
 
 
 def test_an_unknown_env_field_names_the_closest(run_cli, tmp_path):
@@ -195,3 +203,28 @@ def test_a_run_on_an_env_draws_every_agents_values_along_a_trajectory(run_cli, t
     numbers = summary(out)["scenario"]
     assert numbers["trajectory_steps"] == 200 and len(numbers["trajectory_value_error"]) == 3
     assert max(numbers["trajectory_value_error"]) < 0.05
+
+
+def test_a_sweep_job_on_an_env_runs_on_the_envs_samples():
+    """`dgtd sweep` jobs must take the scenario's own source, as `dgtd run` does, not sample a model."""
+    from dgtd.config import make_source, resolve
+    from dgtd.run.loop import run
+    from dgtd.sweep import run_job
+
+    spec = {"env": {"make": env("make_chain"), "features": "one-hot"}, "gamma": chain.GAMMA, "iterations": 2000}
+    job = run_job(spec)
+    problem, network, algorithm, sampling, settings, resolved = resolve(RunSpec(**spec))
+    direct = run(problem, network, algorithm, sampling, settings, source=make_source(resolved, settings))
+    np.testing.assert_array_equal(job["metrics"]["value_error_tail"], direct.metrics["value_error_tail"])
+
+
+def test_a_sweep_grid_can_vary_the_env_table():
+    from dgtd.experiments import parse
+    from dgtd.sweep import expand
+
+    exp = parse({"env": {"make": env("make_chain")}, "gamma": 0.8, "iterations": 100,
+                 "grid": {"env": {"features": ["one-hot", "linear"]}, "alpha0": [1.0, 2.0]}})
+    jobs = expand(exp)
+    assert len(jobs) == 4
+    assert {job.spec.env["features"] for job in jobs} == {"one-hot", "linear"}
+    assert {job.point["env.features"] for job in jobs} == {"one-hot", "linear"}

@@ -141,6 +141,9 @@ PROBLEM_FIELDS = ("scenario", "problem_file", "env", "data")
 
 def resolve(spec: RunSpec):
     """(problem, network, algorithm, sampling, settings, resolved spec) for a spec."""
+    if spec.env is not None and not spec.env.get("make"):
+        raise DgtdInputError(f"{', '.join(sorted(spec.env))} set the fields of an env run; name the env too: --env "
+                             "module.path:make_env (make = ... in the [env] table)")
     given = [name for name in PROBLEM_FIELDS if getattr(spec, name) is not None]
     if len(given) != 1:
         raise DgtdInputError("name exactly one problem: a scenario (e.g. paper-example-1), --problem FILE.npz, "

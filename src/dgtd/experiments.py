@@ -21,6 +21,8 @@ An experiment file is a TOML serialisation of a `dgtd.config.RunSpec` plus the o
     [grid]                              # dgtd sweep: the runs are the product of these lists
     alpha0 = [1.0, 10.0]
     edge_prob = [0.5, 0.8]
+    [grid.env]                          # (also grid.params, grid.algorithm_params)
+    features = ["fourier:2", "fourier:3"]
 
     [sweep]                             # dgtd sweep: executor = "process" or "ray", address, workers, ...
     executor = "process"
@@ -98,7 +100,7 @@ class Experiment:
 SPEC_TYPES = field_types(RunSpec)
 OUTPUT_TYPES = field_types(Output)
 SWEEP_TYPES = field_types(SweepOptions)
-TABLES = ("params", "algorithm_params")
+TABLES = ("params", "algorithm_params", "env")
 TOP_LEVEL = [*SPEC_TYPES, *OUTPUT_TYPES, "grid", "sweep"]
 
 

@@ -18,7 +18,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from dgtd.config import ALGORITHM_FIELDS, RunSpec, field_types, resolve, spec_record
+from dgtd.config import ALGORITHM_FIELDS, RunSpec, field_types, make_source, resolve, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import TABLES, Experiment, Output, absolute_paths, to_toml
 from dgtd.run.store import SweepStore
@@ -108,7 +108,7 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
         import numba
 
         numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
-    result = run_loop(problem, network, algorithm, sampling, settings)
+    result = run_loop(problem, network, algorithm, sampling, settings, source=make_source(resolved, settings))
     return {"steps": result.steps, "metrics": result.metrics, "algorithm": algorithm.name,
             "summary": summary(result, json.loads(json.dumps(spec_record(resolved))))}
 
