@@ -273,7 +273,9 @@ def final_table(result) -> str:
         rows.insert(0, f"w* is estimated (no model): LSTD with ridge {est['ridge']:.2g} on {est['transitions']:,} "
                        f"independent transitions in {est['groups']} groups; its standard error is "
                        f"{est['value_stderr_relative']:.2%} of |Phi w*|_d in values ({est['w_star_stderr_relative']:.2%}"
-                       " of |w*|_inf in weights)")
+                       " of |w*|_inf in weights)" + (
+                           f"; a centralised TD(0) run on {est['td_check_transitions']:,} of them ends "
+                           f"{est['td_check_value_gap']:.2%} from it" if "td_check_value_gap" in est else ""))
     if moments is not None:
         v = {k: exact.value_error(moments, W, ref).max() for k, W in
              (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))}

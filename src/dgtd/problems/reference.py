@@ -9,6 +9,10 @@ solve defined where a feature is rarely seen. Its precision is measured, not ass
 independent groups (separate simulator copies or episodes), w* is solved on each, and the standard error of w* is
 their standard deviation / sqrt(G).
 
+A second check, as the robot example's reference has: a centralised linear TD(0) run (`TDCheck`) on the batch's
+transitions (the first 200,000), Polyak-averaged, whose distance to the LSTD w* is reported beside the standard error; a
+large gap says the batch is too short for the features, or the features too ill-conditioned, to trust either.
+
 `EstimatedProblem` stands where a `dgtd.problems.model.Problem` would for the run loop: its `moments` answer what
 `dgtd.problems.exact` asks of `Moments` (M, A, b), so w*, theta*, mu*, the value error and the MSPBE are computed
 from the estimates; what needs the model itself (d, the true value function, Lemma 2's bounds) is absent.
@@ -59,6 +63,42 @@ class MomentSums:
     def merged(self, other: "MomentSums") -> "MomentSums":
         return MomentSums(self.n_agents, self.n_features, self.count + other.count, self.M + other.M,
                           self.A + other.A, self.b + other.b)
+
+
+@dataclass
+class TDCheck:
+    """Centralised linear TD(0) (Sutton 1988) over transitions in the order given:
+    w <- w + alpha_k ratio (r + gamma(s, s') phi'^T w - phi^T w) phi, with alpha_k = 0.5 / (m2 (1 + k / 1000)^0.6),
+    m2 = E |phi|^2 on the first batch (so a step moves phi^T w by at most about half the TD error), and the Polyak
+    average of the iterates as its answer; at most ``limit`` transitions (a check, not the reference)."""
+
+    n_features: int
+    limit: int = 200_000
+    k: int = 0
+    w: np.ndarray = field(default=None)
+    w_avg: np.ndarray = field(default=None)
+    m2: float = 0.0
+
+    def __post_init__(self):
+        self.w = np.zeros(self.n_features) if self.w is None else self.w
+        self.w_avg = np.zeros(self.n_features) if self.w_avg is None else self.w_avg
+
+    def add(self, phi, phi_next, r, discount, ratio=None) -> None:
+        """K transitions: phi, phi' (K, q), the rewards to learn (K,), discounts (K,), ratios (K,)."""
+        n = min(len(phi), self.limit - self.k)
+        if n <= 0:
+            return
+        if self.m2 == 0.0:
+            self.m2 = max(float((np.asarray(phi[:n]) ** 2).sum(axis=1).mean()), 1e-12)
+        rho = np.ones(n) if ratio is None else np.asarray(ratio, np.float64)
+        w, avg, k = self.w, self.w_avg, self.k
+        for j in range(n):  # sequential by nature; 200,000 transitions take about a second
+            x = phi[j]
+            delta = r[j] + discount[j] * (phi_next[j] @ w) - x @ w
+            w += (0.5 / (self.m2 * (1.0 + k / 1000.0) ** 0.6)) * rho[j] * delta * x
+            k += 1
+            avg += (w - avg) / k
+        self.k = k
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,6 +155,7 @@ class EstimatedProblem:
     off_policy: bool = False
     w0: np.ndarray | None = None
     description: str = ""
+    td_check: TDCheck | None = None
     # What the run loop reads of a Problem and that has no meaning here: every block carries its own rows
     reward_noise: str = "none"
     terminal: np.ndarray | None = None
@@ -157,7 +198,15 @@ class EstimatedProblem:
         scale = max(float(np.abs(w).max()), 1e-300)
         return {"estimated": True, "method": "LSTD with a ridge", "ridge": self.ridge, "transitions": self.transitions,
                 "groups": len(self.groups), "w_star_stderr": se.tolist(),
-                "w_star_stderr_relative": float(np.abs(se).max() / scale), "value_stderr_relative": self.value_stderr}
+                "w_star_stderr_relative": float(np.abs(se).max() / scale), "value_stderr_relative": self.value_stderr,
+                **({} if self.td_check is None else {"td_check_transitions": self.td_check.k,
+                                                     "td_check_value_gap": self.td_gap})}
+
+    @property
+    def td_gap(self) -> float:
+        """|Phi (w_TD - w*)|_d / |Phi w*|_d of the centralised TD(0) check (d: the reference batch's states)."""
+        M, dev = self.moments.M, self.td_check.w_avg - self.w_star
+        return float(np.sqrt((dev @ M @ dev) / max(float(self.w_star @ M @ self.w_star), 1e-300)))
 
     # duck-typed Problem fields
     @property
@@ -190,8 +239,8 @@ class EstimatedProblem:
 
 
 def estimate(name: str, gamma: float, group_sums: list[MomentSums], ridge: float = RIDGE, off_policy: bool = False,
-             description: str = "") -> EstimatedProblem:
-    """The reference from G >= 2 independent groups of transitions' moment sums."""
+             description: str = "", td_check: TDCheck | None = None) -> EstimatedProblem:
+    """The reference from G >= 2 independent groups of transitions' moment sums (and a TD(0) check, if run)."""
     if len(group_sums) < 2:
         raise DgtdInputError("the reference needs at least two independent groups of transitions for its error")
     total = group_sums[0]
@@ -202,4 +251,4 @@ def estimate(name: str, gamma: float, group_sums: list[MomentSums], ridge: float
         _, A, b, _ = solve_moments(g, ridge)
         groups.append(np.linalg.solve(A, b.mean(axis=0)))
     return EstimatedProblem(name, total.n_agents, total.n_features, float(gamma), total, np.array(groups), ridge,
-                            off_policy=off_policy, description=description)
+                            off_policy=off_policy, description=description, td_check=td_check)

@@ -45,6 +45,7 @@ class EnvSpec:
       finite, else the range of the states seen in ``pilot_steps`` steps;
     - ``policy``: "random" (uniform over discrete actions) or "module:function" (agent, observation, space, rng)
       -> action;
+    - ``rewards``: "module:function" (the step's rewards dict) -> (N,) local rewards; default each agent's own;
     - ``agents``: a Gymnasium env's reward is split among this many agents (``split``: "random", or a list of
       shares that sum to 1); a ParallelEnv's function gets it as its N / n_agents / num_agents / agents argument;
     - ``positions`` ("module:function" (env) -> (N, dim)) with ``radius``: agents are linked while within radius of
@@ -56,6 +57,7 @@ class EnvSpec:
     args: dict | None = None
     features: str = "fourier:3"
     policy: str = "random"
+    rewards: str | None = None
     agents: int | None = None
     split: str | list = "random"
     positions: str | None = None
@@ -258,6 +260,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
     make, N, label = env_factory(spec)
     probe = make()
     policy = spec.policy if spec.policy == "random" else load_callable(spec.policy, "--policy")
+    reward_map = None if spec.rewards is None else load_callable(spec.rewards, "rewards")
     if (spec.positions is None) != (spec.radius is None):
         raise DgtdInputError("positions and radius go together: positions = 'module:function' (env) -> (N, dim) "
                              "and the radius within which agents talk")
@@ -270,7 +273,8 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
         links = dict(network=network)
 
     def source(features, seed, seed_ids, offset=0, width=None):
-        return EnvSource(make, features, seed, seed_ids, policy=policy, seed_offset=offset, n_features=width, **links)
+        return EnvSource(make, features, seed, seed_ids, policy=policy, seed_offset=offset, n_features=width,
+                         reward_map=reward_map, **links)
 
     def pilot_states(steps=None):
         src = source(lambda x: np.asarray(x, dtype=np.float64), 0, [0], REFERENCE_SEED_OFFSET - 1)

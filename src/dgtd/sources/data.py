@@ -4,7 +4,8 @@ A table (Parquet, CSV or .npz of columns) holds one row per agent and step:
 
 - ``seed`` (or ``episode``): which independent recording the row belongs to (a run's seed, an independent copy);
 - ``step``: its time index within that recording; ``agent``: 0 .. N-1;
-- the state: feature columns ``phi_0 .. phi_{q-1}`` and ``next_phi_0 ..`` of the next state;
+- the state: feature columns ``phi_0 .. phi_{q-1}`` and ``next_phi_0 ..`` of the next state, or integer columns
+  ``state`` and ``next_state`` (0 .. S-1), whose features are then tabular (one-hot, q = S);
 - ``reward``: the agent's own reward; optional ``ratio`` (importance ratio, 1 if absent) and ``terminal`` (1 where
   the transition ended an episode: its TD target is the reward alone).
 
@@ -27,7 +28,9 @@ from dgtd.errors import DgtdInputError
 from dgtd.samples import Block, SampleTable
 
 KEYS = ("seed", "step", "agent")
-FIX = "give one row per agent and step with columns seed, step, agent, phi_0.., next_phi_0.., reward"
+STATES = ("state", "next_state")  # tabular states, instead of feature columns
+FIX = ("give one row per agent and step with columns seed, step, agent, phi_0.., next_phi_0.. (or state, "
+       "next_state), reward")
 BATCH_ROWS = 1 << 16
 
 
@@ -58,19 +61,24 @@ def _read(path: Path, columns=None):
         yield from _batches(path, columns)
     except DgtdInputError:
         raise
+    except ImportError:
+        raise DgtdInputError(f"reading {path.suffix} files needs pyarrow: pip install 'dgtd[parquet]' (or give an "
+                             ".npz of the same columns)") from None
     except Exception as e:  # noqa: BLE001  (a reader's own error: a damaged or foreign file)
         raise DgtdInputError(f"transitions file {path} cannot be read ({type(e).__name__}: {e}); {FIX}") from None
 
 
 def _header(path: Path) -> list[str]:
-    """The column names (``episode`` standing for ``seed``), checked: the keys, reward and phi_j / next_phi_j."""
+    """The column names (``episode`` standing for ``seed``), checked: the keys, reward and phi_j / next_phi_j (or
+    state and next_state)."""
     for batch in _read(path):
         names = list(batch)
         break
     else:
         names = []
     names = ["seed" if n == "episode" and "seed" not in names else n for n in names]
-    missing = [c for c in (*KEYS, "reward", "phi_0", "next_phi_0") if c not in names]
+    states = ("state", "next_state") if "state" in names and "phi_0" not in names else ("phi_0", "next_phi_0")
+    missing = [c for c in (*KEYS, "reward", *states) if c not in names]
     if missing:
         raise DgtdInputError(f"transitions file {path} lacks the column(s) {', '.join(missing)}; {FIX}")
     q = sum(1 for c in names if c.startswith("phi_"))
@@ -88,7 +96,7 @@ def _checked(path: Path, batch: dict, names) -> dict:
     out = {}
     for name in names:
         x = np.asarray(batch[name])
-        if name in KEYS:
+        if name in KEYS or name in STATES:
             try:
                 out[name] = x.astype(np.int64, casting="safe")
             except TypeError:
@@ -110,13 +118,16 @@ class TransitionFile:
         if not path.is_file():
             raise DgtdInputError(f"transitions file {path} is missing; {FIX}")
         names = _header(path)
-        self.q = q = sum(1 for c in names if c.startswith("phi_"))
+        self.tabular = "phi_0" not in names
         self.has_ratio, self.has_terminal = "ratio" in names, "terminal" in names
-        keys = {}
-        for batch in _read(path, list(KEYS) if "episode" not in names else None):
-            b = _checked(path, batch, KEYS)
-            if b["step"].min(initial=0) < 0 or b["agent"].min(initial=0) < 0:
-                raise DgtdInputError(f"transitions file {path}: steps and agents are numbered from 0")
+        keys, n_states = {}, 0
+        firsts = [*KEYS, *(STATES if self.tabular else ())]
+        for batch in _read(path, firsts if "episode" not in names else None):
+            b = _checked(path, batch, firsts)
+            if min(b[c].min(initial=0) for c in firsts if c != "seed") < 0:
+                raise DgtdInputError(f"transitions file {path}: steps, agents and states are numbered from 0")
+            if self.tabular:
+                n_states = max(n_states, 1 + int(b["state"].max(initial=0)), 1 + int(b["next_state"].max(initial=0)))
             for k in np.unique(b["seed"]):
                 rows = b["seed"] == k
                 n, last, agents = keys.get(int(k), (0, -1, -1))
@@ -125,6 +136,7 @@ class TransitionFile:
         if len(keys) < 2:
             raise DgtdInputError(f"transitions file {path} holds {len(keys)} recording(s); the reference's standard "
                                  "error needs at least two independent ones (seed or episode column)")
+        self.q = q = n_states if self.tabular else sum(1 for c in names if c.startswith("phi_"))
         self.ids = np.array(sorted(keys))
         self.N = N = max(a for _, _, a in keys.values()) + 1
         self.lengths = np.array([keys[k][1] + 1 for k in self.ids])
@@ -138,13 +150,19 @@ class TransitionFile:
         self.rows = np.lib.format.open_memmap(Path(self._dir) / "rows.npy", "w+", np.float64, shape)
         seen = np.lib.format.open_memmap(Path(self._dir) / "seen.npy", "w+", np.bool_, shape[:3])
         index = {int(k): b for b, k in enumerate(self.ids)}
-        values = [*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)), "reward"]
+        values = [*(STATES if self.tabular else (*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)))),
+                  "reward"]
+        eye = np.eye(q) if self.tabular else None
         for batch in _read(path):
             b = _checked(path, batch, [*KEYS, *values, *(["ratio"] if self.has_ratio else []),
                                        *(["terminal"] if self.has_terminal else [])])
             t, r, i = b["step"], np.array([index[int(k)] for k in b["seed"]]), b["agent"]
             block = np.empty((len(t), 2 * q + 3))
-            block[:, : 2 * q + 1] = np.stack([b[name] for name in values], axis=1)
+            if self.tabular:  # one-hot features of the state indices
+                block[:, :q], block[:, q: 2 * q] = eye[b["state"]], eye[b["next_state"]]
+                block[:, 2 * q] = b["reward"]
+            else:
+                block[:, : 2 * q + 1] = np.stack([b[name] for name in values], axis=1)
             block[:, -2] = b["ratio"] if self.has_ratio else 1.0
             block[:, -1] = 1.0 - b["terminal"] if self.has_terminal else 1.0
             self.rows[t, r, i] = block
@@ -166,10 +184,10 @@ class TransitionFile:
     def reference(self, gamma: float, name: str = "data", chunk: int = 4096):
         """The LSTD reference over every recording, one group per recording: M and A from every agent's transitions,
         b_i from agent i's (scaled by N, as each agent holds 1/N of the rows)."""
-        from dgtd.problems.reference import MomentSums, estimate
+        from dgtd.problems.reference import MomentSums, TDCheck, estimate
 
         q, N = self.q, self.N
-        sums = []
+        sums, td = [], TDCheck(q)
         for b, T in enumerate(self.lengths):
             acc = MomentSums(N, q)
             for t0 in range(0, T, chunk):
@@ -178,8 +196,9 @@ class TransitionFile:
                 R = np.zeros((len(x), N))
                 R[np.arange(len(x)), agent] = x[:, 2 * q] * N
                 acc.add(x[:, :q], x[:, q: 2 * q], R, gamma * x[:, -1], x[:, -2])
+                td.add(x[:, :q], x[:, q: 2 * q], x[:, 2 * q], gamma * x[:, -1], x[:, -2])  # every agent's transitions
             sums.append(acc)
-        return estimate(name, gamma, sums, off_policy=self.has_ratio)
+        return estimate(name, gamma, sums, off_policy=self.has_ratio, td_check=td)
 
 
 class DataSource:

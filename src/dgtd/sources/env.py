@@ -174,9 +174,9 @@ def reference_from_env(make_source: Callable, n_features: int, gamma: float, nam
     """(the LSTD reference, how often each link was up): `dgtd.problems.reference.estimate` from ``groups``
     independent sources of ``steps`` steps each; ``make_source(group)`` returns a fresh `EnvSource` whose streams are
     separate from the run's. The link frequencies give the mean graph of a proximity network."""
-    from dgtd.problems.reference import MomentSums, estimate
+    from dgtd.problems.reference import MomentSums, TDCheck, estimate
 
-    sums, up, count = [], 0.0, 0
+    sums, up, count, td = [], 0.0, 0, TDCheck(n_features)
     for g in range(int(groups)):
         source = make_source(g)
         source.start()
@@ -188,8 +188,10 @@ def reference_from_env(make_source: Callable, n_features: int, gamma: float, nam
             tab = blk.table
             s, sn = blk.s.ravel(), blk.s_next.ravel()
             r = blk.r.reshape(-1, blk.r.shape[-1])
-            acc.add(tab.phi[s], tab.phi[sn], r, gamma * tab.continuing[s] * tab.continuing[sn], tab.ratio[s, 0])
+            discount = gamma * tab.continuing[s] * tab.continuing[sn]
+            acc.add(tab.phi[s], tab.phi[sn], r, discount, tab.ratio[s, 0])
+            td.add(tab.phi[s], tab.phi[sn], r.mean(axis=1), discount, tab.ratio[s, 0])
             up, count = up + blk.up.sum(axis=(0, 1)), count + blk.up.shape[0] * blk.up.shape[1]
             done += T
         sums.append(acc)
-    return estimate(name, gamma, sums), up / max(count, 1)
+    return estimate(name, gamma, sums, td_check=td), up / max(count, 1)
