@@ -242,3 +242,19 @@ def test_a_reward_mapping_in_the_env_table_gives_each_agent_its_mapped_reward(ru
                    tmp_path / "own", "--no-plots", "--no-progress")[0] == 0
     team, own = np.array(summary(tmp_path / "team")["w_star"]), np.array(summary(tmp_path / "own")["w_star"])
     np.testing.assert_allclose(team, 3 * own, rtol=1e-9)
+
+
+def test_compare_runs_on_an_env_and_on_recordings(run_cli, tmp_path):
+    """`dgtd compare --env ...` and `--data ...`: every algorithm on the same samples, the reference said to be an
+    estimate in summary.json."""
+    code, text, err = run_cli("compare", "--env", env("make_chain"), "--features", "one-hot", "--gamma", 0.8,
+                              "-a", "dgtd,td0", "-T", 3000, "--seeds", 2, "--out", tmp_path / "c", "--no-plots",
+                              "--no-progress")
+    assert code == 0, err
+    s = summary(tmp_path / "c")
+    assert s["reference"]["estimated"] and set(s["algorithms"]) == {"dgtd", "td0"}
+    record_parquet(tmp_path / "t.parquet", seeds=2, steps=3000)
+    code, text, err = run_cli("compare", "--data", tmp_path / "t.parquet", "-a", "dgtd,gtd2", "--seeds", 2,
+                              "--out", tmp_path / "d", "--no-plots", "--no-progress")
+    assert code == 0, err
+    assert summary(tmp_path / "d")["config"]["iterations"] == 3000

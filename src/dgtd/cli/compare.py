@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from dgtd.algorithms import ALGORITHMS
+from dgtd.cli.options import env_options
 from dgtd.config import CHOICES
 from dgtd.run.loop import RunSettings
 
@@ -19,8 +20,14 @@ def _names(text: str | None) -> tuple[str, ...]:
     return tuple(a.strip() for a in text.split(",") if a.strip())
 
 
+def _with_env_options(f):
+    for option in reversed(env_options()):
+        f = option(f)
+    return f
+
+
 @click.command()
-@click.argument("scenario")
+@click.argument("scenario", required=False)
 @click.option("--algorithms", "-a", type=str, default=None,
               help=f"Comma-separated: {', '.join(ALGORITHMS)} (default: all).")
 @click.option("--seeds", type=int, default=5, show_default=True, help="Independent runs per algorithm, the same for all.")
@@ -41,9 +48,12 @@ def _names(text: str | None) -> tuple[str, ...]:
 @click.option("--plots/--no-plots", default=True, show_default=True)
 @click.option("--overwrite", is_flag=True, default=False,
               help="Replace another comparison's results in --out (otherwise refused).")
+@click.option("--graph", type=str, default=None, help="The network of an --env or --data run (default: ring).")
+@_with_env_options
 def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
-            checkpoints, out, progress, plots, overwrite):
-    """Run several algorithms on SCENARIO with the same samples; write metrics.csv, summary.json and plots.
+            checkpoints, out, progress, plots, overwrite, **user):
+    """Run several algorithms on SCENARIO (or --env / --data, as `dgtd run`) with the same samples; write
+    metrics.csv, summary.json and plots.
 
     The run is described, checked and recorded as the `RunSpec` of `dgtd run` (the same fields, defaults and
     checks), plus the algorithms compared and the tuning. Each algorithm's numbers are saved as it finishes: after
@@ -54,14 +64,21 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
     from dgtd.run.compare import (CompareSettings, compare as run_compare, configs_for, finish_directory,
                                   prepare_directory, save_part, write_compare)
 
+    from dgtd.errors import DgtdInputError
+    from dgtd.experiments import Experiment, override
+
     spec = RunSpec(scenario=scenario, edge_prob=edge_prob, iterations=iterations, seeds=seeds, seed=seed,
                    sampling=sampling, shared=shared, backend=backend, checkpoints=checkpoints)
+    spec = override(Experiment(spec=spec), {k: v for k, v in user.items() if v is not None}).spec
+    if scenario is None and spec.env is None and spec.data is None:
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), --env module:make_env or --data FILE")
     p, network, _, samp, settings, resolved = resolve(spec)
     sc = scenario_of(resolved)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
-    out = Path(out) if out else Path("runs") / f"compare-{scenario}"
-    click.echo(f"{p.name}: {p.n_states} states, {p.n_agents} agents, {p.n_features} features, gamma {p.gamma:g}"
+    out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
+    states = f"{p.n_states} states" if hasattr(p, "P") else "no model (an estimated reference)"
+    click.echo(f"{p.name}: {states}, {p.n_agents} agents, {p.n_features} features, gamma {p.gamma:g}"
                f"{', off-policy' if p.off_policy else ''}; network: {network.describe()}; {samp.mode} sampling, "
                f"{'shared' if samp.shared else 'independent'} states")
     click.echo(f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"

@@ -158,13 +158,15 @@ def config_dict(alg) -> dict:
 def summary(problem, network, results: dict, used: dict, tables: dict, spec: dict) -> dict:
     """summary.json: the exact solution, then per algorithm its config, final metrics over seeds,
     divergence, samples and messages."""
-    m = exact.Moments(problem)
     first = next(iter(results.values()))
+    m = first.info["moments"]
+    model = getattr(m, "model", True)
     out = {
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
         "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
         "network": network.describe(), "w_star": first.w_star.tolist(), "mspbe_w_star": first.info["mspbe_w_star"],
-        "values_exact": exact.value_function(m).tolist(), "config": spec, "algorithms": {},
+        "values_exact": exact.value_function(m).tolist() if model else None, "config": spec, "algorithms": {},
+        **({} if model else {"reference": problem.summary()}),  # no model: an estimate, and how precise it is
     }
     for name, r in results.items():
         div = r.info["diverged_at"]

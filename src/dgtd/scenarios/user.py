@@ -242,6 +242,15 @@ def graph_step_cap(base_graph) -> float:
     return float(np.sqrt(DGTD().beta) / lam) if lam > 0 else float("inf")
 
 
+def compare_steps(reference) -> dict:
+    """The baselines' alpha0 in `dgtd compare`: garnet's (features of unit scale, as DGTD's default) divided by
+    E |phi(s)|^2, as DGTD's is; ``--tune`` picks them on separate seeds instead."""
+    from dgtd.scenarios import COMPARE_STEPS
+
+    scale = max(float(np.trace(reference.moments.M)), 1.0)
+    return {name: {"alpha0": fields["alpha0"] / scale} for name, fields in COMPARE_STEPS["garnet"].items()}
+
+
 def scaled_dgtd(reference, base_graph) -> DGTD:
     """DGTD with its default alpha0 divided by E |phi(s)|^2 (the trace of the reference's M) when that is above 1,
     and at most `graph_step_cap`."""
@@ -303,6 +312,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
                     f"{algorithm.alpha0:.3g}",
         source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
         report=TrajectoryReport(lambda: source(features, 0, [0], TRAJECTORY_SEED_OFFSET, q)),
+        compare_settings=compare_steps(reference),
     )
 
 
@@ -324,6 +334,7 @@ def data_scenario(path: str, gamma: float, network_for):
                     f"{algorithm.alpha0:.3g}",
         source=lambda seed, seed_ids: DataSource(data, seed_ids),
         data=data,
+        compare_settings=compare_steps(reference),
     )
 
 
