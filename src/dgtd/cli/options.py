@@ -40,7 +40,8 @@ def env_options() -> list:
                           "the reward) or the agents' shares, e.g. 0.5,0.3,0.2."),
         click.option("--data", type=str, default=None, metavar="FILE",
                      help="Run on recorded transitions (.parquet, .csv, .npz; columns seed, step, agent, phi_j, "
-                          "next_phi_j, reward, and optionally ratio, terminal): one recording per seed."),
+                          "next_phi_j (or state, next_state), reward, and optionally ratio, terminal): one recording per "
+                          "seed."),
         click.option("--gamma", type=float, default=None,
                      help=f"Discount factor of an --env or --data run (default {DEFAULT_GAMMA})."),
     ]
