@@ -159,7 +159,7 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
     """summary.json: the exact solution, then per algorithm its config, final metrics over seeds,
     divergence, samples and messages."""
     first = next(iter(results.values()))
-    m = first.info["moments"]
+    m = exact.Moments(problem) if hasattr(problem, "P") else problem.moments  # a resumed part keeps no moments
     model = getattr(m, "model", True)
     out = {
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
