@@ -258,3 +258,26 @@ def test_compare_runs_on_an_env_and_on_recordings(run_cli, tmp_path):
                               "--out", tmp_path / "d", "--no-plots", "--no-progress")
     assert code == 0, err
     assert summary(tmp_path / "d")["config"]["iterations"] == 3000
+
+
+def test_fourier_features_take_the_declared_box_or_the_range_seen():
+    """CartPole declares finite bounds for 2 of its 4 variables: those are kept, the other 2 come from the pilot
+    states; an env whose state() is not its observations gets its box from the states seen."""
+    from dgtd.scenarios.user import EnvSpec, build_features, env_factory
+
+    make, _, _ = env_factory(EnvSpec(make="gymnasium:CartPole-v1", agents=2))
+    pilot = lambda steps=None: np.array([[0.0, -3.0, 0.0, -2.0], [0.1, 5.0, 0.1, 4.0]])  # noqa: E731
+    f, q, about = build_features("fourier:1", make(), pilot)
+    assert q == 16 and "range of 2 states seen" in about
+    probe = make()
+    bounds = probe.env.observation_space
+    x = np.array([[bounds.low[0], -3.0, bounds.low[2], -2.0], [bounds.high[0], 5.0, bounds.high[2], 4.0]])
+    np.testing.assert_allclose(f(x)[:, 1:], feature_maps_of_corners(), atol=1e-12)
+
+
+def feature_maps_of_corners():
+    """fourier:1 at the box's two corners, (0, 0, 0, 0) and (1, 1, 1, 1) scaled: cos(pi c.x) for c in {0,1}^4."""
+    from itertools import product
+
+    cs = np.array(list(product([0, 1], repeat=4)))[1:]
+    return np.stack([np.ones(len(cs)), np.cos(np.pi * cs.sum(axis=1))])

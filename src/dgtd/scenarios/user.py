@@ -152,25 +152,28 @@ def env_factory(spec: EnvSpec):
                          "pettingzoo.utils.aec_to_parallel")
 
 
-def _state_box(env, agents) -> tuple[np.ndarray, np.ndarray] | None:
-    """The state space's bounds (low, high), where it declares them (inf where it does not), else None."""
-    space = getattr(env, "state_space", None)
-    if space is None and hasattr(env, "env") and hasattr(env.env, "observation_space"):  # SplitReward
-        space = env.env.observation_space
-    spaces = [space] if space is not None else [env.observation_space(a) for a in agents]
+def _state_spaces(env) -> list:
+    """The spaces of the state the value function is defined on: the env's state space, a wrapped Gymnasium env's
+    observation space, or every agent's observation space (the observations concatenated)."""
+    from dgtd.sources.gym import SplitReward
+
+    space = env.env.observation_space if isinstance(env, SplitReward) else getattr(env, "state_space", None)
+    return [space] if space is not None else [env.observation_space(a) for a in env.possible_agents]
+
+
+def _state_box(env) -> tuple[np.ndarray, np.ndarray] | None:
+    """The state space's bounds (low, high) where it declares them (inf where it does not), else None."""
+    spaces = _state_spaces(env)
     if not all(hasattr(s, "low") for s in spaces):
         return None
     return (np.concatenate([np.ravel(s.low) for s in spaces]).astype(np.float64),
             np.concatenate([np.ravel(s.high) for s in spaces]).astype(np.float64))
 
 
-def _discrete_states(env, agents) -> int | None:
-    space = getattr(env, "state_space", None)
-    if space is None and hasattr(env, "env"):
-        space = env.env.observation_space
-    if space is None and len(agents) == 1:
-        space = env.observation_space(agents[0])
-    return int(space.n) if space is not None and hasattr(space, "n") else None
+def _discrete_states(env) -> int | None:
+    """The number of states of a discrete state space (one Discrete space), else None."""
+    spaces = _state_spaces(env)
+    return int(spaces[0].n) if len(spaces) == 1 and hasattr(spaces[0], "n") else None
 
 
 def build_features(text: str, probe, pilot_states):
@@ -186,13 +189,14 @@ def build_features(text: str, probe, pilot_states):
         if sizes is None or len(sizes) != wanted or min(sizes) < 1:
             raise DgtdInputError(f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
                                  "with positive integers")
-        states = None
-        box = _state_box(probe, list(probe.possible_agents))
-        if box is None or not np.all(np.isfinite(box[0]) & np.isfinite(box[1]) & (box[1] - box[0] < 1e6)):
+        states, box = None, _state_box(probe)
+        if box is not None and len(box[0]) != pilot_states(8).shape[1]:  # state() is not the observations
+            box = None
+        keep = None if box is None else np.isfinite(box[0]) & np.isfinite(box[1]) & (box[1] - box[0] < 1e6)
+        if keep is None or not keep.all():  # the range seen, where no finite and reasonable bound is declared
             states = pilot_states()
             low, high = states.min(axis=0), states.max(axis=0)
-            if box is not None:  # keep the declared bounds where they are finite and reasonable
-                keep = np.isfinite(box[0]) & np.isfinite(box[1]) & (box[1] - box[0] < 1e6)
+            if keep is not None:
                 low, high = np.where(keep, box[0], low), np.where(keep, box[1], high)
             box = (low, np.where(high > low, high, low + 1.0))
         dim = len(box[0])
@@ -206,7 +210,7 @@ def build_features(text: str, probe, pilot_states):
         where = "the state space's bounds" if states is None else f"the range of {len(states):,} states seen"
         return f, n, f"{kind} features ({n}) over {where}"
     if kind == "one-hot":
-        n = _discrete_states(probe, list(probe.possible_agents))
+        n = _discrete_states(probe)
         if n is None:
             raise DgtdInputError("--features one-hot needs a discrete state (a Discrete state or observation space); "
                                  "use fourier, rbf or tiles for continuous states")
