@@ -147,3 +147,44 @@ def test_state_index_columns_give_tabular_features_and_the_models_w_star(tmp_pat
     ref = data.reference(problem.gamma)
     w = exact.w_star(exact.Moments(problem))
     assert np.all(np.abs(ref.w_star - w) <= 4 * ref.w_star_stderr), (ref.w_star, w, ref.w_star_stderr)
+
+
+@pytest.fixture(scope="module")
+def episodes(tmp_path_factory):
+    """One dataset of 400 episodes of 100 steps (no seed column): one long recording of a Garnet chain cut up."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from dgtd.problems.tasks import garnet
+
+    problem = garnet(n_states=8, branching=3, n_agents=3, n_features=3, seed=1)
+    cols = record(problem, seeds=1, steps=40_000)
+    cols["episode"], cols["step"] = cols["step"] // 100, cols["step"] % 100
+    del cols["seed"]
+    path = tmp_path_factory.mktemp("episodes") / "episodes.parquet"
+    pq.write_table(pa.table(cols), path)
+    return problem, path
+
+
+def test_a_dataset_of_episodes_gives_the_models_w_star_and_dgtd_reaches_it(episodes):
+    """Episodes without recordings: the reference's 8 groups are the episodes dealt in turn (within 4 standard
+    errors of the exact w*), and two seeds, each replaying every episode in its own order, end within 3 % of it."""
+    problem, path = episodes
+    data = TransitionFile(path)
+    assert data.recordings is None and len(data.units) == 400 and len(data.groups) == 8
+    ref = data.reference(problem.gamma)
+    w = exact.w_star(exact.Moments(problem))
+    assert np.all(np.abs(ref.w_star - w) <= 4 * ref.w_star_stderr), (ref.w_star, w, ref.w_star_stderr)
+    result = run(ref, random_edges(topologies.ring(3), 1.0), make_algorithm("dgtd"), Sampling(),
+                 RunSettings(iterations=40_000, seeds=2, checkpoints=5), source=DataSource(data, [0, 1], seed=3))
+    assert result.metrics["value_error_tail"][-1].max() < 0.03
+
+
+def test_a_seeds_order_of_episodes_does_not_depend_on_the_other_seeds(episodes):
+    _, path = episodes
+    data = TransitionFile(path)
+    one, two = DataSource(data, [1], seed=5), DataSource(data, [0, 1], seed=5)
+    a, b = one.next_block(300), two.next_block(300)
+    assert np.array_equal(a.r[:, 0], b.r[:, 1]) and not np.array_equal(b.r[:, 0], b.r[:, 1])
+    stream = np.concatenate([data.rows[data.offsets[u]: data.offsets[u + 1], :, 2 * data.q] for u in data.order(5, 1)])
+    assert np.array_equal(a.r[:, 0], stream[:300])  # episode after episode, in the seed's order

@@ -250,13 +250,14 @@ def _plain_env(env: dict | None) -> dict | None:
 def _check_recordings(spec: RunSpec, sc) -> None:
     """A run on recordings takes one recording per seed and at most as many steps as they hold."""
     data = sc.data
-    if spec.seeds > data.recordings:
+    if data.recordings is not None and spec.seeds > data.recordings:
         raise DgtdInputError(f"{spec.data} holds {data.recordings} recordings, one per seed: run at most --seeds "
                              f"{data.recordings}")
     steps = data.steps(range(spec.seeds))
     if spec.iterations is not None and spec.iterations > steps:
-        raise DgtdInputError(f"the first {spec.seeds} recordings of {spec.data} hold {steps:,} steps each (the "
-                             f"shortest): run at most --iterations {steps}")
+        held = (f"the first {spec.seeds} recordings of {spec.data} hold {steps:,} steps each (the shortest)"
+                if data.by_seed else f"the episodes of {spec.data} hold {steps:,} steps in all")
+        raise DgtdInputError(f"{held}: run at most --iterations {steps}")
 
 
 def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> None:

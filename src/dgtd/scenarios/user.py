@@ -321,8 +321,8 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
 
 
 def data_scenario(path: str, gamma: float, network_for):
-    """The `Scenario` of a transitions file (its `TransitionFile` as ``data``): recording k is seed k, the reference
-    LSTD over every recording."""
+    """The `Scenario` of a transitions file (its `TransitionFile` as ``data``): recording k is seed k (or each seed
+    replays every episode in an order of its own), the reference LSTD over all of it."""
     from dgtd.scenarios import Scenario
     from dgtd.sources.data import DataSource, TransitionFile
 
@@ -332,11 +332,13 @@ def data_scenario(path: str, gamma: float, network_for):
     algorithm = scaled_dgtd(reference, network.base)
     return Scenario(
         problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov"),
-        iterations=data.steps(range(data.recordings)),
-        description=f"recorded transitions {path}: {data.recordings} recordings of {data.N} agents, "
-                    f"{int(data.lengths.min()):,} to {int(data.lengths.max()):,} steps; {STEP_WORDS} = "
-                    f"{algorithm.alpha0:.3g}",
-        source=lambda seed, seed_ids: DataSource(data, seed_ids),
+        iterations=data.steps(range(data.recordings or 1)),
+        description=f"recorded transitions {path}: "
+                    f"{data.recordings if data.by_seed else len(data.units):,} "
+                    f"{'recordings' if data.by_seed else 'episodes'} of {data.N} agents, {int(data.offsets[-1]):,} "
+                    f"steps in all{'' if data.by_seed else ', replayed by each seed in an order of its own'}; "
+                    f"{STEP_WORDS} = {algorithm.alpha0:.3g}",
+        source=lambda seed, seed_ids: DataSource(data, seed_ids, seed),
         data=data,
         compare_settings=compare_steps(reference),
     )

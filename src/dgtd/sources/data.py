@@ -2,17 +2,20 @@
 
 A table (Parquet, CSV or .npz of columns) holds one row per agent and step:
 
-- ``seed`` (or ``episode``): which independent recording the row belongs to (a run's seed, an independent copy);
-- ``step``: its time index within that recording; ``agent``: 0 .. N-1;
+- ``seed`` and/or ``episode``: which independent recording (a run's seed) and which episode the row belongs to;
+- ``step``: its time index within that episode (within the recording, without ``episode``); ``agent``: 0 .. N-1;
 - the state: feature columns ``phi_0 .. phi_{q-1}`` and ``next_phi_0 ..`` of the next state, or integer columns
   ``state`` and ``next_state`` (0 .. S-1), whose features are then tabular (one-hot, q = S);
 - ``reward``: the agent's own reward; optional ``ratio`` (importance ratio, 1 if absent) and ``terminal`` (1 where
   the transition ended an episode: its TD target is the reward alone).
 
-Every recording must hold every agent at every step from 0 on; recording k (in the order of their ids) is seed k of
-a run, and the reference is LSTD over the recordings (`dgtd.problems.reference`), its standard error from their
-spread. `TransitionFile` reads the file in batches (Parquet and CSV stream; an .npz is read whole) into a
-disk-backed array ordered by step, so that a file larger than memory works and each block of a run is one slice.
+Every episode must hold every agent at every step from 0 on. With a ``seed`` column, recording k (in the order of
+their ids) is seed k of a run, its episodes one after another, and the reference is LSTD with one group per
+recording. With episodes only, there is one dataset and no independent recordings: seed k replays every episode in
+an order of its own (drawn from the run's seed and k, so that it does not depend on the other seeds), and the
+reference's groups are the episodes dealt in turn into 8 (`dgtd.problems.reference`). `TransitionFile` reads the
+file in batches (Parquet and CSV stream; an .npz is read whole) into a disk-backed array, episode after episode,
+so that a file larger than memory works and a block of a run reads only its own rows.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.samples import Block, SampleTable
 
-KEYS = ("seed", "step", "agent")
+KEYS = ("seed", "episode", "step", "agent")
+GROUPS = 8  # the reference's groups of episodes, without independent recordings
 STATES = ("state", "next_state")  # tabular states, instead of feature columns
 FIX = ("give one row per agent and step with columns seed, step, agent, phi_0.., next_phi_0.. (or state, "
        "next_state), reward")
@@ -76,9 +80,10 @@ def _header(path: Path) -> list[str]:
         break
     else:
         names = []
-    names = ["seed" if n == "episode" and "seed" not in names else n for n in names]
     states = ("state", "next_state") if "state" in names and "phi_0" not in names else ("phi_0", "next_phi_0")
-    missing = [c for c in (*KEYS, "reward", *states) if c not in names]
+    missing = [c for c in ("step", "agent", "reward", *states) if c not in names]
+    if "seed" not in names and "episode" not in names:
+        missing.insert(0, "seed or episode")
     if missing:
         raise DgtdInputError(f"transitions file {path} lacks the column(s) {', '.join(missing)}; {FIX}")
     q = sum(1 for c in names if c.startswith("phi_"))
@@ -90,11 +95,13 @@ def _header(path: Path) -> list[str]:
 
 
 def _checked(path: Path, batch: dict, names) -> dict:
-    """A batch's columns as int64 keys and float64 values, or a one-line error naming the column."""
-    if "seed" not in batch and "episode" in batch:
-        batch["seed"] = batch.pop("episode")
+    """A batch's columns as int64 keys and float64 values (a missing seed or episode column: zeros), or a one-line
+    error naming the column."""
     out = {}
-    for name in names:
+    for name in ("seed", "episode"):
+        if name in names and name not in batch:
+            out[name] = np.zeros(len(batch["step"]), np.int64)
+    for name in (n for n in names if n not in out):
         x = np.asarray(batch[name])
         if name in KEYS or name in STATES:
             try:
@@ -109,9 +116,9 @@ def _checked(path: Path, batch: dict, names) -> dict:
 
 
 class TransitionFile:
-    """A transitions table read in two passes: the recordings' ids, lengths and agents, then every row into a
-    disk-backed array ``rows`` (T, recordings, N, 2q + 3) of phi, next phi, reward, ratio and continuing, in a
-    temporary directory removed with this object."""
+    """A transitions table read in two passes: its episodes' keys, lengths and agents, then every row into a
+    disk-backed array ``rows`` (total steps, N, 2q + 3) of phi, next phi, reward, ratio and continuing, episode
+    after episode (``offsets``), in a temporary directory removed with this object."""
 
     def __init__(self, path):
         self.path = path = Path(path)
@@ -119,45 +126,58 @@ class TransitionFile:
             raise DgtdInputError(f"transitions file {path} is missing; {FIX}")
         names = _header(path)
         self.tabular = "phi_0" not in names
+        self.by_seed = "seed" in names  # independent recordings; else one dataset of episodes
         self.has_ratio, self.has_terminal = "ratio" in names, "terminal" in names
-        keys, n_states = {}, 0
         firsts = [*KEYS, *(STATES if self.tabular else ())]
-        for batch in _read(path, firsts if "episode" not in names else None):
+        units, n_states, agents = {}, 0, -1  # (seed, episode) -> (rows, last step)
+        for batch in _read(path, [c for c in firsts if c in names]):
             b = _checked(path, batch, firsts)
-            if min(b[c].min(initial=0) for c in firsts if c != "seed") < 0:
+            if min(b[c].min(initial=0) for c in firsts if c not in ("seed", "episode")) < 0:
                 raise DgtdInputError(f"transitions file {path}: steps, agents and states are numbered from 0")
             if self.tabular:
                 n_states = max(n_states, 1 + int(b["state"].max(initial=0)), 1 + int(b["next_state"].max(initial=0)))
-            for k in np.unique(b["seed"]):
-                rows = b["seed"] == k
-                n, last, agents = keys.get(int(k), (0, -1, -1))
-                keys[int(k)] = (n + int(rows.sum()), max(last, int(b["step"][rows].max())),
-                                max(agents, int(b["agent"][rows].max())))
-        if len(keys) < 2:
-            raise DgtdInputError(f"transitions file {path} holds {len(keys)} recording(s); the reference's standard "
-                                 "error needs at least two independent ones (seed or episode column)")
+            agents = max(agents, int(b["agent"].max(initial=-1)))
+            keys, inverse = np.unique(np.stack([b["seed"], b["episode"]], axis=1), axis=0, return_inverse=True)
+            inverse = inverse.ravel()
+            count, last = np.bincount(inverse), np.full(len(keys), -1)
+            np.maximum.at(last, inverse, b["step"])
+            for (k, e), c, t in zip(keys.tolist(), count.tolist(), last.tolist()):
+                n, before = units.get((k, e), (0, -1))
+                units[(k, e)] = (n + c, max(before, t))
         self.q = q = n_states if self.tabular else sum(1 for c in names if c.startswith("phi_"))
-        self.ids = np.array(sorted(keys))
-        self.N = N = max(a for _, _, a in keys.values()) + 1
-        self.lengths = np.array([keys[k][1] + 1 for k in self.ids])
-        for k, T in zip(self.ids, self.lengths):
-            if keys[k][0] != T * N:
-                raise DgtdInputError(f"recording {k} does not hold every agent at every step 0..{T - 1} ({keys[k][0]:,} "
-                                     f"rows for {N} agents x {T:,} steps): one row per agent and step is needed")
+        self.N = N = agents + 1
+        self.units = sorted(units)
+        self.lengths = np.array([units[u][1] + 1 for u in self.units])
+        self.offsets = np.concatenate([[0], np.cumsum(self.lengths)])
+        for u, T in zip(self.units, self.lengths):
+            if units[u][0] != T * N:
+                raise DgtdInputError(f"{self._name(u)} does not hold every agent at every step 0..{T - 1} "
+                                     f"({units[u][0]:,} rows for {N} agents x {T:,} steps): one row per agent and "
+                                     "step is needed")
+        seeds = [k for k, _ in self.units]
+        self.ids = np.unique(seeds)
+        self.groups = ([np.flatnonzero(np.array(seeds) == k) for k in self.ids] if self.by_seed else
+                       [np.arange(g, len(self.units), min(GROUPS, len(self.units))) for g in
+                        range(min(GROUPS, len(self.units)))])
+        if len(self.groups) < 2:
+            raise DgtdInputError(f"transitions file {path} holds {len(self.groups)} "
+                                 f"{'recording' if self.by_seed else 'episode'}; the reference's standard error needs "
+                                 "at least two independent ones")
         self._dir = tempfile.mkdtemp(prefix="dgtd-transitions-")
         weakref.finalize(self, shutil.rmtree, self._dir, True)
-        shape = (int(self.lengths.max()), len(self.ids), N, 2 * q + 3)
+        shape = (int(self.offsets[-1]), N, 2 * q + 3)
         self.rows = np.lib.format.open_memmap(Path(self._dir) / "rows.npy", "w+", np.float64, shape)
-        seen = np.lib.format.open_memmap(Path(self._dir) / "seen.npy", "w+", np.bool_, shape[:3])
-        index = {int(k): b for b, k in enumerate(self.ids)}
+        seen = np.lib.format.open_memmap(Path(self._dir) / "seen.npy", "w+", np.bool_, shape[:2])
+        index = {u: j for j, u in enumerate(self.units)}
         values = [*(STATES if self.tabular else (*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)))),
                   "reward"]
         eye = np.eye(q) if self.tabular else None
         for batch in _read(path):
             b = _checked(path, batch, [*KEYS, *values, *(["ratio"] if self.has_ratio else []),
                                        *(["terminal"] if self.has_terminal else [])])
-            t, r, i = b["step"], np.array([index[int(k)] for k in b["seed"]]), b["agent"]
-            block = np.empty((len(t), 2 * q + 3))
+            keys, inverse = np.unique(np.stack([b["seed"], b["episode"]], axis=1), axis=0, return_inverse=True)
+            where = self.offsets[[index[tuple(key)] for key in keys.tolist()]][inverse.ravel()] + b["step"]
+            block = np.empty((len(where), 2 * q + 3))
             if self.tabular:  # one-hot features of the state indices
                 block[:, :q], block[:, q: 2 * q] = eye[b["state"]], eye[b["next_state"]]
                 block[:, 2 * q] = b["reward"]
@@ -165,52 +185,81 @@ class TransitionFile:
                 block[:, : 2 * q + 1] = np.stack([b[name] for name in values], axis=1)
             block[:, -2] = b["ratio"] if self.has_ratio else 1.0
             block[:, -1] = 1.0 - b["terminal"] if self.has_terminal else 1.0
-            self.rows[t, r, i] = block
-            seen[t, r, i] = True
-        for b, (k, T) in enumerate(zip(self.ids, self.lengths)):
-            if not seen[:T, b].all():  # as many rows as cells, but some cell twice
-                raise DgtdInputError(f"recording {k} does not hold every agent at every step 0..{T - 1}: a row is "
-                                     "repeated and another missing")
+            self.rows[where, b["agent"]] = block
+            seen[where, b["agent"]] = True
+        for u, start, end in zip(self.units, self.offsets[:-1], self.offsets[1:]):
+            if not seen[start:end].all():  # as many rows as cells, but some cell twice
+                raise DgtdInputError(f"{self._name(u)} does not hold every agent at every step 0..{end - start - 1}: "
+                                     "a row is repeated and another missing")
         self.rows.flush()
 
+    def _name(self, unit) -> str:
+        k, e = unit
+        return " ".join(([f"recording {k}"] if self.by_seed else []) + ([f"episode {e}"] if not self.by_seed or e
+                                                                        else []))
+
     @property
-    def recordings(self) -> int:
-        return len(self.ids)
+    def recordings(self) -> int | None:
+        """How many independent recordings (seeds of a run) the file holds; None for one dataset of episodes."""
+        return len(self.ids) if self.by_seed else None
+
+    def order(self, seed: int, k: int) -> np.ndarray:
+        """The episodes seed id ``k`` replays, in order: recording k's, or every episode in an order drawn from
+        SeedSequence(seed, spawn_key=(k,)) when the file has no independent recordings."""
+        if self.by_seed:
+            return self.groups[k]
+        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(k),)))) \
+            .permutation(len(self.units))
 
     def steps(self, seed_ids) -> int:
-        """How many steps a run over recordings ``seed_ids`` can take: the shortest of them."""
-        return int(self.lengths[list(seed_ids)].min())
+        """How many steps a run over ``seed_ids`` can take: its shortest recording's, or every episode's."""
+        if not self.by_seed:
+            return int(self.offsets[-1])
+        return int(min(self.lengths[self.groups[k]].sum() for k in seed_ids))
 
     def reference(self, gamma: float, name: str = "data", chunk: int = 4096):
-        """The LSTD reference over every recording, one group per recording: M and A from every agent's transitions,
-        b_i from agent i's (scaled by N, as each agent holds 1/N of the rows)."""
+        """The LSTD reference, one group per recording (or per eighth of the episodes, dealt in turn): M and A from
+        every agent's transitions, b_i from agent i's (scaled by N, as each agent holds 1/N of the rows)."""
         from dgtd.problems.reference import MomentSums, TDCheck, estimate
 
         q, N = self.q, self.N
         sums, td = [], TDCheck(q)
-        for b, T in enumerate(self.lengths):
+        for group in self.groups:
             acc = MomentSums(N, q)
-            for t0 in range(0, T, chunk):
-                x = np.asarray(self.rows[t0: min(T, t0 + chunk), b]).reshape(-1, 2 * q + 3)
-                agent = np.tile(np.arange(N), len(x) // N)
-                R = np.zeros((len(x), N))
-                R[np.arange(len(x)), agent] = x[:, 2 * q] * N
-                acc.add(x[:, :q], x[:, q: 2 * q], R, gamma * x[:, -1], x[:, -2])
-                td.add(x[:, :q], x[:, q: 2 * q], x[:, 2 * q], gamma * x[:, -1], x[:, -2])  # every agent's transitions
+            for u in group:
+                for t0 in range(self.offsets[u], self.offsets[u + 1], chunk):
+                    x = np.asarray(self.rows[t0: min(self.offsets[u + 1], t0 + chunk)]).reshape(-1, 2 * q + 3)
+                    agent = np.tile(np.arange(N), len(x) // N)
+                    R = np.zeros((len(x), N))
+                    R[np.arange(len(x)), agent] = x[:, 2 * q] * N
+                    acc.add(x[:, :q], x[:, q: 2 * q], R, gamma * x[:, -1], x[:, -2])
+                    td.add(x[:, :q], x[:, q: 2 * q], x[:, 2 * q], gamma * x[:, -1], x[:, -2])  # every agent's rows
             sums.append(acc)
         return estimate(name, gamma, sums, off_policy=self.has_ratio, td_check=td)
 
 
 class DataSource:
-    """Blocks from recorded transitions: recording ``seed_ids[b]`` is seed b, each agent its own transition at every
-    step (n = N); a block reads only its steps' slice of the file's disk-backed rows."""
+    """Blocks from recorded transitions: seed b replays the episodes of `TransitionFile.order` (seed, seed_ids[b]),
+    each agent its own transition at every step (n = N); a block reads only its own rows of the file's
+    disk-backed array."""
 
-    def __init__(self, data: TransitionFile, seed_ids=None):
+    def __init__(self, data: TransitionFile, seed_ids=None, seed: int = 0):
         self.data = data
-        self.chosen = list(range(data.recordings)) if seed_ids is None else [int(k) for k in seed_ids]
-        if max(self.chosen) >= data.recordings:
+        self.chosen = list(range(data.recordings or 1)) if seed_ids is None else [int(k) for k in seed_ids]
+        if data.recordings is not None and max(self.chosen) >= data.recordings:
             raise DgtdInputError(f"{data.path} holds {data.recordings} recordings; run at most {data.recordings} seeds")
         self.T, self.N, self.k = data.steps(self.chosen), data.N, 0
+        # where each seed's stream is in the file's rows: its episodes' starts, in order, and where each ends in it
+        orders = [data.order(seed, k) for k in self.chosen]
+        self.starts = [data.offsets[o] for o in orders]
+        self.ends = [np.cumsum(data.lengths[o]) for o in orders]
+
+    def _positions(self, b: int, k: int, T: int) -> np.ndarray:
+        """The rows of steps k .. k+T-1 of seed b's stream."""
+        steps = np.arange(k, k + T)
+        u = np.searchsorted(self.ends[b], steps, side="right")  # which episode of the stream holds each step
+        before = np.where(u > 0, self.ends[b][np.maximum(u - 1, 0)], 0)
+        return self.starts[b][u] + steps - before
 
     def start(self) -> None:
         self.k = 0
@@ -219,7 +268,8 @@ class DataSource:
         if self.k + T > self.T:
             raise DgtdInputError(f"the recordings hold {self.T} steps; run at most that many iterations")
         q = self.data.q
-        x = np.asarray(self.data.rows[self.k: self.k + T][:, self.chosen])  # (T, B, N, 2q + 3)
+        where = np.stack([self._positions(b, self.k, T) for b in range(len(self.chosen))], axis=1)  # (T, B)
+        x = np.asarray(self.data.rows[where.ravel()]).reshape(*where.shape, self.N, 2 * q + 3)
         self.k += T
         B, N = len(self.chosen), self.N
         M = T * B * N
