@@ -281,3 +281,15 @@ def feature_maps_of_corners():
 
     cs = np.array(list(product([0, 1], repeat=4)))[1:]
     return np.stack([np.ones(len(cs)), np.cos(np.pi * cs.sum(axis=1))])
+
+
+def test_a_policy_per_agent_in_the_env_table(run_cli, tmp_path):
+    file = tmp_path / "p.toml"
+    table = f'gamma = 0.8\niterations = 300\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n\n[env.policy]\n'
+    file.write_text(table + f'agent_0 = "random"\nagent_1 = "{env("stay")}"\nagent_2 = "{env("stay")}"\n')
+    code, text, err = run_cli("run", file, "--out", tmp_path / "p", "--no-plots", "--no-progress")
+    assert code == 0, err
+    assert "policy one per agent" in text and "[env.policy]" in (tmp_path / "p" / "config.toml").read_text()
+    file.write_text(table + 'agent_0 = "random"\nagent_7 = "random"\n')
+    one_line_error(*run_cli("run", file, "--out", tmp_path / "q"), "must name every agent once",
+                   "missing agent_1, agent_2", "unknown agent_7")

@@ -25,6 +25,7 @@ import numpy as np
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
 from dgtd.problems import features as feature_maps
+from dgtd.sources.env import random_policy
 from dgtd.sources.model import Sampling
 
 FEATURES_HELP = ("fourier:ORDER, rbf:CENTRES, tiles:TILINGS:TILES, one-hot, linear, or module:function "
@@ -44,7 +45,7 @@ class EnvSpec:
     - ``features``: see `FEATURES_HELP`; the box of fourier, rbf and tiles is the state space's where it is
       finite, else the range of the states seen in ``pilot_steps`` steps;
     - ``policy``: "random" (uniform over discrete actions) or "module:function" (agent, observation, space, rng)
-      -> action;
+      -> action; or a table of one such per agent ({agent_0 = "...", agent_1 = "random"});
     - ``rewards``: "module:function" (the step's rewards dict) -> (N,) local rewards; default each agent's own;
     - ``agents``: a Gymnasium env's reward is split among this many agents (``split``: "random", or a list of
       shares that sum to 1); a ParallelEnv's function gets it as its N / n_agents / num_agents / agents argument;
@@ -56,7 +57,7 @@ class EnvSpec:
     make: str | None = None
     args: dict | None = None
     features: str = "fourier:3"
-    policy: str = "random"
+    policy: str | dict = "random"
     rewards: str | None = None
     agents: int | None = None
     split: str | list = "random"
@@ -176,6 +177,20 @@ def _discrete_states(env) -> int | None:
     return int(spaces[0].n) if len(spaces) == 1 and hasattr(spaces[0], "n") else None
 
 
+def policy_of(policy, agents):
+    """The callable (agent, observation, space, rng) -> action of a ``policy`` field: "random", "module:function",
+    or a table of one of those per agent (every agent named once)."""
+    if isinstance(policy, str):
+        return policy if policy == "random" else load_callable(policy, "--policy")
+    if set(policy) != set(agents):
+        missing, unknown = sorted(set(agents) - set(policy)), sorted(set(policy) - set(agents))
+        raise DgtdInputError(f"the [env] policy table must name every agent once ({', '.join(agents)}); "
+                             + "; ".join(([f"missing {', '.join(missing)}"] if missing else []) +
+                                         ([f"unknown {', '.join(unknown)}"] if unknown else [])))
+    own = {a: random_policy if p == "random" else load_callable(p, f"policy.{a}") for a, p in policy.items()}
+    return lambda agent, observation, space, rng: own[agent](agent, observation, space, rng)
+
+
 def build_features(text: str, probe, pilot_states):
     """(features(states) -> (K, q), q, description) for a ``--features`` text; ``pilot_states()`` returns states
     seen under the policy, for a box the state space does not declare."""
@@ -272,7 +287,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
 
     make, N, label = env_factory(spec)
     probe = make()
-    policy = spec.policy if spec.policy == "random" else load_callable(spec.policy, "--policy")
+    policy = policy_of(spec.policy, probe.possible_agents)
     reward_map = None if spec.rewards is None else load_callable(spec.rewards, "rewards")
     if (spec.positions is None) != (spec.radius is None):
         raise DgtdInputError("positions and radius go together: positions = 'module:function' (env) -> (N, dim) "
@@ -312,7 +327,8 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
     return Scenario(
         problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov", shared=True),
         iterations=int(iterations or 50_000),
-        description=f"{kind} env {spec.make}, {N} agents, {about}, policy {spec.policy}; {STEP_WORDS} = "
+        description=f"{kind} env {spec.make}, {N} agents, {about}, policy "
+                    f"{spec.policy if isinstance(spec.policy, str) else 'one per agent'}; {STEP_WORDS} = "
                     f"{algorithm.alpha0:.3g}",
         source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
         report=TrajectoryReport(lambda: source(features, 0, [0], TRAJECTORY_SEED_OFFSET, q)),
