@@ -87,7 +87,7 @@ class EnvSource:
         return np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(self.seed_offset + k,))))
 
     def start(self) -> None:
-        self.envs, self.gens, self.current = [], [], []
+        self.envs, self.gens, self.current, self.spaces = [], [], [], []
         for k in self.seed_ids:
             env = self.make_env()
             gen = self._streams(k)
@@ -98,6 +98,7 @@ class EnvSource:
                                          "pettingzoo.utils.aec_to_parallel)")
             self.envs.append(env)
             self.gens.append(gen)
+            self.spaces.append({a: env.action_space(a) for a in env.possible_agents})  # fixed, as PettingZoo asks
             self.current.append(self._reset(env, gen))
         self.agents = list(self.envs[0].possible_agents)
 
@@ -114,10 +115,10 @@ class EnvSource:
         r = np.empty((T, B, N))
         cont_next = np.ones((T, B))
         up = np.empty((T, B, E), bool)
-        for b, (env, gen) in enumerate(zip(self.envs, self.gens)):
+        for b, (env, gen, spaces) in enumerate(zip(self.envs, self.gens, self.spaces)):
             for t in range(T):
                 obs = env._dgtd_last_obs
-                actions = {a: self.policy(a, obs[a], env.action_space(a), gen) for a in env.agents}
+                actions = {a: self.policy(a, obs[a], spaces[a], gen) for a in env.agents}
                 if self.positions is not None:
                     up[t, b] = self.proximity.masks(np.asarray(self.positions(env), dtype=np.float64))
                 else:
