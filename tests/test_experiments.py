@@ -127,11 +127,11 @@ def test_every_command_line_option_is_a_field():
     """So that an experiment file can say anything the command line can (the --env flags: fields of its [env] table)."""
     from dgtd.cli import cli
     from dgtd.config import field_types
-    from dgtd.experiments import ENV_FLAGS, OUTPUT_TYPES, SPEC_TYPES, SWEEP_TYPES
+    from dgtd.experiments import ENV_FLAGS, OUTPUT_TYPES, SCENARIO_FLAGS, SPEC_TYPES, SWEEP_TYPES
     from dgtd.scenarios.user import EnvSpec
 
     env_fields = field_types(EnvSpec)
-    assert all(field in env_fields for field in ENV_FLAGS.values()) and "agents" in env_fields
+    assert all(field in env_fields for field in (*ENV_FLAGS.values(), *SCENARIO_FLAGS))
 
     renamed = {"resume_dir": "resume"}
     for command, positional in (("run", "scenario"), ("sweep", "experiment")):
@@ -139,7 +139,7 @@ def test_every_command_line_option_is_a_field():
         assert options
         for name in options:
             name = renamed.get(name, name)
-            if name in ENV_FLAGS or name == "agents":
+            if name in ENV_FLAGS or name in SCENARIO_FLAGS:
                 continue
             assert name in SPEC_TYPES or name in OUTPUT_TYPES or name in SWEEP_TYPES, f"dgtd {command} --{name}"
 

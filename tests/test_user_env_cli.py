@@ -164,6 +164,7 @@ BAD = [
     (["paper-example-1", "--gamma", "0.5"], ["gamma is the discount of an --env or --data run"]),
     (["--data", "missing.parquet"], ["is missing"]),
     (["paper-example-1", "--features", "fourier:2"], ["features set the fields of an env run", "--env"]),
+    (["paper-example-1", "--policy", "random"], ["has no parameter 'policy'"]),
 ]
 
 

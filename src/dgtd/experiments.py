@@ -177,26 +177,28 @@ def load(path: str | Path) -> Experiment:
     return parse(data, str(path))
 
 
-ENV_FLAGS = {"env_make": "make", "features": "features", "policy": "policy", "split": "split"}
-"""Command-line options that set a field of the [env] table (--env, --features, --policy, --split)."""
+ENV_FLAGS = {"env_make": "make", "features": "features", "split": "split"}
+"""Command-line options that set a field of the [env] table (--env, --features, --split)."""
+SCENARIO_FLAGS = ("agents", "policy")
+"""Options that set the [env] field of their name in an env run, else the scenario's parameter (mpe-spread's)."""
 
 
 def override(exp: Experiment, values: dict) -> Experiment:
     """``exp`` with the given fields replaced (command-line flags), each routed to the spec, output or sweep
     options; 'sweep.NAME' names a sweep option whose name a run option also has (resume). The --env flags
-    (`ENV_FLAGS`) set fields of the [env] table, and ``agents`` sets env.agents in an env run, else the scenario's
-    parameter of that name."""
+    (`ENV_FLAGS`) set fields of the [env] table, and ``agents`` and ``policy`` set those of an env run, else the
+    scenario's parameters of those names."""
     parts = {"spec": {}, "output": {}, "sweep": {}}
     env = {ENV_FLAGS[k]: v for k, v in values.items() if k in ENV_FLAGS}
-    agents = values.get("agents")
-    if env or exp.spec.env is not None:
-        if agents is not None:
-            env["agents"] = agents
-        parts["spec"]["env"] = {**(exp.spec.env or {}), **env}
-    elif agents is not None:
-        parts["spec"]["params"] = {**(exp.spec.params or {}), "agents": agents}
+    shared = {k: values[k] for k in SCENARIO_FLAGS if values.get(k) is not None}
+    if (env and "make" in env) or exp.spec.env is not None:
+        parts["spec"]["env"] = {**(exp.spec.env or {}), **env, **shared}
+    elif env:
+        parts["spec"]["env"] = env  # flags of an env run without its env: `resolve` says so
+    elif shared:
+        parts["spec"]["params"] = {**(exp.spec.params or {}), **shared}
     for key, value in values.items():
-        if key in ENV_FLAGS or key == "agents":
+        if key in ENV_FLAGS or key in SCENARIO_FLAGS:
             continue
         if key.startswith("sweep.") and key[6:] in SWEEP_TYPES:  # e.g. sweep.resume, not the run's resume
             parts["sweep"][key[6:]] = value

@@ -175,11 +175,12 @@ COMPARE_STEPS: dict[str, dict] = {
                "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 3.0}},
 }
 
-def mpe_spread_scenario(agents: int = 3, radius: float = 1.0, iterations: int = 60_000) -> Scenario:
+def mpe_spread_scenario(agents: int = 3, radius: float = 1.0, iterations: int = 60_000,
+                        policy: str = "heuristic") -> Scenario:
     """MPE2 simple_spread: N particles (3) cover N landmarks, linked within a radius; estimated reference (LSTD)."""
     from dgtd.scenarios.mpe import mpe_spread
 
-    return mpe_spread(agents=agents, radius=radius, iterations=iterations)
+    return mpe_spread(agents=agents, radius=radius, iterations=iterations, policy=policy)
 
 
 SCENARIOS: dict[str, Callable[..., Scenario]] = {

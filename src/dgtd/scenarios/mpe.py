@@ -9,9 +9,9 @@ particles' motion, as in the paper's Example 2.
 
 The value function is linear in features of the global state (`spread_features`): a constant, and for each
 landmark the distance to its nearest particle and its square: the reward is minus the sum of those distances, so
-the values are close to linear in them. DGTD's defaults (alpha0 kept within `dgtd.scenarios.user.graph_step_cap`
-from 4 agents on, as all of them may be linked) end within 5 % of the reference after 60,000 steps
-(docs/environments.md); the features are collinear, which makes gradient TD slower here than TD(0) (1.5 %).
+the values are close to linear in them. DGTD's step size is that of every run without a model
+(`dgtd.scenarios.user.scaled_dgtd`: alpha0 = 10 / E|phi|^2, within what the graph allows, as all agents may be
+linked); it ends within 5 % of the reference after 60,000 steps (docs/environments.md).
 
 There is no model: the reference is LSTD on independent episodes (`dgtd.sources.env.reference_from_env`), and
 the mean graph (for mu* and the connectivity check) is the link frequencies measured on those episodes. Episodes
@@ -29,6 +29,7 @@ from dgtd.errors import DgtdInputError
 
 MAX_CYCLES = 25
 MOVES = ((0.0, 0.0), (-1.0, 0.0), (1.0, 0.0), (0.0, -1.0), (0.0, 1.0))  # MPE's discrete actions 0..4
+POLICIES = ("heuristic", "random")
 
 
 def make_spread(n_agents: int):
@@ -77,21 +78,25 @@ def agent_positions(env) -> np.ndarray:
 
 
 def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterations: int = 60_000,
-               reference_steps: int = 4000, reference_groups: int = 8, epsilon: float = 0.2):
-    """MPE2 simple_spread, N agents (3), linked within ``radius`` (1.0), DGTD's defaults; LSTD reference."""
-    from dgtd.algorithms.dgtd import DGTD
+               reference_steps: int = 4000, reference_groups: int = 8, epsilon: float = 0.2,
+               policy: str = "heuristic"):
+    """MPE2 simple_spread, N agents (3), linked within ``radius`` (1.0), DGTD scaled to the features; LSTD reference. ``policy``:
+    "heuristic" (`spread_policy`) or "random" (uniform over the 5 moves)."""
     from dgtd.graphs.proximity import ProximityNetwork
     from dgtd.graphs.random import random_edges
     from dgtd.scenarios import Scenario
     from dgtd.sources.env import EnvSource, reference_from_env
-    from dgtd.scenarios.user import TRAJECTORY_SEED_OFFSET, TrajectoryReport, graph_step_cap
+    from dgtd.scenarios.user import TRAJECTORY_SEED_OFFSET, TrajectoryReport, scaled_dgtd
     from dgtd.sources.model import Sampling
 
     N = int(agents)
     if N < 2:
         raise DgtdInputError(f"mpe-spread needs at least 2 agents, got {N}")
+    if policy not in POLICIES:
+        raise DgtdInputError(f"mpe-spread's policy is one of {', '.join(POLICIES)}, got {policy!r}")
     proximity = ProximityNetwork(N, float(radius))
-    common = dict(policy=spread_policy(N, epsilon), positions=agent_positions, proximity=proximity)
+    chosen = spread_policy(N, epsilon) if policy == "heuristic" else "random"
+    common = dict(policy=chosen, positions=agent_positions, proximity=proximity)
     features = spread_features(N)
     reference, link_frequency = reference_from_env(
         lambda g: EnvSource(partial(make_spread, N), features, 0, [g], seed_offset=1_000_003, **common),
@@ -102,10 +107,10 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
     return Scenario(
         problem=reference,
         network=random_edges(proximity.base, link_frequency),
-        algorithm=DGTD(alpha0=min(DGTD().alpha0, graph_step_cap(proximity.base))),
+        algorithm=scaled_dgtd(reference, proximity.base),
         sampling=Sampling(mode="markov", shared=True),
         iterations=int(iterations),
-        description=f"MPE2 simple_spread, {N} agents linked within {radius:g}, heuristic policy, LSTD reference",
+        description=f"MPE2 simple_spread, {N} agents linked within {radius:g}, {policy} policy, LSTD reference",
         source=lambda seed, seed_ids: EnvSource(partial(make_spread, N), features, seed, seed_ids, **common),
         report=TrajectoryReport(lambda: EnvSource(partial(make_spread, N), features, 0, [0],
                                                   seed_offset=TRAJECTORY_SEED_OFFSET, **common), steps=100),
