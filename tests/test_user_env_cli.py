@@ -7,11 +7,8 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from dgtd.cli import cli
 from dgtd.config import RunSpec, make_source, resolve
-from dgtd.run.loop import RunSettings
 
 
 def test_a_scenarios_source_is_built_with_the_runs_parameters(monkeypatch):

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from dgtd.cli.options import env_options
+from dgtd.cli.options import with_env_options
 from dgtd.config import CHOICES, RunSpec
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
@@ -80,7 +80,8 @@ def _spec_options(f):
         click.option("--tail-fraction", type=float, default=d("tail_fraction"), show_default=True, help="Final fraction of the run averaged for w_tail."),
         click.option("--block-size", type=int, default=d("block_size"), show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
     ]
-    for option in reversed(options + env_options()):
+    f = with_env_options(f)
+    for option in reversed(options):
         f = option(f)
     return _problem_options(f)
 
@@ -157,9 +158,7 @@ def run(ctx, scenario, resume_dir, **_):
     links = network.describe()
     if job.resolved.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
-    states = f"{problem.n_states} states" if hasattr(problem, "P") else "no model (an estimated reference)"
-    click.echo(f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, "
-               f"gamma {problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
+    click.echo(problem_line(problem, links))
     click.echo(f"{describe_algorithm(algorithm)}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
                f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
     if job.resolved.env is not None or job.resolved.data is not None:
@@ -192,6 +191,15 @@ def run(ctx, scenario, resume_dir, **_):
 
 
 PROBLEM_FLAGS = {"scenario", "problem_file", "env_make", "data"}
+
+
+def problem_line(problem, links: str) -> str:
+    """What a run is on, in one line: the problem (a model's states, or an estimated reference) and its network."""
+    from dgtd.problems.model import Problem
+
+    states = f"{problem.n_states} states" if isinstance(problem, Problem) else "no model (an estimated reference)"
+    return (f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
+            f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
 
 
 def describe_algorithm(algorithm) -> str:
@@ -230,7 +238,7 @@ def final_table(result) -> str:
                     f"{e_avg[0, i]:>8.2%}  {e_tail[0, i]:>10.2%}")
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
     moments = result.info.get("moments")
-    if moments is not None and not getattr(moments, "model", True):
+    if moments is not None and not moments.model:
         est = moments.problem.summary()
         rows.insert(0, f"w* is estimated (no model): LSTD with ridge {est['ridge']:.2g} on {est['transitions']:,} "
                        f"independent transitions in {est['groups']} groups; its standard error is "
@@ -252,7 +260,7 @@ def final_table(result) -> str:
                     "(estimates beyond 1e6 x the scale of w*, or not finite)" + (
                         "; without a model there are no projection boxes: lower --alpha0 (below sqrt(beta) / "
                         "lambda_max of the graph's Laplacian is safe)" if moments is not None and
-                        not getattr(moments, "model", True) else ""))
+                        not moments.model else ""))
     return "\n".join(rows)
 
 

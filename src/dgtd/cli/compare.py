@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.cli.options import env_options
+from dgtd.cli.options import with_env_options
 from dgtd.config import CHOICES
 from dgtd.run.loop import RunSettings
 
@@ -18,12 +18,6 @@ def _names(text: str | None) -> tuple[str, ...]:
     if text is None:
         return tuple(ALGORITHMS)
     return tuple(a.strip() for a in text.split(",") if a.strip())
-
-
-def _with_env_options(f):
-    for option in reversed(env_options()):
-        f = option(f)
-    return f
 
 
 @click.command()
@@ -49,7 +43,7 @@ def _with_env_options(f):
 @click.option("--overwrite", is_flag=True, default=False,
               help="Replace another comparison's results in --out (otherwise refused).")
 @click.option("--graph", type=str, default=None, help="The network of an --env or --data run (default: ring).")
-@_with_env_options
+@with_env_options
 def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
             checkpoints, out, progress, plots, overwrite, **user):
     """Run several algorithms on SCENARIO (or --env / --data, as `dgtd run`) with the same samples; write
@@ -64,6 +58,7 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
     from dgtd.run.compare import (CompareSettings, compare as run_compare, configs_for, finish_directory,
                                   prepare_directory, save_part, write_compare)
 
+    from dgtd.cli import problem_line
     from dgtd.errors import DgtdInputError
     from dgtd.experiments import Experiment, override
 
@@ -77,9 +72,7 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
     out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
-    states = f"{p.n_states} states" if hasattr(p, "P") else "no model (an estimated reference)"
-    click.echo(f"{p.name}: {states}, {p.n_agents} agents, {p.n_features} features, gamma {p.gamma:g}"
-               f"{', off-policy' if p.off_policy else ''}; network: {network.describe()}; {samp.mode} sampling, "
+    click.echo(f"{problem_line(p, network.describe())}; {samp.mode} sampling, "
                f"{'shared' if samp.shared else 'independent'} states")
     click.echo(f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
                f"{', step sizes tuned first' if tune else ''}")

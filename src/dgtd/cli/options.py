@@ -18,6 +18,13 @@ def _split(ctx, param, value):
                                  f"{value!r}") from None
 
 
+def with_env_options(f):
+    """Decorate a command with `env_options`."""
+    for option in reversed(env_options()):
+        f = option(f)
+    return f
+
+
 def env_options() -> list:
     """The user's own simulator (--env ...) or recordings (--data FILE); see docs/environments.md."""
     from dgtd.scenarios.user import FEATURES_HELP, EnvSpec

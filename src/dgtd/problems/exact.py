@@ -37,6 +37,7 @@ class Moments:
     """The model's exact moments: d of the behaviour chain and the matrices M, A, b of the MSPBE."""
 
     problem: Problem
+    model = True  # `dgtd.problems.reference.EstimatedMoments` says False: there is no model to solve for d
 
     def __post_init__(self):
         check_size(self.problem)

@@ -18,6 +18,7 @@ import numpy as np
 
 from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.errors import DgtdInputError
+from dgtd.problems.model import Problem
 from dgtd.problems import exact
 from dgtd.run.loop import RunResult, RunSettings, run
 from dgtd.run.results import (atomic_write, atomic_write_json, bands_csv, metrics_rows, reference,
@@ -159,8 +160,8 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
     """summary.json: the exact solution, then per algorithm its config, final metrics over seeds,
     divergence, samples and messages."""
     first = next(iter(results.values()))
-    m = exact.Moments(problem) if hasattr(problem, "P") else problem.moments  # a resumed part keeps no moments
-    model = getattr(m, "model", True)
+    m = exact.Moments(problem) if isinstance(problem, Problem) else problem.moments  # a resumed part keeps none
+    model = m.model
     out = {
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
         "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,

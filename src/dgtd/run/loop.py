@@ -136,7 +136,7 @@ def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges, saddl
                                      f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or leave "
                                      "the boxes to dgtd")
         return boxes, {}
-    if not getattr(moments, "model", True):
+    if not moments.model:
         # Estimated moments: no Lemma 2 without a model, and box_scale x |x*| could pin a variable whose saddle value
         # is near 0 (v* = 0 always): no projection, which only bounds the early transient
         return (np.inf,) * 4, {}

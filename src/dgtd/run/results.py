@@ -148,7 +148,7 @@ def summary(result: RunResult, config: dict) -> dict:
         # the d-weighted value error (RMSVE relative to |Phi w*|_d; `exact.value_error`), and the error to the true
         # value function, which the features may not represent
         **per_output("value_error", verr, result),
-        **(true_value_errors(moments, result) if getattr(moments, "model", True) else
+        **(true_value_errors(moments, result) if moments.model else
            {"reference": moments.problem.summary()}),  # no model: the reference is estimated, and says how well
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),

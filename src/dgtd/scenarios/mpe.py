@@ -80,13 +80,13 @@ def agent_positions(env) -> np.ndarray:
 def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterations: int = 60_000,
                reference_steps: int = 4000, reference_groups: int = 8, epsilon: float = 0.2,
                policy: str = "heuristic"):
-    """MPE2 simple_spread, N agents (3), linked within ``radius`` (1.0), DGTD scaled to the features; LSTD reference. ``policy``:
-    "heuristic" (`spread_policy`) or "random" (uniform over the 5 moves)."""
+    """MPE2 simple_spread, N agents (3), linked within ``radius`` (1.0), DGTD scaled to the features; LSTD reference.
+    ``policy``: "heuristic" (`spread_policy`) or "random" (uniform over the 5 moves)."""
     from dgtd.graphs.proximity import ProximityNetwork
-    from dgtd.graphs.random import random_edges
     from dgtd.scenarios import Scenario
     from dgtd.sources.env import EnvSource, reference_from_env
-    from dgtd.scenarios.user import TRAJECTORY_SEED_OFFSET, TrajectoryReport, scaled_dgtd
+    from dgtd.scenarios.user import (REFERENCE_SEED_OFFSET, TRAJECTORY_SEED_OFFSET, TrajectoryReport,
+                                     mean_proximity_network, scaled_dgtd)
     from dgtd.sources.model import Sampling
 
     N = int(agents)
@@ -99,14 +99,11 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
     common = dict(policy=chosen, positions=agent_positions, proximity=proximity)
     features = spread_features(N)
     reference, link_frequency = reference_from_env(
-        lambda g: EnvSource(partial(make_spread, N), features, 0, [g], seed_offset=1_000_003, **common),
+        lambda g: EnvSource(partial(make_spread, N), features, 0, [g], seed_offset=REFERENCE_SEED_OFFSET, **common),
         1 + 2 * N, gamma, "mpe-spread", steps=int(reference_steps), groups=int(reference_groups))
-    if np.any(link_frequency <= 0):
-        raise DgtdInputError(f"within radius {radius:g} some pairs of agents never met in the reference episodes; "
-                             "raise the radius")
     return Scenario(
         problem=reference,
-        network=random_edges(proximity.base, link_frequency),
+        network=mean_proximity_network(proximity, link_frequency),
         algorithm=scaled_dgtd(reference, proximity.base),
         sampling=Sampling(mode="markov", shared=True),
         iterations=int(iterations),

@@ -33,6 +33,7 @@ FEATURES_HELP = ("fourier:ORDER, rbf:CENTRES, tiles:TILINGS:TILES, one-hot, line
 AGENT_PARAMETERS = ("N", "n_agents", "num_agents", "agents")  # how make_env functions name their number of agents
 STEP_WORDS = "alpha0 = min(10 / E|phi|^2, sqrt(beta) / lambda_max(L))"
 REFERENCE_SEED_OFFSET = 1_000_003  # the reference's streams: seed ids no run uses
+ENV_ITERATIONS = 50_000  # an env run's length, unless given
 
 
 @dataclass(frozen=True)
@@ -112,7 +113,8 @@ def _gymnasium_make(env_id: str, **kwargs):
 
 
 def env_factory(spec: EnvSpec):
-    """(make, n_agents, label): ``make()`` returns a fresh ParallelEnv (a Gymnasium env wrapped in `SplitReward`)."""
+    """(make, probe, label): ``make()`` returns a fresh ParallelEnv (a Gymnasium env wrapped in `SplitReward`);
+    ``probe`` is the one made to check it."""
     from dgtd.sources.gym import SplitReward
 
     if not spec.make:
@@ -142,12 +144,13 @@ def env_factory(spec: EnvSpec):
         if spec.agents is not None and spec.agents != n:
             raise DgtdInputError(f"--env {spec.make} made {n} agents, not the {spec.agents} asked for"
                                  f"{'' if named else ' (it takes no N, n_agents, num_agents or agents argument)'}")
-        return make_raw, n, label
+        return make_raw, probe, label
     if hasattr(probe, "step") and hasattr(probe, "observation_space") and not callable(probe.action_space):
         if spec.agents is None:
             raise DgtdInputError(f"--env {spec.make} is a single-agent Gymnasium env: give --agents N to split its "
                                  "reward among N agents (--split random, or shares)")
-        return (lambda: SplitReward(make_raw(), spec.agents, spec.split)), int(spec.agents), label
+        return (lambda: SplitReward(make_raw(), spec.agents, spec.split)), SplitReward(probe, spec.agents,
+                                                                                      spec.split), label
     raise DgtdInputError(f"--env {spec.make} returned {type(probe).__name__}, which is neither a PettingZoo ParallelEnv "
                          "(possible_agents, reset, step) nor a Gymnasium env; wrap an AEC env with "
                          "pettingzoo.utils.aec_to_parallel")
@@ -252,6 +255,17 @@ def build_features(text: str, probe, pilot_states):
     raise DgtdInputError(f"--features {text!r} is not known: give {FEATURES_HELP}")
 
 
+def mean_proximity_network(proximity, frequency):
+    """The mean graph of a proximity network (for mu* and the connectivity check): each pair of agents linked with
+    the frequency they were within radius in the reference episodes; a pair that never met is a one-line error."""
+    from dgtd.graphs.random import random_edges
+
+    if np.any(frequency <= 0):
+        raise DgtdInputError(f"within radius {proximity.radius:g} some pairs of agents never met in the reference "
+                             "episodes; raise the radius")
+    return random_edges(proximity.base, frequency)
+
+
 def graph_step_cap(base_graph) -> float:
     """The largest alpha0 the graph allows DGTD without projection boxes: sqrt(beta) / lambda_max(L) of the graph
     with every link up. Without a model there are no boxes (section 7's Lemma 2 needs the model), and a first step
@@ -261,38 +275,39 @@ def graph_step_cap(base_graph) -> float:
     return float(np.sqrt(DGTD().beta) / lam) if lam > 0 else float("inf")
 
 
+def feature_scale(reference) -> float:
+    """E |phi(s)|^2 (the trace of the reference's M), or 1 where it is smaller: what unit-scale step sizes divide by."""
+    return max(float(np.trace(reference.moments.M)), 1.0)
+
+
 def compare_steps(reference) -> dict:
     """The baselines' alpha0 in `dgtd compare`: garnet's (features of unit scale, as DGTD's default) divided by
-    E |phi(s)|^2, as DGTD's is; ``--tune`` picks them on separate seeds instead."""
+    `feature_scale`, as DGTD's is; ``--tune`` picks them on separate seeds instead."""
     from dgtd.scenarios import COMPARE_STEPS
 
-    scale = max(float(np.trace(reference.moments.M)), 1.0)
+    scale = feature_scale(reference)
     return {name: {"alpha0": fields["alpha0"] / scale} for name, fields in COMPARE_STEPS["garnet"].items()}
 
 
 def scaled_dgtd(reference, base_graph) -> DGTD:
-    """DGTD with its default alpha0 divided by E |phi(s)|^2 (the trace of the reference's M) when that is above 1,
-    and at most `graph_step_cap`."""
-    alpha0 = DGTD().alpha0 / max(float(np.trace(reference.moments.M)), 1.0)
-    return DGTD(alpha0=min(alpha0, graph_step_cap(base_graph)))
+    """DGTD with its default alpha0 divided by `feature_scale`, and at most `graph_step_cap`."""
+    return DGTD(alpha0=min(DGTD().alpha0 / feature_scale(reference), graph_step_cap(base_graph)))
 
 
-def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | None = None):
+def env_scenario(spec: EnvSpec, gamma: float, network_for):
     """The `Scenario` of a user's environment; ``network_for(N)`` is the run's graph over N agents."""
     from dgtd.graphs.proximity import ProximityNetwork
-    from dgtd.graphs.random import random_edges
     from dgtd.scenarios import Scenario
     from dgtd.sources.env import EnvSource, reference_from_env
     from dgtd.sources.gym import SplitReward
 
-    make, N, label = env_factory(spec)
-    probe = make()
+    make, probe, label = env_factory(spec)
+    N = len(probe.possible_agents)
     policy = policy_of(spec.policy, probe.possible_agents)
     reward_map = None if spec.rewards is None else load_callable(spec.rewards, "rewards")
     if (spec.positions is None) != (spec.radius is None):
         raise DgtdInputError("positions and radius go together: positions = 'module:function' (env) -> (N, dim) "
                              "and the radius within which agents talk")
-    links = {}
     if spec.positions is not None:
         links = dict(positions=load_callable(spec.positions, "positions"), proximity=ProximityNetwork(N, spec.radius))
         network = None
@@ -318,15 +333,12 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for, iterations: int | Non
         lambda g: source(features, 0, [g], REFERENCE_SEED_OFFSET, q), q, gamma, label, steps=spec.reference_steps,
         groups=spec.reference_groups)
     if network is None:
-        if np.any(frequency <= 0):
-            raise DgtdInputError(f"within radius {spec.radius:g} some pairs of agents never met in the reference "
-                                 "episodes; raise the radius")
-        network = random_edges(links["proximity"].base, frequency)
+        network = mean_proximity_network(links["proximity"], frequency)
     algorithm = scaled_dgtd(reference, network.base)
     kind = "Gymnasium" if isinstance(probe, SplitReward) else "PettingZoo"
     return Scenario(
         problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov", shared=True),
-        iterations=int(iterations or 50_000),
+        iterations=ENV_ITERATIONS,
         description=f"{kind} env {spec.make}, {N} agents, {about}, policy "
                     f"{spec.policy if isinstance(spec.policy, str) else 'one per agent'}; {STEP_WORDS} = "
                     f"{algorithm.alpha0:.3g}",

@@ -73,14 +73,14 @@ def _read(path: Path, columns=None):
 
 
 def _header(path: Path) -> list[str]:
-    """The column names (``episode`` standing for ``seed``), checked: the keys, reward and phi_j / next_phi_j (or
-    state and next_state)."""
+    """The column names, checked: seed or episode, step, agent, reward and phi_j / next_phi_j (or state and
+    next_state)."""
     for batch in _read(path):
         names = list(batch)
         break
     else:
         names = []
-    states = ("state", "next_state") if "state" in names and "phi_0" not in names else ("phi_0", "next_phi_0")
+    states = STATES if "state" in names and "phi_0" not in names else ("phi_0", "next_phi_0")
     missing = [c for c in ("step", "agent", "reward", *states) if c not in names]
     if "seed" not in names and "episode" not in names:
         missing.insert(0, "seed or episode")

@@ -71,16 +71,10 @@ class EnvSource:
         self.reward_map = reward_map
         self.seed, self.seed_ids, self.seed_offset = int(seed), [int(k) for k in seed_ids], int(seed_offset)
         self.envs = self.agents = self.current = None
-        self.episodes = 0
 
     @property
     def edges(self) -> np.ndarray:
         return (self.network.base if self.network is not None else self.proximity.base).edges
-
-    def describe(self) -> str:
-        if self.network is not None:
-            return self.network.describe()
-        return f"links between agents within {self.proximity.radius:g} of each other, recomputed at every step"
 
     def _streams(self, k: int) -> np.random.Generator:
         """Seed id k's generator for actions and links: its own, so that it does not depend on the other seeds."""
@@ -105,7 +99,6 @@ class EnvSource:
     def _reset(self, env, gen) -> np.ndarray:
         obs, _ = env.reset(seed=int(gen.integers(2**31 - 1)))
         env._dgtd_last_obs = obs
-        self.episodes += 1
         return env_state(env, list(env.possible_agents))
 
     def next_block(self, T: int) -> Block:
