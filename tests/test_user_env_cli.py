@@ -291,3 +291,19 @@ def test_a_policy_per_agent_in_the_env_table(run_cli, tmp_path):
     file.write_text(table + 'agent_0 = "random"\nagent_7 = "random"\n')
     one_line_error(*run_cli("run", file, "--out", tmp_path / "q"), "must name every agent once",
                    "missing agent_1, agent_2", "unknown agent_7")
+
+
+def test_the_trajectory_report_measures_each_result_not_the_first():
+    """A scenario is built once per process (`dgtd.config.scenario_of`), so its report is called on every run's
+    result: the trajectory is drawn once, but the values and errors must be each result's own."""
+    from types import SimpleNamespace
+
+    from dgtd.config import scenario_of
+
+    *_, resolved = resolve(RunSpec(env={"make": env("make_chain"), "features": "one-hot"}, gamma=0.8))
+    report = scenario_of(resolved).report
+    w_star = scenario_of(resolved).problem.w_star
+    exact_run = SimpleNamespace(w_star=w_star, w_tail=np.tile(w_star, (1, 3, 1)))
+    off_run = SimpleNamespace(w_star=w_star, w_tail=np.tile(1.1 * w_star, (1, 3, 1)))
+    assert max(report(exact_run, None)[0]["trajectory_value_error"]) < 1e-12
+    assert np.allclose(report(off_run, None)[0]["trajectory_value_error"], 0.1)

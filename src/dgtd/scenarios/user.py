@@ -383,19 +383,19 @@ class TrajectoryReport:
 
     make_source: object  # () -> a fresh one-copy source on streams of their own
     steps: int = 200
-    _values: tuple | None = None
+    _states: tuple | None = None  # (features of the states visited (T, q), restarts): drawn once, for every run
 
     def trajectory(self, result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(reference values (T,), agents' values (N, T), the steps at which an episode restarted)."""
-        if self._values is None:
+        """(reference values (T,), the result's agents' values (N, T), the steps at which an episode restarted)."""
+        if self._states is None:
             source = self.make_source()
             source.start()
             blk = source.next_block(self.steps)
             phi = blk.table.phi
             s, s_next = blk.s[:, 0, 0], blk.s_next[:, 0, 0]
-            restarts = 1 + np.flatnonzero(np.any(phi[s[1:]] != phi[s_next[:-1]], axis=1))
-            self._values = (phi[s] @ result.w_star, result.w_tail[0] @ phi[s].T, restarts)
-        return self._values
+            self._states = (phi[s], 1 + np.flatnonzero(np.any(phi[s[1:]] != phi[s_next[:-1]], axis=1)))
+        phi, restarts = self._states
+        return phi @ result.w_star, result.w_tail[0] @ phi.T, restarts
 
     def __call__(self, result, source) -> tuple[dict, str]:
         ref, agents, restarts = self.trajectory(result)
