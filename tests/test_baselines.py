@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from dgtd.algorithms import (ALGORITHMS, GTD2, PDTD, TD0, TDC, ConsensusTD0, Local, TDTracking, make_algorithm,
-                             messages_per_edge)
+from dgtd.algorithms import ALGORITHMS, GTD2, PDTD, TD0, TDC, ConsensusTD0, Local, TDTracking, make_algorithm
 from dgtd.algorithms.consensus_td0 import ConsensusState
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.algorithms.gtd2 import GTDState
@@ -19,8 +18,8 @@ from dgtd.algorithms.td0 import TD0State
 from dgtd.algorithms.td_tracking import TrackingState
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
-from dgtd.graphs.links import Links, metropolis_weights
-from dgtd.graphs.random import LaplacianOperator, random_edges
+from dgtd.channels import Arcs, Perfect
+from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
 from dgtd.problems.model import make_problem
 from dgtd.run.loop import RunSettings, run
@@ -44,27 +43,38 @@ def outcomes(problem):
     return s[keep], a[keep], sn[keep], p[keep]
 
 
-class MatrixLinks:
-    """Links whose Laplacian is a given matrix (a mean Laplacian): (L X)_i along the agent axis."""
+class MatrixInbox:
+    """An inbox whose Laplacian is a given matrix (a mean Laplacian): (L x)_i along the agent axis of each message."""
 
-    def __init__(self, L):
-        self.L = L
+    def __init__(self, L, sent: dict):
+        self.L, self.sent = L, sent
 
-    def laplacian(self, X):
-        return np.einsum("ij,bjq->biq", self.L, X)
+    def laplacian(self, name):
+        return np.einsum("ij,bjq->biq", self.L, self.sent[name])
 
 
-def expected(problem, algorithm, state, links=None, alpha=0.3):
-    """E[algorithm.update(state, sample, links, alpha)] exactly: the batch axis enumerates the outcomes, each agent
+def heard(graph, algorithm, state, up=None):
+    """What every agent hears of ``algorithm.sends(state)`` over the links of ``graph`` up (B, E) (None: all)."""
+    return Perfect().inbox(Arcs.of(graph.edges, graph.n_nodes), algorithm.sends(state), up)
+
+
+def expected(problem, algorithm, state, graph=None, alpha=0.3):
+    """E[algorithm.update(state, sample, inbox, alpha)] exactly: the batch axis enumerates the outcomes, each agent
     observing the same (s, a, s') with its own reward; each agent's update depends on its own sample only, so its
-    mean over this batch is its mean over its own samples. ``links(K)``: the links for a batch of K outcomes."""
+    mean over this batch is its mean over its own samples. ``graph``: every link of it up (None: no messages)."""
     s, a, sn, p = outcomes(problem)
     K = len(p)
     sample = Sample(problem.Phi[s][:, None, :], problem.Phi[sn][:, None, :], problem.R_sample[:, s, a].T,
                     problem.ratio[s, a][:, None], problem.gamma)
     big = type(state)(*(np.broadcast_to(x, (K,) + x.shape[1:]).copy() for x in state))
-    new = algorithm.update(big, sample, None if links is None else links(K), alpha)
+    new = algorithm.update(big, sample, None if graph is None else heard(graph, algorithm, big), alpha)
     return type(state)(*(np.einsum("k,k...->...", p, x)[None] for x in new))
+
+
+def metropolis_laplacian(graph, up) -> np.ndarray:
+    """L_W of the links ``up`` (E,) of ``graph``: the inbox's Metropolis aggregate of the identity's rows."""
+    eye = np.eye(graph.n_nodes)[None]
+    return Perfect().inbox(Arcs.of(graph.edges, graph.n_nodes), {"x": eye}, up[None]).metropolis("x")[0]
 
 
 @pytest.mark.parametrize("off_policy", [False, True])
@@ -99,7 +109,6 @@ def test_mean_paths_of_the_distributed_learners(off_policy):
     m = exact.Moments(p)
     graph = topologies.from_edges(4, [(0, 1), (1, 2), (2, 3), (0, 2)])
     L = graph.laplacian()
-    lap = LaplacianOperator(graph)
     rng = np.random.default_rng(1)
     w, th, mu = (rng.normal(size=(1, 4, 3)) for _ in range(3))
     alpha, eta = 0.3, 0.7
@@ -109,13 +118,11 @@ def test_mean_paths_of_the_distributed_learners(off_policy):
     assert_allclose(e.w[0] - w[0], alpha * th[0] @ m.A, atol=1e-12)
     assert_allclose(e.theta[0] - th[0], eta * alpha * (m.b - w[0] @ m.A.T - th[0] @ m.M), atol=1e-12)
 
-    W = metropolis_weights(graph.edges, np.ones((1, graph.n_edges), bool), 4)
-    L_W = graph.laplacian(W[0])
-    fixed = lambda K: Links.fixed(lap, K)  # noqa: E731
-    e = expected(p, ConsensusTD0(), ConsensusState(w), fixed, alpha)
+    L_W = metropolis_laplacian(graph, np.ones(graph.n_edges, bool))
+    e = expected(p, ConsensusTD0(), ConsensusState(w), graph, alpha)
     assert_allclose(e.w[0] - w[0], -L_W @ w[0] + td_mean, atol=1e-12)
 
-    e = expected(p, PDTD(eta=eta), PDTDState(w, mu), fixed, alpha)
+    e = expected(p, PDTD(eta=eta), PDTDState(w, mu), graph, alpha)
     assert_allclose(e.w[0] - w[0], td_mean - alpha * eta * (L @ w[0] + L @ mu[0]), atol=1e-12)
     assert_allclose(e.mu[0] - mu[0], alpha * eta * L @ w[0], atol=1e-12)
 
@@ -125,7 +132,6 @@ def test_pd_td_mean_over_random_links_uses_the_mean_laplacian():
     fixed-graph step with the mean Laplacian sum_e p_e L_e (the update is linear in L(k))."""
     graph = topologies.ring(3)
     p_e = np.array([0.3, 0.6, 0.9])
-    lap = LaplacianOperator(graph)
     rng = np.random.default_rng(2)
     w, mu = rng.normal(size=(1, 3, 2)), rng.normal(size=(1, 3, 2))
     sample = Sample(rng.uniform(size=(1, 1, 2)), rng.uniform(size=(1, 1, 2)), rng.uniform(size=(1, 3)), np.ones((1, 1)),
@@ -135,9 +141,9 @@ def test_pd_td_mean_over_random_links_uses_the_mean_laplacian():
     for up in itertools.product([False, True], repeat=3):
         up = np.array(up)
         prob = np.prod(np.where(up, p_e, 1 - p_e))
-        new = alg.update(PDTDState(w, mu), sample, Links(lap, up[None], 1), 0.5)
+        new = alg.update(PDTDState(w, mu), sample, heard(graph, alg, PDTDState(w, mu), up[None]), 0.5)
         mean_w, mean_mu = mean_w + prob * new.w, mean_mu + prob * new.mu
-    fixed = alg.update(PDTDState(w, mu), sample, MatrixLinks(graph.laplacian(p_e)), 0.5)
+    fixed = alg.update(PDTDState(w, mu), sample, MatrixInbox(graph.laplacian(p_e), alg.sends(PDTDState(w, mu))), 0.5)
     assert_allclose(mean_w, fixed.w, atol=1e-12)
     assert_allclose(mean_mu, fixed.mu, atol=1e-12)
 
@@ -148,7 +154,7 @@ def test_metropolis_weights_are_symmetric_doubly_stochastic_on_every_graph():
     rng = np.random.default_rng(3)
     up = rng.uniform(size=(50, graph.n_edges)) < 0.5
     for u in up:
-        W = np.eye(6) - graph.laplacian(metropolis_weights(graph.edges, u, 6))
+        W = np.eye(6) - metropolis_laplacian(graph, u)
         assert np.all(W >= -1e-15)
         assert_allclose(W.sum(axis=1), 1.0, atol=1e-14)
         assert_allclose(W, W.T, atol=0)
@@ -198,22 +204,19 @@ def test_dgtd_with_one_agent_is_gtd2_on_the_same_samples():
     with pytest.raises(DgtdInputError, match="excludes the saddle point"):
         run(p, net, boxed, Sampling(), st)
     from dgtd.algorithms.dgtd import DGTDState
-    from dgtd.graphs.links import Links
-    from dgtd.graphs.random import LaplacianOperator
-    from dgtd.samples import Sample
 
     state = DGTDState(*(d.final_state[f] for f in DGTDState._fields))._replace(w=g.w_last.copy())
     B, q = g.w_last.shape[0], g.w_last.shape[-1]
     sample = Sample(np.ones((B, 1, q)), np.zeros((B, 1, q)), np.ones((B, 1)), np.ones((B, 1)), p.gamma)
-    after = boxed.update(state, sample, Links.fixed(LaplacianOperator(net.base), B), 0.0)  # step 0: projection only
+    after = boxed.update(state, sample, heard(net.base, boxed, state), 0.0)  # step 0: projection only
     assert np.abs(after.w).max() <= c + 1e-12 < np.abs(g.w_last).max()
 
 
 def test_registry_and_messages():
     assert set(ALGORITHMS) == {"dgtd", "gtd2", "tdc", "td0", "consensus-td0", "pd-td", "td-tracking", "local"}
-    per_edge = {n: messages_per_edge(make_algorithm(n)) for n in ALGORITHMS}
-    assert per_edge == {"dgtd": 6, "gtd2": 0, "tdc": 0, "td0": 0, "consensus-td0": 2, "pd-td": 4, "td-tracking": 4,
-                        "local": 0}
+    sent = {n: make_algorithm(n).messages for n in ALGORITHMS}
+    assert sent == {"dgtd": ("w", "vmu"), "gtd2": (), "tdc": (), "td0": (), "consensus-td0": ("w",),
+                    "pd-td": ("w", "mu"), "td-tracking": ("w", "z"), "local": ()}
     with pytest.raises(DgtdInputError, match="unknown algorithm"):
         make_algorithm("td1")
     with pytest.raises(DgtdInputError, match="no setting kappa"):
@@ -229,14 +232,13 @@ def test_td_tracking_keeps_the_tracker_sum_equal_to_the_direction_sum():
     """W(k) is doubly stochastic, so after every step sum_i z_i(k) = sum_i g_i(k) exactly (to rounding), whatever
     links are up: the tracker follows the network-average TD direction (Wang et al. 2020)."""
     graph = topologies.ring_with_chords(6, 2)
-    lap = LaplacianOperator(graph)
     rng = np.random.default_rng(4)
     alg = TDTracking(alpha0=0.5)
     state = alg.init(2, 6, 3)
     for _ in range(20):
         sample = Sample(rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6)),
                         rng.uniform(0.5, 1.5, size=(2, 6)), 0.9)
-        state = alg.update(state, sample, Links(lap, rng.uniform(size=(2, graph.n_edges)) < 0.5, 2), 0.3)
+        state = alg.update(state, sample, heard(graph, alg, state, rng.uniform(size=(2, graph.n_edges)) < 0.5), 0.3)
         assert_allclose(state.z.sum(axis=1), state.g.sum(axis=1), atol=1e-12)
 
 
@@ -247,16 +249,14 @@ def test_td_tracking_has_consensus_on_w_star_as_its_exact_fixed_point():
     p = small_mdp(False, n_agents=4)
     m = exact.Moments(p)
     graph = topologies.from_edges(4, [(0, 1), (1, 2), (2, 3), (0, 2)])
-    lap = LaplacianOperator(graph)
     w_star = exact.w_star(m)
     w = np.broadcast_to(w_star, (1, 4, 3)).copy()
     g = (m.b - w_star @ m.A.T)[None]  # (1, N, q): b_i - A w*, nonzero per agent, zero on average
     assert np.abs(g).max() > 1e-3
-    fixed = lambda K: Links.fixed(lap, K)  # noqa: E731
-    e = expected(p, TDTracking(), TrackingState(w, np.zeros_like(w), g), fixed)
+    e = expected(p, TDTracking(), TrackingState(w, np.zeros_like(w), g), graph)
     assert_allclose(e.w, w, atol=1e-12)
     assert_allclose(e.z, 0.0, atol=1e-12)
-    moved = expected(p, TDTracking(), TrackingState(w + 0.1, np.zeros_like(w), g), fixed)
+    moved = expected(p, TDTracking(), TrackingState(w + 0.1, np.zeros_like(w), g), graph)
     assert np.abs(moved.w - (w + 0.1)).max() > 1e-3
 
 
@@ -277,8 +277,8 @@ def test_td_tracking_reaches_w_star_on_random_links(backend):
     assert r.info["counts"]["messages"][-1].min() > 0  # two vectors per link up, both ways
 
 
-def test_an_algorithm_without_a_compiled_kernel_runs_on_the_reference_with_a_notice():
-    """A new algorithm is one file: the run loop finds no compiled kernel under its name, says so in one line, and
+def test_an_algorithm_without_a_compiled_step_runs_on_the_reference_with_a_notice():
+    """A new algorithm is one file: the run loop finds no compiled step under its name, says so in one line, and
     runs it on the reference backend (the same numbers as --backend numpy)."""
     from dataclasses import dataclass
     from typing import ClassVar
@@ -287,13 +287,13 @@ def test_an_algorithm_without_a_compiled_kernel_runs_on_the_reference_with_a_not
     class HalfStepTD0(TD0):
         name: ClassVar[str] = "half-step-td0"
 
-        def update(self, state, sample, links, alpha):
-            return super().update(state, sample, links, 0.5 * alpha)
+        def update(self, state, sample, inbox, alpha):
+            return super().update(state, sample, inbox, 0.5 * alpha)
 
     p = chain_problem()
     net = random_edges(topologies.ring(3), 1.0)
     settings = dict(iterations=500, seeds=2, checkpoints=2)
-    with pytest.warns(UserWarning, match="has no compiled kernel") as notices:
+    with pytest.warns(UserWarning, match="has no compiled step") as notices:
         compiled = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numba"))
     assert len(notices) == 1 and "half-step-td0" in str(notices[0].message)
     reference = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numpy"))

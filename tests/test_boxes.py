@@ -12,7 +12,8 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.problems.mdp import from_mdp
-from dgtd.run.loop import RunSettings, resolve_boxes, run
+from dgtd.algorithms.dgtd import resolve_boxes
+from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 
 
@@ -40,7 +41,7 @@ def test_a_box_below_the_saddle_point_grows_to_contain_it():
     m, network = exact.Moments(problem), random_edges(topologies.path(2), 1.0)
     algorithm = make_algorithm("dgtd")
     saddle = exact.saddle_point(m, network.mean_laplacian(), algorithm.kappa)
-    boxes, grown = resolve_boxes(algorithm, m, network, saddle)
+    boxes, grown = resolve_boxes(algorithm, m, network, (saddle.theta, saddle.v, saddle.mu, saddle.w))
     assert grown["w"][0] < 417.5 / 4  # 2 x Lemma 2's bound (78.7): the box would have been a fifth of |w*|
     assert boxes[3] == pytest.approx(2 * 417.5) and grown["w"][1] == boxes[3]
     for name, box in zip(("theta", "v", "mu", "w"), boxes):
@@ -57,7 +58,7 @@ def test_the_run_reaches_a_w_star_beyond_the_lemmas_bound():
     algorithm = make_algorithm("dgtd", alpha0=10.0, beta=1.0)
     result = run(problem, random_edges(topologies.path(2), 1.0), algorithm, Sampling(mode="iid", shared=False),
                  RunSettings(iterations=4_000_000, seeds=8, checkpoints=10))
-    assert set(result.info["boxes_grown"]) == {"w"} and result.boxes[3] == pytest.approx(210.0)
+    assert set(result.report["boxes_grown"]) == {"w"} and result.report["boxes"]["w"] == pytest.approx(210.0)
     assert np.all(result.info["diverged_at"] < 0)
     assert result.w_tail.mean() == pytest.approx(105.0, rel=0.10)
     assert result.w_tail.min() > 78.8 * 1.05  # no seed is held at the old box

@@ -71,20 +71,22 @@ def test_consensus_td0_and_dgtd_reach_consensus_and_local_does_not_reach_w_star(
 
 
 def test_samples_and_messages_are_counted():
-    """Samples: N per step. Messages: vectors per direction x 2 x links up, per step; on a fixed ring of 4
-    that is exactly T * 4 * 2 * (3 for DGTD, 1 for consensus TD(0), 2 for pd-td, 0 for the others); on a
-    random network it is the same multiple of the number of links up, whose mean is p E T."""
+    """Samples: N per step. Messages: the algorithm's messages x 2 directions x links up, per step; on a fixed ring of
+    4 that is exactly T * 4 * 2 * (2 for DGTD: w and v + mu, 1 for consensus TD(0), 2 for pd-td, 0 for the others),
+    and 64 bits per number; on a random network it is the same multiple of the number of links up, whose mean is
+    p E T."""
     p = consensus_problem()
     p4 = tasks.garnet(n_states=8, branching=3, n_agents=4, n_features=3, gamma=0.8, seed=2)
     T = 3000
     st = RunSettings(iterations=T, seeds=2, checkpoints=4, backend="numpy")
     fixed = random_edges(topologies.ring(4), 1.0)
-    for name, k in (("dgtd", 3), ("consensus-td0", 1), ("pd-td", 2), ("gtd2", 0), ("local", 0)):
+    for name, k in (("dgtd", 2), ("consensus-td0", 1), ("pd-td", 2), ("gtd2", 0), ("local", 0)):
         r = run(p4, fixed, make_algorithm(name), Sampling(), st)
         assert np.all(r.info["counts"]["messages"][-1] == T * 4 * 2 * k)
+        assert np.all(r.info["counts"]["bits"][-1] == T * 4 * 2 * k * 3 * 64)
         assert np.all(r.info["counts"]["samples"][:, 0] == 4 * r.steps)
     r = run(p, random_edges(topologies.ring(5), 0.5), make_algorithm("dgtd"), Sampling(), st)
-    links = r.info["counts"]["messages"][-1] / 6
+    links = r.info["counts"]["messages"][-1] / 4
     assert np.all(links == np.round(links))
     assert np.all(np.abs(links - 0.5 * 5 * T) < 5 * np.sqrt(0.25 * 5 * T))  # 5 standard deviations
     assert np.all(np.diff(r.info["counts"]["messages"], axis=0) >= 0)

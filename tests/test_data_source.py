@@ -188,3 +188,20 @@ def test_a_seeds_order_of_episodes_does_not_depend_on_the_other_seeds(episodes):
     assert np.array_equal(a.r[:, 0], b.r[:, 1]) and not np.array_equal(b.r[:, 0], b.r[:, 1])
     stream = np.concatenate([data.rows[data.offsets[u]: data.offsets[u + 1], :, 2 * data.q] for u in data.order(5, 1)])
     assert np.array_equal(a.r[:, 0], stream[:300])  # episode after episode, in the seed's order
+
+
+def test_a_run_on_recordings_draws_the_links_of_its_network(recorded):
+    """The recordings hold the agents' transitions, not their links: those come from the run's network. With each
+    link of the ring up with probability 0.5, about half the messages of a fixed ring are sent (20,000 steps x 3
+    links x 2 seeds: the fraction's standard error is 0.5 / sqrt(120,000) = 0.0014, so 0.01 is 7 of them), and DGTD
+    still reaches the reference."""
+    problem, path = recorded
+    data = TransitionFile(path)
+    ref = data.reference(problem.gamma)
+    settings = RunSettings(iterations=20_000, seeds=2, checkpoints=5)
+    networks = {p: random_edges(topologies.ring(3), p) for p in (1.0, 0.5)}
+    runs = {p: run(ref, net, make_algorithm("dgtd"), Sampling(), settings,
+                   source=DataSource(data, seed_ids=[0, 1], network=net)) for p, net in networks.items()}
+    sent = {p: r.info["messages"].sum() for p, r in runs.items()}
+    assert abs(sent[0.5] / sent[1.0] - 0.5) < 0.01, sent
+    assert runs[0.5].metrics["value_error_tail"][-1].max() < 0.03

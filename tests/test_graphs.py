@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
-from dgtd.graphs.random import LaplacianOperator, random_edges
+from dgtd.graphs.random import random_edges
 
 
 def test_topology_edge_counts():
@@ -70,17 +70,6 @@ def test_disconnected_mean_graph_refused():
 def test_edge_probability_range():
     with pytest.raises(DgtdInputError, match="probabilities"):
         random_edges(topologies.ring(4), 1.5)
-
-
-def test_laplacian_operator_matches_dense(rng):
-    base = topologies.ring_with_chords(7, 2)
-    op = LaplacianOperator(base)
-    X = rng.standard_normal((3, 7, 4))
-    mask = rng.random((3, base.n_edges)) < 0.5
-    for b in range(3):
-        L = base.laplacian(mask[b].astype(float))
-        assert_allclose(op(X, mask)[b], L @ X[b], atol=1e-12)
-    assert_allclose(op(X, None)[0], base.laplacian() @ X[0], atol=1e-12)
 
 
 def test_read_edge_list(tmp_path):

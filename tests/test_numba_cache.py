@@ -92,8 +92,8 @@ print(repr(float(res.w_last.sum())))
 
 
 def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path):
-    """numba keys a cached kernel by its own file; editing `primitives.feature_dot`, which the TD(0) kernel
-    inlines, must still change what a fresh process computes (the package clears its cache when any module of it
+    """numba keys a cached kernel by its own file; editing `step.phi_axpy`, which the TD(0) step and so the driver
+    inline, must still change what a fresh process computes (the package clears its cache when any module of it
     changed), and an unchanged package loads from the cache."""
     import shutil
     from pathlib import Path
@@ -110,8 +110,9 @@ def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path)
 
     before = value()
     assert value() == before
-    helper = src / "dgtd" / "backends" / "compiled" / "primitives.py"
+    helper = src / "dgtd" / "backends" / "compiled" / "step.py"
     text = helper.read_text()
-    assert "        acc += Phi[s, f] * x[b, e, f]\n" in text
-    helper.write_text(text.replace("        acc += Phi[s, f] * x[b, e, f]\n", "        acc += 0.5 * Phi[s, f] * x[b, e, f]\n"))
+    line = "            X[at + (f,)] += c * feat.Phi[s, f]\n"
+    assert line in text
+    helper.write_text(text.replace(line, line.replace("+= c *", "+= 0.5 * c *")))
     assert value() != before

@@ -269,8 +269,8 @@ def test_a_simulators_kernel_is_loaded_before_the_first_step_not_inside_it(monke
 
     def recording(backend, name):
         kernel = real(backend, name)
-        return lambda ctx, state, sums, alpha, block: (lengths.append(len(alpha)), kernel(ctx, state, sums, alpha,
-                                                                                          block))[1]
+        return lambda ctx, state, channel, sums, alpha, block: (lengths.append(len(alpha)),
+                                                                kernel(ctx, state, channel, sums, alpha, block))[1]
 
     monkeypatch.setattr(loop, "kernel_for", recording)
     sc = small_scenario()

@@ -144,6 +144,23 @@ def test_run_on_recorded_transitions_reaches_the_models_w_star(run_cli, tmp_path
     assert np.max(s["value_error_tail"]) < 0.03
 
 
+def test_a_data_run_draws_its_links_from_the_networks_edge_probability(run_cli, tmp_path):
+    """`dgtd run --data FILE --edge-prob 0.5` sends about half the messages of `--edge-prob 1` (the recordings hold no
+    links: every link was up at every step before), and reaches the same reference. 2 seeds x 10,000 steps x 3 links:
+    the fraction's standard error is 0.5 / sqrt(60,000) = 0.002, so 0.01 is 5 of them."""
+    problem = record_parquet(tmp_path / "t.parquet", seeds=2)
+    sent = {}
+    for p in (1.0, 0.5):
+        out = tmp_path / f"p{p}"
+        code, _, err = run_cli("run", "--data", tmp_path / "t.parquet", "--gamma", problem.gamma, "--seeds", 2,
+                               "--edge-prob", p, "--out", out, "--no-plots", "--no-progress")
+        assert code == 0, err
+        s = summary(out)
+        sent[p] = np.sum(s["messages"])
+        assert np.max(s["value_error_tail"]) < 0.03
+    assert abs(sent[0.5] / sent[1.0] - 0.5) < 0.01, sent
+
+
 BAD = [
     (["--env", "no_such_module:make"], ["cannot import no_such_module"]),
     (["--env", env("make_nothing")], ["neither a PettingZoo ParallelEnv"]),

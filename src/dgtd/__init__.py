@@ -14,7 +14,8 @@ The names a user needs, each documented where it is defined::
 - algorithms: `DGTD`, `GTD2`, `TDC`, `TD0`, `ConsensusTD0`, `PDTD`, `TDTracking`, `Local`, `make_algorithm`,
   `ALGORITHMS`;
 - problems: `make_problem`, `from_mdp`, `load_problem`, `save_problem`, `tasks`, `exact`;
-- graphs and links: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`, `Links`;
+- graphs: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`;
+- channels, which turn what agents send into what they hear: `Perfect`, `Inbox`, `Arcs`;
 - results: `read_results`.
 
 Names load on first use, so ``import dgtd`` stays quick (the compiled kernels load only when a run needs them).
@@ -44,7 +45,8 @@ _EXPORTS = {
     "save_problem": "dgtd.problems.io", "tasks": ("dgtd.problems", "tasks"), "exact": ("dgtd.problems", "exact"),
     "ring": "dgtd.graphs.topologies", "path": "dgtd.graphs.topologies", "star": "dgtd.graphs.topologies",
     "complete": "dgtd.graphs.topologies", "from_edges": "dgtd.graphs.topologies",
-    "from_networkx": "dgtd.graphs.topologies", "random_edges": "dgtd.graphs.random", "Links": "dgtd.graphs.links",
+    "from_networkx": "dgtd.graphs.topologies", "random_edges": "dgtd.graphs.random",
+    "Perfect": "dgtd.channels", "Inbox": "dgtd.channels", "Arcs": "dgtd.channels",
     "read_results": "dgtd.run.results",
 }
 __all__ = sorted(_EXPORTS)

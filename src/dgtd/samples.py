@@ -7,7 +7,7 @@ agent runs its own copy of the chain, n = 1 when all observe one shared trajecto
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -69,6 +69,32 @@ class Block(NamedTuple):
         return Sample(Phi[s], Phi[sn], self.r[t], ratio[s, a], discount)
 
 
+class Source(Protocol):
+    """Where a run's samples come from, for B seeds: a model (`dgtd.sources.model.ModelSource`), a simulator
+    (`dgtd.sources.env.EnvSource`, the robots' `dgtd.scenarios.robots.PatrolSource`) or recorded data
+    (`dgtd.sources.data.DataSource`). Every source delivers the samples of its steps and the links up at them, as
+    `Block`s, and its state, which a checkpoint keeps; `dgtd.sources.check.check_source` checks one.
+
+    - ``start()``: begin the streams (a run calls it once, before the first block);
+    - ``next_block(T) -> Block``: the next T steps of every seed: s, a, s' (T, B, n), r (T, B, N), the links up
+      ``up`` (T, B, E) over the run's graph's edges (None only where every edge is always up), and ``table``, the
+      rows the indices point into, where they are not the model's states;
+    - ``get_state()`` / ``set_state(state)``: everything the next blocks depend on, so that a resumed run draws
+      exactly the blocks an uninterrupted one would.
+
+    A seed's blocks depend on its own streams only (not on how many seeds run beside it), and T steps are the same
+    whether drawn in one block or several.
+    """
+
+    def start(self) -> None: ...
+
+    def next_block(self, T: int) -> "Block": ...
+
+    def get_state(self) -> dict: ...
+
+    def set_state(self, state: dict) -> None: ...
+
+
 @dataclass(eq=False)
 class Draws:
     """T steps of a model source that are not drawn yet: a compiled kernel that draws its own samples takes them
@@ -77,10 +103,8 @@ class Draws:
 
     source: object
     T: int
-    up_count: np.ndarray | None = None  # (B,) edges up over the T steps, set by `settle`
 
-    def settle(self, words: np.ndarray, current: np.ndarray | None, up_count: np.ndarray) -> None:
+    def settle(self, words: np.ndarray, current: np.ndarray | None) -> None:
         self.source.streams.set_pcg_words(words)
         if current is not None:
             self.source.current = current
-        self.up_count = up_count

@@ -1,5 +1,5 @@
-"""The algorithms, each a frozen dataclass of hyperparameters with pure ``init`` / ``update`` / ``estimate``
-(`dgtd.algorithms.base`), registered by name in `ALGORITHMS`.
+"""The algorithms, each a frozen dataclass of hyperparameters with pure ``init`` / ``sends`` / ``update`` /
+``estimate`` and the hooks of `dgtd.algorithms.base`, registered by name in `ALGORITHMS`.
 
 Configs, experiment files, sweeps, comparisons and kernels look algorithms up here by name, never by a list of their
 own. Besides DGTD (the paper's Algorithm 1) they are the baselines it is compared with. Adding an algorithm is one
@@ -39,10 +39,5 @@ def make_algorithm(name: str, **fields):
     return cls(**fields)
 
 
-def messages_per_edge(algorithm) -> int:
-    """Parameter vectors an up link carries per step, both directions together."""
-    return 2 * int(algorithm.vectors_per_link)
-
-
 __all__ = ["ALGORITHMS", "ConsensusTD0", "DGTD", "GTD2", "Local", "PDTD", "TD0", "TDC", "TDTracking",
-           "make_algorithm", "messages_per_edge"]
+           "make_algorithm"]

@@ -1,22 +1,31 @@
-"""What every algorithm has: the fixed shape, the step-size fields, and the TD helpers they share.
+"""What every algorithm has: the fixed shape, the step-size fields, the hooks the run loop calls, and the TD helpers.
 
 An algorithm is a frozen dataclass of hyperparameters (as optax's ``GradientTransformation`` closes over them):
 
 - ``init(seeds, agents, features) -> State``: a NamedTuple of (B, N, q) arrays, (B, 1, q) for a single learner;
-- ``update(state, sample, links, alpha) -> State``: one step, pure, from a `dgtd.samples.Sample` and the step's
-  `dgtd.graphs.links.Links`, with step size alpha_k;
+- ``messages``: the names of the vectors each agent sends its neighbours at every step (a class attribute; empty for
+  an algorithm that does not communicate), and ``sends(state) -> {name: (B, N, q)}`` their values at step k;
+- ``update(state, sample, inbox, alpha) -> State``: one step, pure, from a `dgtd.samples.Sample`, what each agent
+  heard (a `dgtd.channels.Inbox`: the neighbour aggregates of the messages that arrived) and the step size alpha_k;
 - ``estimate(state) -> w``: the value-function weights the agents report, V(s) ~ phi(s)^T w.
 
-Class attributes (not fields, so not settings): ``name`` (its name everywhere: configs, kernels, results),
-``description``, ``color`` (its colour in every figure) and ``vectors_per_link`` (parameter vectors each agent sends
-to each neighbour per step, for the message counts). Optional hooks: ``with_boxes(boxes)`` for an algorithm that
-projects (the run loop hands it the resolved half-widths), ``diagnostics(state, moments, L_mean)`` for numbers
-reported after a run.
+The channel between the agents (`dgtd.channels`) turns every agent's ``sends`` into every agent's inbox: an
+algorithm never sees links. Class attributes (not fields, so not settings): ``name`` (its name everywhere: configs,
+kernels, results), ``description``, ``color`` (its colour in every figure) and ``messages``.
+
+Hooks, with the defaults of `StepSizes`, through which the run loop treats every algorithm alike:
+
+- ``fixed_point(moments, mean_laplacian, w_star) -> FixedPoint``: the point its iterates converge to on a model, which
+  the errors are measured against (w* for every agent by default), with what it reports of that point;
+- ``prepare(moments, network, fixed) -> (algorithm, report)``: the algorithm as it runs on this problem (DGTD's
+  projection boxes), and what to report of that;
+- ``diagnostics(state, moments, mean_laplacian) -> dict``: numbers reported after a run (DGTD's KKT residuals);
+- ``describe() -> str``: one line for the command line.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from typing import ClassVar, Protocol
 
 import numpy as np
@@ -26,36 +35,76 @@ from dgtd.errors import DgtdInputError
 from dgtd.samples import Sample
 
 
+@dataclass(frozen=True)
+class FixedPoint:
+    """Where an algorithm's iterates go on a model: ``w`` (N or 1, q), one row per agent or one for all, which the
+    errors are measured against, and ``report``, what summary.json says of it (e.g. DGTD's theta* and mu*)."""
+
+    w: np.ndarray
+    report: dict = field(default_factory=dict)
+
+
 class Algorithm(Protocol):
     name: ClassVar[str]
     description: ClassVar[str]
     color: ClassVar[str]
-    vectors_per_link: ClassVar[int]
+    messages: ClassVar[tuple[str, ...]]
     alpha0: float
     beta: float
     schedule: str
 
     def init(self, seeds: int, agents: int, features: int): ...
 
-    def update(self, state, sample: Sample, links, alpha: float): ...
+    def sends(self, state) -> dict: ...
+
+    def update(self, state, sample: Sample, inbox, alpha: float): ...
 
     def estimate(self, state) -> np.ndarray: ...
+
+    def fixed_point(self, moments, mean_laplacian, w_star: np.ndarray) -> FixedPoint: ...
+
+    def prepare(self, moments, network, fixed: FixedPoint) -> tuple: ...
+
+    def diagnostics(self, state, moments, mean_laplacian) -> dict: ...
+
+    def describe(self) -> str: ...
 
 
 @dataclass(frozen=True)
 class StepSizes:
-    """The step sizes alpha_k (`dgtd.algorithms.stepsizes`): ``alpha0``, ``beta`` and the ``schedule``."""
+    """The step sizes alpha_k (`dgtd.algorithms.stepsizes`): ``alpha0``, ``beta`` and the ``schedule``; and the
+    defaults of every hook (`Algorithm`)."""
 
     alpha0: float = 0.1
     beta: float = 1.0
     schedule: str = "sqrt"
 
+    messages: ClassVar[tuple[str, ...]] = ()
+
     def __post_init__(self):
         check_schedule(self.schedule, self.alpha0, self.beta)
+
+    def sends(self, state) -> dict:
+        """What each agent sends at step k: nothing, for an algorithm without ``messages``."""
+        return {}
 
     def estimate(self, state) -> np.ndarray:
         """The value-function weights: ``state.w`` for every algorithm of dgtd."""
         return state.w
+
+    def fixed_point(self, moments, mean_laplacian, w_star: np.ndarray) -> FixedPoint:
+        """w* = A^-1 b_mean for every agent: the fixed point of every method here that solves the average reward's
+        projected Bellman equation (Proposition 1)."""
+        return FixedPoint(w_star[None, :])
+
+    def prepare(self, moments, network, fixed: FixedPoint) -> tuple:
+        return self, {}
+
+    def diagnostics(self, state, moments, mean_laplacian) -> dict:
+        return {}
+
+    def describe(self) -> str:
+        return f"{self.name}: " + ", ".join(f"{k} {v}" for k, v in asdict(self).items() if v is not None)
 
 
 def zeros(seeds: int, rows: int, features: int, count: int) -> tuple[np.ndarray, ...]:

@@ -8,9 +8,9 @@ Each agent mixes its neighbours' weights and takes a TD(0) step on its own rewar
 with Metropolis weights on the graph up at step k: W_ij = 1 / (1 + max(d_i(k), d_j(k))) on the edges up,
 W_ii = 1 - sum_j W_ij, where d_i(k) is agent i's number of links up. W(k) is symmetric and doubly
 stochastic for every graph, so sum_j W_ij w_j = w_i - (L_W(k) w)_i with L_W(k) the Laplacian weighted by
-the Metropolis weights. The paper's analysis uses a fixed W; here W(k) follows the random network. No
-projection: off-policy the method may diverge (the importance ratio multiplies the TD step only), and the
-run reports that. Each agent sends one vector (w_i) to each neighbour per step.
+the Metropolis weights (`dgtd.channels.Inbox.metropolis`). The paper's analysis uses a fixed W; here W(k) follows
+the random network. No projection: off-policy the method may diverge (the importance ratio multiplies the TD step
+only), and the run reports that. Each agent sends one vector, w_i, to each neighbour per step.
 """
 
 from __future__ import annotations
@@ -35,12 +35,15 @@ class ConsensusTD0(StepSizes):
     name: ClassVar[str] = "consensus-td0"
     description: ClassVar[str] = "distributed TD(0) with Metropolis consensus (Doan, Maguluri, Romberg 2019)"
     color: ClassVar[str] = "#2ca02c"
-    vectors_per_link: ClassVar[int] = 1  # w_i
+    messages: ClassVar[tuple[str, ...]] = ("w",)
 
     def init(self, seeds: int, agents: int, features: int) -> ConsensusState:
         return ConsensusState(*zeros(seeds, agents, features, 1))
 
-    def update(self, state: ConsensusState, sample: Sample, links, alpha: float) -> ConsensusState:
-        """W(k) w + alpha_k ratio delta phi, with W(k) w = w - L_W(k) w (`dgtd.graphs.links.Links.metropolis`)."""
+    def sends(self, state: ConsensusState) -> dict:
+        return {"w": state.w}
+
+    def update(self, state: ConsensusState, sample: Sample, inbox, alpha: float) -> ConsensusState:
+        """W(k) w + alpha_k ratio delta phi, with W(k) w = w - L_W(k) w (`dgtd.channels.Inbox.metropolis`)."""
         w = state.w
-        return ConsensusState(w - links.metropolis(w) + alpha * ratio_td_step(sample, w))
+        return ConsensusState(w - inbox.metropolis("w") + alpha * ratio_td_step(sample, w))

@@ -2,9 +2,14 @@
 
 State is four arrays (B, N, q) for B seeds and N agents: theta, v, mu (minimised) and w (maximised) of the
 Lagrangian of section 5 (with the consensus penalty -(kappa/2) w^T bar-L w). One step uses one sample per
-agent and the Laplacian L(k) of the links up at step k, and every quantity on the right-hand side is taken at step k
-(Jacobi form, as in Algorithm 1). The signs follow the Lagrangian and the appendix, not the KKT equations of
-section 6, whose w-gradient has its signs flipped.
+agent and the neighbour sums (L(k) x)_i over the links up at step k, and every quantity on the right-hand side is
+taken at step k (Jacobi form, as in Algorithm 1). The signs follow the Lagrangian and the appendix, not the KKT
+equations of section 6, whose w-gradient has its signs flipped.
+
+What each agent sends (`DGTD.messages`): w_i and v_i + mu_i, two vectors per link and step where the paper's
+Algorithm 1 (lines 7-8) sends three (w_i, v_i, mu_i). The update uses (L(k) v)_i and (L(k) mu)_i only through their
+sum, and (L v)_i + (L mu)_i = (L (v + mu))_i exactly in real arithmetic (in floating point the two differ by a
+rounding, ~1e-16 relative); message counts count two.
 """
 
 from __future__ import annotations
@@ -14,9 +19,11 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, check_nonnegative, discount, dot, zeros
+from dgtd.algorithms.base import FixedPoint, StepSizes, check_nonnegative, discount, dot, zeros
 from dgtd.errors import DgtdInputError
 from dgtd.samples import Sample
+
+BOX_NAMES = ("theta", "v", "mu", "w")
 
 
 @dataclass(frozen=True)
@@ -39,8 +46,8 @@ class DGTD(StepSizes):
     Example::
 
         >>> from dgtd.algorithms import DGTD
-        >>> DGTD(alpha0=1.0, kappa=0.5).vectors_per_link
-        3
+        >>> DGTD(alpha0=1.0, kappa=0.5).messages
+        ('w', 'vmu')
     """
 
     alpha0: float = 10.0
@@ -53,7 +60,7 @@ class DGTD(StepSizes):
     name: ClassVar[str] = "dgtd"
     description: ClassVar[str] = "the paper's primal-dual distributed GTD (Algorithm 1)"
     color: ClassVar[str] = "#d62728"
-    vectors_per_link: ClassVar[int] = 3  # w_i, v_i and mu_i go to each neighbour (Algorithm 1 lines 7-8)
+    messages: ClassVar[tuple[str, ...]] = ("w", "vmu")  # w_i, and v_i + mu_i (see the module's docstring)
 
     def __post_init__(self):
         super().__post_init__()
@@ -71,14 +78,14 @@ class DGTD(StepSizes):
         """Algorithm 1 line 3: all variables start at zero."""
         return DGTDState(*zeros(seeds, agents, features, 4))
 
-    def with_boxes(self, boxes) -> "DGTD":
-        """The same algorithm projecting onto the half-widths ``boxes`` (theta, v, mu, w) the run resolved."""
-        return replace(self, boxes=tuple(float(b) for b in boxes))
+    def sends(self, state: "DGTDState") -> dict:
+        """w_i and v_i + mu_i at step k: all that the neighbours' updates read of agent i."""
+        return {"w": state.w, "vmu": state.v + state.mu}
 
-    def update(self, state: "DGTDState", sample: Sample, links, alpha: float) -> "DGTDState":
+    def update(self, state: "DGTDState", sample: Sample, inbox, alpha: float) -> "DGTDState":
         """One step of Algorithm 1: lines 7-8 (descent on theta, v, mu; ascent on w) and line 9 (projection
         onto the max-norm balls C_theta, C_v, C_mu, C_w of half-widths ``boxes``; none while it is None)."""
-        g_theta, g_v, g_mu, g_w = direction(state, sample, links, self.kappa, self.rho)
+        g_theta, g_v, g_mu, g_w = direction(state, sample, inbox, self.kappa, self.rho)
         theta, v, mu, w = state
         b_theta, b_v, b_mu, b_w = (np.inf,) * 4 if self.boxes is None else self.boxes
         return DGTDState(
@@ -88,12 +95,38 @@ class DGTD(StepSizes):
             np.clip(w + alpha * g_w, -b_w, b_w),
         )
 
-    def diagnostics(self, state: "DGTDState", moments, L_mean) -> dict:
+    def fixed_point(self, moments, mean_laplacian, w_star: np.ndarray) -> FixedPoint:
+        """The saddle point of the Lagrangian (section 6, Proposition 4; with rho > 0 the regularised one, each
+        agent's own w): its w is measured against, and theta* and mu* are reported."""
+        from dgtd.problems import exact
+
+        rho = self.rho
+        if moments.b.shape[0] * w_star.shape[0] > exact.REGULARISED_MAX:
+            rho = 0.0  # too large to solve densely: report the unregularised saddle point, the problem's own
+        saddle = exact.saddle_point(moments, mean_laplacian, self.kappa, rho)
+        return FixedPoint(saddle.w if rho > 0 else w_star[None, :],
+                          {"theta_star": saddle.theta, "v_star": saddle.v, "mu_star": saddle.mu,
+                           "kkt_residuals": exact.kkt_residuals(moments, mean_laplacian, self.kappa, rho, saddle)})
+
+    def prepare(self, moments, network, fixed: FixedPoint) -> tuple:
+        """DGTD projecting onto the boxes it resolves here (`resolve_boxes`), and the boxes it uses."""
+        saddle = (fixed.report["theta_star"], fixed.report["v_star"], fixed.report["mu_star"], fixed.w)
+        boxes, grown = resolve_boxes(self, moments, network, saddle)
+        return replace(self, boxes=boxes), {
+            "boxes": dict(zip(BOX_NAMES, boxes)),
+            "boxes_grown": {name: {"lemma": lemma, "used": used} for name, (lemma, used) in grown.items()}}
+
+    def diagnostics(self, state: "DGTDState", moments, mean_laplacian) -> dict:
         """|gradient of the Lagrangian|_inf at the last iterate, per variable: how far from a KKT point it is."""
         from dgtd.problems import exact
 
-        grads = exact.lagrangian_gradient(moments, L_mean, self.kappa, self.rho, *state)
-        return {"kkt_last": {name: float(np.abs(g).max()) for name, g in zip(("theta", "v", "mu", "w"), grads)}}
+        grads = exact.lagrangian_gradient(moments, mean_laplacian, self.kappa, self.rho, *state)
+        return {"kkt_residuals_last": {name: float(np.abs(g).max()) for name, g in zip(BOX_NAMES, grads)}}
+
+    def describe(self) -> str:
+        return (f"Algorithm 1: alpha_k = {self.alpha0:g}/{'sqrt(k+' if self.schedule == 'sqrt' else '(k+'}"
+                f"{self.beta:g}){'' if self.schedule != 'constant' else ' (constant)'}, kappa {self.kappa:g}, "
+                f"rho {self.rho:g}")
 
 
 class DGTDState(NamedTuple):
@@ -103,8 +136,9 @@ class DGTDState(NamedTuple):
     w: np.ndarray
 
 
-def direction(state: DGTDState, sample: Sample, links, kappa: float, rho: float):
-    """Stochastic gradient of the Lagrangian at step k, (g_theta, g_v, g_mu, g_w), all (B, N, q).
+def direction(state: DGTDState, sample: Sample, inbox, kappa: float, rho: float):
+    """Stochastic gradient of the Lagrangian at step k, (g_theta, g_v, g_mu, g_w), all (B, N, q), from what each agent
+    heard (``inbox``: the messages w and vmu = v + mu of `DGTD.sends`).
 
     Its expectation over samples and links is the gradient of the Lagrangian of section 5 plus the rho terms
     (`dgtd.problems.exact.lagrangian_gradient`, the test of this function); the importance ratio multiplies the
@@ -112,7 +146,7 @@ def direction(state: DGTDState, sample: Sample, links, kappa: float, rho: float)
     """
     theta, v, mu, w = state
     phi, phi_next, r, ratio, gamma = sample
-    Lw, Lv, Lmu = links.laplacian(w), links.laplacian(v), links.laplacian(mu)
+    Lw, Lvmu = inbox.laplacian("w"), inbox.laplacian("vmu")  # (L(k) w)_i, and (L(k) v)_i + (L(k) mu)_i
     phi_theta, phi_w, phin_w = dot(phi, theta), dot(phi, w), dot(phi_next, w)
     # Line 7, theta: phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r)
     g_theta = phi * (phi_theta + ratio * (phi_w - gamma * phin_w - r))[..., None]
@@ -121,5 +155,37 @@ def direction(state: DGTDState, sample: Sample, links, kappa: float, rho: float)
     # Line 8, mu: descent on -(L(k) w)_i, plus rho mu
     g_mu = -Lw + rho * mu
     # Line 8, w: ascent on ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
-    g_w = (ratio * phi_theta)[..., None] * (phi - discount(sample) * phi_next) - Lv - Lmu - kappa * Lw - rho * w
+    g_w = (ratio * phi_theta)[..., None] * (phi - discount(sample) * phi_next) - Lvmu - kappa * Lw - rho * w
     return g_theta, g_v, g_mu, g_w
+
+
+def resolve_boxes(algorithm: DGTD, moments, network, saddle: tuple) -> tuple:
+    """(projection half-widths (theta, v, mu, w), {name: (the lemma's box, the box used)} for the boxes grown), for the
+    saddle point ``saddle`` (theta*, v*, mu*, w*), each (N, q).
+
+    The algorithm's own boxes are used as given, and refused if one excludes the saddle point. Otherwise each box
+    is box_scale x the bound of Lemma 2 (section 6), grown to box_scale x |x*|_inf where the bound is smaller than
+    |x*|_inf: the lemma assumes on-policy sampling, and off-policy w* can exceed it, where the iterates could never
+    reach w*. Without a model (estimated moments) there is no Lemma 2, and box_scale x |x*| could pin a variable
+    whose saddle value is near 0 (v* = 0 always): no projection, which only bounds the early transient.
+    """
+    from dgtd.problems import exact
+
+    needed = tuple(float(np.abs(x).max()) for x in saddle)
+    if algorithm.boxes is not None:
+        boxes = tuple(float(b) for b in algorithm.boxes)
+        for name, box, x in zip(BOX_NAMES, boxes, needed):
+            if box < x:
+                raise DgtdInputError(f"the {name} box {box:g} excludes the saddle point (|{name}*|_inf = {x:.6g}), so "
+                                     f"the iterates could never reach it; give a {name} box of at least "
+                                     f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or "
+                                     "leave the boxes to dgtd")
+        return boxes, {}
+    if not moments.model:
+        return (np.inf,) * 4, {}
+    max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
+    c = exact.lemma_bounds(moments, network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N), max_degree)
+    lemma = tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
+    boxes = tuple(max(box, algorithm.box_scale * x) for box, x in zip(lemma, needed))
+    grown = {name: (a, b) for name, a, b in zip(BOX_NAMES, lemma, boxes) if b > a}
+    return boxes, grown

@@ -45,8 +45,6 @@ class GTDConfig(StepSizes):
     eta: float = 1.0
     timescale: float = 1.0
 
-    vectors_per_link: ClassVar[int] = 0
-
     def __post_init__(self):
         super().__post_init__()
         check_nonnegative("eta (auxiliary step size / main step size)", self.eta, strict=True)
@@ -60,7 +58,7 @@ class GTDConfig(StepSizes):
     def init(self, seeds: int, agents: int, features: int) -> GTDState:
         return GTDState(*zeros(seeds, 1, features, 2))
 
-    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
+    def update(self, state: GTDState, sample: Sample, inbox, alpha: float) -> GTDState:
         """One step of the centralised learner: its value terms (``value_terms``) and the auxiliary terms, both
         averaged over the N observed transitions and both at the values of step k."""
         N = sample.r.shape[1]

@@ -27,7 +27,7 @@ class Local(GTDConfig):
     def init(self, seeds: int, agents: int, features: int) -> GTDState:
         return GTDState(*zeros(seeds, agents, features, 2))
 
-    def update(self, state: GTDState, sample: Sample, links, alpha: float) -> GTDState:
+    def update(self, state: GTDState, sample: Sample, inbox, alpha: float) -> GTDState:
         """One GTD2 step of every agent on its own sample and reward."""
         shape = state.w.shape
         dw = np.broadcast_to(w_terms(state, sample), shape)

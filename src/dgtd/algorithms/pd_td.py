@@ -38,7 +38,7 @@ class PDTD(StepSizes):
     name: ClassVar[str] = "pd-td"
     description: ClassVar[str] = "Laplacian primal-dual distributed TD (Lim and Lee 2025)"
     color: ClassVar[str] = "#9467bd"
-    vectors_per_link: ClassVar[int] = 2  # w_i and mu_i
+    messages: ClassVar[tuple[str, ...]] = ("w", "mu")
 
     def __post_init__(self):
         super().__post_init__()
@@ -47,9 +47,12 @@ class PDTD(StepSizes):
     def init(self, seeds: int, agents: int, features: int) -> PDTDState:
         return PDTDState(*zeros(seeds, agents, features, 2))
 
-    def update(self, state: PDTDState, sample: Sample, links, alpha: float) -> PDTDState:
+    def sends(self, state: PDTDState) -> dict:
+        return {"w": state.w, "mu": state.mu}
+
+    def update(self, state: PDTDState, sample: Sample, inbox, alpha: float) -> PDTDState:
         """One step; both updates use the values at step k."""
         w, mu = state
-        Lw = links.laplacian(w)
+        Lw = inbox.laplacian("w")
         td = ratio_td_step(sample, w)
-        return PDTDState(w + alpha * (td - self.eta * Lw - self.eta * links.laplacian(mu)), mu + alpha * self.eta * Lw)
+        return PDTDState(w + alpha * (td - self.eta * Lw - self.eta * inbox.laplacian("mu")), mu + alpha * self.eta * Lw)

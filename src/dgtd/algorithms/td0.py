@@ -37,12 +37,11 @@ class TD0(StepSizes):
     name: ClassVar[str] = "td0"
     description: ClassVar[str] = "centralised TD(0) on the average reward"
     color: ClassVar[str] = "#7f7f7f"
-    vectors_per_link: ClassVar[int] = 0  # a single learner: no messages
 
     def init(self, seeds: int, agents: int, features: int) -> TD0State:
         return TD0State(*zeros(seeds, 1, features, 1))
 
-    def update(self, state: TD0State, sample: Sample, links, alpha: float) -> TD0State:
+    def update(self, state: TD0State, sample: Sample, inbox, alpha: float) -> TD0State:
         """w_{k+1} = w_k + alpha_k ratio delta_k phi_k, averaged over the N observed transitions; its mean over
         samples is b_mean - A w."""
         return TD0State(state.w + alpha * agent_mean(ratio_td_step(sample, state.w), sample.r.shape[1]))

@@ -39,14 +39,17 @@ class TDTracking(StepSizes):
     name: ClassVar[str] = "td-tracking"
     description: ClassVar[str] = "distributed TD(0) with gradient tracking (Wang et al. 2020)"
     color: ClassVar[str] = "#8c564b"
-    vectors_per_link: ClassVar[int] = 2  # w_i and z_i
+    messages: ClassVar[tuple[str, ...]] = ("w", "z")
 
     def init(self, seeds: int, agents: int, features: int) -> TrackingState:
         return TrackingState(*zeros(seeds, agents, features, 3))
 
-    def update(self, state: TrackingState, sample: Sample, links, alpha: float) -> TrackingState:
+    def sends(self, state: TrackingState) -> dict:
+        return {"w": state.w, "z": state.z}
+
+    def update(self, state: TrackingState, sample: Sample, inbox, alpha: float) -> TrackingState:
         """One step: the tracker first (it needs this step's direction), then w along it."""
         w, z, g_prev = state
         g = ratio_td_step(sample, w)
-        z_new = z - links.metropolis(z) + g - g_prev
-        return TrackingState(w - links.metropolis(w) + alpha * z_new, z_new, g)
+        z_new = z - inbox.metropolis("z") + g - g_prev
+        return TrackingState(w - inbox.metropolis("w") + alpha * z_new, z_new, g)

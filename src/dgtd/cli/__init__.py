@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -159,7 +160,7 @@ def run(ctx, scenario, resume_dir, **_):
     if job.resolved.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
     click.echo(problem_line(problem, links))
-    click.echo(f"{describe_algorithm(algorithm)}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
+    click.echo(f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
                f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
     if job.resolved.env is not None or job.resolved.data is not None:
         click.echo(scenario_of(job.resolved).description)
@@ -174,8 +175,8 @@ def run(ctx, scenario, resume_dir, **_):
     click.echo(final_table(result))
     from dgtd.run.results import pinned_to_boxes
 
-    for name, (lemma, used) in result.info.get("boxes_grown", {}).items():
-        click.echo(f"note: the {name} box grew from {lemma:.4g} (Lemma 2's bound) to {used:.4g} "
+    for name, box in result.report.get("boxes_grown", {}).items():
+        click.echo(f"note: the {name} box grew from {box['lemma']:.4g} (Lemma 2's bound) to {box['used']:.4g} "
                    f"(box_scale x |{name}*|_inf), so that it contains the saddle point", err=True)
     pinned = pinned_to_boxes(result)
     if pinned:
@@ -200,17 +201,6 @@ def problem_line(problem, links: str) -> str:
     states = f"{problem.n_states} states" if isinstance(problem, Problem) else "no model (an estimated reference)"
     return (f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
             f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
-
-
-def describe_algorithm(algorithm) -> str:
-    """One line: Algorithm 1's step sizes and weights, or another algorithm's name and fields."""
-    if algorithm.name != "dgtd":
-        from dataclasses import asdict
-
-        return f"{algorithm.name}: " + ", ".join(f"{k} {v}" for k, v in asdict(algorithm).items() if v is not None)
-    return (f"Algorithm 1: alpha_k = {algorithm.alpha0:g}/{'sqrt(k+' if algorithm.schedule == 'sqrt' else '(k+'}"
-            f"{algorithm.beta:g}){'' if algorithm.schedule != 'constant' else ' (constant)'}, kappa {algorithm.kappa:g}, "
-            f"rho {algorithm.rho:g}")
 
 
 def _vec(x, n=4) -> str:
@@ -268,10 +258,11 @@ def final_table(result) -> str:
 @click.argument("scenario", required=False)
 @_problem_options
 def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
-    """Print the exact solution (w*, theta*, v* = 0, mu*, d, bounds) of a problem as JSON."""
+    """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
+    the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes)."""
     from dgtd.config import RunSpec, resolve
     from dgtd.problems import exact
-    from dgtd.run.loop import resolve_boxes
+    from dgtd.run.results import plain
 
     if scenario is None and problem_file is None:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
@@ -279,21 +270,19 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
     problem, network, algorithm, *_ = resolve(spec)
     m = exact.Moments(problem)
     L = network.mean_laplacian()
-    sp = exact.saddle_point(m, L, algorithm.kappa, algorithm.rho)
     w = exact.w_star(m)
-    boxes, grown = resolve_boxes(algorithm, m, network, sp)
+    fixed = algorithm.fixed_point(m, L, w)
+    _, prepared = algorithm.prepare(m, network, fixed)
     out = {
         "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
         "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
-        "w_star": w.tolist(), "theta_star": sp.theta.tolist(), "v_star": sp.v.tolist(), "mu_star": sp.mu.tolist(),
+        "w_star": w.tolist(), "algorithm": algorithm.name, "w_fixed": fixed.w.tolist(),
+        **plain(fixed.report), **plain(prepared),
         "w_star_per_agent_reward": exact.fixed_point(m, m.b).tolist(),
         "stationary_distribution": m.d.tolist(), "mspbe_w_star": float(exact.mspbe(m, w)),
         "value_function": exact.value_function(m).tolist(), "approximate_values": (problem.Phi @ w).tolist(),
         "mean_laplacian": L.tolist(),
-        "kkt_residuals": exact.kkt_residuals(m, L, algorithm.kappa, algorithm.rho, sp),
-        "boxes": dict(zip(("theta", "v", "mu", "w"), boxes, strict=True)),
-        "boxes_grown": {k: {"lemma": a, "used": b} for k, (a, b) in grown.items()},
-        "kappa": algorithm.kappa, "rho": algorithm.rho,
+        "config": {k: v for k, v in dataclasses.asdict(algorithm).items() if v is not None},
     }
     click.echo(json.dumps(out, indent=2))
 

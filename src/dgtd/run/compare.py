@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.algorithms import ALGORITHMS, make_algorithm
+from dgtd.algorithms.base import FixedPoint
 from dgtd.errors import DgtdInputError
 from dgtd.problems.model import Problem
 from dgtd.problems import exact
@@ -55,12 +56,13 @@ class CompareSettings:
 
 
 def configs_for(scenario, names) -> dict:
-    """Each algorithm's config on a scenario: DGTD's is the scenario's; a baseline takes the scenario's
-    step-size schedule and offset (beta); then ``scenario.compare_settings[name]`` (its alpha0, ...) applies."""
+    """Each algorithm's config on a scenario: the scenario's own algorithm as the scenario sets it; another takes the
+    scenario's step-size schedule and offset (beta); then ``scenario.compare_settings[name]``, the steps tuned on
+    the task (`dgtd.scenarios.tuned`), applies."""
     out = {}
     for name in names:
         fields = scenario.compare_settings.get(name, {})
-        if name == "dgtd":
+        if name == scenario.algorithm.name:
             out[name] = replace(scenario.algorithm, **fields)
         else:
             out[name] = make_algorithm(name, schedule=scenario.algorithm.schedule, beta=scenario.algorithm.beta,
@@ -211,15 +213,16 @@ def write_compare(out, problem, network, results: dict, used: dict, tables: dict
 # one's numbers are final).
 COMPARE_FILES = ("metrics.csv", "bands.csv", "agent_errors.npz", "summary.json", "compare.png", "consensus.png")
 PARTS = "parts"
-_ARRAYS = ("steps", "agent_error_last", "agent_error_avg", "w_last", "w_avg", "w_tail", "w_star", "w_ref")
+_ARRAYS = ("steps", "agent_error_last", "agent_error_avg", "w_last", "w_avg", "w_tail", "w_star")
 
 
 def save_part(out: Path, name: str, result: RunResult, alg, table, record: dict) -> None:
     """One finished algorithm's numbers, its config and tuning, and the comparison's record, as plain arrays."""
-    arrays = {k: getattr(result, k) for k in _ARRAYS}
+    arrays = {k: getattr(result, k) for k in _ARRAYS} | {"w_ref": result.w_ref}
     arrays |= {f"metrics/{k}": v for k, v in result.metrics.items()}
     arrays |= {f"counts/{k}": v for k, v in result.info["counts"].items()}
-    arrays |= {k: np.asarray(result.info[k]) for k in ("diverged_at", "messages", "samples_per_step", "mspbe_w_star")}
+    arrays |= {k: np.asarray(result.info[k]) for k in ("diverged_at", "messages", "bits", "samples_per_step",
+                                                        "mspbe_w_star")}
     meta = {"record": record, "config": config_dict(alg), "tuning": [list(t) for t in table],
             "seconds": result.seconds, "tail_window": result.tail_window}
     arrays["meta"] = np.asarray(json.dumps(meta))
@@ -236,7 +239,7 @@ def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:
     paths = [Path(out) / PARTS / f"{name}.npz" for name in record.get("algorithms", ())]
     for path in filter(Path.is_file, paths):  # in the comparison's order, so that the files come out the same
         a = read_npz(path, "saved part of a comparison", f"delete it (or {path.parent}) to run that algorithm again",
-                     required=(*_ARRAYS, "meta"))
+                     required=(*_ARRAYS, "w_ref", "bits", "meta"))
         meta = json.loads(str(a["meta"]))
         if meta["record"] != record:
             continue
@@ -244,12 +247,12 @@ def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:
         name = meta["config"]["name"]
         used[name] = make_algorithm(name, **config)
         tables[name] = [tuple(t) for t in meta["tuning"]]
-        info = {k: a[k] for k in ("diverged_at", "messages")}
+        info = {k: a[k] for k in ("diverged_at", "messages", "bits")}
         info |= {"samples_per_step": int(a["samples_per_step"]), "mspbe_w_star": float(a["mspbe_w_star"]),
                  "counts": {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("counts/")}}
         results[name] = RunResult(
             **{k: a[k] for k in _ARRAYS}, metrics={k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("metrics/")},
-            w_trace=None, tail_window=int(meta["tail_window"]), saddle=None, boxes=(), final_state={}, kkt_last={},
+            w_trace=None, tail_window=int(meta["tail_window"]), fixed=FixedPoint(a["w_ref"]), final_state={},
             seconds=float(meta["seconds"]), info=info)
     return results, used, tables
 

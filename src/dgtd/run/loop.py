@@ -8,10 +8,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dgtd.algorithms import messages_per_edge
+from dgtd.algorithms.base import FixedPoint
 from dgtd.algorithms.stepsizes import step_sizes
+from dgtd.channels import Arcs, ChannelState, Perfect
 from dgtd.errors import DgtdInputError
-from dgtd.graphs.random import LaplacianOperator, RandomEdges
+from dgtd.graphs.random import RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
 from dgtd.samples import Block
@@ -20,8 +21,8 @@ from dgtd.sources.model import ModelSource, Sampling, SamplerTables
 BACKENDS = ("numpy", "numba")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
 # Counts recorded at every checkpoint beside the metrics (in RunResult.info["counts"], arrays (C, B)): agent-samples
-# consumed, parameter vectors sent over links (`dgtd.algorithms.messages_per_edge`), 1 once diverged.
-COUNTS = ("samples", "messages", "diverged")
+# consumed, the messages (vectors of q numbers) and bits the channel delivered, 1 once diverged.
+COUNTS = ("samples", "messages", "bits", "diverged")
 
 
 @dataclass(frozen=True)
@@ -68,17 +69,17 @@ def checkpoint_steps(T: int, n: int) -> np.ndarray:
 
 @dataclass
 class Context:
-    """Everything a kernel reads: model arrays, sampler tables, network, boxes; built once per run."""
+    """Everything a kernel reads: model arrays, sampler tables, network and its arcs, the algorithm as it runs (its
+    `prepare`d form) and the channel between the agents; built once per run."""
 
     problem: Problem
     network: RandomEdges
     algorithm: object
     sampling: Sampling
     tables: SamplerTables
-    lap: LaplacianOperator
-    boxes: tuple
+    arcs: Arcs
     tail_start: int
-    boxes_grown: dict = field(default_factory=dict)  # name -> (the lemma's box, the box used), see `resolve_boxes`
+    channel: object = field(default_factory=Perfect)
 
     def __post_init__(self):
         p = self.problem
@@ -102,50 +103,19 @@ class RunResult:
     w_tail: np.ndarray
     tail_window: int
     w_star: np.ndarray
-    saddle: exact.SaddlePoint
-    boxes: tuple
+    fixed: FixedPoint
     final_state: dict
-    kkt_last: dict
     seconds: float
     info: dict = field(default_factory=dict)
-    # What the errors are measured against: each agent's w of the saddle point (N or 1, q). It is w* for every agent
-    # unless rho > 0, where the regularised saddle point moves away from w* (info["regularisation_shift"]).
-    w_ref: np.ndarray | None = None
+    # What the algorithm reports of itself (its hooks `fixed_point`, `prepare` and `diagnostics`): DGTD's theta*, mu*,
+    # projection boxes and KKT residuals; summary.json carries it
+    report: dict = field(default_factory=dict)
 
-
-BOX_NAMES = ("theta", "v", "mu", "w")
-
-
-def resolve_boxes(algorithm, moments: exact.Moments, network: RandomEdges, saddle: exact.SaddlePoint) -> tuple:
-    """(projection half-widths (theta, v, mu, w), {name: (the lemma's box, the box used)} for the boxes grown).
-
-    The algorithm's own boxes are used as given, and refused if one excludes the saddle point. Otherwise each box
-    is box_scale x the bound of Lemma 2 (section 6), grown to box_scale x |x*|_inf where the bound is smaller than
-    |x*|_inf: the lemma assumes on-policy sampling, and off-policy w* can exceed it, where the iterates could never
-    reach w*.
-    """
-    if getattr(algorithm, "box_scale", None) is None:
-        return (), {}
-    needed = tuple(float(np.abs(getattr(saddle, name)).max()) for name in BOX_NAMES)
-    if algorithm.boxes is not None:
-        boxes = tuple(float(b) for b in algorithm.boxes)
-        for name, box, x in zip(BOX_NAMES, boxes, needed):
-            if box < x:
-                raise DgtdInputError(f"the {name} box {box:g} excludes the saddle point (|{name}*|_inf = {x:.6g}), so "
-                                     f"the iterates could never reach it; give a {name} box of at least "
-                                     f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or leave "
-                                     "the boxes to dgtd")
-        return boxes, {}
-    if not moments.model:
-        # Estimated moments: no Lemma 2 without a model, and box_scale x |x*| could pin a variable whose saddle value
-        # is near 0 (v* = 0 always): no projection, which only bounds the early transient
-        return (np.inf,) * 4, {}
-    max_degree = int(np.bincount(network.base.edges.ravel(), minlength=network.n_nodes).max()) if network.n_edges else 0
-    c = exact.lemma_bounds(moments, network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N), max_degree)
-    lemma = tuple(algorithm.box_scale * x for x in (c.theta, c.v, c.mu, c.w))
-    boxes = tuple(max(box, algorithm.box_scale * x) for box, x in zip(lemma, needed))
-    grown = {name: (a, b) for name, a, b in zip(BOX_NAMES, lemma, boxes) if b > a}
-    return boxes, grown
+    @property
+    def w_ref(self) -> np.ndarray:
+        """What the errors are measured against, (N or 1, q): the algorithm's fixed point, w* for every agent unless
+        it converges elsewhere (DGTD with rho > 0: the regularised saddle point, info["regularisation_shift"])."""
+        return self.fixed.w
 
 
 _MODEL_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -200,21 +170,14 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
         )
     moments, tables = _model_tables(problem)
     L_mean = network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N)  # O(N + |E|) memory for many agents
-    rho = getattr(algorithm, "rho", 0.0)
-    if problem.n_agents * problem.n_features > exact.REGULARISED_MAX:
-        rho = 0.0  # too large to solve densely: report the unregularised saddle point, the problem's own
-    saddle = exact.saddle_point(moments, L_mean, getattr(algorithm, "kappa", 0.0), rho)
     w_star = exact.w_star(moments)
-    # The errors' reference: with rho > 0 DGTD converges to the regularised saddle point, each agent to its own row
-    w_ref = saddle.w if rho > 0 else w_star[None, :]
-    boxes, grown = resolve_boxes(algorithm, moments, network, saddle)
+    fixed = algorithm.fixed_point(moments, L_mean, w_star)  # what the errors are measured against
+    algorithm, report = algorithm.prepare(moments, network, fixed)  # the algorithm as it runs here (DGTD's boxes)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
-    if boxes and hasattr(algorithm, "with_boxes"):  # the kernels project onto the resolved boxes
-        algorithm = algorithm.with_boxes(boxes)
-    ctx = Context(problem, network, algorithm, sampling, tables,
-                  LaplacianOperator(network.base), boxes, T - tail_window, grown)
-    return ctx, moments, L_mean, saddle, w_star, w_ref, tail_window
+    ctx = Context(problem, network, algorithm, sampling, tables, Arcs.of(network.base.edges, network.n_nodes),
+                  T - tail_window)
+    return ctx, moments, L_mean, fixed, report, w_star, tail_window
 
 
 def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = Sampling(),
@@ -235,7 +198,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     function of the step only, so the result equals that of an uninterrupted run bit for bit.
     """
     t_start = time.perf_counter()
-    ctx, moments, L_mean, saddle, w_star, w_ref, tail_window = prepare(problem, network, algorithm, sampling, settings)
+    ctx, moments, L_mean, fixed, report, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
+    w_ref = fixed.w
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
         if ctx.tables is None:
@@ -243,7 +207,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                                  "source")
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
     kernel = kernel_for(settings.backend, algorithm.name)
+    algorithm = ctx.algorithm
     state = algorithm.init(B, N, q)
+    channel = ctx.channel.init(B, ctx.arcs)
     if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
         state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
     n_est = algorithm.estimate(state).shape[1]  # N agents' estimates, or 1 for a centralised learner
@@ -263,8 +229,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     # The running sum at every checkpoint, for the tail average at each checkpoint (`tail_at`): up to 160 MB (it is
     # not saved with the results, unlike the trace), else the tail metrics are NaN
     sum_trace = np.zeros((C, B, n_est, q)) if B * n_est * q * C <= 20_000_000 else None
-    per_edge = messages_per_edge(algorithm)
-    messages, diverged_at = np.zeros(B), np.full(B, -1, dtype=np.int64)
+    # the channel's counts, frozen for a seed once it diverges (a stopped seed sends nothing)
+    messages, bits, diverged_at = np.zeros(B), np.zeros(B), np.full(B, -1, dtype=np.int64)
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
     limit = DIVERGENCE_FACTOR * max(1.0, float(np.abs(w_star).max()), w0_norm)
     k, c, seconds_before = 0, 0, 0.0
@@ -279,7 +245,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
         w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
         sum_trace = None if resume.get("sum_trace") is None else np.array(resume["sum_trace"])
-        messages = np.array(resume.get("messages", messages), dtype=np.float64)
+        messages, bits = np.array(resume["messages"], dtype=np.float64), np.array(resume["bits"], dtype=np.float64)
+        channel = ChannelState(*(np.array(resume["channel"][name]) for name in ChannelState._fields))
         diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
         source.set_state(resume["source"])
@@ -295,9 +262,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     # An empty block: the kernel loads or compiles now (not inside the first step, where it would look like a
     # stalled run), and nothing moves. A simulator's agents each observe their own state.
     if isinstance(source, ModelSource):
-        kernel(ctx, state, sums["all"], np.zeros(0), source.draws(0) if fused else source.next_block(0))
+        kernel(ctx, state, channel, sums["all"], np.zeros(0), source.draws(0) if fused else source.next_block(0))
     else:
-        kernel(ctx, state, sums["all"], np.zeros(0), Block.empty(B, N, N, network.n_edges))
+        kernel(ctx, state, channel, sums["all"], np.zeros(0), Block.empty(B, N, N, network.n_edges))
     kernel_seconds = time.perf_counter() - t_kernel
     if kernel_ready is not None:
         kernel_ready(kernel_seconds)
@@ -310,13 +277,10 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         blk = source.draws(k1 - k) if fused else source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
-            state, w_sum = kernel(ctx, state, sums["all"], alphas, blk)
+            state, channel, w_sum = kernel(ctx, state, channel, sums["all"], alphas, blk)
         sums = {"all": w_sum}
-        if fused:
-            sent = blk.up_count
-        else:
-            sent = (k1 - k) * network.n_edges if blk.up is None else blk.up.sum(axis=(0, 2))
-        messages += per_edge * sent * (diverged_at < 0)  # a stopped seed sends nothing
+        live = diverged_at < 0
+        messages, bits = np.where(live, channel.messages, messages), np.where(live, channel.bits, bits)
         if progress is not None:
             progress(k1 - k)
         k = k1
@@ -348,6 +312,7 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                 metrics["rmspbe_avg"][c, alive] = exact.rmspbe(moments, wv).max(-1)
                 counts["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
                 counts["messages"][c, alive] = messages[alive]
+                counts["bits"][c, alive] = bits[alive]
             counts["diverged"][c] = ~alive
             if w_trace is not None:
                 w_trace[c] = w
@@ -363,21 +328,19 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
         if every and k % every == 0 and k < T and on_checkpoint is not None:
             on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
                                    seconds_before + time.perf_counter() - t_start,
-                                   extra={"messages": messages, "diverged_at": diverged_at, "counts": counts,
+                                   extra={"messages": messages, "bits": bits, "channel": channel._asdict(),
+                                          "diverged_at": diverged_at, "counts": counts,
                                           **({} if tail_base is None else {"tail_base": tail_base}),
                                           **({} if sum_trace is None else {"sum_trace": sum_trace})}))
-    final = state._asdict()
-    kkt = {}
-    if hasattr(algorithm, "diagnostics"):
-        kkt = algorithm.diagnostics(state, moments, L_mean).get("kkt_last", {})
+    report = {**fixed.report, **report, **algorithm.diagnostics(state, moments, L_mean)}
     return RunResult(
         steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
         w_last=algorithm.estimate(state), w_avg=sums["all"] / T,
         w_tail=(sums["all"] - (np.nan if tail_base is None else tail_base)) / tail_window, tail_window=tail_window,
-        w_star=w_star, saddle=saddle, boxes=ctx.boxes, final_state=final, kkt_last=kkt, w_ref=w_ref,
+        w_star=w_star, fixed=fixed, final_state=state._asdict(), report=report,
         seconds=seconds_before + time.perf_counter() - t_start,
         info={"d": moments.d, "moments": moments, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
-              "samples_per_step": N, "messages": messages, "counts": counts, "boxes_grown": ctx.boxes_grown,
+              "samples_per_step": N, "messages": messages, "bits": bits, "counts": counts,
               "regularisation_shift": float(exact.relative_error(w_ref, w_star).max()),
               "loop_seconds": time.perf_counter() - t_loop, "kernel_seconds": kernel_seconds},
     )
@@ -433,21 +396,21 @@ def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_stat
 
 
 def kernel_for(backend: str, algorithm: str):
-    """The block kernel of ``algorithm`` on ``backend`` (`dgtd.backends.reference.run_block` contract); an
-    algorithm without a compiled kernel runs on the reference, with a one-line notice."""
+    """The block kernel of ``algorithm`` on ``backend`` (`dgtd.backends.reference.run_block` contract): the compiled
+    driver where the algorithm has a compiled step; else the reference, with a one-line notice."""
     from dgtd.backends.reference import run_block
 
     if backend == "numpy":
         return run_block
-    from dgtd.backends.compiled import KERNELS
+    from dgtd.backends.compiled import STEPS, run_block as compiled
 
-    if algorithm not in KERNELS:
+    if algorithm not in STEPS:
         import warnings
 
-        warnings.warn(f"algorithm {algorithm!r} has no compiled kernel: it runs on the NumPy reference backend",
+        warnings.warn(f"algorithm {algorithm!r} has no compiled step: it runs on the NumPy reference backend",
                       stacklevel=3)
         return run_block
-    return KERNELS[algorithm]
+    return compiled
 
 
 def evaluate(problem: Problem, network: RandomEdges, algorithm, *, sampling: Sampling = Sampling(),

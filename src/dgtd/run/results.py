@@ -85,8 +85,14 @@ def atomic_write_json(path: Path, obj) -> None:
 
 
 def reference(result: RunResult) -> np.ndarray:
-    """What a run's errors are measured against (`RunResult.w_ref`): w* unless rho > 0."""
-    return result.w_star if result.w_ref is None else result.w_ref
+    """What a run's errors are measured against (`RunResult.w_ref`): the algorithm's fixed point, w* for every agent
+    unless it converges elsewhere (DGTD with rho > 0)."""
+    return result.w_ref
+
+
+def plain(report: dict) -> dict:
+    """An algorithm's report (`RunResult.report`) as JSON-ready data: arrays as nested lists."""
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in report.items()}
 
 
 def metrics_rows(result: RunResult, algorithm: str):
@@ -137,8 +143,7 @@ def summary(result: RunResult, config: dict) -> dict:
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
         "regularisation_shift": result.info.get("regularisation_shift", 0.0),
-        "theta_star": result.saddle.theta.tolist(),
-        "mu_star": result.saddle.mu.tolist(),
+        **plain(result.report),  # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
         "mspbe_w_star": result.info["mspbe_w_star"],
         "w_last": result.w_last.tolist(),
         "w_avg": result.w_avg.tolist(),
@@ -152,9 +157,8 @@ def summary(result: RunResult, config: dict) -> dict:
            {"reference": moments.problem.summary()}),  # no model: the reference is estimated, and says how well
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
-        "kkt_residuals_last": result.kkt_last,
-        "boxes": dict(zip(("theta", "v", "mu", "w"), result.boxes)),
-        "boxes_grown": {k: {"lemma": a, "used": b} for k, (a, b) in result.info.get("boxes_grown", {}).items()},
+        "messages": result.info["messages"].tolist(),
+        "bits": result.info["bits"].tolist(),
         "stationary_distribution": None if result.info["d"] is None else result.info["d"].tolist(),
         "seconds": result.seconds,
         "config": config,
@@ -198,11 +202,8 @@ def pinned_to_boxes(result: RunResult, share: float = 0.5) -> dict:
     """Variable -> the fraction of its last iterate's components (all seeds and agents) that sit on their
     projection box, for the variables where that is at least ``share``: a sign that the step size is too large
     (the iterates jump from box to box) or that a box the user set excludes the solution."""
-    names = ("theta", "v", "mu", "w")
-    if not result.boxes:
-        return {}
     out = {}
-    for name, bound in zip(names, result.boxes):
+    for name, bound in result.report.get("boxes", {}).items():
         x = np.asarray(result.final_state.get(name))
         if x.size == 0 or not np.isfinite(bound) or bound == 0:
             continue

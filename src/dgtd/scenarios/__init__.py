@@ -18,6 +18,7 @@ from dgtd.graphs.random import RandomEdges, random_edges
 from dgtd.problems import tasks
 from dgtd.problems.features import gaussian_rbf
 from dgtd.problems.model import Problem, make_problem
+from dgtd.scenarios.tuned import tuned_steps
 from dgtd.sources.model import Sampling
 
 
@@ -43,8 +44,9 @@ class Scenario:
     data: object | None = None
     """The `dgtd.sources.data.TransitionFile` of a run on recordings (how many there are, and how long)."""
     compare_settings: dict = field(default_factory=dict)
-    """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario;
-    for "dgtd" they override ``algorithm``'s only in comparisons (`dgtd.run.compare.configs_for`)."""
+    """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario
+    (`dgtd.scenarios.tuned.TUNED_STEPS`); for the scenario's own algorithm they override ``algorithm``'s only in
+    comparisons (`dgtd.run.compare.configs_for`)."""
 
 
 PAPER_EXAMPLE_1_P = np.array(
@@ -77,7 +79,7 @@ def paper_example_1(edge_prob: float = 0.8) -> Scenario:
         sampling=Sampling(mode="iid", shared=False),
         iterations=1_000_000,
         description="the paper's Example 1: 4-state chain, 5 agents on a ring with random link failures",
-        compare_settings=COMPARE_STEPS["paper-example-1"],
+        compare_settings=tuned_steps("paper-example-1"),
     )
 
 
@@ -119,14 +121,14 @@ def baird_scenario(edge_prob: float = 0.8) -> Scenario:
     settle along a direction of eigenvalue ~2e-5, which a decaying step would not resolve in any budget."""
     return _task(tasks.baird(n_agents=5), edge_prob, DGTD(alpha0=0.02, schedule="constant"), 4_000_000,
                  "Baird's counterexample (7 states, 8 features, off-policy), 5 agents on a ring with link failures",
-                 COMPARE_STEPS["baird"])
+                 tuned_steps("baird"))
 
 
 def boyan_scenario(edge_prob: float = 0.8) -> Scenario:
     """The episodic Boyan chain of Dann et al. (2014), 10 agents; DGTD's default step sizes."""
     return _task(tasks.boyan(n_agents=10), edge_prob, DGTD(), 200_000,
                  "Boyan chain (14 states, 4 features, episodic), 10 agents on a ring with link failures",
-                 COMPARE_STEPS["boyan"])
+                 tuned_steps("boyan"))
 
 
 def random_mdp_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
@@ -134,14 +136,14 @@ def random_mdp_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
     (DGTD's default alpha0 = 10 suits features of unit scale)."""
     return _task(tasks.random_mdp(n_agents=10, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0), 100_000,
                  "random MDP (400 states, 10 actions, 200 features), on-policy, 10 agents on a ring",
-                 COMPARE_STEPS["random-mdp"])
+                 tuned_steps("random-mdp"))
 
 
 def random_mdp_off_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
     """Dann et al.'s 400-state random MDP, off-policy (random behaviour policy), 10 agents; alpha0 = 0.3 as on-policy."""
     return _task(tasks.random_mdp(n_agents=10, off_policy=True, seed=seed), edge_prob, DGTD(alpha0=0.3, beta=100.0),
                  100_000, "random MDP (400 states, 10 actions, 200 features), off-policy, 10 agents on a ring",
-                 COMPARE_STEPS["random-mdp-off"])
+                 tuned_steps("random-mdp-off"))
 
 
 def garnet_scenario(edge_prob: float = 0.8, n_states: int = 30, branching: int = 3, n_agents: int = 10,
@@ -151,29 +153,8 @@ def garnet_scenario(edge_prob: float = 0.8, n_states: int = 30, branching: int =
     return _task(tasks.garnet(n_states, branching, n_agents, n_features, seed=seed), edge_prob,
                  DGTD(), 100_000,
                  f"Garnet chain ({n_states} states, {branching} successors, {n_features} features), {n_agents} agents",
-                 COMPARE_STEPS["garnet"])
+                 tuned_steps("garnet"))
 
-
-# Step sizes in comparisons, each algorithm's alpha0 under its scenario's schedule and offset beta (`dgtd compare`
-# starts from these; `dgtd compare --tune` and benchmarks/time_to_accuracy.py tune around them on separate seeds).
-# They were the best alpha0 of the grid 10^(k/2), k = -5..4, by `dgtd.run.compare.tune_score` on 2 separate seeds,
-# rounded; DGTD's is its scenario's, except on the paper's Example 1, whose scenario keeps the paper's steps for
-# `dgtd run` while comparisons use DGTD's defaults. On Baird every algorithm starts from the constant 0.02 of its
-# scenario: the TD methods diverge at every step size, and the gradient methods settle only along a slow direction.
-COMPARE_STEPS: dict[str, dict] = {
-    "paper-example-1": {"dgtd": {"alpha0": 10.0, "beta": 1000.0, "kappa": 3.0}, "gtd2": {"alpha0": 1.0}, "tdc": {"alpha0": 1.0}, "td0": {"alpha0": 0.3},
-                        "consensus-td0": {"alpha0": 0.3}, "pd-td": {"alpha0": 0.3}, "local": {"alpha0": 1.0}},
-    "baird": {name: {"alpha0": 0.02} for name in ("gtd2", "tdc", "td0", "consensus-td0", "pd-td", "td-tracking",
-                                                  "local")},
-    "boyan": {"gtd2": {"alpha0": 30.0}, "tdc": {"alpha0": 30.0}, "td0": {"alpha0": 1.0},
-              "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 10.0}},
-    "random-mdp": {"gtd2": {"alpha0": 0.3}, "tdc": {"alpha0": 0.3}, "td0": {"alpha0": 3.0},
-                   "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 0.3}},
-    "random-mdp-off": {"gtd2": {"alpha0": 0.3}, "tdc": {"alpha0": 0.3}, "td0": {"alpha0": 3.0},
-                       "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 0.1}},
-    "garnet": {"gtd2": {"alpha0": 3.0}, "tdc": {"alpha0": 3.0}, "td0": {"alpha0": 1.0},
-               "consensus-td0": {"alpha0": 1.0}, "pd-td": {"alpha0": 1.0}, "local": {"alpha0": 3.0}},
-}
 
 def mpe_spread_scenario(agents: int = 3, radius: float = 1.0, iterations: int = 60_000,
                         policy: str = "heuristic") -> Scenario:

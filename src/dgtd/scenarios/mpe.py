@@ -85,7 +85,7 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
     from dgtd.graphs.proximity import ProximityNetwork
     from dgtd.scenarios import Scenario
     from dgtd.sources.env import EnvSource, reference_from_env
-    from dgtd.scenarios.user import (REFERENCE_SEED_OFFSET, TRAJECTORY_SEED_OFFSET, TrajectoryReport,
+    from dgtd.scenarios.user import (REFERENCE_SEED_OFFSET, TRAJECTORY_SEED_OFFSET, TrajectoryReport, compare_steps,
                                      mean_proximity_network, scaled_dgtd)
     from dgtd.sources.model import Sampling
 
@@ -111,4 +111,5 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
         source=lambda seed, seed_ids: EnvSource(partial(make_spread, N), features, seed, seed_ids, **common),
         report=TrajectoryReport(lambda: EnvSource(partial(make_spread, N), features, 0, [0],
                                                   seed_offset=TRAJECTORY_SEED_OFFSET, **common), steps=100),
+        compare_settings=compare_steps(reference),
     )

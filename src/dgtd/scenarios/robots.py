@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.proximity import LinkStats, ProximityNetwork, count_links, empty_stats
+from dgtd.scenarios.tuned import TASKS, tuned_steps
 from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_star, visit_frequencies
 from dgtd.samples import Block
 
@@ -384,4 +385,5 @@ def patrol_scenario(world: PatrolWorld = PatrolWorld(), radius: float = 5.0, *, 
         description=description,
         source=partial(PatrolSource, world, proximity, record=record),
         report=PatrolReport(world, proximity, ref),
+        compare_settings=tuned_steps(name) if name in TASKS else {},
     )

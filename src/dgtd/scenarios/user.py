@@ -283,10 +283,11 @@ def feature_scale(reference) -> float:
 def compare_steps(reference) -> dict:
     """The baselines' alpha0 in `dgtd compare`: garnet's (features of unit scale, as DGTD's default) divided by
     `feature_scale`, as DGTD's is; ``--tune`` picks them on separate seeds instead."""
-    from dgtd.scenarios import COMPARE_STEPS
+    from dgtd.scenarios.tuned import tuned_steps
 
     scale = feature_scale(reference)
-    return {name: {"alpha0": fields["alpha0"] / scale} for name, fields in COMPARE_STEPS["garnet"].items()}
+    return {name: {"alpha0": fields["alpha0"] / scale} for name, fields in tuned_steps("garnet").items()
+            if "alpha0" in fields}
 
 
 def scaled_dgtd(reference, base_graph) -> DGTD:
@@ -366,7 +367,7 @@ def data_scenario(path: str, gamma: float, network_for):
                     f"{'recordings' if data.by_seed else 'episodes'} of {data.N} agents, {int(data.offsets[-1]):,} "
                     f"steps in all{'' if data.by_seed else ', replayed by each seed in an order of its own'}; "
                     f"{STEP_WORDS} = {algorithm.alpha0:.3g}",
-        source=lambda seed, seed_ids: DataSource(data, seed_ids, seed),
+        source=lambda seed, seed_ids: DataSource(data, seed_ids, seed, network),
         data=data,
         compare_settings=compare_steps(reference),
     )

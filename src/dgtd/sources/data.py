@@ -240,19 +240,25 @@ class TransitionFile:
 
 class DataSource:
     """Blocks from recorded transitions: seed b replays the episodes of `TransitionFile.order` (seed, seed_ids[b]),
-    each agent its own transition at every step (n = N); a block reads only its own rows of the file's
-    disk-backed array."""
+    each agent its own transition at every step (n = N); a block reads only its own rows of the file's disk-backed
+    array. The recordings hold what the agents saw, not which of their links were up: those come from the run's
+    ``network``, drawn at every step from the seed's own edge stream (the third child of SeedSequence(seed,
+    spawn_key=(k,)), as a model's run draws them: the same links for seed k); without a network every link is up."""
 
-    def __init__(self, data: TransitionFile, seed_ids=None, seed: int = 0):
-        self.data = data
+    def __init__(self, data: TransitionFile, seed_ids=None, seed: int = 0, network=None):
+        self.data, self.network = data, network
         self.chosen = list(range(data.recordings or 1)) if seed_ids is None else [int(k) for k in seed_ids]
         if data.recordings is not None and max(self.chosen) >= data.recordings:
             raise DgtdInputError(f"{data.path} holds {data.recordings} recordings; run at most {data.recordings} seeds")
+        if network is not None and network.n_nodes != data.N:
+            raise DgtdInputError(f"the network has {network.n_nodes} agents but {data.path} holds {data.N}")
         self.T, self.N, self.k = data.steps(self.chosen), data.N, 0
         # where each seed's stream is in the file's rows: its episodes' starts, in order, and where each ends in it
         orders = [data.order(seed, k) for k in self.chosen]
         self.starts = [data.offsets[o] for o in orders]
         self.ends = [np.cumsum(data.lengths[o]) for o in orders]
+        self.edges = [np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(k,)).spawn(3)[2]))
+                      for k in self.chosen]
 
     def _positions(self, b: int, k: int, T: int) -> np.ndarray:
         """The rows of steps k .. k+T-1 of seed b's stream."""
@@ -277,10 +283,18 @@ class DataSource:
         table = SampleTable(np.concatenate([x[..., :q].reshape(M, q), x[..., q: 2 * q].reshape(M, q)]),
                             np.concatenate([x[..., -2].ravel(), np.ones(M)])[:, None],
                             np.concatenate([np.ones(M), x[..., -1].ravel()]))
-        return Block(index, np.zeros_like(index), index + M, np.ascontiguousarray(x[..., 2 * q]), None, table)
+        return Block(index, np.zeros_like(index), index + M, np.ascontiguousarray(x[..., 2 * q]), self._links(T), table)
+
+    def _links(self, T: int):
+        """The edges up at each of the next T steps (T, B, E), or None when every edge is always up."""
+        if self.network is None or self.network.fixed:
+            return None
+        return np.stack([g.random((T, self.network.n_edges)) for g in self.edges], axis=1) < self.network.p
 
     def get_state(self) -> dict:
-        return {"k": self.k}
+        return {"k": self.k, "edges": [g.bit_generator.state for g in self.edges]}
 
     def set_state(self, state: dict) -> None:
         self.k = int(state["k"])
+        for g, st in zip(self.edges, state["edges"], strict=True):
+            g.bit_generator.state = st

@@ -1,14 +1,15 @@
-"""The compiled backend (numba): one kernel file per algorithm in `dgtd.backends.compiled.kernels`, registered by the
-algorithm's name with `kernel`; an algorithm without one runs on the reference backend.
+"""The compiled backend (numba): one driver for every algorithm (`dgtd.backends.compiled.driver`) and one per-agent
+step per algorithm in `dgtd.backends.compiled.steps`, registered by the algorithm's name
+(`dgtd.backends.compiled.step.register`); an algorithm without one runs on the reference backend.
 
-A kernel has the contract of `dgtd.backends.reference.run_block`: ``block(ctx, state, w_sum, alphas, blk) ->
-(state, w_sum)``, the same samples and the same arithmetic, so the two agree to rounding (tested for every
-algorithm). Kernels are compiled once and cached on disk (``cache=True``).
+The driver has the contract of `dgtd.backends.reference.run_block`: ``block(ctx, state, channel, w_sum, alphas, blk)
+-> (state, channel, w_sum)``, the same samples and the same arithmetic, so the two agree to rounding (tested for every
+algorithm). Kernels are compiled on first use and cached on disk (``cache=True``).
 
-numba keys a cached kernel by the file that defines it only (a hash of its text), so editing a helper it inlines from
-another module of this package would leave it stale. `_refresh_cache` keeps a digest of every module here beside
-numba's cache files and, when any module changed, deletes the package's cache files before the kernels are
-imported, so that numba compiles them all again.
+numba keys a cached kernel by the file that defines it only (a hash of its text), so editing a step or a helper it
+inlines from another module of this package would leave the driver stale. `_refresh_cache` keeps a digest of every
+module here beside numba's cache files and, when any module changed, deletes the package's cache files before the
+steps are imported, so that numba compiles them all again.
 """
 
 from __future__ import annotations
@@ -19,21 +20,8 @@ import os
 import pkgutil
 from pathlib import Path
 
-KERNELS: dict = {}
-"""Algorithm name -> block kernel."""
-
 _HERE = Path(__file__).resolve().parent
 _STAMP = "dgtd-sources.sha256"
-
-
-def kernel(name: str):
-    """Register the decorated function as the compiled block kernel of algorithm ``name``."""
-
-    def register(fn):
-        KERNELS[name] = fn
-        return fn
-
-    return register
 
 
 def _cache_dirs() -> list[Path]:
@@ -72,7 +60,11 @@ def _refresh_cache() -> None:
 
 _refresh_cache()
 
-from dgtd.backends.compiled import kernels as _kernels  # noqa: E402  (after the cache is refreshed)
+from dgtd.backends.compiled import steps as _steps  # noqa: E402  (after the cache is refreshed)
+from dgtd.backends.compiled.driver import run_block  # noqa: E402
+from dgtd.backends.compiled.step import STEPS  # noqa: E402
 
-for _module in pkgutil.iter_modules(_kernels.__path__):
-    importlib.import_module(f"{_kernels.__name__}.{_module.name}")
+for _module in pkgutil.iter_modules(_steps.__path__):
+    importlib.import_module(f"{_steps.__name__}.{_module.name}")
+
+__all__ = ["STEPS", "run_block"]

@@ -196,24 +196,45 @@ def up_mask(blk: Block):
 
 
 def sample_args(ctx, blk, B: int):
-    """The sampling arguments of the DGTD kernels: draw in the kernel from a `Draws`' streams, or copy a `Block`."""
+    """The sampling arguments of the compiled driver: draw in the kernel from a `Draws`' streams, or copy a `Block`.
+    The tables a kernel only reads are handed over read-only and the samples it copies writable, whichever source
+    they come from: numba compiles a kernel once per array type, and a read-only array is another type."""
     tables, network, problem = ctx.tables, ctx.network, ctx.problem
     none_i, none_f, none_b = np.zeros((0, 0, 0), np.int64), np.zeros((0, 0, 0)), np.zeros((0, 0, 0), np.bool_)
+    p_edge = np.zeros(0)
     if isinstance(blk, Draws):
         src = blk.source
         markov = src.current is not None
         current = np.array(src.current, dtype=np.int64) if markov else np.zeros((B, src.n_obs), np.int64)
-        p_edge = np.zeros(0) if network.fixed else np.asarray(network.p, dtype=np.float64)
+        if not network.fixed:
+            p_edge = np.asarray(network.p, dtype=np.float64)
         samples = (none_i, none_i, none_i, none_f, none_b)
         fused, rng = True, src.streams.pcg_words()
     else:
-        markov, current, p_edge = False, np.zeros((B, blk.s.shape[2]), np.int64), np.zeros(0)
-        samples = (blk.s, blk.a, blk.s_next, blk.r, up_mask(blk))
+        markov, current = False, np.zeros((B, blk.s.shape[2]), np.int64)
+        samples = (writable(blk.s, np.int64), writable(blk.a, np.int64), writable(blk.s_next, np.int64),
+                   writable(blk.r, np.float64), writable(up_mask(blk), np.bool_))
         fused, rng = False, np.zeros((B, 3, 4), np.uint64)
     if tables is None:  # no model (a simulator's or a data file's samples): the drawing arguments go unread
         empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
         model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros((1, 1, 1, 1)), 1.0, 0)
     else:
-        model = (tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-                 np.ascontiguousarray(problem.reward_table), float(problem.sigma), NOISE_CODES[problem.reward_noise])
-    return (fused, rng, markov, current, *model, p_edge, *samples, np.zeros(B, np.int64))
+        model = (tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias, problem.reward_table,
+                 float(problem.sigma), NOISE_CODES[problem.reward_noise])
+    d_prob, d_alias, sa_prob, sa_alias, R, sigma, noise = model
+    model = (frozen(d_prob, np.float64), frozen(d_alias, np.int64), frozen(sa_prob, np.float64),
+             frozen(sa_alias, np.int64), frozen(R, np.float64), sigma, noise)
+    return (fused, rng, markov, current, *model, frozen(p_edge, np.float64), *samples, np.zeros(B, np.int64))
+
+
+def frozen(x, dtype) -> np.ndarray:
+    """A C-contiguous read-only view of ``x`` as ``dtype``."""
+    view = np.ascontiguousarray(x, dtype).view()
+    view.setflags(write=False)
+    return view
+
+
+def writable(x, dtype) -> np.ndarray:
+    """``x`` as a writable C-contiguous array of ``dtype`` (a copy only where it is read-only or of another type)."""
+    x = np.ascontiguousarray(x, dtype)
+    return x if x.flags.writeable else x.copy()

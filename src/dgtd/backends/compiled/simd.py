@@ -111,31 +111,33 @@ def dot(typingctx, X, x_at, Y, y_at, n):
 
 
 @intrinsic
-def neighbour_sums(typingctx, Z, b, i, J, count, out, at):
-    """out[at, k] = count Z[b, i, k] - Z[b, J[at, 0], k] - ... - Z[b, J[at, count - 1], k] for every element k of
-    the row Z[b, i] (length Z.shape[2], at most out's): (L(k) X)_i of the rows of seed b when J[at] lists agent i's
-    neighbours up at step k. J and out are scratch with a row per thread (row ``at``), allocated once per block
-    rather than once per chunk and step. Every element takes the subtractions in this order, so the result does
-    not depend on the vector width. Up to UNROLLED_NEIGHBOURS neighbours the code branches on the count once and runs
-    straight-line code for it (a loop over a count that changes from agent to agent is mispredicted)."""
-    if not _c_contiguous(Z, J, out) or Z.ndim != 3 or out.ndim != 2 or J.ndim != 2:
+def neighbour_sums(typingctx, Z, z_at, i, J, j_at, count, out, out_at):
+    """out[*out_at, k] = count Z[*z_at, i, k] - Z[*z_at, J[j_at, 0], k] - ... - Z[*z_at, J[j_at, count - 1], k] for
+    every element k of the row Z[*z_at, i] (length Z.shape[-1], at most out's): (L(k) X)_i of the rows of seed b
+    (``z_at`` = (message, b)) when J[j_at] lists agent i's neighbours up at step k. J and out are scratch with a row
+    per thread, allocated once per block rather than once per chunk and step. Every element takes the subtractions
+    in this order, so the result does not depend on the vector width. Up to UNROLLED_NEIGHBOURS neighbours the code
+    branches on the count once and runs straight-line code for it (a loop over a count that changes from agent to
+    agent is mispredicted)."""
+    if not (_c_contiguous(Z, J, out) and J.ndim == 2 and _index_type_ok(z_at) and _index_type_ok(out_at)):
         return None
-    sig = types.void(Z, b, i, J, count, out, at)
+    sig = types.void(Z, z_at, i, J, j_at, count, out, out_at)
 
     def codegen(context, builder, signature, args):
         i64, f64 = ir.IntType(64), ir.DoubleType()
         vec = ir.VectorType(f64, LANES)
         ta = signature.args
-        b_, i_, n_, at_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (1, 2, 4, 6))
+        zi = _index(context, builder, ta[1], args[1])
+        i_, ja_, n_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (2, 4, 5))
         zary = context.make_array(ta[0])(context, builder, args[0])
-        K = cgutils.unpack_tuple(builder, zary.shape)[2]
-        pz = _row(context, builder, ta[0], args[0], [b_, i_])
-        pout = _row(context, builder, ta[5], args[5], [at_])
-        pj = _row(context, builder, ta[3], args[3], [at_])
+        K = cgutils.unpack_tuple(builder, zary.shape)[ta[0].ndim - 1]
+        pz = _row(context, builder, ta[0], args[0], [*zi, i_])
+        pout = _row(context, builder, ta[6], args[6], _index(context, builder, ta[7], args[7]))
+        pj = _row(context, builder, ta[3], args[3], [ja_])
         c = builder.sitofp(n_, f64)
 
         def neighbour_row(n):
-            return _row(context, builder, ta[0], args[0], [b_, builder.load(builder.gep(pj, [n]))])
+            return _row(context, builder, ta[0], args[0], [*zi, builder.load(builder.gep(pj, [n]))])
 
         def element(k, ty, rows):
             at = lambda p: _vector_at(builder, p, k, ty)  # noqa: E731

@@ -1,0 +1,97 @@
+"""The compiled twin of `dgtd.channels.Perfect`: which neighbours an agent heard at a step, the aggregates of what
+they sent (`dgtd.channels.Inbox`'s), and the channel's counts. Tested equal to the NumPy definition.
+
+Inside the driver (`dgtd.backends.compiled.driver`) an agent's inbox is an `Inbox` of plain arrays: the messages every
+agent sent at step k, the storage rows of the neighbours heard (row ``at`` of ``heard``, ``count`` of them) and
+scratch rows for the aggregates. A per-agent step asks for an aggregate of message m, which lands in
+``inbox.sums[m, inbox.at]``, as its NumPy ``update`` asks ``inbox.laplacian(name)``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from dgtd.backends.compiled.simd import neighbour_sums
+from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
+
+
+class Inbox(NamedTuple):
+    """What the agents a thread updates heard at step k (`dgtd.channels.Inbox`, one agent at a time): built once per
+    step and thread, the agent's own part filled in by `hear` (an array of arrays made per agent would cost reference
+    counts, with atomic instructions, at every agent-step)."""
+
+    sent: np.ndarray  # every message at step k, (M, B, N, q), in storage rows
+    heard: np.ndarray  # (rows, max degree): the storage rows of the neighbours the agent heard, in row ``at``
+    n_heard: np.ndarray  # (rows,): how many, in row ``at``
+    degree: np.ndarray  # (rows, N): how many messages each agent heard at this step, in row ``degree_row``
+    degree_row: int
+    sums: np.ndarray  # (M, rows, q) scratch: the aggregate of message m lands in row [m, at]
+    at: int
+
+
+@njit(cache=True, inline="always")
+def hear(inbox, up, row, indptr, nbr, eid, i):
+    """The storage rows of agent i's neighbours whose links are up (row ``row`` of the step's edge mask) into the
+    inbox, and how many. Without a branch: links are up at random, and a branch would be mispredicted."""
+    heard, at = inbox.heard, inbox.at
+    n = 0
+    for k in range(indptr[i], indptr[i + 1]):
+        heard[at, n] = nbr[k]
+        n += up[row, eid[k]]
+    inbox.n_heard[at] = n
+
+
+@njit(cache=True, inline="always")
+def count_heard(up, row, indptr, eid, degree, degree_row):
+    """degree[degree_row, i] = how many messages agent i hears at this step (its links up), for every agent: the d_i
+    of the Metropolis weights."""
+    for agent in range(indptr.shape[0] - 1):
+        d = 0
+        for k in range(indptr[agent], indptr[agent + 1]):
+            d += up[row, eid[k]]
+        degree[degree_row, agent] = d
+
+
+@njit(cache=True, inline="always")
+def laplacian(inbox, m, b, i):
+    """sum_j (x_i - x_j) of message m over the neighbours heard, into inbox.sums[m, inbox.at]: (L(k) x)_i. Summed as
+    d_i x_i - x_j1 - x_j2 - ... (`neighbour_sums`), which streams the neighbours' rows past registers once."""
+    neighbour_sums(inbox.sent, (m, b), i, inbox.heard, inbox.at, inbox.n_heard[inbox.at], inbox.sums, (m, inbox.at))
+
+
+@njit(cache=True, inline="always")
+def metropolis(inbox, m, b, i):
+    """sum_j W_ij (x_i - x_j) of message m, W_ij = 1 / (1 + max(d_i, d_j)), into inbox.sums[m, inbox.at]; each term
+    added in the order of the neighbours, as `dgtd.channels.Inbox.metropolis` adds them."""
+    x, out, at, deg, row = inbox.sent, inbox.sums, inbox.at, inbox.degree, inbox.degree_row
+    q = x.shape[3]
+    for f in range(q):
+        out[m, at, f] = 0.0
+    for n in range(inbox.n_heard[at]):
+        j = inbox.heard[at, n]
+        c = 1.0 / (1.0 + max(deg[row, i], deg[row, j]))
+        for f in range(q):
+            out[m, at, f] += (x[m, b, i, f] - x[m, b, j, f]) * c
+
+
+@njit(cache=True, inline="always")
+def total(inbox, m, b, i):
+    """sum_j x_j of message m over the neighbours heard, into inbox.sums[m, inbox.at]."""
+    x, out, at = inbox.sent, inbox.sums, inbox.at
+    q = x.shape[3]
+    for f in range(q):
+        out[m, at, f] = 0.0
+    for n in range(inbox.n_heard[at]):
+        j = inbox.heard[at, n]
+        for f in range(q):
+            out[m, at, f] += x[m, b, j, f]
+
+
+def counted(state: ChannelState, arcs: np.ndarray, messages: int, numbers: int) -> ChannelState:
+    """The channel's counts after ``arcs`` (B,) arcs delivered ``messages`` messages of ``numbers`` numbers in all
+    (what `dgtd.channels.Perfect.deliver` adds step by step: the same integers, so the same floats)."""
+    arcs = arcs.astype(np.float64)
+    return ChannelState(state.messages + arcs * messages, state.bits + arcs * numbers * BITS_PER_NUMBER)

@@ -1,0 +1,400 @@
+"""The compiled driver: one for every algorithm. It owns what is not an algorithm's maths, once:
+
+- the layouts: seeds one after another, or several at once in threads (`_seeds`), or the agents of a seed spread over
+  the cores at every step (`_agents`), chosen per run and, where both fit, by measuring which is faster here now
+  (`Layouts`): on a machine shared with another busy process the agent layout's per-step synchronisation collapses;
+- the samples, drawn inside the kernel from the seeds' PCG64 streams (`dgtd.backends.compiled.sampling`: the samples
+  of the NumPy reference) or copied from a block of a simulator's or a recording's;
+- the messages, double-buffered: every agent reads its neighbours' values of step k while it writes its own of step
+  k + 1 (the Jacobi form of every algorithm here), and the channel (`dgtd.backends.compiled.channel`): the neighbours
+  heard, their aggregates, the counts;
+- the graph's neighbour lists in the storage order of the agents (`dgtd.backends.compiled.graph`), dense, sparse and
+  table-supplied features, and episodic discounts (`dgtd.backends.compiled.step`).
+
+An algorithm's compiled part is its per-agent step (`dgtd.backends.compiled.step`), which the driver calls for every
+learner at every step: the compiled contract is `dgtd.backends.reference.run_block`'s, the same samples and the same
+arithmetic, so that the two agree to rounding (tested for every algorithm). The serial loop and the parallel agent
+layout are compiled only when a run uses them, each once per algorithm, and cached on disk.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numba import get_num_threads, njit, prange
+
+from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear
+from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
+from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
+from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
+from dgtd.samples import Block, Draws, SampleTable
+
+
+def agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
+    """Stands for an algorithm's registered step in the functions below, each of which `driver` copies per algorithm
+    with the step in its place."""
+    raise NotImplementedError("the driver's functions run as copied by `driver`")
+
+
+NEEDS_DEGREES = False  # likewise: whether the step's inbox needs every agent's count of messages heard
+
+
+@njit(cache=True, inline="always")
+def _learner(p, own, sums, inbox, out, work, x, feat, graph, up, up_row, b, i, alpha, q):
+    """Learner i of seed b at one step: the neighbours it heard, then its step."""
+    indptr, nbr, eid, agent_of = graph
+    if inbox.sent.shape[0] > 0:
+        hear(inbox, up, up_row, indptr, nbr, eid, i)
+    agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent_of[i], alpha, q)
+
+
+# The serial loop and a chunk of the agent layout run without numba's reference counts (``_nrt=False``): every
+# array comes in from Python, none is made here, and an array taken out of a tuple would otherwise cost an atomic
+# increment and decrement at every agent-step (measured: half the time of a step).
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, b0, b1):
+    """Seeds b0 .. b1 - 1 one after another, each its steps in order, each step its learners in order. No threads of
+    its own (it releases the GIL: `Layouts` runs several calls at once over separate seeds, each with its own
+    ``space``, `_space`)."""
+    (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
+     sn_blk, r_blk, up_blk, n_up) = sampler
+    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, degree, scratch, work = space
+    indptr, eid = graph[0], graph[2]
+    L, T = sums.shape[1], alphas.shape[0]
+    x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
+    for b in range(b0, b1):
+        edges_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
+        for t in range(T):
+            edges_up += _step_samples(b, 0, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias,
+                                      R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t,
+                                      sn_t, r_t, up_t)
+            if NEEDS_DEGREES:
+                count_heard(up_t, 0, indptr, eid, degree, 0)
+            sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
+            inbox = Inbox(sent, heard, n_heard, degree, 0, scratch, 0)
+            for i in range(L):
+                _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
+        n_up[b] += edges_up
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias, sa_prob,
+           sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi, sparse, ptr, idx,
+           val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t, heard, n_heard, degree,
+           scratch, work):
+    """Chunk c of the agent layout at step t: its share of the B * N (seed, agent) pairs, then its share of the
+    sampling of step t + 1 (`_agents`)."""
+    B, L, T = sums.shape[0], sums.shape[1], alphas.shape[0]
+    sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
+    feat, graph = Features(Phi, sparse, ptr, idx, val), (indptr, nbr, eid, agent_of)
+    now, nxt = (t % 2) * B, ((t + 1) % 2) * B  # rows of this step's samples and the next step's
+    total = B * L
+    for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
+        b, i = flat // L, flat % L
+        inbox = Inbox(sent, heard, n_heard, degree, now + b, scratch, c)
+        x = Samples(s_t, a_t, sn_t, r_t, now + b, ratio, cont, gamma)
+        _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, now + b, b, i, alphas[t], q)
+    if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over the chunks
+        for j in range(2 * B):
+            if j * n_chunks // (2 * B) == c:
+                sb = j // 2
+                if j % 2 == 0:
+                    _step_observations(sb, nxt + sb, t + 1, fused, words, markov, current, d_prob, d_alias, sa_prob,
+                                       sa_alias, R_sample, sigma, noise, s_blk, a_blk, sn_blk, r_blk, s_t, a_t, sn_t,
+                                       r_t)
+                else:
+                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, up_blk, up_t)
+                    if NEEDS_DEGREES:
+                        count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
+
+
+@njit(cache=True, parallel=True)
+def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, n_chunks):
+    """The agents of every seed spread over the cores at every step, in ``n_chunks`` chunks (`_chunk`, compiled on its
+    own: the parallel part stays small and compiles in a moment). Samples are double-buffered too: while the agents
+    update with step k's, the chunks also draw step k + 1's, each seed's state and reward streams in one chunk and its
+    edge stream in another (a stream is sequential, but the streams are independent), so that no core waits while
+    another samples. numba hands a parallel loop arrays and numbers, not tuples: they are unpacked first."""
+    (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
+     sn_blk, r_blk, up_blk, n_up) = sampler
+    Phi, sparse, ptr, idx, val = feat
+    indptr, nbr, eid, agent_of = graph
+    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, degree, scratch, work = space
+    B, T = sums.shape[0], alphas.shape[0]
+    # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
+    words = np.zeros((B, 3, 16), np.uint64)
+    words[:, :, :4] = rng
+    for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
+        n_up[b] += _step_samples(b, b, 0, fused, words, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
+                                 sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t)
+        if NEEDS_DEGREES:
+            count_heard(up_t, b, indptr, eid, degree, b)
+    for t in range(T):
+        for c in prange(n_chunks):
+            _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias,
+                   sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi,
+                   sparse, ptr, idx, val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t,
+                   heard, n_heard, degree, scratch, work)
+    # element by element: in a parallel function, numba loses a slice assignment to an array unpacked from a tuple
+    for b in range(B):
+        for k in range(3):
+            for x in range(4):
+                rng[b, k, x] = words[b, k, x]
+
+
+def driver(name: str) -> tuple:
+    """(`_seeds`, `_agents`) for algorithm ``name``: copies of the driver's functions with its step in place of
+    `agent_step`, each compiled on first use and cached on disk under a name of its own (`_seeds_dgtd`, ...).
+
+    The step is then an ordinary global of the copies, which numba inlines as it inlines every helper here; an
+    algorithm's step chosen at compile time through an overload instead was inlined wrongly (numba 0.68: array stores
+    after it were lost)."""
+    return per_process(name, lambda: _copies(STEPS[name], name.replace("-", "_")))
+
+
+_DRIVERS: dict = {}
+
+
+def per_process(key: str, build):
+    if key not in _DRIVERS:
+        _DRIVERS[key] = build()
+    return _DRIVERS[key]
+
+
+def _copies(compiled: CompiledStep, suffix: str) -> tuple:
+    import types
+
+    space = dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
+
+    def copy(fn, **options):
+        py = fn.py_func
+        clone = types.FunctionType(py.__code__, space, f"{py.__name__}_{suffix}", py.__defaults__, py.__closure__)
+        clone.__qualname__, clone.__doc__ = clone.__name__, py.__doc__
+        space[py.__name__] = dispatcher = njit(cache=True, **options)(clone)
+        return dispatcher
+
+    copy(_learner, inline="always")
+    seeds, chunk = copy(_seeds, nogil=True, _nrt=False), copy(_chunk, nogil=True, _nrt=False)
+    agents = copy(_agents, parallel=True)
+    load_quickly(seeds, chunk, agents)
+    return seeds, agents
+
+
+# --- The Python side: arrays in, layout chosen, arrays out ----------------------------------------------------------
+
+AGENTS_MIN_WORK = 1 << 14  # N q from which spreading a seed's agents over the cores can pay (measured: N = 256, q = 64)
+LAYOUT = "auto"  # "seeds" or "agents" force a layout (the tests run both); "auto" chooses (`Layouts`)
+_POOL: list = []
+GROUPS_PER_THREAD = 4
+
+
+def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
+    """The contract of `dgtd.backends.reference.run_block`, compiled; ``blk`` is a `Block` of samples or `Draws`
+    that the kernel draws itself (the same samples, never materialised)."""
+    algorithm = ctx.algorithm
+    compiled = STEPS[algorithm.name]
+    messages = tuple(algorithm.messages)
+    B, L, q = w_sum.shape
+    N = ctx.network.n_nodes
+    order = storage_order(ctx) if messages else None  # agents in rows near their neighbours: `storage_order`
+    rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
+    back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
+    copy = lambda x: np.array(rows(x), dtype=np.float64, order="C")  # noqa: E731  (updated in place: not the caller's)
+    own_names = [f for f in state._fields if f not in messages]
+    if tuple(own_names) != compiled.own:
+        raise TypeError(f"{algorithm.name}'s compiled step keeps {compiled.own}, its state {tuple(own_names)}")
+    own = np.stack([copy(getattr(state, f)) for f in own_names]) if own_names else np.zeros((0, B, L, q))
+    sent = algorithm.sends(state)
+    buffers = np.zeros((2, len(messages), B, N, q))  # step k's messages in buffers[k % 2], k counted in the block
+    for m, name in enumerate(messages):
+        buffers[0, m] = rows(sent[name])
+    sums = copy(w_sum)
+    sampler = sample_args(ctx, blk, B)
+    Phi, ratio = rows_of(ctx, blk)
+    args = (compiled.params(algorithm, ctx), own, sums, q, N, sampler, Features(*feature_arrays(ctx, blk)),
+            readonly(ratio), continuing_flags(ctx, blk), float(ctx.gamma), _graph(ctx, bool(messages)))
+    newest = _layouts(ctx, B, L, q, bool(messages)).run(driver(algorithm.name), args, buffers,
+                                                        np.ascontiguousarray(alphas), blk, len(messages), compiled.work)
+    if isinstance(blk, Draws):
+        _, rng, markov, current = sampler[:4]
+        blk.settle(rng, current if markov else None)
+    final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest]))
+    new = state._make(back(final[f]) for f in state._fields)
+    # the perfect channel delivers both arcs of every edge up, each carrying every message
+    return new, counted(channel, 2 * sampler[-1], len(messages), len(messages) * q), back(sums)
+
+
+run_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
+
+
+def _graph(ctx, messages: bool) -> tuple:
+    """(CSR indptr, neighbours, edge ids, the agent of each row): in storage rows for an algorithm that sends, else the
+    agents' own numbering (it reads no neighbours)."""
+    if messages:
+        return storage_graph(ctx)
+    return (*graph_arrays(ctx), np.arange(ctx.network.n_nodes, dtype=np.int64))
+
+
+class Layouts:
+    """How one run spreads its work: seeds one after another or several at once ("seeds"), or the agents of each seed
+    spread over the cores at every step ("agents"), where that can pay (few seeds, many agents, an algorithm that
+    sends). Where both fit, the block runs in pieces of about ``PIECE_SECONDS``, each in the layout measured faster so
+    far (the agent layout until measured), the other measured again every ``RECHECK_SECONDS``: every step waits for
+    the slowest core in the agent layout, and on a core shared with another busy process that is a step of the other
+    process's time slice (measured: 10x slower), while the seeds layout keeps the speed of one core. A piece shorter
+    than ``MIN_MEASURED`` measures mostly the start of a call, and is not counted; nor is the agent layout's first
+    piece, which pays its threads' start-up (its first 0.1 s ran at half its speed, measured). Every layout runs the
+    same steps in the same order, so the numbers do not depend on the choice."""
+
+    PIECE_SECONDS = 0.1
+    RECHECK_SECONDS = 2.0
+    MIN_MEASURED = 0.02
+
+    def __init__(self, candidates: tuple[str, ...], agent_steps_per_step: int):
+        self.candidates, self.per_step = candidates, max(1, agent_steps_per_step)
+        self.rate: dict[str, float] = {}
+        self.since_check, self.started = 0.0, set()
+
+    def run(self, kernels, args, buffers, alphas, blk, n_messages: int, n_work: int) -> int:
+        """Every step of the block, piece by piece; returns which of the two buffers holds the newest messages."""
+        if alphas.shape[0] == 0:  # an empty block (the run's first): load or compile every layout it may use
+            for layout in self.candidates:
+                self._call(kernels, layout, args, buffers, 0, alphas, blk, 0, 0, n_messages, n_work)
+            return 0
+        t0, T, newest = 0, alphas.shape[0], 0
+        while t0 < T:
+            layout = self._choose()
+            steps = T - t0 if len(self.candidates) == 1 else self._piece(layout, T - t0)
+            start = time.perf_counter()
+            self._call(kernels, layout, args, buffers, newest, alphas, blk, t0, t0 + steps, n_messages, n_work)
+            seconds = time.perf_counter() - start
+            if seconds >= self.MIN_MEASURED:
+                if layout != "agents" or layout in self.started:
+                    self.rate[layout] = steps * self.per_step / seconds
+                self.started.add(layout)
+            self.since_check += seconds
+            newest = (newest + steps) % 2
+            t0 += steps
+        return newest
+
+    def _choose(self) -> str:
+        measured = [c for c in self.candidates if c in self.rate]
+        if not measured:
+            return self.candidates[0]  # until it is measured twice
+        if len(measured) < len(self.candidates) or self.since_check >= self.RECHECK_SECONDS:
+            self.since_check = 0.0  # measure the other (again): the machine's load may have changed
+            return min(self.candidates, key=lambda c: self.rate.get(c, 0.0))
+        return max(self.candidates, key=lambda c: self.rate[c])
+
+    def _piece(self, layout: str, left: int) -> int:
+        rate = self.rate.get(layout, min(self.rate.values(), default=2e6))
+        return int(min(left, max(1, self.PIECE_SECONDS * rate / self.per_step)))
+
+    @staticmethod
+    def _call(kernels, layout, args, buffers, first, alphas, blk, t0, t1, n_messages, n_work):
+        p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
+        _seeds, _agents = kernels
+        sampler = _piece_of(sampler, blk, t0, t1)
+        B, n_obs, E, degree = sums.shape[0], sampler[3].shape[1], graph[2].shape[0] // 2, _max_degree(graph[0])
+        if layout == "agents":
+            chunks = 4 * get_num_threads()
+            space = _space(2 * B, chunks, n_obs, N, E, degree, q, n_messages, n_work)
+            _agents(p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph, space,
+                    chunks)
+            return
+        threads = min(get_num_threads(), B)
+        if threads <= 1:
+            _seeds(p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph,
+                   _space(1, 1, n_obs, N, E, degree, q, n_messages, n_work), 0, B)
+            return
+        # seeds in small groups taken by whichever thread is free: a thread slowed by another process takes fewer
+        if not _POOL or _POOL[0]._max_workers != threads:
+            _POOL[:] = [ThreadPoolExecutor(threads, thread_name_prefix="dgtd-seeds")]
+        groups = np.linspace(0, B, min(B, GROUPS_PER_THREAD * threads) + 1).astype(int)
+        jobs = [_POOL[0].submit(_seeds, p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont,
+                                gamma, graph, _space(1, 1, n_obs, N, E, degree, q, n_messages, n_work), int(b0), int(b1))
+                for b0, b1 in zip(groups[:-1], groups[1:])]
+        for job in jobs:
+            job.result()
+
+
+def _space(steps: int, threads: int, n_obs: int, N: int, E: int, degree: int, q: int, n_messages: int,
+           n_work: int) -> tuple:
+    """The arrays a kernel works in: ``steps`` rows of a step's samples (s, a, s' (n_obs), r (N), edges up (E)) and of
+    every agent's count of messages heard (N); per thread, the neighbours heard (``degree`` at most) and how many, the
+    inbox's aggregates (messages, threads, q) and the step's work rows (work, threads, q)."""
+    index = lambda *shape: np.zeros(shape, np.int64)  # noqa: E731
+    return (index(steps, n_obs), index(steps, n_obs), index(steps, n_obs), np.zeros((steps, N)),
+            np.ones((steps, E), np.bool_), index(threads, degree), index(threads), index(steps, N),
+            np.zeros((n_messages, threads, q)), np.zeros((n_work, threads, q)))
+
+
+def _max_degree(indptr: np.ndarray) -> int:
+    return max(1, int(np.diff(indptr).max(initial=0)))
+
+
+def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
+    """The sampling arguments of steps t0 .. t1 - 1 of the block: a materialised block's arrays from step t0 on (the
+    streams of `Draws` simply go on)."""
+    if isinstance(blk, Draws) or t0 == 0:
+        return sampler
+    s, a, sn, r, up = sampler[12:17]
+    return (*sampler[:12], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[17])
+
+
+def _layouts(ctx, B: int, L: int, q: int, messages: bool) -> Layouts:
+    """The run's `Layouts` (kept on the run's context, so that what it measured carries from block to block)."""
+    if LAYOUT != "auto":
+        candidates = (LAYOUT,) if messages or LAYOUT == "seeds" else ("seeds",)
+    elif messages and B < get_num_threads() and L * q >= AGENTS_MIN_WORK:
+        candidates = ("agents", "seeds")
+    else:
+        candidates = ("seeds",)
+    return per_run(ctx, f"layouts-{candidates}", lambda: Layouts(candidates, B * L))
+
+
+def feature_arrays(ctx, blk=None):
+    """(Phi, sparse, CSR rows of Phi): sparse when rows hold at most a quarter of the features (tabular: one); the
+    sparse steps read the features from the CSR rows only, and get a row of zeros for Phi. The model's, once per run;
+    a block's own rows (`SampleTable`), for that block."""
+
+    def build(Phi=ctx.Phi):
+        Phi = np.ascontiguousarray(Phi, dtype=np.float64)
+        rows, cols = np.nonzero(Phi)  # row-major order: CSR rows without importing scipy.sparse
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=Phi.shape[0]))]).astype(np.int64)
+        sparse = rows.size <= Phi.size // 4
+        dense = readonly(np.zeros((1, Phi.shape[1])) if sparse else Phi)  # read-only, as the model's Phi is
+        return dense, sparse, indptr, cols.astype(np.int64), Phi[rows, cols].astype(np.float64)
+
+    if getattr(blk, "table", None) is not None:
+        return build(rows_of(ctx, blk)[0])
+    return per_run(ctx, "phi", build)
+
+
+def rows_of(ctx, blk) -> tuple:
+    """(Phi, ratio table) the block's indices point into: its own rows (`SampleTable`), else the model's; a `Draws`
+    (samples drawn inside the kernel from the model) has no rows of its own."""
+    table = getattr(blk, "table", None)
+    return (ctx.Phi, ctx.ratio) if table is None else (table.phi, table.ratio)
+
+
+def readonly(x) -> np.ndarray:
+    """A C-contiguous float64 read-only view, as the model's arrays are: numba compiles a kernel once per array
+    type, and a writable array is another type, so a block's own rows would otherwise cost a second compilation."""
+    view = np.ascontiguousarray(x, np.float64).view()
+    view.setflags(write=False)
+    return view
+
+
+def continuing_flags(ctx, blk: Block | None = None) -> np.ndarray:
+    """c of the rows the block's indices point into: 0 at an episodic task's terminal states (or, for a block with its
+    own `SampleTable`, at the next state of a transition that ended an episode), 1 elsewhere."""
+    table: SampleTable | None = getattr(blk, "table", None)  # a `Draws` (samples drawn inside the kernel) has none
+    if table is not None:
+        return readonly(table.continuing)
+    return readonly(np.ones(ctx.Phi.shape[0]) if ctx.continuing is None else ctx.continuing)

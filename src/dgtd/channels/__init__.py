@@ -1,0 +1,21 @@
+"""What arrives: the channel between the agents.
+
+An algorithm says what each agent sends its neighbours at step k (`dgtd.algorithms.base.Algorithm.messages`,
+``sends``); the network says which links are up (`dgtd.graphs`); the channel is the one object that turns the two
+into what each agent hears, an `Inbox`, and keeps the count of messages and bits sent. It knows directions: a message
+from j to i and one from i to j travel on separate arcs (`Arcs`), so that a link model can lose, delay or compress
+one and not the other.
+
+- `Perfect` (the default, and the paper's network, section 2.3): every link up at step k carries every message both
+  ways, at once and exactly.
+
+Each channel has this plain NumPy definition and a compiled twin in `dgtd.backends.compiled.channel`, tested equal.
+"""
+
+from dgtd.channels.arcs import Arcs
+from dgtd.channels.inbox import Inbox
+from dgtd.channels.perfect import ChannelState, Perfect
+
+CHANNELS = {cls.name: cls for cls in (Perfect,)}
+
+__all__ = ["Arcs", "CHANNELS", "ChannelState", "Inbox", "Perfect"]

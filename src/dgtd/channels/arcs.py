@@ -1,0 +1,51 @@
+"""The directed links of an undirected graph: the two arcs of each edge, and sums over the arcs into each agent."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Arcs:
+    """Edge e = {u, v} (u < v) of a graph's edge list carries arc 2e from v to u and arc 2e + 1 from u to v.
+
+    ``src`` and ``dst`` (2E,) are each arc's sender and receiver; numbered this way, the arcs into an agent come in
+    the order of its edges, so that a sum over them (`into`) adds an edge's terms in the order of the edge list.
+    """
+
+    n_agents: int
+    src: np.ndarray
+    dst: np.ndarray
+
+    @classmethod
+    def of(cls, edges: np.ndarray, n_agents: int) -> "Arcs":
+        edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+        return cls(int(n_agents), edges[:, ::-1].ravel(), edges.ravel())
+
+    @property
+    def n_arcs(self) -> int:
+        return self.src.shape[0]
+
+    @staticmethod
+    def both_ways(up: np.ndarray) -> np.ndarray:
+        """Arcs up (..., 2E) from edges up (..., E): each edge's two arcs are up with it."""
+        return np.repeat(np.asarray(up), 2, axis=-1)
+
+    @cached_property
+    def _incidence(self):
+        """(N, 2E) sparse: 1 at (dst[a], a), so that ``_incidence @ x`` sums each arc's value into its receiver."""
+        from scipy.sparse import csr_matrix
+
+        A = self.n_arcs
+        return csr_matrix((np.ones(A), (self.dst, np.arange(A))), shape=(self.n_agents, A))
+
+    def into(self, x: np.ndarray) -> np.ndarray:
+        """sum over the arcs into each agent of x (B, 2E, q) -> (B, N, q)."""
+        B, A, q = x.shape
+        if A == 0:
+            return np.zeros((B, self.n_agents, q))
+        out = self._incidence @ x.transpose(1, 0, 2).reshape(A, B * q)
+        return np.ascontiguousarray(np.asarray(out).reshape(self.n_agents, B, q).transpose(1, 0, 2))

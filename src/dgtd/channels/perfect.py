@@ -1,0 +1,45 @@
+"""The perfect channel: what the paper assumes (section 2.3), and dgtd's default."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
+
+import numpy as np
+
+from dgtd.channels.arcs import Arcs
+from dgtd.channels.inbox import Inbox
+
+BITS_PER_NUMBER = 64  # a message's coordinates are float64
+
+
+class ChannelState(NamedTuple):
+    """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,)."""
+
+    messages: np.ndarray
+    bits: np.ndarray
+
+
+@dataclass(frozen=True)
+class Perfect:
+    """Every link up at step k carries every message both ways, at once and exactly: agent i hears x_j(k) from each
+    neighbour j whose link is up at step k, and nothing else."""
+
+    name: ClassVar[str] = "perfect"
+
+    def init(self, seeds: int, arcs: Arcs) -> ChannelState:
+        return ChannelState(np.zeros(seeds), np.zeros(seeds))
+
+    def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
+        """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up (B, E)
+        (None: every edge)."""
+        inbox = self.inbox(arcs, sent, up)
+        arrived = inbox.heard.sum(axis=1)
+        numbers = sum(x.shape[-1] for x in sent.values())  # coordinates per arc, all messages together
+        return inbox, ChannelState(state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER)
+
+    def inbox(self, arcs: Arcs, sent: dict, up: np.ndarray | None = None) -> Inbox:
+        """What every agent hears of ``sent`` (name -> (B, N, q)) over the edges up (B, E) (None: every edge)."""
+        B = next(iter(sent.values())).shape[0] if sent else (1 if up is None else up.shape[0])
+        heard = np.ones((B, arcs.n_arcs)) if up is None else Arcs.both_ways(up).astype(np.float64)
+        return Inbox(arcs, sent, heard)
