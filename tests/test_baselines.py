@@ -213,10 +213,11 @@ def test_dgtd_with_one_agent_is_gtd2_on_the_same_samples():
 
 
 def test_registry_and_messages():
-    assert set(ALGORITHMS) == {"dgtd", "gtd2", "tdc", "td0", "consensus-td0", "pd-td", "td-tracking", "local"}
+    assert set(ALGORITHMS) == {"dgtd", "gtd2", "tdc", "td0", "consensus-td0", "pd-td", "td-tracking", "tdc-tracking",
+                               "local"}
     sent = {n: make_algorithm(n).messages for n in ALGORITHMS}
     assert sent == {"dgtd": ("w", "vmu"), "gtd2": (), "tdc": (), "td0": (), "consensus-td0": ("w",),
-                    "pd-td": ("w", "mu"), "td-tracking": ("w", "z"), "local": ()}
+                    "pd-td": ("w", "mu"), "td-tracking": ("w", "z"), "tdc-tracking": ("w", "z"), "local": ()}
     with pytest.raises(DgtdInputError, match="unknown algorithm"):
         make_algorithm("td1")
     with pytest.raises(DgtdInputError, match="no setting kappa"):

@@ -8,7 +8,7 @@ from numba import njit
 from numpy.testing import assert_allclose
 
 from dgtd.backends.compiled.channel import Inbox as CompiledInbox
-from dgtd.backends.compiled.channel import count_heard, hear, laplacian, metropolis, total
+from dgtd.backends.compiled.channel import count_heard, hear, laplacian, metropolis, metropolis_weights, total
 from dgtd.backends.compiled.graph import csr_adjacency
 from dgtd.channels import Arcs, Perfect
 from dgtd.graphs import topologies
@@ -65,13 +65,14 @@ def compiled_aggregates(X, up, indptr, nbr, eid, kind):
     B, N, q = X.shape
     sent = X.reshape(1, B, N, q)
     out = np.zeros((B, N, q))
-    heard, n_heard = np.zeros((1, N), np.int64), np.zeros(1, np.int64)
+    heard, n_heard, weights = np.zeros((1, N), np.int64), np.zeros(1, np.int64), np.zeros((1, N))
     degree, sums = np.zeros((1, N), np.int64), np.zeros((1, 1, q))
     for b in range(B):
         count_heard(up, b, indptr, eid, degree, 0)
         for i in range(N):
-            inbox = CompiledInbox(sent, heard, n_heard, degree, 0, sums, 0)
+            inbox = CompiledInbox(sent, heard, n_heard, weights, degree, 0, sums, 0)
             hear(inbox, up, b, indptr, nbr, eid, i)
+            metropolis_weights(inbox, i)
             if kind == 0:
                 laplacian(inbox, 0, b, i)
             elif kind == 1:

@@ -101,9 +101,10 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     assert code == 2 and "is not a directory" in err
 
 
-def test_checkpoint_of_another_format_is_refused(tmp_path):
-    """A checkpoint written by another file format (1 kept a second running sum for the tail average) is refused
-    with one line that says so, not misread."""
+@pytest.mark.parametrize("old", [1, 2])
+def test_checkpoint_of_another_format_is_refused(tmp_path, old):
+    """A checkpoint written by another file format (1 kept a second running sum for the tail average, 2 no channel
+    state) is refused with one line that says so, not misread."""
     import io
 
     from dgtd.errors import DgtdInputError
@@ -114,10 +115,10 @@ def test_checkpoint_of_another_format_is_refused(tmp_path):
     with np.load(path) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays.pop("__meta__")))
-    meta["format"] = 1
+    meta["format"] = old
     buf = io.BytesIO()
     np.savez(buf, __meta__=np.array(json.dumps(meta)), **arrays)
     path.write_bytes(buf.getvalue())
-    assert checkpoint.FORMAT == 2
-    with pytest.raises(DgtdInputError, match="has format 1, this dgtd reads 2"):
+    assert checkpoint.FORMAT == 3
+    with pytest.raises(DgtdInputError, match=f"has format {old}, this dgtd reads 3"):
         load_checkpoint(path)

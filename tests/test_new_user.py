@@ -45,6 +45,11 @@ def test_bench_with_an_unknown_backend_is_one_line(run_cli, tmp_path):
     one_line_error(*run_cli("bench", "--backend", "foo", "--cases", "A", "--out", tmp_path), "unknown backend(s) foo")
 
 
+def test_bench_with_an_unknown_algorithm_is_one_line(run_cli, tmp_path):
+    one_line_error(*run_cli("bench", "--algorithm", "dgtd,td1", "--cases", "A", "--out", tmp_path),
+                   "unknown algorithm(s) td1", "or all")
+
+
 def test_a_huge_step_size_that_pins_the_iterates_to_the_boxes_is_reported(run_cli, tmp_path):
     code, out, err = run_cli("run", "paper-example-1", "-T", "200", "--alpha0", "1e300", "--no-plots",
                              "--no-progress", "--out", tmp_path / "r")

@@ -20,7 +20,7 @@ def test_a_run_directory_reads_back_exactly(tmp_path, run_cli):
     problem, network, algorithm, samp, settings, resolved = resolve(
         RunSpec(scenario="paper-example-1", iterations=2000, seeds=3, checkpoints=12, backend="numpy"))
     result = run(problem, network, algorithm, samp, settings)
-    write_results(tmp_path, result, resolved.to_dict())
+    write_results(tmp_path, result, resolved.to_dict(), resolved.algorithm)
     saved = load_run(tmp_path)
     np.testing.assert_array_equal(saved.steps, result.steps)
     for name, values in result.metrics.items():

@@ -18,9 +18,10 @@ from dgtd.algorithms.pd_td import PDTD
 from dgtd.algorithms.td0 import TD0
 from dgtd.algorithms.td_tracking import TDTracking
 from dgtd.algorithms.tdc import TDC
+from dgtd.algorithms.tdc_tracking import TDCTracking
 from dgtd.errors import DgtdInputError
 
-ALGORITHMS = {cls.name: cls for cls in (DGTD, GTD2, TDC, TD0, ConsensusTD0, PDTD, TDTracking, Local)}
+ALGORITHMS = {cls.name: cls for cls in (DGTD, GTD2, TDC, TD0, ConsensusTD0, PDTD, TDTracking, TDCTracking, Local)}
 
 
 def make_algorithm(name: str, **fields):
@@ -39,5 +40,5 @@ def make_algorithm(name: str, **fields):
     return cls(**fields)
 
 
-__all__ = ["ALGORITHMS", "ConsensusTD0", "DGTD", "GTD2", "Local", "PDTD", "TD0", "TDC", "TDTracking",
+__all__ = ["ALGORITHMS", "ConsensusTD0", "DGTD", "GTD2", "Local", "PDTD", "TD0", "TDC", "TDCTracking", "TDTracking",
            "make_algorithm"]

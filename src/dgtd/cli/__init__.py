@@ -289,25 +289,39 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 @cli.command()
 @click.option("--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.cli.bench.CASES).")
+@click.option("--algorithm", "algorithms", default="dgtd", show_default=True,
+              help="Algorithms to measure: names separated by commas, or all.")
 @click.option("--backend", "backends", default="numba,numpy", show_default=True, help="Backends to measure.")
 @click.option("--repeats", type=int, default=3, show_default=True, help="Runs per measurement; the median is reported.")
+@click.option("--scaling/--no-scaling", default=False, show_default=True,
+              help="Also the scaling table: one seed, N from 16 to 16 384, idle and beside a busy process.")
 @click.option("--out", type=click.Path(file_okay=False), default="bench", show_default=True)
-def bench(cases, backends, repeats, out):
+def bench(cases, algorithms, backends, repeats, scaling, out):
     """Measure agent-steps per second on the standard configurations; writes JSON and a Markdown table."""
-    from dgtd.cli.bench import CASES, markdown, measure
+    from dgtd.algorithms import ALGORITHMS
+    from dgtd.cli.bench import CASES, beside_a_busy_process, markdown, measure
+    from dgtd.cli.bench import scaling as scaling_table
     from dgtd.run.results import atomic_write, atomic_write_json
 
-    keys = [k.strip().upper() for k in cases.split(",")]
+    keys = [k.strip().upper() for k in cases.split(",") if k.strip()]
     unknown = [k for k in keys if k not in CASES]
     if unknown:
         raise DgtdInputError(f"unknown benchmark case(s) {', '.join(unknown)}; choose from {', '.join(CASES)}")
+    names = tuple(ALGORITHMS) if algorithms.strip() == "all" else tuple(a.strip() for a in algorithms.split(","))
+    bad = [a for a in names if a not in ALGORITHMS]
+    if bad:
+        raise DgtdInputError(f"unknown algorithm(s) {', '.join(bad)}; choose from {', '.join(ALGORITHMS)}, or all")
     chosen = tuple(b.strip() for b in backends.split(","))
     bad = [b for b in chosen if b not in CHOICES["backend"]]
     if bad:
         raise DgtdInputError(f"unknown backend(s) {', '.join(bad)}; choose from {', '.join(CHOICES['backend'])}")
     if repeats < 1:
         raise DgtdInputError(f"--repeats must be >= 1, got {repeats}")
-    report = measure(keys, chosen, repeats, progress=click.echo)
+    report = measure(keys, chosen, repeats, progress=click.echo, algorithms=names)
+    if scaling:
+        report["scaling"] = {"idle": scaling_table(repeats=repeats, progress=click.echo)}
+        click.echo("the same beside a process that keeps one core busy:")
+        report["scaling"]["busy"] = beside_a_busy_process(lambda: scaling_table(repeats=repeats, progress=click.echo))
     atomic_write_json(Path(out) / "throughput.json", report)
     atomic_write(Path(out) / "throughput.md", (markdown(report) + "\n").encode())
     click.echo(markdown(report))

@@ -1,8 +1,9 @@
-"""Throughput measurements: agent-steps per second of whole runs, the machine's copy bandwidth, and what an
-agent-step costs in bytes and flops. Used by `dgtd bench` and benchmarks/throughput.py.
+"""Throughput measurements: agent-steps per second of whole runs, of every algorithm, the machine's copy bandwidth,
+and what an agent-step costs in bytes and flops; and the scaling table (one seed, N from 16 to 16 384), idle and
+beside a busy process. Used by `dgtd bench` and benchmarks/throughput.py.
 
-One agent-step is one agent's full Algorithm 1 update, sampling included: a run of T iterations with B seeds
-and N agents is T * B * N agent-steps.
+One agent-step is one agent's full update (one learner's, for a centralised method), sampling included: a run of T
+iterations with B seeds and N agents is T * B * N agent-steps. The bytes and flops are DGTD's.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dgtd.algorithms import make_algorithm
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.graphs import topologies
 from dgtd.graphs.random import RandomEdges, random_edges
@@ -95,6 +97,12 @@ CASES = {
 }
 
 
+def bench_algorithm(name: str, case_algorithm: DGTD):
+    """The algorithm ``name`` as a bench case runs it: DGTD with the case's steps; another at a step small enough
+    that no run diverges on these cases (a diverged run stops early, and would look fast)."""
+    return case_algorithm if name == case_algorithm.name else make_algorithm(name, alpha0=0.05, beta=10.0)
+
+
 def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: str, repeats: int) -> list[float]:
     """Wall seconds of `run`'s iterations (sampling, updates, the final metric checkpoint), after a warm-up run;
     the one-off setup (exact solution, tables) is timed apart by `setup_seconds`."""
@@ -103,7 +111,10 @@ def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: 
                                                              checkpoints=1, backend=backend))
     out = []
     for _ in range(repeats):
-        out.append(run(problem, network, algorithm, Sampling(), settings).info["loop_seconds"])
+        result = run(problem, network, algorithm, Sampling(), settings)
+        if (result.info["diverged_at"] >= 0).any():
+            raise RuntimeError(f"{algorithm.name} diverged on the bench case: its time would not be a full run's")
+        out.append(result.info["loop_seconds"])
     return out
 
 
@@ -182,8 +193,10 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
 
 
-def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats: int = 3, progress=print) -> dict:
-    """Agent-steps per second (median of ``repeats``) for each case and backend, with bandwidth and flop context."""
+def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats: int = 3, progress=print,
+            algorithms=("dgtd",)) -> dict:
+    """Agent-steps per second (median of ``repeats``) for each case, algorithm and backend, with bandwidth and flop
+    context (DGTD's)."""
     from numba import get_num_threads
 
     bw = copy_bandwidth()
@@ -191,43 +204,95 @@ def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats
     rows = []
     for key in keys:
         case = CASES[key]
-        problem, network, algorithm = case.make()
+        problem, network, dgtd = case.make()
         N, q = problem.n_agents, problem.n_features
         mean_deg = 2 * network.n_edges * float(network.p.mean()) / N
-        for backend in backends:
-            T = case.iterations[backend]
-            secs = time_run(problem, network, algorithm, case.seeds, T, backend, repeats)
-            med = float(np.median(secs))
-            rate = T * case.seeds * N / med
-            by = bytes_per_agent_step(q, mean_deg)
-            fl = flops_per_agent_step(q, mean_deg)
-            row = {"case": key, "description": case.description, "backend": backend, "N": N, "q": q,
-                   "setup_seconds": setup_seconds(problem, network, algorithm),
-                   "seeds": case.seeds, "iterations": T, "seconds": secs, "agent_steps_per_s": rate,
-                   "mean_up_degree": mean_deg, "bytes_per_agent_step": by, "flops_per_agent_step": fl,
-                   "bandwidth_bound_agent_steps_per_s": bw / by["compulsory"],
-                   "fraction_of_bandwidth_bound": rate / (bw / by["compulsory"]),
-                   "fraction_of_peak_flops": rate * fl / peak}
-            rows.append(row)
-            progress(f"{key} {backend:6s} {rate:14,.0f} agent-steps/s  (median of {repeats}: {med:.3f} s)")
+        for name in algorithms:
+            algorithm = bench_algorithm(name, dgtd)
+            for backend in backends:
+                T = case.iterations[backend]
+                secs = time_run(problem, network, algorithm, case.seeds, T, backend, repeats)
+                med = float(np.median(secs))
+                rate = T * case.seeds * N / med
+                row = {"case": key, "description": case.description, "algorithm": name, "backend": backend, "N": N,
+                       "q": q, "setup_seconds": setup_seconds(problem, network, algorithm), "seeds": case.seeds,
+                       "iterations": T, "seconds": secs, "agent_steps_per_s": rate, "mean_up_degree": mean_deg}
+                if name == "dgtd":
+                    by, fl = bytes_per_agent_step(q, mean_deg), flops_per_agent_step(q, mean_deg)
+                    row |= {"bytes_per_agent_step": by, "flops_per_agent_step": fl,
+                            "bandwidth_bound_agent_steps_per_s": bw / by["compulsory"],
+                            "fraction_of_bandwidth_bound": rate / (bw / by["compulsory"]),
+                            "fraction_of_peak_flops": rate * fl / peak}
+                rows.append(row)
+                progress(f"{key} {name:14s} {backend:6s} {rate:14,.0f} agent-steps/s  (median of {repeats}: "
+                         f"{med:.3f} s)")
     return {"machine": machine(), "threads": get_num_threads(), "copy_bandwidth_bytes_per_s": bw,
             "peak_flops": peak, "peak_basis": peak_basis, "date": time.strftime("%Y-%m-%d"), "rows": rows}
 
 
+SCALING_AGENTS = (16, 64, 256, 1024, 4096, 16384)
+SCALING_AGENT_STEPS = 4_000_000  # per run: T = this / N iterations
+
+
+def scaling_case(N: int):
+    """One seed of N agents, q = 64, a random 128-state problem, a sparse random graph (mean degree 6), p = 0.9."""
+    rng = np.random.default_rng(5)
+    return random_problem(128, N, 64, rng), random_edges(_sparse_random(N, 6, rng), 0.9), DGTD(alpha0=0.5, beta=10)
+
+
+def scaling(agents=SCALING_AGENTS, repeats: int = 3, progress=print, algorithm: str = "dgtd") -> list[dict]:
+    """Agent-steps per second of one seed against N (the compiled backend, its layouts chosen as a run chooses)."""
+    rows = []
+    for N in agents:
+        problem, network, dgtd = scaling_case(N)
+        T = max(20, SCALING_AGENT_STEPS // N)
+        secs = time_run(problem, network, bench_algorithm(algorithm, dgtd), 1, T, "numba", repeats)
+        rate = T * N / float(np.median(secs))
+        rows.append({"N": N, "iterations": T, "seconds": secs, "agent_steps_per_s": rate})
+        progress(f"N = {N:6d} {algorithm:14s} {rate:14,.0f} agent-steps/s")
+    return rows
+
+
+BUSY = "import time\nend = time.monotonic() + {seconds}\nwhile time.monotonic() < end:\n    pass\n"
+
+
+def beside_a_busy_process(measure_fn, seconds: float = 3600.0):
+    """``measure_fn()`` while another process keeps one core busy (a Python loop that stops by itself after
+    ``seconds``, and is stopped when the measurement ends)."""
+    import subprocess
+    import sys
+
+    busy = subprocess.Popen([sys.executable, "-c", BUSY.format(seconds=seconds)])
+    try:
+        time.sleep(0.5)  # running before the first measurement
+        return measure_fn()
+    finally:
+        busy.kill()
+        busy.wait(timeout=10)
+
+
 def markdown(report: dict, extra_rows: list | None = None) -> str:
-    """The report as a Markdown table."""
+    """The report as Markdown tables: the cases (DGTD's with its bytes and flops), and the scaling table if any."""
     lines = [f"Measured {report['date']} on {report['machine']} ({report['threads']} threads); "
              f"STREAM-style copy bandwidth {report['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s (read + write); "
              f"double-precision peak {report['peak_flops'] / 1e9:.0f} GFLOP/s ({report['peak_basis']}).",
              "",
-             "| case | backend | N | q | seeds | agent-steps/s | bytes/agent-step (compulsory + neighbours) | "
+             "| case | algorithm | backend | N | q | seeds | agent-steps/s | bytes/agent-step (compulsory + neighbours) | "
              "bandwidth bound | of bound | flops/agent-step | of peak |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in report["rows"] + (extra_rows or []):
         by = r.get("bytes_per_agent_step")
         lines.append(
-            f"| {r['case']} | {r['backend']} | {r['N']} | {r['q']} | {r['seeds']} | {r['agent_steps_per_s']:,.0f} | "
+            f"| {r['case']} | {r.get('algorithm', 'dgtd')} | {r['backend']} | {r['N']} | {r['q']} | {r['seeds']} | "
+            f"{r['agent_steps_per_s']:,.0f} | "
             + (f"{by['compulsory']:,} + {by['neighbours']:,.0f} | {r['bandwidth_bound_agent_steps_per_s']:,.0f} | "
                f"{r['fraction_of_bandwidth_bound']:.0%} | {r['flops_per_agent_step']:,.0f} | {r['fraction_of_peak_flops']:.1%} |"
                if by else "| | | | |"))
+    if report.get("scaling"):
+        lines += ["", "Scaling, one seed (`scaling_case`): agent-steps per second idle and beside a process that keeps "
+                  "one core busy.", "", "| N | idle | beside a busy process | busy / idle |", "| --- | --- | --- | --- |"]
+        for idle, busy in zip(report["scaling"]["idle"], report["scaling"].get("busy") or [None] * 99):
+            lines.append(f"| {idle['N']} | {idle['agent_steps_per_s']:,.0f} | "
+                         + (f"{busy['agent_steps_per_s']:,.0f} | {busy['agent_steps_per_s'] / idle['agent_steps_per_s']:.2f} |"
+                            if busy else "| |"))
     return "\n".join(lines)

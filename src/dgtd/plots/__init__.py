@@ -24,7 +24,7 @@ def _save(fig, path: Path) -> None:
 
 
 def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: int = 4, max_agents: int = 10,
-                  algorithm: str = "dgtd") -> bool:
+                  algorithm: str = "") -> bool:
     """Every agent's w_k components against k for one seed, with w* dotted (the paper's Fig. 2): one colour per
     agent, one line style per component; the title says which components and agents are shown."""
     if result.w_trace is None:
@@ -70,7 +70,7 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
     what = (f"the {shown_q} of {q} components with the largest |w*|" if shown_q < q
             else f"all {q} component{'s' if q > 1 else ''}")
     who = f"agents 1-{shown_n} of {N}" if shown_n < N else f"{N} agent{'s' if N > 1 else ''}"
-    ax.set_title(f"{algorithm} iterates, seed {seed}: {what}, {who}", fontsize=10)
+    ax.set_title(f"{algorithm + ' ' if algorithm else ''}iterates, seed {seed}: {what}, {who}", fontsize=10)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.grid(alpha=0.3)
     _save(fig, path)

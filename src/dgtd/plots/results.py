@@ -48,7 +48,8 @@ def load_run(directory: Path) -> SimpleNamespace:
     w_trace = None
     if (directory / "trajectory.npz").exists():
         w_trace = read_npz(directory / "trajectory.npz", "results file", fix).get("w_trace")
-    return SimpleNamespace(steps=steps, metrics=metrics, w_trace=w_trace, w_star=np.asarray(summary["w_star"]))
+    return SimpleNamespace(steps=steps, metrics=metrics, w_trace=w_trace, w_star=np.asarray(summary["w_star"]),
+                           algorithm=rows[0].get("algorithm") or summary.get("config", {}).get("algorithm", ""))
 
 
 def load_compare(directory: Path):
@@ -259,6 +260,6 @@ def plot_directory(directory: Path) -> list[Path]:
     run = load_run(directory)
     plot_errors(run, directory / "errors.png")
     written.append(directory / "errors.png")
-    if plot_iterates(run, directory / "iterates.png"):
+    if plot_iterates(run, directory / "iterates.png", algorithm=run.algorithm):
         written.append(directory / "iterates.png")
     return written

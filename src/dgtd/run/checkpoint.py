@@ -18,7 +18,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.files import read_npz
 from dgtd.run.results import atomic_write
 
-FORMAT = 2  # 2: one running sum of w_k and the copy taken at the tail's start (1 kept a second sum)
+FORMAT = 3  # 3: the channel's state (message and bit counts); 2 counted messages in the loop; 1 kept a second sum
 
 
 def _split(obj, key: str, arrays: dict):
@@ -63,5 +63,5 @@ def load_checkpoint(path: Path) -> tuple[dict, dict]:
     except ValueError:
         raise DgtdInputError(f"checkpoint {path} is damaged (its description is not JSON); {fix}") from None
     if meta.get("format") != FORMAT:
-        raise DgtdInputError(f"checkpoint {path} has format {meta.get('format')}, this dgtd reads {FORMAT}")
+        raise DgtdInputError(f"checkpoint {path} has format {meta.get('format')}, this dgtd reads {FORMAT}; {fix}")
     return _join(meta["snapshot"], arrays), meta["config"]

@@ -126,7 +126,7 @@ def bands_csv(results: dict) -> bytes:
     return buf.getvalue().encode()
 
 
-def metrics_csv(result: RunResult, algorithm: str = "dgtd") -> bytes:
+def metrics_csv(result: RunResult, algorithm: str) -> bytes:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["algorithm", "seed", "step", "metric", "value"])
@@ -180,7 +180,7 @@ def true_value_errors(moments, result: RunResult) -> dict:
     return out | {"true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0])}
 
 
-def write_results(out: Path, result: RunResult, config: dict, algorithm: str = "dgtd", extra: dict | None = None) -> None:
+def write_results(out: Path, result: RunResult, config: dict, algorithm: str, extra: dict | None = None) -> None:
     """summary.json, metrics.csv (per seed), bands.csv (median and 90 % band over seeds) and trajectory.npz in
     ``out``; summary.json is written last.
 

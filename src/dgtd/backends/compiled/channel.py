@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from dgtd.backends.compiled.simd import neighbour_sums
+from dgtd.backends.compiled.simd import neighbour_sums, weighted_sums
 from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
 
 
@@ -26,6 +26,7 @@ class Inbox(NamedTuple):
     sent: np.ndarray  # every message at step k, (M, B, N, q), in storage rows
     heard: np.ndarray  # (rows, max degree): the storage rows of the neighbours the agent heard, in row ``at``
     n_heard: np.ndarray  # (rows,): how many, in row ``at``
+    weights: np.ndarray  # (rows, max degree): their Metropolis weights, in row ``at`` (`metropolis` fills it)
     degree: np.ndarray  # (rows, N): how many messages each agent heard at this step, in row ``degree_row``
     degree_row: int
     sums: np.ndarray  # (M, rows, q) scratch: the aggregate of message m lands in row [m, at]
@@ -63,18 +64,21 @@ def laplacian(inbox, m, b, i):
 
 
 @njit(cache=True, inline="always")
-def metropolis(inbox, m, b, i):
-    """sum_j W_ij (x_i - x_j) of message m, W_ij = 1 / (1 + max(d_i, d_j)), into inbox.sums[m, inbox.at]; each term
-    added in the order of the neighbours, as `dgtd.channels.Inbox.metropolis` adds them."""
-    x, out, at, deg, row = inbox.sent, inbox.sums, inbox.at, inbox.degree, inbox.degree_row
-    q = x.shape[3]
-    for f in range(q):
-        out[m, at, f] = 0.0
+def metropolis_weights(inbox, i):
+    """W_ij = 1 / (1 + max(d_i, d_j)) of the neighbours agent i heard, into inbox.weights[inbox.at]: once per agent
+    and step (the driver's, for a step that needs them), for every message that mixes with them."""
+    at, deg, row = inbox.at, inbox.degree, inbox.degree_row
     for n in range(inbox.n_heard[at]):
-        j = inbox.heard[at, n]
-        c = 1.0 / (1.0 + max(deg[row, i], deg[row, j]))
-        for f in range(q):
-            out[m, at, f] += (x[m, b, i, f] - x[m, b, j, f]) * c
+        inbox.weights[at, n] = 1.0 / (1.0 + max(deg[row, i], deg[row, inbox.heard[at, n]]))
+
+
+@njit(cache=True, inline="always")
+def metropolis(inbox, m, b, i):
+    """sum_j W_ij (x_i - x_j) of message m, W_ij = 1 / (1 + max(d_i, d_j)) (`metropolis_weights`), into
+    inbox.sums[m, inbox.at]; each term added in the order of the neighbours, as `dgtd.channels.Inbox.metropolis`
+    adds them."""
+    at = inbox.at
+    weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at], inbox.sums, (m, at))
 
 
 @njit(cache=True, inline="always")

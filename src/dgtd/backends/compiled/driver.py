@@ -26,7 +26,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear
+from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear, metropolis_weights
 from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
 from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
 from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
@@ -48,6 +48,8 @@ def _learner(p, own, sums, inbox, out, work, x, feat, graph, up, up_row, b, i, a
     indptr, nbr, eid, agent_of = graph
     if inbox.sent.shape[0] > 0:
         hear(inbox, up, up_row, indptr, nbr, eid, i)
+        if NEEDS_DEGREES:
+            metropolis_weights(inbox, i)
     agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent_of[i], alpha, q)
 
 
@@ -63,7 +65,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     ``space``, `_space`)."""
     (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
      sn_blk, r_blk, up_blk, n_up) = sampler
-    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, degree, scratch, work = space
+    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     indptr, eid = graph[0], graph[2]
     L, T = sums.shape[1], alphas.shape[0]
     x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
@@ -76,7 +78,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
             if NEEDS_DEGREES:
                 count_heard(up_t, 0, indptr, eid, degree, 0)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
-            inbox = Inbox(sent, heard, n_heard, degree, 0, scratch, 0)
+            inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0)
             for i in range(L):
                 _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
         n_up[b] += edges_up
@@ -85,8 +87,8 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
 @njit(cache=True, nogil=True, _nrt=False)
 def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias, sa_prob,
            sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi, sparse, ptr, idx,
-           val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t, heard, n_heard, degree,
-           scratch, work):
+           val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights,
+           degree, scratch, work):
     """Chunk c of the agent layout at step t: its share of the B * N (seed, agent) pairs, then its share of the
     sampling of step t + 1 (`_agents`)."""
     B, L, T = sums.shape[0], sums.shape[1], alphas.shape[0]
@@ -96,7 +98,7 @@ def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words
     total = B * L
     for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
         b, i = flat // L, flat % L
-        inbox = Inbox(sent, heard, n_heard, degree, now + b, scratch, c)
+        inbox = Inbox(sent, heard, n_heard, weights, degree, now + b, scratch, c)
         x = Samples(s_t, a_t, sn_t, r_t, now + b, ratio, cont, gamma)
         _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, now + b, b, i, alphas[t], q)
     if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over the chunks
@@ -124,7 +126,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
      sn_blk, r_blk, up_blk, n_up) = sampler
     Phi, sparse, ptr, idx, val = feat
     indptr, nbr, eid, agent_of = graph
-    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, degree, scratch, work = space
+    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     B, T = sums.shape[0], alphas.shape[0]
     # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
     words = np.zeros((B, 3, 16), np.uint64)
@@ -139,7 +141,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
             _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias,
                    sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi,
                    sparse, ptr, idx, val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t,
-                   heard, n_heard, degree, scratch, work)
+                   heard, n_heard, weights, degree, scratch, work)
     # element by element: in a parallel function, numba loses a slice assignment to an array unpacked from a tuple
     for b in range(B):
         for k in range(3):
@@ -326,12 +328,12 @@ class Layouts:
 def _space(steps: int, threads: int, n_obs: int, N: int, E: int, degree: int, q: int, n_messages: int,
            n_work: int) -> tuple:
     """The arrays a kernel works in: ``steps`` rows of a step's samples (s, a, s' (n_obs), r (N), edges up (E)) and of
-    every agent's count of messages heard (N); per thread, the neighbours heard (``degree`` at most) and how many, the
-    inbox's aggregates (messages, threads, q) and the step's work rows (work, threads, q)."""
+    every agent's count of messages heard (N); per thread, the neighbours heard (``degree`` at most), how many and
+    their weights, the inbox's aggregates (messages, threads, q) and the step's work rows (work, threads, q)."""
     index = lambda *shape: np.zeros(shape, np.int64)  # noqa: E731
     return (index(steps, n_obs), index(steps, n_obs), index(steps, n_obs), np.zeros((steps, N)),
-            np.ones((steps, E), np.bool_), index(threads, degree), index(threads), index(steps, N),
-            np.zeros((n_messages, threads, q)), np.zeros((n_work, threads, q)))
+            np.ones((steps, E), np.bool_), index(threads, degree), index(threads), np.zeros((threads, degree)),
+            index(steps, N), np.zeros((n_messages, threads, q)), np.zeros((n_work, threads, q)))
 
 
 def _max_degree(indptr: np.ndarray) -> int:

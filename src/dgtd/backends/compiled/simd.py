@@ -4,7 +4,8 @@
   the same bits; without fastmath LLVM may not reorder a floating-point sum, so a plain loop `acc += x[f] * y[f]`
   stays scalar;
 - `neighbour_sums`: the neighbour sums (L(k) X)_i of a row, the Laplacian's product, with the neighbours' rows
-  streaming past registers (a plain loop over neighbours would store the row once per neighbour).
+  streaming past registers (a plain loop over neighbours would store the row once per neighbour);
+- `weighted_sums`: the same with a weight per neighbour, sum_n c_n (X_i - X_jn) (the Metropolis weights').
 
 Both take rows of C-contiguous arrays by index (X[*at, :]) rather than as views: numba counts references to every
 view with an atomic update, and two threads updating the same count stall each other. They are tested against
@@ -179,6 +180,57 @@ def neighbour_sums(typingctx, Z, z_at, i, J, j_at, count, out, out_at):
         loops(None)
         builder.branch(done)
         builder.position_at_end(done)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def weighted_sums(typingctx, Z, z_at, i, J, C, j_at, count, out, out_at):
+    """out[*out_at, k] = (Z[*z_at, i, k] - Z[*z_at, J[j_at, 0], k]) C[j_at, 0] + ... for the ``count`` neighbours
+    listed in J[j_at], with their weights in C[j_at]: sum_j c_ij (x_i - x_j), added from 0 in the order of the list
+    (as `dgtd.channels.Inbox.metropolis` adds its terms), in vector chunks of LANES elements with the accumulator in
+    a register across the neighbours."""
+    if not (_c_contiguous(Z, J, C, out) and J.ndim == 2 and C.ndim == 2 and _index_type_ok(z_at)
+            and _index_type_ok(out_at)):
+        return None
+    sig = types.void(Z, z_at, i, J, C, j_at, count, out, out_at)
+
+    def codegen(context, builder, signature, args):
+        i64, f64 = ir.IntType(64), ir.DoubleType()
+        vec = ir.VectorType(f64, LANES)
+        ta = signature.args
+        zi = _index(context, builder, ta[1], args[1])
+        i_, ja_, n_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (2, 5, 6))
+        zary = context.make_array(ta[0])(context, builder, args[0])
+        K = cgutils.unpack_tuple(builder, zary.shape)[ta[0].ndim - 1]
+        pz = _row(context, builder, ta[0], args[0], [*zi, i_])
+        pout = _row(context, builder, ta[7], args[7], _index(context, builder, ta[8], args[8]))
+        pj = _row(context, builder, ta[3], args[3], [ja_])
+        pc = _row(context, builder, ta[4], args[4], [ja_])
+
+        def element(k, ty):
+            at = lambda p: _vector_at(builder, p, k, ty)  # noqa: E731
+            zero = ir.Constant(ty, [0.0] * ty.count) if isinstance(ty, ir.VectorType) else ir.Constant(f64, 0.0)
+            slot = cgutils.alloca_once_value(builder, zero)
+            own = builder.load(at(pz), align=8)
+            with cgutils.for_range(builder, n_) as loop:
+                row = _row(context, builder, ta[0], args[0], [*zi, builder.load(builder.gep(pj, [loop.index]))])
+                c = builder.load(builder.gep(pc, [loop.index]))
+                if isinstance(ty, ir.VectorType):
+                    cc = ir.Constant(ty, ir.Undefined)
+                    for lane in range(ty.count):
+                        cc = builder.insert_element(cc, c, ir.Constant(_LANE, lane))
+                    c = cc
+                term = builder.fmul(builder.fsub(own, builder.load(at(row), align=8)), c)
+                builder.store(builder.fadd(builder.load(slot), term), slot)
+            builder.store(builder.load(slot), at(pout), align=8)
+
+        kv = builder.and_(K, ir.Constant(i64, ~(LANES - 1)))
+        with cgutils.for_range_slice(builder, ir.Constant(i64, 0), kv, ir.Constant(i64, LANES)) as (k, _):
+            element(k, vec)
+        with cgutils.for_range_slice(builder, kv, K, ir.Constant(i64, 1)) as (k, _):
+            element(k, f64)
         return context.get_dummy_value()
 
     return sig, codegen

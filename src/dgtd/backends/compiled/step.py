@@ -136,6 +136,20 @@ def phi_axpy(feat, s, c, X, at, q):
 
 
 @njit(cache=True, inline="always")
+def phi_times(feat, s, c, X, at, q):
+    """X[*at] = c phi(s): a row of a step's work, which its loops over the features then read (a feature's phi_f(s)
+    looked up inside such a loop would keep it from being vectorised)."""
+    if feat.sparse:
+        for f in range(q):
+            X[at + (f,)] = 0.0
+        for p in range(feat.ptr[s], feat.ptr[s + 1]):
+            X[at + (feat.idx[p],)] = c * feat.val[p]
+    else:
+        for f in range(q):
+            X[at + (f,)] = c * feat.Phi[s, f]
+
+
+@njit(cache=True, inline="always")
 def phi_value(feat, s, f):
     """phi_f(s) (where sparse, a search of the row's few nonzero features)."""
     if not feat.sparse:

@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 from numba import njit
 
-from dgtd.backends.compiled.step import aux_step, phi_dot, phi_value, register, transition
+from dgtd.backends.compiled.step import aux_step, phi_axpy, phi_dot, register, transition
 
 W, THETA = 0, 1  # its own arrays; it sends nothing
 
@@ -25,9 +25,10 @@ def local_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
     s, sn, r, ratio, gamma = transition(x, agent)
     delta = r + gamma * phi_dot(feat, sn, own, (W, b, i), q) - phi_dot(feat, s, own, (W, b, i), q)
     phi_theta = phi_dot(feat, s, own, (THETA, b, i), q)
-    beta_k = aux_step(alpha, p.eta, p.alpha0, p.timescale)
     for f in range(q):
-        phi, phi_next = phi_value(feat, s, f), phi_value(feat, sn, f)
         sums[b, i, f] += own[W, b, i, f]
-        own[W, b, i, f] += alpha * (ratio * phi_theta * (phi - gamma * phi_next))
-        own[THETA, b, i, f] += beta_k * ((ratio * delta - phi_theta) * phi)
+    c = alpha * (ratio * phi_theta)  # w: alpha ratio phi^T theta (phi - gamma phi')
+    phi_axpy(feat, s, c, own, (W, b, i), q)
+    phi_axpy(feat, sn, -gamma * c, own, (W, b, i), q)
+    beta_k = aux_step(alpha, p.eta, p.alpha0, p.timescale)  # theta: beta_k (ratio delta - phi^T theta) phi
+    phi_axpy(feat, s, beta_k * (ratio * delta - phi_theta), own, (THETA, b, i), q)
