@@ -1,7 +1,10 @@
-"""Throughput benchmark: agent-steps per second of both backends on cases A-E, the per-agent Python loop on
-A and B with the speed-up, time to accuracy on paper-example-1, and the start-up time of a second run.
+"""Throughput benchmark: agent-steps per second of both backends on cases A-E (DGTD, or every algorithm with
+``--algorithms all``), the per-agent Python loop on A and B with the speed-up, time to accuracy on
+paper-example-1, the start-up time of a second run, and with ``--scaling`` the scaling table (one seed, N from 16
+to 16 384) idle and beside a busy process.
 
-    python benchmarks/throughput.py [--repeats 3] [--cases A,B,C,D,E] [--out benchmarks/results]
+    python benchmarks/throughput.py [--repeats 3] [--cases A,B,C,D,E] [--algorithms dgtd|all|NAME,...] [--scaling]
+                                    [--out benchmarks/results]
 
 Writes throughput.json and throughput.md under --out and prints the table.
 """
@@ -22,7 +25,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from per_agent_loop import per_agent_loop  # noqa: E402
 
-from dgtd.cli.bench import CASES, markdown, measure  # noqa: E402
+from dgtd.algorithms import ALGORITHMS  # noqa: E402
+from dgtd.cli.bench import CASES, beside_a_busy_process, markdown, measure, scaling  # noqa: E402
 from dgtd.problems import exact  # noqa: E402
 from dgtd.scenarios import get_scenario  # noqa: E402
 from dgtd.run.loop import RunSettings, run  # noqa: E402
@@ -114,14 +118,21 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cases", default="A,B,C,D,E")
+    ap.add_argument("--algorithms", default="dgtd")
+    ap.add_argument("--scaling", action="store_true")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
     args = ap.parse_args()
     keys = args.cases.split(",")
-    report = measure(keys, repeats=args.repeats)
+    names = tuple(ALGORITHMS) if args.algorithms == "all" else tuple(args.algorithms.split(","))
+    report = measure(keys, repeats=args.repeats, algorithms=names)
+    if args.scaling:
+        report["scaling"] = {"idle": scaling(repeats=args.repeats),
+                             "busy": beside_a_busy_process(lambda: scaling(repeats=args.repeats))}
     loops = loop_rows([k for k in keys if k in ("A", "B")], args.repeats)
     speedups = {}
     for lr in loops:
-        fast = next(r for r in report["rows"] if r["case"] == lr["case"] and r["backend"] == "numba")
+        fast = next(r for r in report["rows"] if r["case"] == lr["case"] and r["backend"] == "numba"
+                    and r.get("algorithm", "dgtd") == "dgtd")
         speedups[lr["case"]] = fast["agent_steps_per_s"] / lr["agent_steps_per_s"]
     report["per_agent_loop"] = loops
     report["speedup_numba_over_loop"] = speedups
@@ -133,7 +144,8 @@ def main():
         # a default Python writes it on the first run
         cached = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         report["first_iteration_seconds_bytecode_cached"] = first_iteration_seconds(env=cached)
-    per_step = {r["case"]: 1 / r["agent_steps_per_s"] for r in report["rows"] if r["backend"] == "numba"}
+    per_step = {r["case"]: 1 / r["agent_steps_per_s"] for r in report["rows"]
+                if r["backend"] == "numba" and r.get("algorithm", "dgtd") == "dgtd"}
     if "B" in per_step and "D" in per_step:
         report["cost_ratio_D_over_B"] = per_step["D"] / per_step["B"]
     md = markdown(report, loops)

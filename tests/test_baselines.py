@@ -213,11 +213,16 @@ def test_dgtd_with_one_agent_is_gtd2_on_the_same_samples():
 
 
 def test_registry_and_messages():
-    assert set(ALGORITHMS) == {"dgtd", "gtd2", "tdc", "td0", "consensus-td0", "pd-td", "td-tracking", "tdc-tracking",
-                               "local"}
-    sent = {n: make_algorithm(n).messages for n in ALGORITHMS}
-    assert sent == {"dgtd": ("w", "vmu"), "gtd2": (), "tdc": (), "td0": (), "consensus-td0": ("w",),
-                    "pd-td": ("w", "mu"), "td-tracking": ("w", "z"), "tdc-tracking": ("w", "z"), "local": ()}
+    """Every algorithm sends what it declares, each message an array of its state's shape; DGTD sends w and v + mu
+    (two vectors where Algorithm 1's text sends three), the centralised and local learners nothing."""
+    for name, cls in ALGORITHMS.items():
+        alg = make_algorithm(name)
+        state = alg.init(2, 3, 4)
+        sent = alg.sends(state)
+        assert tuple(sent) == cls.messages, name
+        assert all(x.shape == (2, 3, 4) for x in sent.values()), name
+    assert ALGORITHMS["dgtd"].messages == ("w", "vmu")
+    assert all(not ALGORITHMS[n].messages for n in ("gtd2", "tdc", "td0", "local"))
     with pytest.raises(DgtdInputError, match="unknown algorithm"):
         make_algorithm("td1")
     with pytest.raises(DgtdInputError, match="no setting kappa"):

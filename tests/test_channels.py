@@ -65,7 +65,7 @@ def compiled_aggregates(X, up, indptr, nbr, eid, kind):
     B, N, q = X.shape
     sent = X.reshape(1, B, N, q)
     out = np.zeros((B, N, q))
-    heard, n_heard, weights = np.zeros((1, N), np.int64), np.zeros(1, np.int64), np.zeros((1, N))
+    heard, n_heard, weights = np.zeros((1, N), np.int64), np.zeros((1, 8), np.int64), np.zeros((1, N))
     degree, sums = np.zeros((1, N), np.int64), np.zeros((1, 1, q))
     for b in range(B):
         count_heard(up, b, indptr, eid, degree, 0)

@@ -25,7 +25,7 @@ class Inbox(NamedTuple):
 
     sent: np.ndarray  # every message at step k, (M, B, N, q), in storage rows
     heard: np.ndarray  # (rows, max degree): the storage rows of the neighbours the agent heard, in row ``at``
-    n_heard: np.ndarray  # (rows,): how many, in row ``at``
+    n_heard: np.ndarray  # (rows, 8): how many, in row [at, 0] (a row a cache line)
     weights: np.ndarray  # (rows, max degree): their Metropolis weights, in row ``at`` (`metropolis` fills it)
     degree: np.ndarray  # (rows, N): how many messages each agent heard at this step, in row ``degree_row``
     degree_row: int
@@ -42,7 +42,7 @@ def hear(inbox, up, row, indptr, nbr, eid, i):
     for k in range(indptr[i], indptr[i + 1]):
         heard[at, n] = nbr[k]
         n += up[row, eid[k]]
-    inbox.n_heard[at] = n
+    inbox.n_heard[at, 0] = n
 
 
 @njit(cache=True, inline="always")
@@ -60,7 +60,8 @@ def count_heard(up, row, indptr, eid, degree, degree_row):
 def laplacian(inbox, m, b, i):
     """sum_j (x_i - x_j) of message m over the neighbours heard, into inbox.sums[m, inbox.at]: (L(k) x)_i. Summed as
     d_i x_i - x_j1 - x_j2 - ... (`neighbour_sums`), which streams the neighbours' rows past registers once."""
-    neighbour_sums(inbox.sent, (m, b), i, inbox.heard, inbox.at, inbox.n_heard[inbox.at], inbox.sums, (m, inbox.at))
+    at = inbox.at
+    neighbour_sums(inbox.sent, (m, b), i, inbox.heard, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
 
 
 @njit(cache=True, inline="always")
@@ -68,7 +69,7 @@ def metropolis_weights(inbox, i):
     """W_ij = 1 / (1 + max(d_i, d_j)) of the neighbours agent i heard, into inbox.weights[inbox.at]: once per agent
     and step (the driver's, for a step that needs them), for every message that mixes with them."""
     at, deg, row = inbox.at, inbox.degree, inbox.degree_row
-    for n in range(inbox.n_heard[at]):
+    for n in range(inbox.n_heard[at, 0]):
         inbox.weights[at, n] = 1.0 / (1.0 + max(deg[row, i], deg[row, inbox.heard[at, n]]))
 
 
@@ -78,7 +79,7 @@ def metropolis(inbox, m, b, i):
     inbox.sums[m, inbox.at]; each term added in the order of the neighbours, as `dgtd.channels.Inbox.metropolis`
     adds them."""
     at = inbox.at
-    weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at], inbox.sums, (m, at))
+    weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
 
 
 @njit(cache=True, inline="always")
@@ -88,7 +89,7 @@ def total(inbox, m, b, i):
     q = x.shape[3]
     for f in range(q):
         out[m, at, f] = 0.0
-    for n in range(inbox.n_heard[at]):
+    for n in range(inbox.n_heard[at, 0]):
         j = inbox.heard[at, n]
         for f in range(q):
             out[m, at, f] += x[m, b, j, f]
