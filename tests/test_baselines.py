@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from dgtd.algorithms import ALGORITHMS, GTD2, PDTD, TD0, TDC, ConsensusTD0, Local, TDTracking, make_algorithm
+from dgtd.algorithms import (ALGORITHMS, GTD2, PDTD, TD0, TDC, ConsensusTD0, Local, TDCTracking, TDTracking,
+                             make_algorithm)
 from dgtd.algorithms.consensus_td0 import ConsensusState
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.algorithms.gtd2 import GTDState
@@ -234,12 +235,13 @@ def test_registry_and_messages():
     assert replace(make_algorithm("tdc"), alpha0=2.0).alpha0 == 2.0
 
 
-def test_td_tracking_keeps_the_tracker_sum_equal_to_the_direction_sum():
+@pytest.mark.parametrize("cls", [TDTracking, TDCTracking])
+def test_tracking_keeps_the_tracker_sum_equal_to_the_direction_sum(cls):
     """W(k) is doubly stochastic, so after every step sum_i z_i(k) = sum_i g_i(k) exactly (to rounding), whatever
-    links are up: the tracker follows the network-average TD direction (Wang et al. 2020)."""
+    links are up: the tracker follows the network-average direction (Wang et al. 2020), TD's or TDC's."""
     graph = topologies.ring_with_chords(6, 2)
     rng = np.random.default_rng(4)
-    alg = TDTracking(alpha0=0.5)
+    alg = cls(alpha0=0.5)
     state = alg.init(2, 6, 3)
     for _ in range(20):
         sample = Sample(rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6)),

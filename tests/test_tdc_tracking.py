@@ -1,12 +1,12 @@
-"""Decentralised TDC with gradient tracking (`dgtd.algorithms.tdc_tracking`): its tracker, its exact fixed point, and
-its convergence off-policy."""
+"""Decentralised TDC with gradient tracking (`dgtd.algorithms.tdc_tracking`): its exact fixed point and its convergence
+off-policy (its tracker: tests/test_baselines.py, with TD tracking's)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-from test_baselines import expected, heard, small_mdp
+from test_baselines import expected, small_mdp
 
 from dgtd.algorithms import TDCTracking
 from dgtd.algorithms.tdc_tracking import TDCTrackingState
@@ -14,21 +14,7 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.run.loop import RunSettings, run
-from dgtd.samples import Sample
 from dgtd.sources.model import Sampling
-
-
-def test_the_tracker_sum_is_the_direction_sum_on_any_links():
-    """W(k) is doubly stochastic, so sum_i z_i(k) = sum_i g_i(k) after every step, whatever links are up."""
-    graph = topologies.ring_with_chords(6, 2)
-    rng = np.random.default_rng(4)
-    alg = TDCTracking(alpha0=0.5)
-    state = alg.init(2, 6, 3)
-    for _ in range(20):
-        sample = Sample(rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6)),
-                        rng.uniform(0.5, 1.5, size=(2, 6)), 0.9)
-        state = alg.update(state, sample, heard(graph, alg, state, rng.uniform(size=(2, graph.n_edges)) < 0.5), 0.3)
-        assert_allclose(state.z.sum(axis=1), state.g.sum(axis=1), atol=1e-12)
 
 
 @pytest.mark.parametrize("off_policy", [False, True])

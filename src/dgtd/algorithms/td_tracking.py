@@ -49,7 +49,12 @@ class TDTracking(StepSizes):
 
     def update(self, state: TrackingState, sample: Sample, inbox, alpha: float) -> TrackingState:
         """One step: the tracker first (it needs this step's direction), then w along it."""
-        w, z, g_prev = state
-        g = ratio_td_step(sample, w)
-        z_new = z - inbox.metropolis("z") + g - g_prev
-        return TrackingState(w - inbox.metropolis("w") + alpha * z_new, z_new, g)
+        g = ratio_td_step(sample, state.w)
+        return TrackingState(*track(state.w, state.z, state.g, g, inbox, alpha), g)
+
+
+def track(w: np.ndarray, z: np.ndarray, g_prev: np.ndarray, g: np.ndarray, inbox, alpha: float) -> tuple:
+    """(w(k+1), z(k)) of gradient tracking (Wang et al. 2020) given this step's local directions g and the last g_prev:
+    z(k) = W(k) z(k-1) + g(k) - g(k-1), w(k+1) = W(k) w(k) + alpha_k z(k), with W(k) x = x - inbox.metropolis(x)."""
+    z_new = z - inbox.metropolis("z") + g - g_prev
+    return w - inbox.metropolis("w") + alpha * z_new, z_new

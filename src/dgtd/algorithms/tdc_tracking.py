@@ -30,6 +30,7 @@ import numpy as np
 
 from dgtd.algorithms.base import zeros
 from dgtd.algorithms.gtd2 import GTDConfig, GTDState, theta_terms
+from dgtd.algorithms.td_tracking import track
 from dgtd.algorithms.tdc import w_terms
 from dgtd.samples import Sample
 
@@ -61,9 +62,7 @@ class TDCTracking(GTDConfig):
 
     def update(self, state: TDCTrackingState, sample: Sample, inbox, alpha: float) -> TDCTrackingState:
         """One step: the tracker with this step's TDC direction, w along it, and theta's own TDC step."""
-        w, theta, z, g_prev = state
-        local = GTDState(w, theta)
+        local = GTDState(state.w, state.theta)
         g = w_terms(local, sample)
-        z_new = z - inbox.metropolis("z") + g - g_prev
-        return TDCTrackingState(w - inbox.metropolis("w") + alpha * z_new,
-                                theta + self.aux_step(alpha) * theta_terms(local, sample), z_new, g)
+        w, z = track(state.w, state.z, state.g, g, inbox, alpha)
+        return TDCTrackingState(w, state.theta + self.aux_step(alpha) * theta_terms(local, sample), z, g)

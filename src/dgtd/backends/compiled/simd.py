@@ -72,6 +72,32 @@ def _pairwise(builder, x, width):
     return terms[0]
 
 
+def _splat(builder, x, ty):
+    """Scalar x in every lane of vector type ty (x itself for a scalar type)."""
+    if not isinstance(ty, ir.VectorType):
+        return x
+    v = ir.Constant(ty, ir.Undefined)
+    for lane in range(ty.count):
+        v = builder.insert_element(v, x, ir.Constant(_LANE, lane))
+    return v
+
+
+def _row_length(context, builder, aryty, ary):
+    """The length of a numba array's last axis."""
+    return cgutils.unpack_tuple(builder, context.make_array(aryty)(context, builder, ary).shape)[aryty.ndim - 1]
+
+
+def _over_row(builder, K, element):
+    """element(k, ty) for the vector chunks of LANES elements of a row of K, then for its last K mod LANES one by
+    one (ty the vector type, then double)."""
+    i64, f64 = ir.IntType(64), ir.DoubleType()
+    kv = builder.and_(K, ir.Constant(i64, ~(LANES - 1)))
+    with cgutils.for_range_slice(builder, ir.Constant(i64, 0), kv, ir.Constant(i64, LANES)) as (k, _):
+        element(k, ir.VectorType(f64, LANES))
+    with cgutils.for_range_slice(builder, kv, K, ir.Constant(i64, 1)) as (k, _):
+        element(k, f64)
+
+
 @intrinsic
 def dot(typingctx, X, x_at, Y, y_at, n):
     """sum_f X[*x_at, f] Y[*y_at, f] over f < n, in this order: two vector accumulators of LANES lanes take the
@@ -126,12 +152,10 @@ def neighbour_sums(typingctx, Z, z_at, i, J, j_at, count, out, out_at):
 
     def codegen(context, builder, signature, args):
         i64, f64 = ir.IntType(64), ir.DoubleType()
-        vec = ir.VectorType(f64, LANES)
         ta = signature.args
         zi = _index(context, builder, ta[1], args[1])
         i_, ja_, n_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (2, 4, 5))
-        zary = context.make_array(ta[0])(context, builder, args[0])
-        K = cgutils.unpack_tuple(builder, zary.shape)[ta[0].ndim - 1]
+        K = _row_length(context, builder, ta[0], args[0])
         pz = _row(context, builder, ta[0], args[0], [*zi, i_])
         pout = _row(context, builder, ta[6], args[6], _index(context, builder, ta[7], args[7]))
         pj = _row(context, builder, ta[3], args[3], [ja_])
@@ -142,12 +166,7 @@ def neighbour_sums(typingctx, Z, z_at, i, J, j_at, count, out, out_at):
 
         def element(k, ty, rows):
             at = lambda p: _vector_at(builder, p, k, ty)  # noqa: E731
-            cc = c
-            if isinstance(ty, ir.VectorType):
-                cc = ir.Constant(ty, ir.Undefined)
-                for lane in range(ty.count):
-                    cc = builder.insert_element(cc, c, ir.Constant(_LANE, lane))
-            acc = builder.fmul(cc, builder.load(at(pz), align=8))
+            acc = builder.fmul(_splat(builder, c, ty), builder.load(at(pz), align=8))
             if rows is not None:
                 for p in rows:
                     acc = builder.fsub(acc, builder.load(at(p), align=8))
@@ -159,13 +178,8 @@ def neighbour_sums(typingctx, Z, z_at, i, J, j_at, count, out, out_at):
                 acc = builder.load(slot)
             builder.store(acc, at(pout), align=8)
 
-        kv = builder.and_(K, ir.Constant(i64, ~(LANES - 1)))
-
         def loops(rows):
-            with cgutils.for_range_slice(builder, ir.Constant(i64, 0), kv, ir.Constant(i64, LANES)) as (k, _):
-                element(k, vec, rows)
-            with cgutils.for_range_slice(builder, kv, K, ir.Constant(i64, 1)) as (k, _):
-                element(k, f64, rows)
+            _over_row(builder, K, lambda k, ty: element(k, ty, rows))
 
         done = builder.append_basic_block("sums_done")
         other = builder.append_basic_block("sums_any_count")
@@ -197,13 +211,11 @@ def weighted_sums(typingctx, Z, z_at, i, J, C, j_at, count, out, out_at):
     sig = types.void(Z, z_at, i, J, C, j_at, count, out, out_at)
 
     def codegen(context, builder, signature, args):
-        i64, f64 = ir.IntType(64), ir.DoubleType()
-        vec = ir.VectorType(f64, LANES)
+        f64 = ir.DoubleType()
         ta = signature.args
         zi = _index(context, builder, ta[1], args[1])
         i_, ja_, n_ = (context.cast(builder, args[k], ta[k], types.int64) for k in (2, 5, 6))
-        zary = context.make_array(ta[0])(context, builder, args[0])
-        K = cgutils.unpack_tuple(builder, zary.shape)[ta[0].ndim - 1]
+        K = _row_length(context, builder, ta[0], args[0])
         pz = _row(context, builder, ta[0], args[0], [*zi, i_])
         pout = _row(context, builder, ta[7], args[7], _index(context, builder, ta[8], args[8]))
         pj = _row(context, builder, ta[3], args[3], [ja_])
@@ -216,21 +228,12 @@ def weighted_sums(typingctx, Z, z_at, i, J, C, j_at, count, out, out_at):
             own = builder.load(at(pz), align=8)
             with cgutils.for_range(builder, n_) as loop:
                 row = _row(context, builder, ta[0], args[0], [*zi, builder.load(builder.gep(pj, [loop.index]))])
-                c = builder.load(builder.gep(pc, [loop.index]))
-                if isinstance(ty, ir.VectorType):
-                    cc = ir.Constant(ty, ir.Undefined)
-                    for lane in range(ty.count):
-                        cc = builder.insert_element(cc, c, ir.Constant(_LANE, lane))
-                    c = cc
+                c = _splat(builder, builder.load(builder.gep(pc, [loop.index])), ty)
                 term = builder.fmul(builder.fsub(own, builder.load(at(row), align=8)), c)
                 builder.store(builder.fadd(builder.load(slot), term), slot)
             builder.store(builder.load(slot), at(pout), align=8)
 
-        kv = builder.and_(K, ir.Constant(i64, ~(LANES - 1)))
-        with cgutils.for_range_slice(builder, ir.Constant(i64, 0), kv, ir.Constant(i64, LANES)) as (k, _):
-            element(k, vec)
-        with cgutils.for_range_slice(builder, kv, K, ir.Constant(i64, 1)) as (k, _):
-            element(k, f64)
+        _over_row(builder, K, element)
         return context.get_dummy_value()
 
     return sig, codegen
