@@ -25,6 +25,10 @@ def assert_same_run(a, b):
         np.testing.assert_array_equal(a.metrics[name], b.metrics[name], err_msg=name)
     for name in a.final_state:
         np.testing.assert_array_equal(a.final_state[name], b.final_state[name], err_msg=name)
+    for name in a.info["counts"]:  # the channel's counts, which the checkpoint carries with its state
+        np.testing.assert_array_equal(a.info["counts"][name], b.info["counts"][name], err_msg=name)
+    np.testing.assert_array_equal(a.info["messages"], b.info["messages"])
+    np.testing.assert_array_equal(a.info["bits"], b.info["bits"])
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])

@@ -33,16 +33,18 @@ from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
 from dgtd.samples import Block, Draws, SampleTable
 
 
+# The kernels below are templates: `driver` compiles a copy of each per algorithm, with the algorithm's step in
+# place of `agent_step` and its flag in place of NEEDS_DEGREES, under the numba options it names.
+
+
 def agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
-    """Stands for an algorithm's registered step in the functions below, each of which `driver` copies per algorithm
-    with the step in its place."""
-    raise NotImplementedError("the driver's functions run as copied by `driver`")
+    """Stands for an algorithm's registered step (`dgtd.backends.compiled.step.register`)."""
+    raise NotImplementedError("the driver's kernels run as compiled by `driver`")
 
 
-NEEDS_DEGREES = False  # likewise: whether the step's inbox needs every agent's count of messages heard
+NEEDS_DEGREES = False  # whether the step's inbox needs every agent's count of messages heard
 
 
-@njit(cache=True, inline="always")
 def _learner(p, own, sums, inbox, out, work, x, feat, graph, up, up_row, b, i, alpha, q):
     """Learner i of seed b at one step: the neighbours it heard, then its step."""
     indptr, nbr, eid, agent_of = graph
@@ -53,12 +55,6 @@ def _learner(p, own, sums, inbox, out, work, x, feat, graph, up, up_row, b, i, a
     agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent_of[i], alpha, q)
 
 
-# The serial loop and a chunk of the agent layout run without numba's reference counts (``_nrt=False``): every
-# array comes in from Python, none is made here, and an array taken out of a tuple would otherwise cost an atomic
-# increment and decrement at every agent-step (measured: half the time of a step).
-
-
-@njit(cache=True, nogil=True, _nrt=False)
 def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, b0, b1):
     """Seeds b0 .. b1 - 1 one after another, each its steps in order, each step its learners in order. No threads of
     its own (it releases the GIL: `Layouts` runs several calls at once over separate seeds, each with its own
@@ -84,7 +80,6 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
         n_up[b] += edges_up
 
 
-@njit(cache=True, nogil=True, _nrt=False)
 def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias, sa_prob,
            sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi, sparse, ptr, idx,
            val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights,
@@ -115,7 +110,6 @@ def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words
                         count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
 
 
-@njit(cache=True, parallel=True)
 def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, n_chunks):
     """The agents of every seed spread over the cores at every step, in ``n_chunks`` chunks (`_chunk`, compiled on its
     own: the parallel part stays small and compiles in a moment). Samples are double-buffered too: while the agents
@@ -150,22 +144,20 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
 
 
 def driver(name: str) -> tuple:
-    """(`_seeds`, `_agents`) for algorithm ``name``: copies of the driver's functions with its step in place of
+    """(`_seeds`, `_agents`) compiled for algorithm ``name``: copies of the templates above with its step in place of
     `agent_step`, each compiled on first use and cached on disk under a name of its own (`_seeds_dgtd`, ...).
 
-    The step is then an ordinary global of the copies, which numba inlines as it inlines every helper here; an
-    algorithm's step chosen at compile time through an overload instead was inlined wrongly (numba 0.68: array stores
-    after it were lost)."""
-    return per_process(name, lambda: _copies(STEPS[name], name.replace("-", "_")))
+    The step is then an ordinary global of the copies, which numba inlines as it inlines every helper here; chosen at
+    compile time through an overload instead, it was inlined wrongly (numba 0.68: array stores after it were lost).
+    The serial loop and a chunk of the agent layout run without numba's reference counts (``_nrt=False``): every
+    array comes in from Python, none is made there, and an array taken out of a tuple would otherwise cost an atomic
+    increment and decrement at every agent-step (measured: half the time of a step)."""
+    if name not in _DRIVERS:
+        _DRIVERS[name] = _copies(STEPS[name], name.replace("-", "_"))
+    return _DRIVERS[name]
 
 
 _DRIVERS: dict = {}
-
-
-def per_process(key: str, build):
-    if key not in _DRIVERS:
-        _DRIVERS[key] = build()
-    return _DRIVERS[key]
 
 
 def _copies(compiled: CompiledStep, suffix: str) -> tuple:
@@ -174,10 +166,9 @@ def _copies(compiled: CompiledStep, suffix: str) -> tuple:
     space = dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
 
     def copy(fn, **options):
-        py = fn.py_func
-        clone = types.FunctionType(py.__code__, space, f"{py.__name__}_{suffix}", py.__defaults__, py.__closure__)
-        clone.__qualname__, clone.__doc__ = clone.__name__, py.__doc__
-        space[py.__name__] = dispatcher = njit(cache=True, **options)(clone)
+        clone = types.FunctionType(fn.__code__, space, f"{fn.__name__}_{suffix}", fn.__defaults__, fn.__closure__)
+        clone.__qualname__, clone.__doc__ = clone.__name__, fn.__doc__
+        space[fn.__name__] = dispatcher = njit(cache=True, **options)(clone)
         return dispatcher
 
     copy(_learner, inline="always")
@@ -191,8 +182,11 @@ def _copies(compiled: CompiledStep, suffix: str) -> tuple:
 
 AGENTS_MIN_WORK = 1 << 14  # N q from which spreading a seed's agents over the cores can pay (measured: N = 256, q = 64)
 LAYOUT = "auto"  # "seeds" or "agents" force a layout (the tests run both); "auto" chooses (`Layouts`)
-_POOL: list = []
-GROUPS_PER_THREAD = 4
+_POOL: list = []  # the threads that run seeds side by side
+GROUPS_PER_THREAD = 4  # groups of seeds per thread: a thread slowed by another process takes fewer
+THREADED_WORK = 50_000  # agent-steps from which a block's seeds run in threads (a few ms; less pays no hand-over)
+JOB_WORK = 200_000  # agent-steps a group of seeds holds at least, where there are enough (a call costs a fraction
+# of a millisecond: measured, 4 seeds of 5 agents in 4 groups per block ran at 0.75 the rate of 2 groups)
 
 
 def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
@@ -262,6 +256,7 @@ class Layouts:
         self.candidates, self.per_step = candidates, max(1, agent_steps_per_step)
         self.rate: dict[str, float] = {}
         self.since_check, self.started = 0.0, set()
+        self.spaces: dict = {}  # (layout, job) -> (dimensions, `_space`): made once per run, not once per block
 
     def run(self, kernels, args, buffers, alphas, blk, n_messages: int, n_work: int) -> int:
         """Every step of the block, piece by piece; returns which of the two buffers holds the newest messages."""
@@ -300,22 +295,26 @@ class Layouts:
         seconds = self.CHECK_SECONDS if checking else self.PIECE_SECONDS
         return int(min(left, max(1, seconds * rate / self.per_step)))
 
-    @staticmethod
-    def _call(kernels, layout, args, buffers, first, alphas, blk, t0, t1, n_messages, n_work):
+    def _space(self, key, *dimensions) -> tuple:
+        if key not in self.spaces or self.spaces[key][0] != dimensions:
+            self.spaces[key] = dimensions, _space(*dimensions)
+        return self.spaces[key][1]
+
+    def _call(self, kernels, layout, args, buffers, first, alphas, blk, t0, t1, n_messages, n_work):
         p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
         _seeds, _agents = kernels
         sampler = _piece_of(sampler, blk, t0, t1)
         B, n_obs, E, degree = sums.shape[0], sampler[3].shape[1], graph[2].shape[0] // 2, _max_degree(graph[0])
         if layout == "agents":
             chunks = 4 * get_num_threads()
-            space = _space(2 * B, chunks, n_obs, N, E, degree, q, n_messages, n_work)
+            space = self._space("agents", 2 * B, chunks, n_obs, N, E, degree, q, n_messages, n_work)
             _agents(p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph, space,
                     chunks)
             return
         threads = min(get_num_threads(), B)
-        if threads <= 1:
+        if threads <= 1 or (t1 - t0) * self.per_step < THREADED_WORK:
             _seeds(p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph,
-                   _space(1, 1, n_obs, N, E, degree, q, n_messages, n_work), 0, B)
+                   self._space(0, 1, 1, n_obs, N, E, degree, q, n_messages, n_work), 0, B)
             return
         # seeds in small groups taken by whichever thread is free: a thread slowed by another process takes fewer.
         # Each seed's stream words and trajectory states, written at every step, get cache lines of their own.
@@ -325,10 +324,12 @@ class Layouts:
         sampler = (sampler[0], words, sampler[2], states, *sampler[4:])
         if not _POOL or _POOL[0]._max_workers != threads:
             _POOL[:] = [ThreadPoolExecutor(threads, thread_name_prefix="dgtd-seeds")]
-        groups = np.linspace(0, B, min(B, GROUPS_PER_THREAD * threads) + 1).astype(int)
+        work = (t1 - t0) * self.per_step
+        n_groups = min(B, GROUPS_PER_THREAD * threads, max(threads, work // JOB_WORK))
+        groups = np.linspace(0, B, n_groups + 1).astype(int)
         jobs = [_POOL[0].submit(_seeds, p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont,
-                                gamma, graph, _space(1, 1, n_obs, N, E, degree, q, n_messages, n_work), int(b0), int(b1))
-                for b0, b1 in zip(groups[:-1], groups[1:])]
+                                gamma, graph, self._space(j, 1, 1, n_obs, N, E, degree, q, n_messages, n_work), int(b0),
+                                int(b1)) for j, (b0, b1) in enumerate(zip(groups[:-1], groups[1:]))]
         for job in jobs:
             job.result()
         rng[...], current[...] = words[:, :, :4], states
