@@ -148,6 +148,18 @@ def test_scenarios_lists_paper_example(capsys):
     assert code == 0 and "paper-example-1" in out
 
 
+def test_scenarios_says_each_description_whole(capsys):
+    """Each scenario's first paragraph, whole (it was cut at the docstring's first line, mid-sentence)."""
+    from dgtd.scenarios import SCENARIOS
+
+    _, out, _ = cli(capsys, "scenarios")
+    listed = " ".join(out.split())
+    for name, builder in SCENARIOS.items():
+        first = " ".join(builder.__doc__.strip().split("\n\n")[0].split())
+        assert f"{name} {first}" in listed, name
+        assert first.endswith("."), name
+
+
 def test_diverged_run_writes_standard_json(capsys, tmp_path):
     # Off-policy TD(0) on Baird diverges: the run reports it and summary.json stays standard JSON (null, not NaN).
     out = tmp_path / "td0"
@@ -156,3 +168,16 @@ def test_diverged_run_writes_standard_json(capsys, tmp_path):
     assert code == 0 and "DIVERGED" in stdout
     s = json.loads((out / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-standard {c}"))
     assert s["w_last"][0][0][0] is None
+
+
+def test_a_notice_is_one_line_not_a_python_warning(capsys, monkeypatch, tmp_path):
+    """The reference-backend notice reads as dgtd's own line, without Python's source line and category."""
+    from dgtd.backends import compiled
+
+    monkeypatch.setattr(compiled, "STEPS", {k: v for k, v in compiled.STEPS.items() if k != "td0"})
+    code, _, err = cli(capsys, "run", "paper-example-1", "--algorithm", "td0", "--alpha0", "0.1", "-T", "20",
+                       "--no-progress", "--no-plots", "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    notes = [line for line in err.splitlines() if "no compiled step" in line]
+    assert notes == ["dgtd: note: algorithm 'td0' has no compiled step: it runs on the NumPy reference backend"], err
+    assert "UserWarning" not in err and "warnings.warn" not in err

@@ -1,5 +1,27 @@
-"""Errors that mean "the input is wrong": the CLI prints their message on one line and exits with code 2."""
+"""Errors that mean "the input is wrong": the CLI prints their message on one line and exits with code 2; and the
+wrapper that tells a user's own code failing from dgtd's."""
 
 
 class DgtdInputError(ValueError):
     """A problem, network, config or file that dgtd refuses, with a message that says how to fix it."""
+
+
+class UserCodeError(DgtdInputError):
+    """An exception raised inside a user's own code (their env, policy or features), named in one line; its
+    traceback is the ``__cause__``, which ``dgtd --debug`` prints."""
+
+
+def user_error(what: str, error: Exception) -> UserCodeError:
+    """The one line for ``error`` raised by ``what``, a user's code; raise it ``from error``."""
+    return UserCodeError(f"{what} raised {type(error).__name__}: {error} (dgtd --debug ... shows its traceback)")
+
+
+def call_user(what: str, function, *args, **kwargs):
+    """``function(*args, **kwargs)``, where ``function`` is a user's code: any exception it raises (a dgtd refusal
+    passes as it is) becomes a `UserCodeError` that names ``what`` and keeps the original as its cause."""
+    try:
+        return function(*args, **kwargs)
+    except DgtdInputError:
+        raise
+    except Exception as e:  # noqa: BLE001  (anything the user's code raises is theirs to see)
+        raise user_error(what, e) from e

@@ -42,6 +42,7 @@ from pathlib import Path
 from dgtd.config import RunSpec, check_type, closest, field_types
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.topologies import TOPOLOGIES
+from dgtd.run.loop import check_count
 
 EXECUTORS = ("process", "ray")
 TABLE_FORMATS = ("auto", "parquet", "csv")
@@ -158,8 +159,7 @@ def check_choices(exp: Experiment) -> None:
         raise DgtdInputError(f"format must be one of {', '.join(TABLE_FORMATS)}, got {exp.sweep.format!r}")
     if exp.sweep.workers is not None and exp.sweep.workers < 1:
         raise DgtdInputError(f"workers must be >= 1 (leave it out to use every core), got {exp.sweep.workers}")
-    if exp.output.checkpoint_every < 0:
-        raise DgtdInputError(f"checkpoint_every must be >= 0 (0: no checkpoints), got {exp.output.checkpoint_every}")
+    check_count("checkpoint_every", exp.output.checkpoint_every, 0)  # 0: no checkpoints
 
 
 def load(path: str | Path) -> Experiment:

@@ -28,12 +28,24 @@ def _present(path: Path, what: str, fix: str) -> Path:
     return path
 
 
+def open_npz(path):
+    """np.load of an .npz without Python objects; an .npy array saved under an .npz name is refused (np.load would
+    hand back the array, which has no named arrays to read)."""
+    data = np.load(path, allow_pickle=False)
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise DgtdInputError(f"{path} holds one .npy array, not an .npz of named arrays: save the arrays with "
+                             "numpy.savez(file, NAME=array, ...)")
+    return data
+
+
 def read_npz(path, what: str, fix: str, required=()) -> dict:
     """The arrays of an .npz file (read whole, without Python objects), with the arrays ``required`` present."""
     path = _present(path, what, fix)
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open_npz(path) as data:
             arrays = {k: data[k] for k in data.files}
+    except DgtdInputError as e:
+        raise DgtdInputError(f"{what} {e}; {fix}") from None
     except ValueError as e:
         # np.load takes any file that is neither .npy nor .npz for a pickle of Python objects
         reason = "it is not an .npz file of plain arrays" if "pickle" in str(e) else str(e)

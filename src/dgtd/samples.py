@@ -80,7 +80,8 @@ class Source(Protocol):
       ``up`` (T, B, E) over the run's graph's edges (None only where every edge is always up), and ``table``, the
       rows the indices point into, where they are not the model's states;
     - ``get_state()`` / ``set_state(state)``: everything the next blocks depend on, so that a resumed run draws
-      exactly the blocks an uninterrupted one would.
+      exactly the blocks an uninterrupted one would; a source whose state cannot be saved (a simulator's) sets
+      ``resumable = False``, and a run that would take checkpoints of it is refused when it starts.
 
     A seed's blocks depend on its own streams only (not on how many seeds run beside it), and T steps are the same
     whether drawn in one block or several.

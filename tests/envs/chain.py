@@ -70,3 +70,53 @@ def team_rewards(rewards: dict):
     """Every agent gets the team's total: a reward mapping (the [env] table's rewards)."""
     total = sum(rewards.values())
     return [total] * len(rewards)
+
+
+class BadRewards(Chain):
+    """A chain whose step() goes wrong in one of the ways a user's env does: ``how`` names it."""
+
+    def __init__(self, how: str):
+        super().__init__(3)
+        self.how = how
+
+    def step(self, actions):
+        if self.how == "raises":
+            raise RuntimeError("the user's step() failed")
+        obs, rewards, terms, truncs, infos = super().step(actions)
+        if self.how == "missing":
+            rewards.pop("agent_2")
+        elif self.how == "text":
+            rewards = {a: "high" for a in rewards}
+        elif self.how == "extra":
+            rewards["agent_9"] = 1.0
+        elif self.how == "none":
+            rewards = None
+        return obs, rewards, terms, truncs, infos
+
+
+def make_raising():
+    return BadRewards("raises")
+
+
+def make_missing_reward():
+    return BadRewards("missing")
+
+
+def make_text_reward():
+    return BadRewards("text")
+
+
+def make_extra_reward():
+    return BadRewards("extra")
+
+
+def make_no_rewards():
+    return BadRewards("none")
+
+
+def raising_policy(agent, observation, space, rng):
+    raise KeyError("the user's policy failed")
+
+
+def raising_features(states):
+    raise ZeroDivisionError("the user's features failed")

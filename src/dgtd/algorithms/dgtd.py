@@ -124,7 +124,7 @@ class DGTD(StepSizes):
         return {"kkt_residuals_last": {name: float(np.abs(g).max()) for name, g in zip(BOX_NAMES, grads)}}
 
     def describe(self) -> str:
-        return (f"Algorithm 1: alpha_k = {self.alpha0:g}/{'sqrt(k+' if self.schedule == 'sqrt' else '(k+'}"
+        return (f"Algorithm 1: alpha_k = {self.alpha0:.4g}/{'sqrt(k+' if self.schedule == 'sqrt' else '(k+'}"
                 f"{self.beta:g}){'' if self.schedule != 'constant' else ' (constant)'}, kappa {self.kappa:g}, "
                 f"rho {self.rho:g}")
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from dgtd.cli.options import with_env_options
 from dgtd.config import CHOICES, RunSpec
-from dgtd.errors import DgtdInputError
+from dgtd.errors import DgtdInputError, UserCodeError
 from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
 
 
@@ -30,10 +30,16 @@ def _problem_options(f):
     return f
 
 
+DEBUG = {"on": False}  # set by `dgtd --debug`: the traceback of an error raised in a user's own code is printed
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="dgtd")
-def cli():
+@click.option("--debug", is_flag=True, default=False,
+              help="Where your own code (env, policy, features) raised an error, print its traceback too.")
+def cli(debug):
     """dgtd: distributed policy evaluation with the primal-dual distributed GTD method (Algorithm 1)."""
+    DEBUG["on"] = debug
 
 
 def given_flags(ctx: click.Context, exclude=()) -> dict:
@@ -77,7 +83,8 @@ def _spec_options(f):
                           "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
                           "r(s, a, s') where the problem gives rewards per transition (transition)."),
         click.option("--backend", type=click.Choice(CHOICES["backend"]), default=d("backend"), show_default=True),
-        click.option("--checkpoints", type=int, default=d("checkpoints"), show_default=True, help="How many times to record metrics."),
+        click.option("--checkpoints", type=int, default=d("checkpoints"), show_default=True,
+                     help="How many times to record metrics (at most once per iteration)."),
         click.option("--tail-fraction", type=float, default=d("tail_fraction"), show_default=True, help="Final fraction of the run averaged for w_tail."),
         click.option("--block-size", type=int, default=d("block_size"), show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
     ]
@@ -125,7 +132,6 @@ def run(ctx, scenario, resume_dir, **_):
     average (the last --tail-fraction of the run, which forgets the start):
     metrics.csv per seed, bands.csv the median and 90 % band over seeds.
     """
-    from dgtd.config import scenario_of
     from dgtd.experiments import experiment_from
     from dgtd.cli.job import CONFIG, prepare
 
@@ -151,6 +157,19 @@ def run(ctx, scenario, resume_dir, **_):
 
     t_start = time.perf_counter()
     job = prepare(experiment_from(file, flags))
+    try:
+        _run_job(job, t_start)
+    finally:
+        job.release()
+
+
+def _run_job(job, t_start: float) -> None:
+    """`dgtd run`'s work once its directory is its own: the run, its files and its report."""
+    import time
+
+    from dgtd.cli.job import CONFIG
+    from dgtd.config import scenario_of
+
     t_prepared = time.perf_counter()
     if job.finished:
         click.echo(f"{job.out}: the run is already finished (summary.json); nothing to resume")
@@ -341,6 +360,9 @@ def bench(cases, algorithms, backends, repeats, scaling, out):
 @click.option("--format", "format", type=click.Choice(TABLE_FORMATS), default=SweepOptions.format, show_default=True,
               help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.")
 @click.option("--progress/--no-progress", default=Output.progress, show_default=True)
+@click.option("--overwrite/--no-overwrite", default=Output.overwrite, show_default=True,
+              help="Write the sweep into a directory that holds a run's or a comparison's results (refused "
+                   "without it).")
 @click.pass_context
 def sweep(ctx, experiment, **_):
     """Run every point of EXPERIMENT.toml's [grid] as a job; one long table and per-job summaries in OUT.
@@ -381,8 +403,13 @@ def scenarios():
     """List the named scenarios."""
     from dgtd.scenarios import SCENARIOS
 
-    for name, builder in SCENARIOS.items():  # the builders' first doc lines: listing builds nothing
-        click.echo(f"{name:<20} {(builder.__doc__ or '').strip().splitlines()[0]}")
+    import shutil
+    import textwrap
+
+    width = max(shutil.get_terminal_size().columns, 60)
+    for name, builder in SCENARIOS.items():  # the builders' first doc paragraphs, whole: listing builds nothing
+        about = " ".join((builder.__doc__ or "").strip().split("\n\n")[0].split())
+        click.echo(textwrap.fill(about, width, initial_indent=f"{name:<20} ", subsequent_indent=" " * 21))
 
 
 from dgtd.cli.compare import compare as _compare  # noqa: E402
@@ -390,11 +417,30 @@ from dgtd.cli.compare import compare as _compare  # noqa: E402
 cli.add_command(_compare)
 
 
+def _note(message, category, filename, lineno, file=None, line=None) -> None:
+    """dgtd's own notices (a `warnings.warn` in dgtd) as one line of the command's; others' as Python shows them."""
+    import warnings
+
+    if Path(filename).resolve().is_relative_to(Path(__file__).resolve().parents[1]):
+        click.echo(f"dgtd: note: {message}", err=True)
+    else:
+        click.echo(warnings.formatwarning(message, category, filename, lineno, line).rstrip(), err=True)
+
+
 def main(argv=None) -> None:
     """Entry point: one line and exit code 2 for bad input, never a traceback."""
+    import warnings
+
+    DEBUG["on"] = False
     try:
-        cli.main(args=argv, prog_name="dgtd", standalone_mode=False)
+        with warnings.catch_warnings():
+            warnings.showwarning = _note
+            cli.main(args=argv, prog_name="dgtd", standalone_mode=False)
     except DgtdInputError as e:
+        if isinstance(e, UserCodeError) and DEBUG["on"] and e.__cause__ is not None:
+            import traceback
+
+            click.echo("".join(traceback.format_exception(e.__cause__)).rstrip(), err=True)
         click.echo(f"dgtd: error: {e}", err=True)
         sys.exit(2)
     except click.exceptions.Exit as e:

@@ -42,33 +42,39 @@ def _names(text: str | None) -> tuple[str, ...]:
 @click.option("--plots/--no-plots", default=True, show_default=True)
 @click.option("--overwrite", is_flag=True, default=False,
               help="Replace another comparison's results in --out (otherwise refused).")
-@click.option("--graph", type=str, default=None, help="The network of an --env or --data run (default: ring).")
+@click.option("--problem", "problem_file", type=str, default=None,
+              help="Your own problem, an .npz as `dgtd run --problem` takes, instead of a scenario.")
+@click.option("--graph", type=str, default=None,
+              help="The network of a --problem, --env or --data run (default: ring).")
 @with_env_options
 def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
-            checkpoints, out, progress, plots, overwrite, **user):
-    """Run several algorithms on SCENARIO (or --env / --data, as `dgtd run`) with the same samples; write
-    metrics.csv, summary.json and plots.
+            checkpoints, out, progress, plots, overwrite, problem_file, **user):
+    """Run several algorithms on SCENARIO (or --problem FILE.npz, --env, --data, as `dgtd run`) with the same
+    samples; write metrics.csv, summary.json and plots.
 
     The run is described, checked and recorded as the `RunSpec` of `dgtd run` (the same fields, defaults and
     checks), plus the algorithms compared and the tuning. Each algorithm's numbers are saved as it finishes: after
     an interrupt, the same command again runs only the algorithms that had not finished."""
+    from dgtd.config import PROBLEM_FIELDS, RunSpec, resolve, scenario_of, spec_record
     from tqdm import tqdm
 
-    from dgtd.config import RunSpec, resolve, scenario_of, spec_record
     from dgtd.run.compare import (CompareSettings, compare as run_compare, configs_for, finish_directory,
                                   prepare_directory, save_part, write_compare)
+    from dgtd.run.owner import Owner
 
     from dgtd.cli import problem_line
     from dgtd.errors import DgtdInputError
-    from dgtd.experiments import Experiment, override
+    from dgtd.experiments import Experiment, absolute_paths, override
+    from dgtd.scenarios.user import problem_scenario
 
-    spec = RunSpec(scenario=scenario, edge_prob=edge_prob, iterations=iterations, seeds=seeds, seed=seed,
-                   sampling=sampling, shared=shared, backend=backend, checkpoints=checkpoints)
+    spec = RunSpec(scenario=scenario, problem_file=problem_file, edge_prob=edge_prob, iterations=iterations,
+                   seeds=seeds, seed=seed, sampling=sampling, shared=shared, backend=backend, checkpoints=checkpoints)
     spec = override(Experiment(spec=spec), {k: v for k, v in user.items() if v is not None}).spec
-    if scenario is None and spec.env is None and spec.data is None:
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), --env module:make_env or --data FILE")
-    p, network, _, samp, settings, resolved = resolve(spec)
-    sc = scenario_of(resolved)
+    if all(getattr(spec, name) is None for name in PROBLEM_FIELDS):
+        raise DgtdInputError("name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env "
+                             "or --data FILE")
+    p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(spec))
+    sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
     out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
@@ -79,38 +85,41 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
     record = {**spec_record(resolved), "algorithms": list(cs.algorithms), "tune": tune,
               "tune_seeds": tune_seeds if tune else None}
     record = json.loads(json.dumps(record))  # as summary.json holds it (lists, not tuples), to compare with it
-    results, used, tables = prepare_directory(out, record, overwrite)
-    if results:
-        click.echo(f"resuming the interrupted comparison in {out}: {', '.join(results)} finished before; running "
-                   f"{', '.join(a for a in cs.algorithms if a not in results)}")
-    bar = tqdm(total=settings.iterations * len(cs.algorithms), initial=settings.iterations * len(results), unit="it",
-               unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
-    try:
-        run_compare(p, network, samp, configs, cs, progress=lambda name, n: bar.update(n),
-                    log=bar.write if tune else None, source_factory=sc.source, done=(results, used, tables),
-                    on_finished=lambda *part: save_part(out, *part, record))
-    except KeyboardInterrupt:
-        bar.close()
-        finished = [name for name in cs.algorithms if name in results]
-        if not finished:
-            raise
-        missing = [name for name in cs.algorithms if name not in results]
-        write_compare(out, p, network, results, used, tables, {**record, "interrupted": True, "missing": missing})
-        raise KeyboardInterrupt(f"interrupted: the results of {', '.join(finished)} are written to {out} "
-                                f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
-                                f"to the end: run the same command again to run only those") from None
-    finally:
-        bar.close()
-    write_compare(out, p, network, results, used, tables, record)
-    finish_directory(out)
-    if plots:
-        from dgtd.plots.compare import plot_compare, plot_consensus
+    with Owner(out, "comparison", overwrite):  # the directory is this comparison's until it ends
+        results, used, tables = prepare_directory(out, record, overwrite)
+        if results:
+            click.echo(f"resuming the interrupted comparison in {out}: {', '.join(results)} finished before; running "
+                       f"{', '.join(a for a in cs.algorithms if a not in results)}")
+        bar = tqdm(total=settings.iterations * len(cs.algorithms), initial=settings.iterations * len(results),
+                   unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
+        try:
+            run_compare(p, network, samp, configs, cs, progress=lambda name, n: bar.update(n),
+                        log=bar.write if tune else None, source_factory=sc.source, done=(results, used, tables),
+                        on_finished=lambda *part: save_part(out, *part, record),
+                        kernel_ready=lambda seconds: bar.unpause())  # the compilation is not in the ETA
+        except KeyboardInterrupt:
+            bar.close()
+            finished = [name for name in cs.algorithms if name in results]
+            if not finished:
+                raise
+            missing = [name for name in cs.algorithms if name not in results]
+            write_compare(out, p, network, results, used, tables, {**record, "interrupted": True, "missing": missing})
+            raise KeyboardInterrupt(f"interrupted: the results of {', '.join(finished)} are written to {out} "
+                                    f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
+                                    f"to the end: run the same command again to run only those") from None
+        finally:
+            bar.close()
+        write_compare(out, p, network, results, used, tables, record)
+        finish_directory(out)
+        if plots:
+            from dgtd.plots.compare import plot_compare, plot_consensus
 
-        title = f"{p.name}, N={p.n_agents}, {seeds} seeds"
-        plot_compare(results, out / "compare.png", title)
-        plot_consensus(results, out / "consensus.png", title)
-    click.echo(table(results, used))
-    click.echo(f"wrote {out}/metrics.csv, bands.csv, agent_errors.npz, summary.json{', compare.png, consensus.png' if plots else ''}")
+            title = f"{p.name}, N={p.n_agents}, {seeds} seeds"
+            plot_compare(results, out / "compare.png", title)
+            plot_consensus(results, out / "consensus.png", title)
+        click.echo(table(results, used))
+        figures = ", compare.png, consensus.png" if plots else ""
+        click.echo(f"wrote {out}/metrics.csv, bands.csv, agent_errors.npz, summary.json{figures}")
 
 
 def table(results: dict, used: dict) -> str:

@@ -16,6 +16,7 @@ from dgtd.config import PROBLEM_FIELDS, make_source, resolve, scenario_of, spec_
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
+from dgtd.run.owner import Owner
 from dgtd.run.results import atomic_write, first_difference, refuse_other_results
 
 CONFIG, CHECKPOINT = "config.toml", "checkpoint.npz"
@@ -39,6 +40,12 @@ class PreparedRun:
     finished: bool = False
     source: object = None
     report_text: str = ""
+    owner: object = None  # the lock on ``out`` (`dgtd.run.owner.Owner`), held until `release`
+
+    def release(self) -> None:
+        """Let the results directory go: another command may write into it now."""
+        if self.owner is not None:
+            self.owner.release()
 
     @property
     def config_toml(self) -> str:
@@ -134,7 +141,17 @@ def prepare(exp: Experiment) -> PreparedRun:
     out = Path(exp.output.out) if exp.output.out else Path("runs") / problem.name
     out = out.resolve()
     record = json.loads(json.dumps(spec_record(resolved)))
-    run = PreparedRun(exp, problem, network, algorithm, sampling, settings, resolved, out, record)
+    run = PreparedRun(exp, problem, network, algorithm, sampling, settings, resolved, out, record,
+                      owner=Owner(out, "run", exp.output.overwrite))
+    try:
+        return _claim(run, exp, out, record)
+    except BaseException:
+        run.release()
+        raise
+
+
+def _claim(run: PreparedRun, exp: Experiment, out: Path, record: dict) -> PreparedRun:
+    """Check a resume against its checkpoint, or clear the previous run and write config.toml."""
     ckpt = out / CHECKPOINT
     if exp.output.resume:
         if not ckpt.exists():

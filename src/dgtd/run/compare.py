@@ -99,14 +99,16 @@ def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE
 
 
 def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None,
-            source_factory=None, done=None, on_finished=None):
+            source_factory=None, done=None, on_finished=None, kernel_ready=None):
     """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
 
     ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.scenarios.Scenario.source`);
     each run gets a fresh one, so every algorithm sees the same samples and links. ``done``: the three dicts to
     fill in as each algorithm finishes (default: new ones), so that a caller interrupted half-way still holds the
     finished algorithms' results; algorithms already in ``done`` (a resumed comparison) are not run again.
-    ``on_finished(name, result, config, table)`` is called as each algorithm finishes (to save it).
+    ``on_finished(name, result, config, table)`` is called as each algorithm finishes (to save it);
+    ``kernel_ready(seconds)`` once each run's kernels are loaded or compiled (`dgtd.run.loop.run`), so that a
+    progress bar can leave the compilation out of its rate.
     """
     results, used, tables = ({}, {}, {}) if done is None else done
     for name in cs.algorithms:
@@ -122,7 +124,7 @@ def compare(problem, network, sampling, configs: dict, cs: CompareSettings, prog
         used[name] = alg
         results[name] = run(problem, network, alg, sampling, cs.settings,
                             progress=None if progress is None else (lambda n, name=name: progress(name, n)),
-                            source=_source(source_factory, cs.settings))
+                            source=_source(source_factory, cs.settings), kernel_ready=kernel_ready)
         if on_finished is not None:
             on_finished(name, results[name], used[name], tables.get(name, []))
     return results, used, tables

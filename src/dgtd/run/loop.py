@@ -15,6 +15,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
+from dgtd.run.memory import check_memory
 from dgtd.samples import Block
 from dgtd.sources.model import ModelSource, Sampling, SamplerTables
 
@@ -46,22 +47,28 @@ class RunSettings:
     backend: str = "numba"
 
     def __post_init__(self):
-        if int(self.iterations) < 1:
-            raise DgtdInputError(f"iterations must be >= 1, got {self.iterations}")
-        if int(self.seeds) < 1:
-            raise DgtdInputError(f"seeds must be >= 1, got {self.seeds}")
-        if int(self.checkpoints) < 1:
-            raise DgtdInputError(f"checkpoints must be >= 1, got {self.checkpoints}")
+        for name in ("iterations", "seeds", "checkpoints", "block_size"):
+            check_count(name, getattr(self, name), 1)
+        check_count("seed", self.seed, 0)
         if not 0.0 < self.tail_fraction <= 1.0:
             raise DgtdInputError(f"tail_fraction must lie in (0, 1], got {self.tail_fraction}")
-        if int(self.block_size) < 1:
-            raise DgtdInputError(f"block_size must be >= 1, got {self.block_size}")
         if self.backend not in BACKENDS:
             raise DgtdInputError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
 
 
+MAX_COUNT = 2**63 - 1  # what a 64-bit integer (NumPy's, TOML's) holds
+
+
+def check_count(name: str, value, low: int) -> None:
+    """An integer setting in [low, 2^63 - 1], or a one-line error naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= MAX_COUNT:
+        raise DgtdInputError(f"{name} must be >= {low} and below 2^63, a whole number; got {value!r}")
+
+
 def checkpoint_steps(T: int, n: int) -> np.ndarray:
-    """About n steps in 1..T, half evenly spaced and half log-spaced (for linear and log plots), T included."""
+    """About n steps in 1..T, half evenly spaced and half log-spaced (for linear and log plots), T included. Any n
+    from 2T on gives every step once, so n is capped there (a huge n would allocate for nothing)."""
+    n = min(n, 2 * T)
     lin = np.linspace(0, T, n // 2 + 1)[1:]
     log = np.geomspace(1, T, n - n // 2)
     return np.unique(np.concatenate([np.round(lin), np.round(log), [T]]).astype(np.int64).clip(1, T))
@@ -198,6 +205,8 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     function of the step only, so the result equals that of an uninterrupted run bit for bit.
     """
     t_start = time.perf_counter()
+    check_memory(algorithm, int(settings.seeds), problem.n_agents, problem.n_features, 2 * network.n_edges,
+                 len(checkpoint_steps(int(settings.iterations), int(settings.checkpoints))), settings.backend)
     ctx, moments, L_mean, fixed, report, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
     w_ref = fixed.w
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
@@ -206,6 +215,9 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
             raise DgtdInputError(f"{problem.name} has no model to draw samples from; pass its simulator or data as the "
                                  "source")
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
+    if checkpoint_every > 0 and not getattr(source, "resumable", True):
+        raise DgtdInputError("this run's samples come from a simulator whose state cannot be saved, so it cannot be "
+                             "resumed from a checkpoint: leave out --checkpoint-every (checkpoint_every)")
     kernel = kernel_for(settings.backend, algorithm.name)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N, q)

@@ -111,5 +111,5 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
         source=lambda seed, seed_ids: EnvSource(partial(make_spread, N), features, seed, seed_ids, **common),
         report=TrajectoryReport(lambda: EnvSource(partial(make_spread, N), features, 0, [0],
                                                   seed_offset=TRAJECTORY_SEED_OFFSET, **common), steps=100),
-        compare_settings=compare_steps(reference),
+        compare_settings=compare_steps(reference.moments),
     )

@@ -16,6 +16,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import inspect
+import sys
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.algorithms.dgtd import DGTD
-from dgtd.errors import DgtdInputError
+from dgtd.errors import DgtdInputError, call_user, user_error
 from dgtd.problems import features as feature_maps
 from dgtd.sources.env import random_policy
 from dgtd.sources.model import Sampling
@@ -79,6 +80,8 @@ def load_callable(text: str, what: str):
             path = Path(module_name)
             if not path.is_file():
                 raise DgtdInputError(f"{what} {text!r}: file {path} does not exist")
+            if str(path.parent.resolve()) not in sys.path:  # its helper modules beside it import, as in a script
+                sys.path.insert(0, str(path.parent.resolve()))
             spec = importlib.util.spec_from_file_location(path.stem, path)
             module = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(module)
@@ -90,7 +93,7 @@ def load_callable(text: str, what: str):
         raise DgtdInputError(f"{what} {text!r}: cannot import {module_name} ({e}); install it, or check the name "
                              "(a file is written path/to/file.py:function)") from None
     except Exception as e:  # noqa: BLE001  (the user's module failed while importing)
-        raise DgtdInputError(f"{what} {text!r}: importing {module_name} failed ({type(e).__name__}: {e})") from None
+        raise user_error(f"{what} {text!r}: importing {module_name}", e) from e
     obj = module
     for part in attr.split("."):
         if not hasattr(obj, part):
@@ -130,12 +133,7 @@ def env_factory(spec: EnvSpec):
         kwargs[named[0]] = int(spec.agents)
 
     def make_raw():
-        try:
-            return function(**kwargs)
-        except DgtdInputError:
-            raise
-        except Exception as e:  # noqa: BLE001  (the user's function failed)
-            raise DgtdInputError(f"--env {spec.make}: making the environment failed ({type(e).__name__}: {e})") from None
+        return call_user(f"--env {spec.make}: making the environment", function, **kwargs)
 
     probe = make_raw()
     label = spec.make.rpartition(":")[2].rpartition(".")[2] or "env"
@@ -243,11 +241,8 @@ def build_features(text: str, probe, pilot_states):
     if rest:
         function = load_callable(text, "--features")
         states = pilot_states(8)
-        try:
-            phi = np.asarray(function(states), dtype=np.float64)
-        except Exception as e:  # noqa: BLE001  (the user's function failed)
-            raise DgtdInputError(f"--features {text}: it failed on states of shape {states.shape} "
-                                 f"({type(e).__name__}: {e})") from None
+        phi = np.asarray(call_user(f"--features {text} on states of shape {states.shape}", function, states),
+                         dtype=np.float64)
         if phi.ndim != 2 or phi.shape[0] != len(states):
             raise DgtdInputError(f"--features {text} returned shape {phi.shape} for {len(states)} states; it must return "
                                  "(K, q): one row of features per state")
@@ -275,24 +270,34 @@ def graph_step_cap(base_graph) -> float:
     return float(np.sqrt(DGTD().beta) / lam) if lam > 0 else float("inf")
 
 
-def feature_scale(reference) -> float:
-    """E |phi(s)|^2 (the trace of the reference's M), or 1 where it is smaller: what unit-scale step sizes divide by."""
-    return max(float(np.trace(reference.moments.M)), 1.0)
+def feature_scale(moments) -> float:
+    """E |phi(s)|^2 (the trace of the moments' M), or 1 where it is smaller: what unit-scale step sizes divide by."""
+    return max(float(np.trace(moments.M)), 1.0)
 
 
-def compare_steps(reference) -> dict:
-    """The baselines' alpha0 in `dgtd compare`: garnet's (features of unit scale, as DGTD's default) divided by
-    `feature_scale`, as DGTD's is; ``--tune`` picks them on separate seeds instead."""
+def compare_steps(moments) -> dict:
+    """The algorithms' alpha0 in `dgtd compare` on a user's problem: garnet's (features of unit scale, as DGTD's
+    default) divided by `feature_scale`, as DGTD's is; ``--tune`` picks them on separate seeds instead."""
     from dgtd.scenarios.tuned import tuned_steps
 
-    scale = feature_scale(reference)
+    scale = feature_scale(moments)
     return {name: {"alpha0": fields["alpha0"] / scale} for name, fields in tuned_steps("garnet").items()
             if "alpha0" in fields}
 
 
 def scaled_dgtd(reference, base_graph) -> DGTD:
     """DGTD with its default alpha0 divided by `feature_scale`, and at most `graph_step_cap`."""
-    return DGTD(alpha0=min(DGTD().alpha0 / feature_scale(reference), graph_step_cap(base_graph)))
+    return DGTD(alpha0=min(DGTD().alpha0 / feature_scale(reference.moments), graph_step_cap(base_graph)))
+
+
+def problem_scenario(problem, network, algorithm, sampling, iterations: int):
+    """The `Scenario` of a user's problem file (`dgtd compare --problem`): the run's network, algorithm and length,
+    and every algorithm compared at garnet's tuned steps scaled to the problem's features (`compare_steps`)."""
+    from dgtd.problems.exact import Moments
+    from dgtd.scenarios import Scenario
+
+    return Scenario(problem=problem, network=network, algorithm=algorithm, sampling=sampling, iterations=iterations,
+                    description=f"problem file {problem.name}", compare_settings=compare_steps(Moments(problem)))
 
 
 def env_scenario(spec: EnvSpec, gamma: float, network_for):
@@ -318,7 +323,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
 
     def source(features, seed, seed_ids, offset=0, width=None):
         return EnvSource(make, features, seed, seed_ids, policy=policy, seed_offset=offset, n_features=width,
-                         reward_map=reward_map, **links)
+                         reward_map=reward_map, name=spec.make.rpartition(":")[2], **links)
 
     def pilot_states(steps=None):
         src = source(lambda x: np.asarray(x, dtype=np.float64), 0, [0], REFERENCE_SEED_OFFSET - 1)
@@ -342,10 +347,10 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
         iterations=ENV_ITERATIONS,
         description=f"{kind} env {spec.make}, {N} agents, {about}, policy "
                     f"{spec.policy if isinstance(spec.policy, str) else 'one per agent'}; {STEP_WORDS} = "
-                    f"{algorithm.alpha0:.3g}",
+                    f"{algorithm.alpha0:.4g}",
         source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
         report=TrajectoryReport(lambda: source(features, 0, [0], TRAJECTORY_SEED_OFFSET, q)),
-        compare_settings=compare_steps(reference),
+        compare_settings=compare_steps(reference.moments),
     )
 
 
@@ -366,10 +371,10 @@ def data_scenario(path: str, gamma: float, network_for):
                     f"{data.recordings if data.by_seed else len(data.units):,} "
                     f"{'recordings' if data.by_seed else 'episodes'} of {data.N} agents, {int(data.offsets[-1]):,} "
                     f"steps in all{'' if data.by_seed else ', replayed by each seed in an order of its own'}; "
-                    f"{STEP_WORDS} = {algorithm.alpha0:.3g}",
+                    f"{STEP_WORDS} = {algorithm.alpha0:.4g}",
         source=lambda seed, seed_ids: DataSource(data, seed_ids, seed, network),
         data=data,
-        compare_settings=compare_steps(reference),
+        compare_settings=compare_steps(reference.moments),
     )
 
 

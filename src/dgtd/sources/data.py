@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.files import open_npz
 from dgtd.samples import Block, SampleTable
 
 KEYS = ("seed", "episode", "step", "agent")
@@ -54,7 +55,7 @@ def _batches(path: Path, columns=None):
             for batch in reader:
                 yield {name: batch.column(name).to_numpy(zero_copy_only=False) for name in batch.schema.names}
     elif path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
+        with open_npz(path) as z:
             yield {k: z[k] for k in z.files if columns is None or k in columns}
     else:
         raise DgtdInputError(f"transitions file {path}: give a .parquet, .csv or .npz file")
@@ -97,6 +98,11 @@ def _header(path: Path) -> list[str]:
 def _checked(path: Path, batch: dict, names) -> dict:
     """A batch's columns as int64 keys and float64 values (a missing seed or episode column: zeros), or a one-line
     error naming the column."""
+    lengths = {name: len(batch[name]) for name in names if name in batch}
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"{name} {n:,}" for name, n in lengths.items())
+        raise DgtdInputError(f"transitions file {path} has columns of different lengths ({listed}); every column "
+                             "needs one entry per row")
     out = {}
     for name in ("seed", "episode"):
         if name in names and name not in batch:
@@ -112,6 +118,13 @@ def _checked(path: Path, batch: dict, names) -> dict:
             if x.dtype.kind not in "biuf" or not np.isfinite(x.astype(np.float64)).all():
                 raise DgtdInputError(f"transitions file {path}: column {name} must hold finite numbers")
             out[name] = x.astype(np.float64)
+    if "ratio" in out and (out["ratio"] < 0).any():
+        raise DgtdInputError(f"transitions file {path}: column ratio must be >= 0 (an importance ratio pi(a|s) / "
+                             f"b(a|s)), got {out['ratio'].min():g}")
+    if "terminal" in out and not np.isin(out["terminal"], (0.0, 1.0)).all():
+        bad = out["terminal"][~np.isin(out["terminal"], (0.0, 1.0))][0]
+        raise DgtdInputError(f"transitions file {path}: column terminal must be 0 or 1 (1 where the transition ended "
+                             f"an episode), got {bad:g}")
     return out
 
 

@@ -26,7 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from dgtd.errors import DgtdInputError
+from dgtd.errors import DgtdInputError, call_user, user_error
 from dgtd.samples import Block, SampleTable
 
 
@@ -38,12 +38,20 @@ def random_policy(agent: str, observation, space, rng: np.random.Generator):
     return int(rng.integers(space.n))
 
 
+def named(function) -> str:
+    """A user's function as its messages name it: its qualified name (a partial's function's)."""
+    function = getattr(function, "func", function)
+    return getattr(function, "__qualname__", None) or type(function).__name__
+
+
 def env_state(env, agents) -> np.ndarray:
     """The state the value function is defined on: ``env.state()``, else the observations concatenated."""
     try:
         state = env.state()
     except (NotImplementedError, AttributeError):
         state = None
+    except Exception as e:  # noqa: BLE001  (the user's state() failing: theirs to see)
+        raise user_error(f"the env's state() ({type(env).__name__})", e) from e
     if state is None:
         obs = env._dgtd_last_obs  # set by `EnvSource` at every reset and step
         state = np.concatenate([np.ravel(np.asarray(obs[a], dtype=np.float64)) for a in agents])
@@ -56,12 +64,14 @@ class EnvSource:
     ``make_env()`` returns a fresh ParallelEnv; ``features(states (K, dim)) -> (K, q)``; ``policy(agent,
     observation, space, rng) -> action`` or "random"; ``network``: a RandomEdges over the agents, or None with
     ``positions`` and ``proximity``. ``seed_offset`` separates a reference batch's streams from the run's;
-    ``n_features``: the width every batch of features must have, when known.
+    ``n_features``: the width every batch of features must have, when known; ``name``: the env as errors in the user's
+    code name it (default: ``make_env``'s name).
     """
 
     def __init__(self, make_env: Callable, features: Callable, seed: int, seed_ids, *, policy="random",
                  network=None, positions: Callable | None = None, proximity=None,
-                 reward_map: Callable | None = None, seed_offset: int = 0, n_features: int | None = None):
+                 reward_map: Callable | None = None, seed_offset: int = 0, n_features: int | None = None,
+                 name: str | None = None):
         self.make_env, self.features, self.n_features = make_env, features, n_features
         self.policy = random_policy if policy == "random" else policy
         self.network, self.positions, self.proximity = network, positions, proximity
@@ -69,6 +79,7 @@ class EnvSource:
             raise DgtdInputError("give the environment's network: a random-edge network over its agents, or "
                                  "positions(env) with a proximity network")
         self.reward_map = reward_map
+        self.name = name or named(make_env)
         self.seed, self.seed_ids, self.seed_offset = int(seed), [int(k) for k in seed_ids], int(seed_offset)
         self.envs = self.agents = self.current = None
 
@@ -83,7 +94,7 @@ class EnvSource:
     def start(self) -> None:
         self.envs, self.gens, self.current, self.spaces = [], [], [], []
         for k in self.seed_ids:
-            env = self.make_env()
+            env = call_user(f"{self.name}()", self.make_env)
             gen = self._streams(k)
             for name in ("reset", "step", "possible_agents", "action_space"):
                 if not hasattr(env, name):
@@ -97,7 +108,7 @@ class EnvSource:
         self.agents = list(self.envs[0].possible_agents)
 
     def _reset(self, env, gen) -> np.ndarray:
-        obs, _ = env.reset(seed=int(gen.integers(2**31 - 1)))
+        obs, _ = call_user(f"the env's reset() ({self.name})", env.reset, seed=int(gen.integers(2**31 - 1)))
         env._dgtd_last_obs = obs
         return env_state(env, list(env.possible_agents))
 
@@ -111,15 +122,17 @@ class EnvSource:
         for b, (env, gen, spaces) in enumerate(zip(self.envs, self.gens, self.spaces)):
             for t in range(T):
                 obs = env._dgtd_last_obs
-                actions = {a: self.policy(a, obs[a], spaces[a], gen) for a in env.agents}
+                actions = {a: call_user(f"the policy {named(self.policy)}", self.policy, a, obs[a], spaces[a], gen)
+                           for a in env.agents}
                 if self.positions is not None:
-                    up[t, b] = self.proximity.masks(np.asarray(self.positions(env), dtype=np.float64))
+                    where = call_user(f"positions {named(self.positions)}", self.positions, env)
+                    up[t, b] = self.proximity.masks(np.asarray(where, dtype=np.float64))
                 else:
                     up[t, b] = gen.random(E) < self.network.p
-                obs, rewards, terms, truncs, _ = env.step(actions)
+                obs, rewards, terms, truncs, _ = call_user(f"the env's step() ({self.name})", env.step, actions)
                 env._dgtd_last_obs = obs
                 states[t, b] = self.current[b]
-                r[t, b] = self._rewards(rewards)
+                r[t, b] = self._rewards(rewards, actions)
                 nexts[t, b] = env_state(env, self.agents)
                 terminated = any(terms.get(a, False) for a in self.agents)
                 cont_next[t, b] = 0.0 if terminated else 1.0  # a terminal transition's target is its reward alone
@@ -135,7 +148,7 @@ class EnvSource:
         if not np.isfinite(rows).all():
             raise DgtdInputError("the environment returned NaN or infinite states (its state() or observations); "
                                  "check the env, or wrap it to clip them")
-        phi = np.asarray(self.features(rows), dtype=np.float64)
+        phi = np.asarray(call_user(f"the features {named(self.features)}", self.features, rows), dtype=np.float64)
         if self.n_features is not None and phi.ndim == 2 and phi.shape[1] != self.n_features:
             raise DgtdInputError(f"the features came out {phi.shape[1]} wide, not {self.n_features} as on the first "
                                  "states; features(states) must return the same number of columns for every batch")
@@ -148,16 +161,47 @@ class EnvSource:
         table = SampleTable(phi, np.ones((2 * M, 1)), np.concatenate([np.ones(M), cont_next.ravel()]))
         return Block(index, np.zeros_like(index), index + M, r, up, table)
 
-    def _rewards(self, rewards: dict) -> np.ndarray:
-        r = self.reward_map(rewards) if self.reward_map is not None else [rewards.get(a, 0.0) for a in self.agents]
-        r = np.asarray(r, dtype=np.float64)
+    def _rewards(self, rewards, acted) -> np.ndarray:
+        """Each agent's reward of a step, checked: every agent that acted has one, and each is a number. An agent
+        that did not act at the step (not among the env's live agents) earns 0."""
+        if not isinstance(rewards, dict):
+            raise DgtdInputError(f"the env's step() ({self.name}) returned rewards of type {type(rewards).__name__}, "
+                                 "not a dict of each agent's reward")
+        if self.reward_map is not None:
+            r = call_user(f"the reward map {named(self.reward_map)}", self.reward_map, rewards)
+        else:
+            missing = [a for a in acted if a not in rewards]
+            if missing:
+                raise DgtdInputError(f"the env's step() ({self.name}) gave no reward for "
+                                     f"{', '.join(map(str, missing))}, which acted at that step: every live agent "
+                                     "needs its reward (0 is a reward)")
+            unknown = [a for a in rewards if a not in self.agents]
+            if unknown:
+                raise DgtdInputError(f"the env's step() ({self.name}) gave a reward for "
+                                     f"{', '.join(map(str, unknown))}, not among its possible_agents "
+                                     f"({', '.join(map(str, self.agents))})")
+            r = []
+            for a in self.agents:
+                value = rewards.get(a, 0.0)
+                try:
+                    r.append(float(value))
+                except (TypeError, ValueError):
+                    raise DgtdInputError(f"the env's step() ({self.name}) gave {a} the reward {value!r}, which is "
+                                         "not a number") from None
+        try:
+            r = np.asarray(r, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise DgtdInputError(f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a "
+                                 "finite number") from None
         if r.shape != (len(self.agents),) or not np.isfinite(r).all():
             raise DgtdInputError(f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a "
                                  "finite reward")
         return r
 
+    resumable = False  # a simulator's state cannot be saved: runs on environments take no checkpoints
+
     def get_state(self) -> dict:
-        return {}  # a simulator's state cannot be saved: runs on environments take no checkpoints
+        return {}
 
     def set_state(self, state: dict) -> None:
         raise DgtdInputError("a run on an environment cannot be resumed from a checkpoint; run it again")

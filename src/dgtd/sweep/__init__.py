@@ -21,6 +21,7 @@ from pathlib import Path
 from dgtd.config import ALGORITHM_FIELDS, RunSpec, field_types, make_source, resolve, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import TABLES, Experiment, Output, absolute_paths, to_toml
+from dgtd.run.owner import Owner
 from dgtd.run.store import SweepStore
 
 MAX_ATTEMPTS = 3
@@ -140,8 +141,6 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
     """
     import time
 
-    from tqdm import tqdm
-
     t_start = time.perf_counter()
     if not exp.grid:
         raise DgtdInputError("a sweep needs a [grid] table of lists, e.g. [grid] alpha0 = [1.0, 10.0]; "
@@ -149,6 +148,16 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
     jobs = expand(exp)
     out = Path(out).resolve()
     resume = exp.sweep.resume if exp.sweep.resume is not None else out.exists()
+    with Owner(out, "sweep", exp.output.overwrite):  # the directory is this sweep's until it ends
+        return _sweep_into(exp, jobs, out, resume, echo, progress, t_start)
+
+
+def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, progress: bool, t_start: float) -> dict:
+    """`run_sweep`'s work once ``out`` is its own."""
+    import time
+
+    from tqdm import tqdm
+
     store = SweepStore(out, exp.sweep.format)
     saved = replace(exp, spec=absolute_paths(exp.spec), output=Output(out=str(out), progress=exp.output.progress))
     store.begin(to_toml(saved, "A dgtd sweep: `dgtd sweep THIS_FILE` runs it again, skipping finished jobs."))

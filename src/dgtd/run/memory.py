@@ -1,0 +1,61 @@
+"""What a run will hold in memory, estimated before anything is allocated, against what the machine has free."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from dgtd.errors import DgtdInputError
+
+BYTES = 8  # every array of a run holds float64
+TRACE_MAX, SUM_TRACE_MAX = 2_000_000, 20_000_000  # the run loop keeps its traces only up to these sizes
+
+
+def available_bytes() -> int | None:
+    """The memory free for a new process: MemAvailable of /proc/meminfo, else the physical memory, else None."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def run_bytes(algorithm, seeds: int, agents: int, features: int, arcs: int, checkpoints: int, backend: str) -> int:
+    """About how many bytes a run holds at once (Python integers: no overflow whatever the sizes).
+
+    Per seed, agent and feature: the algorithm's state twice (the state and the next one, or the compiled driver's
+    own copy), its messages twice (the double buffer), the running sum of w, its copy at the tail's start and a
+    row of work; the reference backend also forms each message's differences over the arcs. Per checkpoint: the
+    metrics of every seed and the errors of every agent, and the traces of w and of its sum where the loop keeps
+    them (up to `TRACE_MAX` and `SUM_TRACE_MAX` numbers)."""
+    state = len(algorithm.init(1, 1, 1))
+    messages = len(algorithm.messages)
+    cells = seeds * agents * features
+    numbers = cells * (2 * state + 2 * messages + 3)
+    if backend == "numpy":
+        numbers += seeds * arcs * features * 2 * messages
+    numbers += checkpoints * seeds * (16 + 2 * agents)
+    trace = checkpoints * cells
+    numbers += (trace if trace <= TRACE_MAX else 0) + (trace if trace <= SUM_TRACE_MAX else 0)
+    return BYTES * numbers
+
+
+def check_memory(algorithm, seeds: int, agents: int, features: int, arcs: int, checkpoints: int,
+                 backend: str) -> None:
+    """Refuse, in one line with the estimate and the most seeds that fit, a run that needs more memory than the
+    machine has free."""
+    free = available_bytes()
+    need = run_bytes(algorithm, seeds, agents, features, arcs, checkpoints, backend)
+    if free is None or need <= free:
+        return
+    one = run_bytes(algorithm, 1, agents, features, arcs, checkpoints, backend)
+    fit = free // one
+    lower = (f"lower --seeds to at most {fit:,}" if fit >= 1 else
+             "a single seed does not fit: fewer agents or features, or --checkpoints lower")
+    raise DgtdInputError(f"this run needs about {need / 1e9:,.1f} GB ({seeds:,} seeds x {agents:,} agents x "
+                         f"{features:,} features), more than the {free / 1e9:,.1f} GB free on this machine; {lower}")

@@ -1,0 +1,155 @@
+"""Every value is checked where it enters: one line and exit code 2, whatever class of bad input it is (numbers out
+of range, a run too large for the machine, files that are not what their names say, recordings with impossible
+columns, a user's simulator that raises or leaves an agent out).
+
+Each class has several examples; a new bad input of a known class belongs in its table."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_new_user import one_line_error
+
+RUN = ("run", "paper-example-1", "--no-progress", "--no-plots")
+HUGE = 10**23  # an integer no 64-bit field holds
+
+NUMBERS = {
+    "negative seed": (("--seed", -1, "-T", 10), "seed must be"),
+    "seed beyond 64 bits": (("--seed", HUGE, "-T", 10), "seed must be"),
+    "iterations beyond 64 bits": (("-T", HUGE), "iterations must be"),
+    "seeds beyond 64 bits": (("--seeds", HUGE, "-T", 10), "seeds"),
+    "block size beyond 64 bits": (("--block-size", HUGE, "-T", 10), "block_size must be"),
+    "checkpoints beyond 64 bits": (("--checkpoints", HUGE, "-T", 10), "checkpoints must be"),
+    "checkpoint-every beyond 64 bits": (("--checkpoint-every", HUGE, "-T", 10), "checkpoint_every must be"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(NUMBERS))
+def test_numbers_out_of_range(run_cli, tmp_path, case):
+    args, words = NUMBERS[case]
+    one_line_error(*run_cli(*RUN, *args, "--out", tmp_path / "o"), words)
+
+
+@pytest.mark.parametrize("seeds", [10**8, 10**12])
+def test_a_run_larger_than_the_machine_is_refused_with_its_estimate(run_cli, tmp_path, seeds):
+    """Before anything is allocated: the estimate, the memory there is, and the option to lower."""
+    code, out, err = run_cli(*RUN, "--seeds", seeds, "-T", 10, "--out", tmp_path / "o")
+    one_line_error(code, out, err, "needs about", "GB", "--seeds")
+
+
+def test_checkpoints_are_capped_at_the_iterations(run_cli, tmp_path):
+    """--checkpoints beyond the iterations records every step once (it used to allocate for all of them)."""
+    code, _, err = run_cli(*RUN, "-T", 50, "--checkpoints", 10**9, "--out", tmp_path / "o")
+    assert code == 0, err
+    steps = {int(line.split(",")[2]) for line in (tmp_path / "o" / "metrics.csv").read_text().splitlines()[1:]}
+    assert steps == set(range(1, 51))
+
+
+def _recordings(path: Path, **change) -> str:
+    """Two recordings of two agents over ten steps on two states, with columns changed as ``change`` says."""
+    n = 40
+    columns = dict(seed=np.repeat([0, 1], n // 2), step=np.tile(np.repeat(np.arange(n // 4), 2), 2),
+                   agent=np.tile([0, 1], n // 2), state=np.tile([0, 1], n // 2), next_state=np.tile([1, 0], n // 2),
+                   reward=np.ones(n))
+    columns.update(change)
+    np.savez(path, **columns)
+    return str(path)
+
+
+DATA = {
+    "a column shorter than the others": (dict(state=np.zeros(39, int)), "columns of different lengths"),
+    "a column longer than the others": (dict(reward=np.ones(41)), "columns of different lengths"),
+    "a negative importance ratio": (dict(ratio=np.r_[np.ones(39), -1.0]), "ratio must be >= 0"),
+    "a terminal flag of 2": (dict(terminal=np.r_[np.zeros(39, int), 2]), "terminal must be 0 or 1"),
+    "a terminal flag of -1": (dict(terminal=np.r_[np.zeros(39, int), -1]), "terminal must be 0 or 1"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DATA))
+def test_impossible_recordings(run_cli, tmp_path, case):
+    change, words = DATA[case]
+    data = _recordings(tmp_path / "data.npz", **change)
+    one_line_error(*run_cli("run", "--data", data, "-T", 5, "--out", tmp_path / "o", "--no-progress"), words)
+
+
+def test_files_whose_content_is_not_what_their_name_says(run_cli, tmp_path):
+    """An .npy array saved under an .npz name, for every option that reads an .npz."""
+    fake = tmp_path / "array.npz"
+    with open(fake, "wb") as f:
+        np.save(f, np.zeros(3))
+    for args in (("solve", "--problem", fake), ("run", "--problem", fake, "-T", 5), ("run", "--data", fake, "-T", 5),
+                 ("compare", "--problem", fake, "-T", 5)):
+        one_line_error(*run_cli(*args, "--out", tmp_path / "o") if args[0] != "solve" else run_cli(*args),
+                       "one .npy array, not an .npz")
+
+
+pytest.importorskip("pettingzoo", reason="the environment extra (pip install dgtd[envs]) is not installed")
+
+ENVS = Path(__file__).resolve().parent / "envs" / "chain.py"
+
+ENV = {
+    "step() raises": (("--env", f"{ENVS}:make_raising"), ("make_raising", "step()", "RuntimeError", "--debug")),
+    "an agent left out of the rewards": (("--env", f"{ENVS}:make_missing_reward"), ("agent_2", "no reward")),
+    "rewards that are not numbers": (("--env", f"{ENVS}:make_text_reward"), ("agent_0", "'high'", "number")),
+    "a reward for an agent that does not exist": (("--env", f"{ENVS}:make_extra_reward"), ("agent_9",)),
+    "no rewards dictionary": (("--env", f"{ENVS}:make_no_rewards"), ("rewards", "dict")),
+    "the policy raises": (("--env", f"{ENVS}:make_chain", "--policy", f"{ENVS}:raising_policy"),
+                          ("raising_policy", "KeyError", "--debug")),
+    "the features raise": (("--env", f"{ENVS}:make_chain", "--features", f"{ENVS}:raising_features"),
+                           ("raising_features", "ZeroDivisionError", "--debug")),
+}
+
+
+@pytest.mark.parametrize("case", sorted(ENV))
+def test_a_users_env_that_goes_wrong(run_cli, tmp_path, case):
+    args, words = ENV[case]
+    one_line_error(*run_cli("run", *args, "-T", 50, "--out", tmp_path / "o", "--no-progress"), *words)
+
+
+def test_debug_shows_the_users_traceback(run_cli, tmp_path):
+    code, out, err = run_cli("--debug", "run", "--env", f"{ENVS}:make_raising", "-T", 50, "--out", tmp_path / "o",
+                             "--no-progress")
+    assert code == 2
+    assert "Traceback" in err and "the user's step() failed" in err and "chain.py" in err
+
+
+def test_checkpoints_of_a_run_that_cannot_resume_are_refused_at_the_start(run_cli, tmp_path):
+    code, out, err = run_cli("run", "--env", f"{ENVS}:make_chain", "-T", 50, "--checkpoint-every", 10,
+                             "--out", tmp_path / "o", "--no-progress")
+    one_line_error(code, out, err, "cannot be resumed", "--checkpoint-every")
+    assert not (tmp_path / "o" / "summary.json").exists()
+
+
+def test_a_good_env_still_runs(run_cli, tmp_path):
+    code, _, err = run_cli("run", "--env", f"{ENVS}:make_chain", "-T", 50, "--out", tmp_path / "o", "--no-progress",
+                           "--no-plots")
+    assert code == 0, err
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["config"]["iterations"] == 50
+
+
+def test_an_env_file_imports_its_helper_modules(run_cli, tmp_path):
+    """--env path/to/file.py:make puts the file's folder on the import path, as running the file would."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "chain_helper.py").write_text(f"import sys\nsys.path.insert(0, {str(ENVS.parent.parent)!r})\n"
+                                            "from envs.chain import make_chain\n")
+    (folder / "my_env.py").write_text("from chain_helper import make_chain\n\n\ndef make():\n    return make_chain()\n")
+    code, _, err = run_cli("run", "--env", f"{folder / 'my_env.py'}:make", "-T", 50, "--out", tmp_path / "o",
+                           "--no-progress", "--no-plots")
+    assert code == 0, err
+
+
+def test_an_env_runs_step_size_reads_the_same_in_both_lines(run_cli, tmp_path):
+    """The algorithm's line and the env's description print alpha0 alike (they read 9.99999 and 10)."""
+    import re
+
+    code, text, err = run_cli("run", "--env", f"{ENVS}:make_chain", "--features", "one-hot", "-T", 50,
+                              "--out", tmp_path / "o", "--no-progress", "--no-plots")
+    assert code == 0, err
+    in_algorithm = re.search(r"alpha_k = ([0-9.e+-]+)/", text).group(1)
+    in_description = re.search(r"lambda_max\(L\)\) = ([0-9.e+-]+)", text).group(1)
+    assert in_algorithm == in_description, text
