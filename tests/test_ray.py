@@ -113,3 +113,43 @@ def test_killed_ray_worker_job_is_retried(tmp_path, reference):
     assert_same_table(table_of(out), table_of(reference))
     index = json.loads((out / "sweep.json").read_text())
     assert np.all([j["status"] == "finished" for j in index["jobs"]])
+
+
+@pytest.mark.slow  # starts a `ray start` cluster and three sweeps beside it: about 40 s
+def test_a_ray_start_cluster_on_loopback(tmp_path, reference):
+    """A `ray start --head` cluster on 127.0.0.1 (in a loopback-only namespace, stopped at the end): a sweep sent to
+    it by address without RAY_AUTH_MODE=token is refused in one line that says so (Ray 2.60 turns token
+    authentication on); with it, the sweep runs there and gives the pool's table; and a sweep without --address
+    beside the running cluster starts a local Ray of its own instead of joining it, as it does after the cluster
+    was killed uncleanly."""
+    ray = shlex.quote(str(Path(dgtd_cmd()[0]).parent / "ray"))
+    sweep = shlex.quote(str(sweep_file(tmp_path)))
+    dgtd = shlex.join(dgtd_cmd())
+    logs = {name: tmp_path / f"{name}.log" for name in ("refused", "token", "beside", "after")}
+    q = {name: shlex.quote(str(path)) for name, path in logs.items()}
+    out = {name: shlex.quote(str(tmp_path / name)) for name in logs}
+    script = " ; ".join([
+        f"timeout 90 {ray} start --head --node-ip-address=127.0.0.1 --port=6391 --num-cpus=2 "
+        "--include-dashboard=false --disable-usage-stats > /dev/null 2>&1",
+        f"timeout 120 {dgtd} sweep {sweep} --out {out['refused']} --executor ray --address 127.0.0.1:6391 "
+        f"--no-progress > {q['refused']} 2>&1; echo refused=$? >> {q['refused']}",
+        f"RAY_AUTH_MODE=token timeout 300 {dgtd} sweep {sweep} --out {out['token']} --executor ray "
+        f"--address 127.0.0.1:6391 --no-progress > {q['token']} 2>&1; echo token=$? >> {q['token']}",
+        f"timeout 300 {dgtd} sweep {sweep} --out {out['beside']} --executor ray --workers 2 --no-progress "
+        f"> {q['beside']} 2>&1; echo beside=$? >> {q['beside']}",
+        "pkill -9 -f 'gcs_serve[r]' ; pkill -9 -f 'rayle[t]' ; sleep 2",  # [r]: not this script's own line
+        f"timeout 300 {dgtd} sweep {sweep} --out {out['after']} --executor ray --workers 2 --no-progress "
+        f"> {q['after']} 2>&1; echo after=$? >> {q['after']}",
+        f"timeout 60 {ray} stop --force > /dev/null 2>&1",
+    ])
+    subprocess.run(in_namespace(script), env=ray_env(), capture_output=True, text=True, timeout=1200)
+    text = {name: path.read_text() for name, path in logs.items()}
+    assert "refused=2" in text["refused"], text["refused"]
+    errors = [line for line in text["refused"].splitlines() if line.startswith("dgtd: error:")]
+    assert len(errors) == 1 and "RAY_AUTH_MODE=token" in errors[0], text["refused"]
+    assert "Traceback" not in text["refused"] and "gcs_client" not in text["refused"]
+    assert "token=0" in text["token"] and "12 jobs run" in text["token"], text["token"]
+    assert_same_table(table_of(tmp_path / "token"), table_of(reference))
+    for name in ("beside", "after"):
+        assert f"{name}=0" in text[name] and "a local Ray on 127.0.0.1" in text[name], text[name]
+        assert_same_table(table_of(tmp_path / name), table_of(reference))
