@@ -35,8 +35,9 @@ BEGIN, END = "<!-- env-throughput: begin -->", "<!-- env-throughput: end -->"
 CHAIN = f"{ROOT / 'tests' / 'envs' / 'chain.py'}:make_chain"
 ENVS = {  # name -> the run's spec
     "chain (PettingZoo, 3 agents, one-hot)": RunSpec(env={"make": CHAIN, "features": "one-hot"}),
-    "CartPole-v1 split among 3 (Gymnasium, fourier:2)": RunSpec(env={"make": "gymnasium:CartPole-v1", "agents": 3,
-                                                                   "features": "fourier:2"}),
+    "CartPole-v1 split among 3 (Gymnasium, fourier:2)": RunSpec(
+        env={"make": "gymnasium:CartPole-v1", "agents": 3, "features": "fourier:2"}
+    ),
     "mpe-spread, 3 agents (MPE2)": RunSpec(scenario="mpe-spread", params={"agents": 3}),
     "mpe-spread, 6 agents (MPE2)": RunSpec(scenario="mpe-spread", params={"agents": 6}),
 }
@@ -92,18 +93,24 @@ def main() -> None:
             rates[name]["env alone"].append(env_alone(make_source(0, [0]), STEPS // 4))
             rates[name]["sampling"].append(sampling(make_source, STEPS))
             rates[name]["run"].append(whole_run(problem, network, algorithm, samp, make_source, STEPS))
-            print(f"repeat {r + 1}: {name}: " + ", ".join(f"{k} {v[-1]:,.0f}/s" for k, v in rates[name].items()),
-                  flush=True)
-    table = ["| environment | agents | env alone (env steps/s) | sampling (env steps/s) | run (env steps/s) | run "
-             "(agent-steps/s) | dgtd's share of a run's time, per repeat |",
-             "|---|---|---|---|---|---|---|"]
+            print(
+                f"repeat {r + 1}: {name}: " + ", ".join(f"{k} {v[-1]:,.0f}/s" for k, v in rates[name].items()),
+                flush=True,
+            )
+    table = [
+        "| environment | agents | env alone (env steps/s) | sampling (env steps/s) | run (env steps/s) | run "
+        "(agent-steps/s) | dgtd's share of a run's time, per repeat |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for name, (problem, *_rest) in prepared.items():
         n = problem.n_agents
         env, samp, whole = (np.array(rates[name][k]) for k in ("env alone", "sampling", "run"))
         span = lambda x, f=1: f"{x.min() * f:,.0f} - {x.max() * f:,.0f}"  # noqa: E731
         share = 1 - whole / env  # paired within a repeat, as the machine's load changes between repeats
-        table.append(f"| {name} | {n} | {span(env)} | {span(samp)} | {span(whole)} | {span(whole, n)} | "
-                     f"{share.min():.0%} - {share.max():.0%} |")
+        table.append(
+            f"| {name} | {n} | {span(env)} | {span(samp)} | {span(whole)} | {span(whole, n)} | "
+            f"{share.min():.0%} - {share.max():.0%} |"
+        )
     text = "\n".join(table) + f"\n\n{args.repeats} interleaved repeats, {SEEDS} copies, {machine()}."
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "env_throughput.md").write_text(text + "\n")
@@ -114,8 +121,9 @@ def main() -> None:
         old = docs.read_text()
         if BEGIN not in old:
             raise SystemExit(f"{docs} has no {BEGIN} marker")
-        docs.write_text(re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: f"{BEGIN}\n{text}\n{END}", old,
-                               flags=re.S))
+        docs.write_text(
+            re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: f"{BEGIN}\n{text}\n{END}", old, flags=re.S)
+        )
 
 
 if __name__ == "__main__":

@@ -50,8 +50,10 @@ def per_agent_loop(problem, network, algorithm, seeds: int, iterations: int, d: 
                 s = rng.choice(S, p=d)
                 sn = rng.choice(S, p=P[s])
                 sample = Sample(Phi[s][None, None], Phi[sn][None, None], np.array([[R[i, s]]]), np.ones((1, 1)), gamma)
-                sums = {name: sum((sent[i][name] - sent[j][name] for j in neighbours[i]), np.zeros((1, 1, q)))
-                        for name in algorithm.messages}
+                sums = {
+                    name: sum((sent[i][name] - sent[j][name] for j in neighbours[i]), np.zeros((1, 1, q)))
+                    for name in algorithm.messages
+                }
                 new.append(algorithm.update(agents[i], sample, _AgentInbox(sums), alpha))
             agents = new
     return time.perf_counter() - t0

@@ -28,8 +28,8 @@ from per_agent_loop import per_agent_loop  # noqa: E402
 from dgtd.algorithms import ALGORITHMS  # noqa: E402
 from dgtd.cli.bench import CASES, beside_a_busy_process, markdown, measure, scaling  # noqa: E402
 from dgtd.problems import exact  # noqa: E402
-from dgtd.scenarios import get_scenario  # noqa: E402
 from dgtd.run.loop import RunSettings, run  # noqa: E402
+from dgtd.scenarios import get_scenario  # noqa: E402
 
 
 def loop_rows(keys, repeats):
@@ -41,8 +41,18 @@ def loop_rows(keys, repeats):
         T = {"A": 4000, "B": 60}[key]
         secs = [per_agent_loop(problem, network, algorithm, seeds, T, d) for _ in range(repeats)]
         rate = T * seeds * problem.n_agents / float(np.median(secs))
-        rows.append({"case": key, "backend": "per-agent loop", "N": problem.n_agents, "q": problem.n_features,
-                     "seeds": seeds, "iterations": T, "seconds": secs, "agent_steps_per_s": rate})
+        rows.append(
+            {
+                "case": key,
+                "backend": "per-agent loop",
+                "N": problem.n_agents,
+                "q": problem.n_features,
+                "seeds": seeds,
+                "iterations": T,
+                "seconds": secs,
+                "agent_steps_per_s": rate,
+            }
+        )
         print(f"{key} per-agent loop {rate:14,.0f} agent-steps/s")
     return rows
 
@@ -59,15 +69,31 @@ def time_to_accuracy(target=0.05, seeds=4):
     # the first checkpoint from which the worst seed stays below target
     first = next((c for c in range(len(ok)) if ok[c:].all()), None)
     step = int(res.steps[first]) if first is not None else None
-    return {"target": target, "seeds": seeds, "iterations_needed": step,
-            "agent_steps_needed": None if step is None else step * sc.problem.n_agents * seeds,
-            "seconds_full_run": secs, "seconds_to_target": None if step is None else secs * step / sc.iterations}
+    return {
+        "target": target,
+        "seeds": seeds,
+        "iterations_needed": step,
+        "agent_steps_needed": None if step is None else step * sc.problem.n_agents * seeds,
+        "seconds_full_run": secs,
+        "seconds_to_target": None if step is None else secs * step / sc.iterations,
+    }
 
 
 def startup_seconds():
     """Wall time of `dgtd run paper-example-1 -T 1` in a fresh process (compiled kernels come from the cache)."""
-    cmd = [sys.executable, "-m", "dgtd.cli", "run", "paper-example-1", "-T", "1", "--no-progress", "--no-plots",
-           "--out", "/tmp/dgtd-startup"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "dgtd.cli",
+        "run",
+        "paper-example-1",
+        "-T",
+        "1",
+        "--no-progress",
+        "--no-plots",
+        "--out",
+        "/tmp/dgtd-startup",
+    ]
     subprocess.run(cmd, check=True, capture_output=True)
     times = []
     for _ in range(3):
@@ -126,13 +152,18 @@ def main():
     names = tuple(ALGORITHMS) if args.algorithms == "all" else tuple(args.algorithms.split(","))
     report = measure(keys, repeats=args.repeats, algorithms=names)
     if args.scaling:
-        report["scaling"] = {"idle": scaling(repeats=args.repeats),
-                             "busy": beside_a_busy_process(lambda: scaling(repeats=args.repeats))}
+        report["scaling"] = {
+            "idle": scaling(repeats=args.repeats),
+            "busy": beside_a_busy_process(lambda: scaling(repeats=args.repeats)),
+        }
     loops = loop_rows([k for k in keys if k in ("A", "B")], args.repeats)
     speedups = {}
     for lr in loops:
-        fast = next(r for r in report["rows"] if r["case"] == lr["case"] and r["backend"] == "numba"
-                    and r.get("algorithm", "dgtd") == "dgtd")
+        fast = next(
+            r
+            for r in report["rows"]
+            if r["case"] == lr["case"] and r["backend"] == "numba" and r.get("algorithm", "dgtd") == "dgtd"
+        )
         speedups[lr["case"]] = fast["agent_steps_per_s"] / lr["agent_steps_per_s"]
     report["per_agent_loop"] = loops
     report["speedup_numba_over_loop"] = speedups
@@ -144,25 +175,37 @@ def main():
         # a default Python writes it on the first run
         cached = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         report["first_iteration_seconds_bytecode_cached"] = first_iteration_seconds(env=cached)
-    per_step = {r["case"]: 1 / r["agent_steps_per_s"] for r in report["rows"]
-                if r["backend"] == "numba" and r.get("algorithm", "dgtd") == "dgtd"}
+    per_step = {
+        r["case"]: 1 / r["agent_steps_per_s"]
+        for r in report["rows"]
+        if r["backend"] == "numba" and r.get("algorithm", "dgtd") == "dgtd"
+    }
     if "B" in per_step and "D" in per_step:
         report["cost_ratio_D_over_B"] = per_step["D"] / per_step["B"]
     md = markdown(report, loops)
-    md += "\n\n" + "\n".join(f"- Speed-up of numba over the per-agent loop on {k}: {v:,.0f}x" for k, v in speedups.items())
+    md += "\n\n" + "\n".join(
+        f"- Speed-up of numba over the per-agent loop on {k}: {v:,.0f}x" for k, v in speedups.items()
+    )
     tta = report["time_to_accuracy_paper_example_1"]
-    md += (f"\n- paper-example-1, {tta['seeds']} seeds: every agent's averaged iterate stays within "
-           f"{tta['target']:.0%} of w* from iteration {tta['iterations_needed']:,} on, "
-           f"{tta['seconds_to_target']:.2f} s of a {tta['seconds_full_run']:.2f} s run of 10^6 iterations")
-    md += f"\n- A second `dgtd run paper-example-1 -T 1` in a fresh process takes {report['startup_seconds_second_run']:.2f} s in all"
+    md += (
+        f"\n- paper-example-1, {tta['seeds']} seeds: every agent's averaged iterate stays within "
+        f"{tta['target']:.0%} of w* from iteration {tta['iterations_needed']:,} on, "
+        f"{tta['seconds_to_target']:.2f} s of a {tta['seconds_full_run']:.2f} s run of 10^6 iterations"
+    )
+    second = report["startup_seconds_second_run"]
+    md += f"\n- A second `dgtd run paper-example-1 -T 1` in a fresh process takes {second:.2f} s in all"
     first = report["first_iteration_seconds"]
-    md += (f"\n- A fresh `dgtd run paper-example-1` has run its first block of iterations {np.median(first):.2f} s"
-           f" after the process starts (median of {len(first)}: {', '.join(f'{x:.2f}' for x in first)})")
+    md += (
+        f"\n- A fresh `dgtd run paper-example-1` has run its first block of iterations {np.median(first):.2f} s"
+        f" after the process starts (median of {len(first)}: {', '.join(f'{x:.2f}' for x in first)})"
+    )
     if "first_iteration_seconds_bytecode_cached" in report:
         cached = report["first_iteration_seconds_bytecode_cached"]
-        md += (f"; with Python's bytecode cache written, {np.median(cached):.2f} s (median of {len(cached)}:"
-               f" {', '.join(f'{x:.2f}' for x in cached)}; this environment sets PYTHONDONTWRITEBYTECODE, under which"
-               f" a fresh checkout compiles dgtd's modules in every process)")
+        md += (
+            f"; with Python's bytecode cache written, {np.median(cached):.2f} s (median of {len(cached)}:"
+            f" {', '.join(f'{x:.2f}' for x in cached)}; this environment sets PYTHONDONTWRITEBYTECODE, under which"
+            f" a fresh checkout compiles dgtd's modules in every process)"
+        )
     if "cost_ratio_D_over_B" in report:
         md += f"\n- Cost per agent-step, N = 10 000 (D) over N = 16 (B): {report['cost_ratio_D_over_B']:.2f}x"
     out = Path(args.out)

@@ -43,8 +43,14 @@ from dgtd.run.loop import RunSettings, run
 from dgtd.scenarios import get_scenario
 
 # Task -> agent-steps budget (iterations): sized so that at least three methods reach 10 % on every task.
-TASKS = {"paper-example-1": 400_000, "baird": 4_000_000, "boyan": 100_000, "random-mdp": 100_000,
-         "random-mdp-off": 100_000, "garnet": 100_000}
+TASKS = {
+    "paper-example-1": 400_000,
+    "baird": 4_000_000,
+    "boyan": 100_000,
+    "random-mdp": 100_000,
+    "random-mdp-off": 100_000,
+    "garnet": 100_000,
+}
 THRESHOLDS = (0.10, 0.01)
 OUTPUTS = ("last", "tail")
 TUNE_SEEDS = 3
@@ -112,19 +118,33 @@ def task_rows(task: str, algorithms, seeds: int, iterations: int | None, backend
         out = outputs[name]
         Y = r.metrics[f"value_error_{out}"]
         div = r.info["diverged_at"]
-        row = {"task": task, "algorithm": name, "output": out, "alpha0": used[name].alpha0,
-               "schedule": steps_text(used[name]), "iterations": T, "seeds": seeds, "agents": sc.problem.n_agents,
-               "samples_budget": T * sc.problem.n_agents, "diverged_seeds": int(np.sum(div >= 0)),
-               "final_error": band(np.nan_to_num(Y[-1], nan=np.inf)), "seconds": r.seconds}
+        row = {
+            "task": task,
+            "algorithm": name,
+            "output": out,
+            "alpha0": used[name].alpha0,
+            "schedule": steps_text(used[name]),
+            "iterations": T,
+            "seeds": seeds,
+            "agents": sc.problem.n_agents,
+            "samples_budget": T * sc.problem.n_agents,
+            "diverged_seeds": int(np.sum(div >= 0)),
+            "final_error": band(np.nan_to_num(Y[-1], nan=np.inf)),
+            "seconds": r.seconds,
+        }
         for th in THRESHOLDS:
             key = f"{th:.0%}"
             row[f"samples_to_{key}"] = band(first_stay_below(r.info["counts"]["samples"], Y, th))
             row[f"messages_to_{key}"] = band(first_stay_below(r.info["counts"]["messages"], Y, th))
         rows.append(row)
-        print(f"{task:<16}{name:<15}{out:<6}" + "".join(f"{_fmt(row, f'samples_to_{th:.0%}'):>34}"
-                                                      for th in THRESHOLDS), flush=True)
-    print(f"{task}: {wall:.1f} s (tuning and runs) for {len(results)} algorithms x {seeds} seeds x {T:,} iterations",
-          flush=True)
+        print(
+            f"{task:<16}{name:<15}{out:<6}" + "".join(f"{_fmt(row, f'samples_to_{th:.0%}'):>34}" for th in THRESHOLDS),
+            flush=True,
+        )
+    print(
+        f"{task}: {wall:.1f} s (tuning and runs) for {len(results)} algorithms x {seeds} seeds x {T:,} iterations",
+        flush=True,
+    )
     return rows
 
 
@@ -152,20 +172,27 @@ def reached(rows: list, task: str, threshold: str = "10%") -> list[str]:
 
 
 def markdown(rows: list, header: str) -> str:
-    lines = [header, "",
-             "| task | algorithm | output | step sizes | samples to 10 % | samples to 1 % | messages to 1 % | "
-             "final error |",
-             "|---|---|---|---|---:|---:|---:|---:|"]
+    lines = [
+        header,
+        "",
+        "| task | algorithm | output | step sizes | samples to 10 % | samples to 1 % | messages to 1 % | final error |",
+        "|---|---|---|---|---:|---:|---:|---:|",
+    ]
     for r in rows:
         fe = r["final_error"]
-        final = ("diverged" if r["diverged_seeds"] * 2 > r["seeds"] else f"{fe[0]:.2%}" if np.isfinite(fe[0])
-                 else "n/a")
-        lines.append(f"| {r['task']} | {r['algorithm']} | {r['output']} | {r['schedule']} | "
-                     f"{_fmt(r, 'samples_to_10%')} | {_fmt(r, 'samples_to_1%')} | {_fmt(r, 'messages_to_1%')} | "
-                     f"{final} |")
+        final = "diverged" if r["diverged_seeds"] * 2 > r["seeds"] else f"{fe[0]:.2%}" if np.isfinite(fe[0]) else "n/a"
+        lines.append(
+            f"| {r['task']} | {r['algorithm']} | {r['output']} | {r['schedule']} | "
+            f"{_fmt(r, 'samples_to_10%')} | {_fmt(r, 'samples_to_1%')} | {_fmt(r, 'messages_to_1%')} | "
+            f"{final} |"
+        )
     tasks = list(dict.fromkeys(r["task"] for r in rows))
-    lines += ["", "Methods reaching 10 % (median over seeds) within the budget: " +
-              "; ".join(f"{t} {len(reached(rows, t))}" for t in tasks) + "."]
+    lines += [
+        "",
+        "Methods reaching 10 % (median over seeds) within the budget: "
+        + "; ".join(f"{t} {len(reached(rows, t))}" for t in tasks)
+        + ".",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -203,13 +230,15 @@ def plot(rows: list, path: Path) -> None:
         ax.set_title(task, fontsize=9)
         ax.set_xlabel("agent-samples (median, 5-95 % band over seeds)", fontsize=8)
         ax.grid(alpha=0.3, axis="x", which="both")
-    for ax in axes.ravel()[len(tasks):]:
+    for ax in axes.ravel()[len(tasks) :]:
         ax.axis("off")
     handles, labels = axes.ravel()[0].get_legend_handles_labels()  # below the panels, where it covers no bar
     fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8, frameon=False)
-    fig.suptitle("agent-samples until every agent's value error |Phi (w_i - w*)|_d / |Phi w*|_d stays within 10 % / 1 %"
-                 "\n(step sizes tuned on separate seeds; each method's better output, last iterate or tail average)",
-                 fontsize=10)
+    fig.suptitle(
+        "agent-samples until every agent's value error |Phi (w_i - w*)|_d / |Phi w*|_d stays within 10 % / 1 %"
+        "\n(step sizes tuned on separate seeds; each method's better output, last iterate or tail average)",
+        fontsize=10,
+    )
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -241,16 +270,20 @@ def main(argv=None) -> None:
     t0 = time.perf_counter()
     rows = []
     for task in args.tasks.split(","):
-        rows += task_rows(task.strip(), [a.strip() for a in args.algorithms.split(",")], args.seeds, args.iterations,
-                          args.backend)
+        rows += task_rows(
+            task.strip(), [a.strip() for a in args.algorithms.split(",")], args.seeds, args.iterations, args.backend
+        )
     total = time.perf_counter() - t0
-    header = (f"Measured {datetime.date.today().isoformat()} on {machine()}; {args.seeds} seeds per algorithm, step "
-              f"sizes and outputs tuned on {TUNE_SEEDS} separate seeds, {args.backend} backend; whole benchmark "
-              f"{total:.0f} s (`python benchmarks/time_to_accuracy.py`).")
+    header = (
+        f"Measured {datetime.date.today().isoformat()} on {machine()}; {args.seeds} seeds per algorithm, step "
+        f"sizes and outputs tuned on {TUNE_SEEDS} separate seeds, {args.backend} backend; whole benchmark "
+        f"{total:.0f} s (`python benchmarks/time_to_accuracy.py`)."
+    )
     table = markdown(rows, header)
     (out / "time_to_accuracy.md").write_text(table)
-    (out / "time_to_accuracy.json").write_text(json.dumps({"machine": machine(), "seconds": total, "rows": rows},
-                                                          indent=2, default=float))
+    (out / "time_to_accuracy.json").write_text(
+        json.dumps({"machine": machine(), "seconds": total, "rows": rows}, indent=2, default=float)
+    )
     plot(rows, out / "time_to_accuracy.png")
     if args.docs:
         write_docs(table, out / "time_to_accuracy.png")

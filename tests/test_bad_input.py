@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from test_new_user import one_line_error
 
 RUN = ("run", "paper-example-1", "--no-progress", "--no-plots")
@@ -52,9 +51,14 @@ def test_checkpoints_are_capped_at_the_iterations(run_cli, tmp_path):
 def _recordings(path: Path, **change) -> str:
     """Two recordings of two agents over ten steps on two states, with columns changed as ``change`` says."""
     n = 40
-    columns = dict(seed=np.repeat([0, 1], n // 2), step=np.tile(np.repeat(np.arange(n // 4), 2), 2),
-                   agent=np.tile([0, 1], n // 2), state=np.tile([0, 1], n // 2), next_state=np.tile([1, 0], n // 2),
-                   reward=np.ones(n))
+    columns = dict(
+        seed=np.repeat([0, 1], n // 2),
+        step=np.tile(np.repeat(np.arange(n // 4), 2), 2),
+        agent=np.tile([0, 1], n // 2),
+        state=np.tile([0, 1], n // 2),
+        next_state=np.tile([1, 0], n // 2),
+        reward=np.ones(n),
+    )
     columns.update(change)
     np.savez(path, **columns)
     return str(path)
@@ -81,10 +85,16 @@ def test_files_whose_content_is_not_what_their_name_says(run_cli, tmp_path):
     fake = tmp_path / "array.npz"
     with open(fake, "wb") as f:
         np.save(f, np.zeros(3))
-    for args in (("solve", "--problem", fake), ("run", "--problem", fake, "-T", 5), ("run", "--data", fake, "-T", 5),
-                 ("compare", "--problem", fake, "-T", 5)):
-        one_line_error(*run_cli(*args, "--out", tmp_path / "o") if args[0] != "solve" else run_cli(*args),
-                       "one .npy array, not an .npz")
+    for args in (
+        ("solve", "--problem", fake),
+        ("run", "--problem", fake, "-T", 5),
+        ("run", "--data", fake, "-T", 5),
+        ("compare", "--problem", fake, "-T", 5),
+    ):
+        one_line_error(
+            *run_cli(*args, "--out", tmp_path / "o") if args[0] != "solve" else run_cli(*args),
+            "one .npy array, not an .npz",
+        )
 
 
 pytest.importorskip("pettingzoo", reason="the environment extra (pip install dgtd[envs]) is not installed")
@@ -97,10 +107,14 @@ ENV = {
     "rewards that are not numbers": (("--env", f"{ENVS}:make_text_reward"), ("agent_0", "'high'", "number")),
     "a reward for an agent that does not exist": (("--env", f"{ENVS}:make_extra_reward"), ("agent_9",)),
     "no rewards dictionary": (("--env", f"{ENVS}:make_no_rewards"), ("rewards", "dict")),
-    "the policy raises": (("--env", f"{ENVS}:make_chain", "--policy", f"{ENVS}:raising_policy"),
-                          ("raising_policy", "KeyError", "--debug")),
-    "the features raise": (("--env", f"{ENVS}:make_chain", "--features", f"{ENVS}:raising_features"),
-                           ("raising_features", "ZeroDivisionError", "--debug")),
+    "the policy raises": (
+        ("--env", f"{ENVS}:make_chain", "--policy", f"{ENVS}:raising_policy"),
+        ("raising_policy", "KeyError", "--debug"),
+    ),
+    "the features raise": (
+        ("--env", f"{ENVS}:make_chain", "--features", f"{ENVS}:raising_features"),
+        ("raising_features", "ZeroDivisionError", "--debug"),
+    ),
 }
 
 
@@ -111,22 +125,34 @@ def test_a_users_env_that_goes_wrong(run_cli, tmp_path, case):
 
 
 def test_debug_shows_the_users_traceback(run_cli, tmp_path):
-    code, out, err = run_cli("--debug", "run", "--env", f"{ENVS}:make_raising", "-T", 50, "--out", tmp_path / "o",
-                             "--no-progress")
+    code, out, err = run_cli(
+        "--debug", "run", "--env", f"{ENVS}:make_raising", "-T", 50, "--out", tmp_path / "o", "--no-progress"
+    )
     assert code == 2
     assert "Traceback" in err and "the user's step() failed" in err and "chain.py" in err
 
 
 def test_checkpoints_of_a_run_that_cannot_resume_are_refused_at_the_start(run_cli, tmp_path):
-    code, out, err = run_cli("run", "--env", f"{ENVS}:make_chain", "-T", 50, "--checkpoint-every", 10,
-                             "--out", tmp_path / "o", "--no-progress")
+    code, out, err = run_cli(
+        "run",
+        "--env",
+        f"{ENVS}:make_chain",
+        "-T",
+        50,
+        "--checkpoint-every",
+        10,
+        "--out",
+        tmp_path / "o",
+        "--no-progress",
+    )
     one_line_error(code, out, err, "cannot be resumed", "--checkpoint-every")
     assert not (tmp_path / "o" / "summary.json").exists()
 
 
 def test_a_good_env_still_runs(run_cli, tmp_path):
-    code, _, err = run_cli("run", "--env", f"{ENVS}:make_chain", "-T", 50, "--out", tmp_path / "o", "--no-progress",
-                           "--no-plots")
+    code, _, err = run_cli(
+        "run", "--env", f"{ENVS}:make_chain", "-T", 50, "--out", tmp_path / "o", "--no-progress", "--no-plots"
+    )
     assert code == 0, err
     assert json.loads((tmp_path / "o" / "summary.json").read_text())["config"]["iterations"] == 50
 
@@ -135,11 +161,13 @@ def test_an_env_file_imports_its_helper_modules(run_cli, tmp_path):
     """--env path/to/file.py:make puts the file's folder on the import path, as running the file would."""
     folder = tmp_path / "mine"
     folder.mkdir()
-    (folder / "chain_helper.py").write_text(f"import sys\nsys.path.insert(0, {str(ENVS.parent.parent)!r})\n"
-                                            "from envs.chain import make_chain\n")
+    (folder / "chain_helper.py").write_text(
+        f"import sys\nsys.path.insert(0, {str(ENVS.parent.parent)!r})\nfrom envs.chain import make_chain\n"
+    )
     (folder / "my_env.py").write_text("from chain_helper import make_chain\n\n\ndef make():\n    return make_chain()\n")
-    code, _, err = run_cli("run", "--env", f"{folder / 'my_env.py'}:make", "-T", 50, "--out", tmp_path / "o",
-                           "--no-progress", "--no-plots")
+    code, _, err = run_cli(
+        "run", "--env", f"{folder / 'my_env.py'}:make", "-T", 50, "--out", tmp_path / "o", "--no-progress", "--no-plots"
+    )
     assert code == 0, err
 
 
@@ -147,8 +175,19 @@ def test_an_env_runs_step_size_reads_the_same_in_both_lines(run_cli, tmp_path):
     """The algorithm's line and the env's description print alpha0 alike (they read 9.99999 and 10)."""
     import re
 
-    code, text, err = run_cli("run", "--env", f"{ENVS}:make_chain", "--features", "one-hot", "-T", 50,
-                              "--out", tmp_path / "o", "--no-progress", "--no-plots")
+    code, text, err = run_cli(
+        "run",
+        "--env",
+        f"{ENVS}:make_chain",
+        "--features",
+        "one-hot",
+        "-T",
+        50,
+        "--out",
+        tmp_path / "o",
+        "--no-progress",
+        "--no-plots",
+    )
     assert code == 0, err
     in_algorithm = re.search(r"alpha_k = ([0-9.e+-]+)/", text).group(1)
     in_description = re.search(r"lambda_max\(L\)\) = ([0-9.e+-]+)", text).group(1)

@@ -27,8 +27,9 @@ def test_bands_are_the_median_and_the_5th_and_95th_percentiles_over_seeds():
 
 def test_run_writes_bands_csv(run_cli, tmp_path):
     out = tmp_path / "r"
-    code, _, err = run_cli("run", "paper-example-1", "-T", "500", "--seeds", "3", "--no-plots", "--no-progress",
-                           "--out", out)
+    code, _, err = run_cli(
+        "run", "paper-example-1", "-T", "500", "--seeds", "3", "--no-plots", "--no-progress", "--out", out
+    )
     assert code == 0, err
     rows = list(csv.DictReader((out / "bands.csv").open()))
     metrics = {r["metric"] for r in rows}

@@ -26,8 +26,7 @@ SETTINGS = [
 
 
 def problem(off_policy: bool):
-    return tasks.random_mdp(n_agents=5, off_policy=off_policy, seed=7, n_states=6, n_actions=3, n_features=4,
-                            gamma=0.9)
+    return tasks.random_mdp(n_agents=5, off_policy=off_policy, seed=7, n_states=6, n_actions=3, n_features=4, gamma=0.9)
 
 
 @pytest.mark.parametrize("name", BASELINES)
@@ -60,8 +59,10 @@ def test_both_backends_stop_a_diverging_run_at_the_same_step(name):
     p = tasks.baird(n_agents=3)
     net = random_edges(topologies.ring(3), 0.7)
     alg = make_algorithm(name, alpha0=1.0, beta=100.0)
-    res = [run(p, net, alg, Sampling(), RunSettings(iterations=6000, seeds=2, checkpoints=10, block_size=512,
-                                                   backend=b)) for b in ("numpy", "numba")]
+    res = [
+        run(p, net, alg, Sampling(), RunSettings(iterations=6000, seeds=2, checkpoints=10, block_size=512, backend=b))
+        for b in ("numpy", "numba")
+    ]
     assert np.all(res[0].info["diverged_at"] > 0)
     assert np.array_equal(res[0].info["diverged_at"], res[1].info["diverged_at"])
     assert_allclose(res[0].metrics["error_last"], res[1].metrics["error_last"], rtol=1e-9, equal_nan=True)
@@ -91,7 +92,12 @@ def test_td0_on_the_episodic_boyan_chain_reaches_the_published_solution():
     over 4 seeds is well under 1 %). With gamma = 1 the return is finite only because it ends at the terminal."""
     p = tasks.boyan(n_agents=8, n_states=13, gamma=1.0)
     net = random_edges(topologies.ring(8), 1.0)
-    res = run(p, net, make_algorithm("td0", alpha0=20.0, beta=100.0, schedule="harmonic"), Sampling(),
-              RunSettings(iterations=200_000, seeds=4, checkpoints=5))
+    res = run(
+        p,
+        net,
+        make_algorithm("td0", alpha0=20.0, beta=100.0, schedule="harmonic"),
+        Sampling(),
+        RunSettings(iterations=200_000, seeds=4, checkpoints=5),
+    )
     assert_allclose(res.w_star, [-24.0, -16.0, -8.0, 0.0], atol=1e-9)
     assert np.abs(res.w_tail - res.w_star).max() < 0.02 * 24

@@ -9,17 +9,27 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from dgtd.algorithms import (ALGORITHMS, GTD2, PDTD, TD0, TDC, ConsensusTD0, Local, TDCTracking, TDTracking,
-                             make_algorithm)
+from dgtd.algorithms import (
+    ALGORITHMS,
+    GTD2,
+    PDTD,
+    TD0,
+    TDC,
+    ConsensusTD0,
+    Local,
+    TDCTracking,
+    TDTracking,
+    make_algorithm,
+)
 from dgtd.algorithms.consensus_td0 import ConsensusState
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.algorithms.gtd2 import GTDState
 from dgtd.algorithms.pd_td import PDTDState
 from dgtd.algorithms.td0 import TD0State
 from dgtd.algorithms.td_tracking import TrackingState
+from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
-from dgtd.channels import Arcs, Perfect
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
 from dgtd.problems.model import make_problem
@@ -30,8 +40,9 @@ from dgtd.sources.model import Sampling
 
 def small_mdp(off_policy: bool, n_agents: int = 3, seed: int = 3):
     """A 5-state, 2-action random MDP with 3 features (on- or off-policy), small enough to enumerate."""
-    return tasks.random_mdp(n_agents=n_agents, off_policy=off_policy, seed=seed, n_states=5, n_actions=2,
-                            n_features=3, gamma=0.8)
+    return tasks.random_mdp(
+        n_agents=n_agents, off_policy=off_policy, seed=seed, n_states=5, n_actions=2, n_features=3, gamma=0.8
+    )
 
 
 def outcomes(problem):
@@ -65,8 +76,13 @@ def expected(problem, algorithm, state, graph=None, alpha=0.3):
     mean over this batch is its mean over its own samples. ``graph``: every link of it up (None: no messages)."""
     s, a, sn, p = outcomes(problem)
     K = len(p)
-    sample = Sample(problem.Phi[s][:, None, :], problem.Phi[sn][:, None, :], problem.R_sample[:, s, a].T,
-                    problem.ratio[s, a][:, None], problem.gamma)
+    sample = Sample(
+        problem.Phi[s][:, None, :],
+        problem.Phi[sn][:, None, :],
+        problem.R_sample[:, s, a].T,
+        problem.ratio[s, a][:, None],
+        problem.gamma,
+    )
     big = type(state)(*(np.broadcast_to(x, (K,) + x.shape[1:]).copy() for x in state))
     new = algorithm.update(big, sample, None if graph is None else heard(graph, algorithm, big), alpha)
     return type(state)(*(np.einsum("k,k...->...", p, x)[None] for x in new))
@@ -135,8 +151,9 @@ def test_pd_td_mean_over_random_links_uses_the_mean_laplacian():
     p_e = np.array([0.3, 0.6, 0.9])
     rng = np.random.default_rng(2)
     w, mu = rng.normal(size=(1, 3, 2)), rng.normal(size=(1, 3, 2))
-    sample = Sample(rng.uniform(size=(1, 1, 2)), rng.uniform(size=(1, 1, 2)), rng.uniform(size=(1, 3)), np.ones((1, 1)),
-                    0.9)
+    sample = Sample(
+        rng.uniform(size=(1, 1, 2)), rng.uniform(size=(1, 1, 2)), rng.uniform(size=(1, 3)), np.ones((1, 1)), 0.9
+    )
     alg = PDTD(eta=2.0)
     mean_w, mean_mu = 0.0, 0.0
     for up in itertools.product([False, True], repeat=3):
@@ -244,8 +261,13 @@ def test_tracking_keeps_the_tracker_sum_equal_to_the_direction_sum(cls):
     alg = cls(alpha0=0.5)
     state = alg.init(2, 6, 3)
     for _ in range(20):
-        sample = Sample(rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6, 3)), rng.uniform(size=(2, 6)),
-                        rng.uniform(0.5, 1.5, size=(2, 6)), 0.9)
+        sample = Sample(
+            rng.uniform(size=(2, 6, 3)),
+            rng.uniform(size=(2, 6, 3)),
+            rng.uniform(size=(2, 6)),
+            rng.uniform(0.5, 1.5, size=(2, 6)),
+            0.9,
+        )
         state = alg.update(state, sample, heard(graph, alg, state, rng.uniform(size=(2, graph.n_edges)) < 0.5), 0.3)
         assert_allclose(state.z.sum(axis=1), state.g.sum(axis=1), atol=1e-12)
 
@@ -278,8 +300,13 @@ def test_td_tracking_reaches_w_star_on_random_links(backend):
     agent's own fixed point, so tracking the wrong average fails."""
     p = chain_problem()
     net = random_edges(topologies.ring(3), 0.7)
-    r = run(p, net, TDTracking(alpha0=1.0, beta=10.0), Sampling(),
-            RunSettings(iterations=100_000, seeds=4, checkpoints=5, backend=backend))
+    r = run(
+        p,
+        net,
+        TDTracking(alpha0=1.0, beta=10.0),
+        Sampling(),
+        RunSettings(iterations=100_000, seeds=4, checkpoints=5, backend=backend),
+    )
     assert r.w_tail.shape == (4, 3, 2)
     assert exact.relative_error(r.w_tail, r.w_star).max() < 0.02
     assert r.info["counts"]["messages"][-1].min() > 0  # two vectors per link up, both ways
@@ -311,7 +338,8 @@ def test_an_algorithm_without_a_compiled_step_runs_on_the_reference_with_a_notic
 
 def test_tdc_runs_on_two_timescales_by_default():
     """Sutton et al. (2009), section 5: alpha_k / beta_k -> 0. With harmonic value steps alpha_k = alpha0 / (k + beta),
-    beta_k = eta alpha0 (alpha_k / alpha0)^(2/3) ~ k^(-2/3): the ratio falls like k^(-1/3); GTD2 keeps a constant one."""
+    beta_k = eta alpha0 (alpha_k / alpha0)^(2/3) ~ k^(-2/3): the ratio falls like k^(-1/3); GTD2 keeps a constant
+    one."""
     tdc, gtd2 = make_algorithm("tdc", schedule="harmonic", alpha0=1.0), make_algorithm("gtd2", schedule="harmonic")
     k = np.array([1e2, 1e4, 1e6])
     alpha = 1.0 / (k + 1.0)

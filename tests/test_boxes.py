@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from dgtd.algorithms import make_algorithm
+from dgtd.algorithms.dgtd import resolve_boxes
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.problems.mdp import from_mdp
-from dgtd.algorithms.dgtd import resolve_boxes
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 
@@ -56,8 +56,13 @@ def test_the_run_reaches_a_w_star_beyond_the_lemmas_bound():
     more than three standard deviations."""
     problem = two_state_chain(0.32)
     algorithm = make_algorithm("dgtd", alpha0=10.0, beta=1.0)
-    result = run(problem, random_edges(topologies.path(2), 1.0), algorithm, Sampling(mode="iid", shared=False),
-                 RunSettings(iterations=4_000_000, seeds=8, checkpoints=10))
+    result = run(
+        problem,
+        random_edges(topologies.path(2), 1.0),
+        algorithm,
+        Sampling(mode="iid", shared=False),
+        RunSettings(iterations=4_000_000, seeds=8, checkpoints=10),
+    )
     assert set(result.report["boxes_grown"]) == {"w"} and result.report["boxes"]["w"] == pytest.approx(210.0)
     assert np.all(result.info["diverged_at"] < 0)
     assert result.w_tail.mean() == pytest.approx(105.0, rel=0.10)

@@ -35,8 +35,17 @@ def assert_same_run(a, b):
 @pytest.mark.parametrize("sampling", ["iid", "markov"])
 def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling):
     # random edges, reward noise and Markov states: every stream and the trajectories' current states matter
-    spec = RunSpec(scenario="paper-example-1", iterations=2500, seeds=3, backend=backend, sampling=sampling,
-                   reward_noise="bernoulli", edge_prob=0.7, checkpoints=15, block_size=300)
+    spec = RunSpec(
+        scenario="paper-example-1",
+        iterations=2500,
+        seeds=3,
+        backend=backend,
+        sampling=sampling,
+        reward_noise="bernoulli",
+        edge_prob=0.7,
+        checkpoints=15,
+        block_size=300,
+    )
     problem, network, algorithm, samp, settings, _ = resolve(spec)
     whole = run(problem, network, algorithm, samp, settings)
     snaps = []
@@ -53,13 +62,21 @@ def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling):
 def test_a_killed_run_resumes_to_the_same_files(tmp_path):
     """Kill `dgtd run --checkpoint-every` after a checkpoint, `--resume` it, and compare with a whole run."""
     exp = tmp_path / "long.toml"
-    exp.write_text('scenario = "paper-example-1"\niterations = 400000\nseeds = 2\nbackend = "numba"\n'
-                   'reward_noise = "uniform"\ncheckpoints = 40\nplots = false\nprogress = false\n')
-    whole = subprocess.run(dgtd_cmd("run", exp, "--out", tmp_path / "whole"), env=cli_env(), capture_output=True, text=True)
+    exp.write_text(
+        'scenario = "paper-example-1"\niterations = 400000\nseeds = 2\nbackend = "numba"\n'
+        'reward_noise = "uniform"\ncheckpoints = 40\nplots = false\nprogress = false\n'
+    )
+    whole = subprocess.run(
+        dgtd_cmd("run", exp, "--out", tmp_path / "whole"), env=cli_env(), capture_output=True, text=True
+    )
     assert whole.returncode == 0, whole.stderr
     out = tmp_path / "cut"
-    proc = subprocess.Popen(dgtd_cmd("run", exp, "--out", out, "--checkpoint-every", "20000"),
-                            env=cli_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        dgtd_cmd("run", exp, "--out", out, "--checkpoint-every", "20000"),
+        env=cli_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 120
     while not (out / "checkpoint.npz").exists() and proc.poll() is None and time.time() < deadline:
         time.sleep(0.05)
@@ -86,12 +103,27 @@ def test_a_killed_run_resumes_to_the_same_files(tmp_path):
 
 def test_resume_refuses_another_config(tmp_path, run_cli):
     out = tmp_path / "r"
-    code, _, err = run_cli("run", "paper-example-1", "-T", "2000", "--backend", "numpy", "--no-plots", "--no-progress",
-                           "--checkpoints", "5", "--out", out, "--checkpoint-every", "500")
+    code, _, err = run_cli(
+        "run",
+        "paper-example-1",
+        "-T",
+        "2000",
+        "--backend",
+        "numpy",
+        "--no-plots",
+        "--no-progress",
+        "--checkpoints",
+        "5",
+        "--out",
+        out,
+        "--checkpoint-every",
+        "500",
+    )
     assert code == 0, err
     # leave a checkpoint behind as a killed run would
-    problem, network, algorithm, samp, settings, resolved = resolve(RunSpec(
-        scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5))
+    problem, network, algorithm, samp, settings, resolved = resolve(
+        RunSpec(scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5)
+    )
     snaps = []
     run(problem, network, algorithm, samp, settings, checkpoint_every=500, on_checkpoint=snaps.append)
     from dgtd.config import spec_record

@@ -35,8 +35,12 @@ def problem_file(tmp_path):
 
 
 def write_npz(tmp_path, **arrays):
-    base = dict(P=np.array([[0.5, 0.5], [0.2, 0.8]]), R=np.array([[1.0, 0.0], [0.0, 1.0]]),
-                Phi=np.array([[1.0], [2.0]]), gamma=0.9)
+    base = dict(
+        P=np.array([[0.5, 0.5], [0.2, 0.8]]),
+        R=np.array([[1.0, 0.0], [0.0, 1.0]]),
+        Phi=np.array([[1.0], [2.0]]),
+        gamma=0.9,
+    )
     path = tmp_path / "p.npz"
     np.savez(path, **{k: v for k, v in (base | arrays).items() if v is not None})
     return str(path)
@@ -44,8 +48,20 @@ def write_npz(tmp_path, **arrays):
 
 def test_run_paper_example_writes_results(capsys, tmp_path):
     out = tmp_path / "out"
-    code, stdout, _ = cli(capsys, "run", "paper-example-1", "-T", "2000", "--seeds", "2", "--out", str(out),
-                          "--no-progress", "--checkpoints", "10")
+    code, stdout, _ = cli(
+        capsys,
+        "run",
+        "paper-example-1",
+        "-T",
+        "2000",
+        "--seeds",
+        "2",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--checkpoints",
+        "10",
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert_allclose(s["w_star"], [15.9032, 21.0284], atol=1e-4)
@@ -75,8 +91,26 @@ def test_solve_on_generated_file(capsys, problem_file):
 def test_run_on_generated_file_converges(capsys, problem_file, tmp_path):
     path, _ = problem_file
     out = tmp_path / "r"
-    code, _, _ = cli(capsys, "run", "--problem", str(path), "--graph", "ring", "--edge-prob", "0.7", "-T", "100000",
-                     "--alpha0", "1", "--beta", "10", "--out", str(out), "--no-progress", "--no-plots")
+    code, _, _ = cli(
+        capsys,
+        "run",
+        "--problem",
+        str(path),
+        "--graph",
+        "ring",
+        "--edge-prob",
+        "0.7",
+        "-T",
+        "100000",
+        "--alpha0",
+        "1",
+        "--beta",
+        "10",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-plots",
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["max_error_avg"] < 0.05
@@ -137,8 +171,11 @@ def test_bad_files_and_networks(capsys, tmp_path):
 
 
 def test_real_process_exit_code_and_no_traceback(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "dgtd.cli", "solve", "--problem", str(tmp_path / "nope.npz")],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "dgtd.cli", "solve", "--problem", str(tmp_path / "nope.npz")],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "is missing" in r.stderr
 
@@ -163,8 +200,9 @@ def test_scenarios_says_each_description_whole(capsys):
 def test_diverged_run_writes_standard_json(capsys, tmp_path):
     # Off-policy TD(0) on Baird diverges: the run reports it and summary.json stays standard JSON (null, not NaN).
     out = tmp_path / "td0"
-    code, stdout, _ = cli(capsys, "run", "baird", "--algorithm", "td0", "-T", "100000", "--no-progress", "--no-plots",
-                          "--out", str(out))
+    code, stdout, _ = cli(
+        capsys, "run", "baird", "--algorithm", "td0", "-T", "100000", "--no-progress", "--no-plots", "--out", str(out)
+    )
     assert code == 0 and "DIVERGED" in stdout
     s = json.loads((out / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-standard {c}"))
     assert s["w_last"][0][0][0] is None
@@ -175,8 +213,21 @@ def test_a_notice_is_one_line_not_a_python_warning(capsys, monkeypatch, tmp_path
     from dgtd.backends import compiled
 
     monkeypatch.setattr(compiled, "STEPS", {k: v for k, v in compiled.STEPS.items() if k != "td0"})
-    code, _, err = cli(capsys, "run", "paper-example-1", "--algorithm", "td0", "--alpha0", "0.1", "-T", "20",
-                       "--no-progress", "--no-plots", "--out", str(tmp_path / "o"))
+    code, _, err = cli(
+        capsys,
+        "run",
+        "paper-example-1",
+        "--algorithm",
+        "td0",
+        "--alpha0",
+        "0.1",
+        "-T",
+        "20",
+        "--no-progress",
+        "--no-plots",
+        "--out",
+        str(tmp_path / "o"),
+    )
     assert code == 0, err
     notes = [line for line in err.splitlines() if "no compiled step" in line]
     assert notes == ["dgtd: note: algorithm 'td0' has no compiled step: it runs on the NumPy reference backend"], err

@@ -13,12 +13,34 @@ from dgtd.scenarios.robots import PatrolSource
 @pytest.mark.slow  # the whole scenario end to end with its figures and GIF: about 30 s
 def test_run_paper_example_2_writes_maps_pictures_and_summary(tmp_path, capsys):
     out = tmp_path / "pe2"
-    main(["run", "paper-example-2", "-T", "3000", "--seeds", "2", "--checkpoints", "30", "--no-progress",
-          "--out", str(out)])
+    main(
+        [
+            "run",
+            "paper-example-2",
+            "-T",
+            "3000",
+            "--seeds",
+            "2",
+            "--checkpoints",
+            "30",
+            "--no-progress",
+            "--out",
+            str(out),
+        ]
+    )
     text = capsys.readouterr().out
     assert "correlation of each agent's map with the reference" in text
-    for name in ("maps.png", "reference.png", "snapshots.png", "patrol.gif", "curves.png", "errors.png",
-                 "summary.json", "metrics.csv", "trajectory.npz"):
+    for name in (
+        "maps.png",
+        "reference.png",
+        "snapshots.png",
+        "patrol.gif",
+        "curves.png",
+        "errors.png",
+        "summary.json",
+        "metrics.csv",
+        "trajectory.npz",
+    ):
         assert (out / name).stat().st_size > 0, name
     summary = json.loads((out / "summary.json").read_text())
     assert np.asarray(summary["w_last"]).shape == (2, 3, 400)
@@ -33,9 +55,15 @@ def test_run_paper_example_2_writes_maps_pictures_and_summary(tmp_path, capsys):
     assert resolve(RunSpec(**cfg))[4].iterations == 3000
 
 
-@pytest.mark.parametrize("flags, word", [(["--graph", "ring"], "--graph"), (["--edge-prob", "0.5"], "--edge-prob"),
-                                         (["--sampling", "iid"], "--sampling"),
-                                         (["--reward-noise", "bernoulli"], "--reward-noise")])
+@pytest.mark.parametrize(
+    "flags, word",
+    [
+        (["--graph", "ring"], "--graph"),
+        (["--edge-prob", "0.5"], "--edge-prob"),
+        (["--sampling", "iid"], "--sampling"),
+        (["--reward-noise", "bernoulli"], "--reward-noise"),
+    ],
+)
 def test_flags_that_cannot_apply_to_a_simulated_world_are_refused(flags, word, capsys, tmp_path):
     with pytest.raises(SystemExit) as e:
         main(["run", "paper-example-2", "-T", "10", "--out", str(tmp_path / "x"), *flags])

@@ -15,9 +15,9 @@ from dgtd.cli import main
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
-from dgtd.scenarios import get_scenario
 from dgtd.run.compare import CompareSettings, compare, configs_for
 from dgtd.run.loop import RunSettings, run
+from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
 
 
@@ -108,21 +108,40 @@ def test_tuning_picks_a_step_size_that_does_not_diverge(tmp_path):
     sc = get_scenario("baird")
     st = RunSettings(iterations=5000, seeds=1, checkpoints=5, backend="numba")
     cs = CompareSettings(("td0",), st, tune=True, tune_seeds=1, tune_grid=(0.1, 10.0, 100.0))
-    res, used, tables = compare(sc.problem, sc.network, sc.sampling, {"td0": make_algorithm("td0", alpha0=0.1, beta=100.0)}, cs)
+    res, used, tables = compare(
+        sc.problem, sc.network, sc.sampling, {"td0": make_algorithm("td0", alpha0=0.1, beta=100.0)}, cs
+    )
     assert used["td0"].alpha0 == pytest.approx(0.01)
     assert [s for _, s in tables["td0"]][1:] == [float("inf"), float("inf")]
 
 
 def test_cli_compare_writes_csv_summary_and_plots(tmp_path, capsys):
     out = tmp_path / "cmp"
-    main(["compare", "baird", "--algorithms", "dgtd,td0,consensus-td0", "--seeds", "2", "-T", "4000",
-          "--checkpoints", "8", "--out", str(out), "--no-progress"])
+    main(
+        [
+            "compare",
+            "baird",
+            "--algorithms",
+            "dgtd,td0,consensus-td0",
+            "--seeds",
+            "2",
+            "-T",
+            "4000",
+            "--checkpoints",
+            "8",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     text = capsys.readouterr().out
     assert "td0" in text and "diverged" in text
     rows = list(csv.DictReader(open(out / "metrics.csv")))
     assert set(rows[0]) == {"algorithm", "seed", "step", "metric", "value"}
     assert {r["algorithm"] for r in rows} == {"dgtd", "td0", "consensus-td0"}
-    assert {"error_last", "error_avg", "mspbe_last", "consensus", "samples", "messages", "diverged"} <= {r["metric"] for r in rows}
+    assert {"error_last", "error_avg", "mspbe_last", "consensus", "samples", "messages", "diverged"} <= {
+        r["metric"] for r in rows
+    }
     summary = json.loads((out / "summary.json").read_text())
     assert summary["algorithms"]["td0"]["config"]["alpha0"] == 0.02  # the scenario's comparison step (COMPARE_STEPS)
     assert summary["problem"] == "baird" and len(summary["w_star"]) == 8
@@ -131,18 +150,26 @@ def test_cli_compare_writes_csv_summary_and_plots(tmp_path, capsys):
     agents = np.load(out / "agent_errors.npz")
     assert agents["dgtd/last"].shape == (len(agents["dgtd/steps"]), 2, 5)
     assert agents["td0/last"].shape[2] == 1  # one centralised estimate
-    worst = [float(r["value"]) for r in rows if r["algorithm"] == "dgtd" and r["metric"] == "error_last" and r["seed"] == "1"]
+    worst = [
+        float(r["value"]) for r in rows if r["algorithm"] == "dgtd" and r["metric"] == "error_last" and r["seed"] == "1"
+    ]
     np.testing.assert_allclose(worst, agents["dgtd/last"][:, 1].max(axis=1))
 
 
-@pytest.mark.parametrize("args, message", [
-    (["compare", "baird", "--algorithms", "dgtd,td1"], "unknown algorithm"),
-    (["compare", "bairds"], "did you mean 'baird'"),
-    (["compare", "baird", "--algorithms", "td0,td0"], "named twice"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["compare", "baird", "--algorithms", "dgtd,td1"], "unknown algorithm"),
+        (["compare", "bairds"], "did you mean 'baird'"),
+        (["compare", "baird", "--algorithms", "td0,td0"], "named twice"),
+    ],
+)
 def test_cli_compare_bad_input_is_one_line_and_exit_code_2(args, message, tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "dgtd.cli", *args, "--out", str(tmp_path / "x"), "--no-progress"],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dgtd.cli", *args, "--out", str(tmp_path / "x"), "--no-progress"],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and message in proc.stderr and "Traceback" not in proc.stderr
 
@@ -176,8 +203,25 @@ def test_time_to_accuracy_script_writes_table_json_and_plot(tmp_path):
     from pathlib import Path
 
     script = Path(__file__).parents[1] / "benchmarks" / "time_to_accuracy.py"
-    proc = subprocess.run([sys.executable, str(script), "--tasks", "boyan", "--algorithms", "dgtd,td0", "--seeds", "2",
-                           "--iterations", "3000", "--out", str(tmp_path), "--no-docs"], capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(script),
+            "--tasks",
+            "boyan",
+            "--algorithms",
+            "dgtd,td0",
+            "--seeds",
+            "2",
+            "--iterations",
+            "3000",
+            "--out",
+            str(tmp_path),
+            "--no-docs",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr
     table = (tmp_path / "time_to_accuracy.md").read_text()
     assert "| boyan | dgtd |" in table and "| boyan | td0 |" in table and "Measured" in table
@@ -190,8 +234,23 @@ def test_time_to_accuracy_script_writes_table_json_and_plot(tmp_path):
 def test_dgtd_run_reports_a_diverged_baseline_and_writes_its_files(tmp_path, capsys):
     """`dgtd run baird --algorithm td0`: off-policy TD(0) diverges; the run says so and still writes every file."""
     out = tmp_path / "td0"
-    main(["run", "baird", "--algorithm", "td0", "-T", "30000", "--alpha0", "1", "--seeds", "2", "--out", str(out),
-          "--no-progress"])
+    main(
+        [
+            "run",
+            "baird",
+            "--algorithm",
+            "td0",
+            "-T",
+            "30000",
+            "--alpha0",
+            "1",
+            "--seeds",
+            "2",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     text = capsys.readouterr().out
     assert "DIVERGED: seed(s) [0, 1]" in text
     for name in ("summary.json", "metrics.csv", "iterates.png", "errors.png"):
@@ -207,8 +266,25 @@ def test_compare_on_a_users_problem_file(run_cli, tmp_path):
     path = tmp_path / "mine.npz"
     save_problem(str(path), random_problem(6, 4, 3, np.random.default_rng(5), gamma=0.8))
     out = tmp_path / "c"
-    code, text, err = run_cli("compare", "--problem", path, "--graph", "complete", "--edge-prob", 0.5, "-a",
-                              "dgtd,td-tracking", "--seeds", 2, "-T", 3000, "--out", out, "--no-progress", "--no-plots")
+    code, text, err = run_cli(
+        "compare",
+        "--problem",
+        path,
+        "--graph",
+        "complete",
+        "--edge-prob",
+        0.5,
+        "-a",
+        "dgtd,td-tracking",
+        "--seeds",
+        2,
+        "-T",
+        3000,
+        "--out",
+        out,
+        "--no-progress",
+        "--no-plots",
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["config"]["problem_file"] == str(path.resolve()) and summary["config"]["graph"] == "complete"
@@ -225,6 +301,12 @@ def test_compare_tells_when_each_runs_kernels_are_ready():
     sc = get_scenario("paper-example-1")
     names = ("td0", "dgtd")
     ready = []
-    compare(sc.problem, sc.network, sc.sampling, {n: make_algorithm(n, alpha0=0.1) for n in names},
-            CompareSettings(names, RunSettings(iterations=10)), kernel_ready=ready.append)
+    compare(
+        sc.problem,
+        sc.network,
+        sc.sampling,
+        {n: make_algorithm(n, alpha0=0.1) for n in names},
+        CompareSettings(names, RunSettings(iterations=10)),
+        kernel_ready=ready.append,
+    )
     assert len(ready) == len(names) and all(s >= 0 for s in ready)

@@ -44,10 +44,12 @@ def recorded_case(tmp_path_factory):
 
 CASES = {
     "iid-noise": lambda f: model_case(random_problem(6, 5, 4, np.random.default_rng(3), reward_noise="bernoulli")),
-    "markov-shared-fixed": lambda f: model_case(random_problem(6, 5, 4, np.random.default_rng(4)),
-                                                Sampling("markov", True), 1.0),
-    "off-policy": lambda f: model_case(random_mdp_problem(5, (2, 2, 1, 2, 2), 4, np.random.default_rng(5),
-                                                          off_policy=True), Sampling("markov")),
+    "markov-shared-fixed": lambda f: model_case(
+        random_problem(6, 5, 4, np.random.default_rng(4)), Sampling("markov", True), 1.0
+    ),
+    "off-policy": lambda f: model_case(
+        random_mdp_problem(5, (2, 2, 1, 2, 2), 4, np.random.default_rng(5), off_policy=True), Sampling("markov")
+    ),
     "sparse-tabular": lambda f: model_case(random_problem(9, 5, 9, np.random.default_rng(6))),
     "episodic": lambda f: model_case(tasks.boyan(n_agents=5, n_states=8), Sampling("markov")),
     "recorded": recorded_case,
@@ -70,8 +72,14 @@ def both(case, name, layout, monkeypatch, T=300, block=97):
     settings = RunSettings(iterations=T, seeds=2, seed=11, checkpoints=4, block_size=block)
     out = {}
     for backend in ("numpy", "numba"):
-        out[backend] = run(problem, network, algorithm, sampling, dataclasses.replace(settings, backend=backend),
-                           source=None if source is None else source())
+        out[backend] = run(
+            problem,
+            network,
+            algorithm,
+            sampling,
+            dataclasses.replace(settings, backend=backend),
+            source=None if source is None else source(),
+        )
     return out["numpy"], out["numba"]
 
 

@@ -14,6 +14,7 @@ from dgtd.config import CHOICES, RunSpec
 from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
 from dgtd.run.loop import RunSettings
 
+
 def defaults(*classes) -> dict:
     return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}
 

@@ -12,14 +12,15 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.data import DataSource, TransitionFile
-from dgtd.sources.model import ModelSource, Sampling, SamplerTables
+from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
 
 def record(problem, seeds: int, steps: int) -> dict:
     """Columns of every agent's own transitions from the model (independent copies, i.i.d. s ~ d)."""
     tables = SamplerTables.build(problem, exact.Moments(problem).d)
-    src = ModelSource(problem, random_edges(topologies.ring(problem.n_agents), 1.0), Sampling(), tables, 9,
-                      range(seeds))
+    src = ModelSource(
+        problem, random_edges(topologies.ring(problem.n_agents), 1.0), Sampling(), tables, 9, range(seeds)
+    )
     src.start()
     blk = src.next_block(steps)
     T, B, N = blk.r.shape
@@ -32,7 +33,9 @@ def record(problem, seeds: int, steps: int) -> dict:
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory, ):
+def recorded(
+    tmp_path_factory,
+):
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -57,17 +60,26 @@ def test_dgtd_on_the_recordings_reaches_the_reference(recorded):
     problem, path = recorded
     data = TransitionFile(path)
     ref = data.reference(problem.gamma)
-    result = run(ref, random_edges(topologies.ring(3), 1.0), make_algorithm("dgtd"), Sampling(),
-                 RunSettings(iterations=20_000, seeds=2, checkpoints=5), source=DataSource(data, seed_ids=[0, 1]))
+    result = run(
+        ref,
+        random_edges(topologies.ring(3), 1.0),
+        make_algorithm("dgtd"),
+        Sampling(),
+        RunSettings(iterations=20_000, seeds=2, checkpoints=5),
+        source=DataSource(data, seed_ids=[0, 1]),
+    )
     assert result.metrics["value_error_tail"][-1].max() < 0.03
 
 
-@pytest.mark.parametrize("change, words", [
-    (lambda c: c.pop("reward"), "lacks the column(s) reward"),
-    (lambda c: c.update(agent=c["agent"].astype(float) + 0.5), "column agent must hold integers"),
-    (lambda c: c.update(phi_0=np.full(len(c["phi_0"]), np.nan)), "column phi_0 must hold finite numbers"),
-    (lambda c: c.pop("next_phi_1"), "next_phi_0 .. next_phi_2"),
-])
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (lambda c: c.pop("reward"), "lacks the column(s) reward"),
+        (lambda c: c.update(agent=c["agent"].astype(float) + 0.5), "column agent must hold integers"),
+        (lambda c: c.update(phi_0=np.full(len(c["phi_0"]), np.nan)), "column phi_0 must hold finite numbers"),
+        (lambda c: c.pop("next_phi_1"), "next_phi_0 .. next_phi_2"),
+    ],
+)
 def test_a_bad_transitions_file_is_one_line(tmp_path, change, words):
     from dgtd.problems.tasks import garnet
 
@@ -140,8 +152,15 @@ def test_state_index_columns_give_tabular_features_and_the_models_w_star(tmp_pat
     blk = src.next_block(5000)
     T, B, N = blk.r.shape
     t, b, i = np.meshgrid(np.arange(T), np.arange(B), np.arange(N), indexing="ij")
-    np.savez(tmp_path / "tab.npz", seed=b.ravel(), step=t.ravel(), agent=i.ravel(), reward=blk.r.ravel(),
-             state=blk.s.ravel(), next_state=blk.s_next.ravel())
+    np.savez(
+        tmp_path / "tab.npz",
+        seed=b.ravel(),
+        step=t.ravel(),
+        agent=i.ravel(),
+        reward=blk.r.ravel(),
+        state=blk.s.ravel(),
+        next_state=blk.s_next.ravel(),
+    )
     data = TransitionFile(tmp_path / "tab.npz")
     assert data.tabular and data.q == 5
     ref = data.reference(problem.gamma)
@@ -175,8 +194,14 @@ def test_a_dataset_of_episodes_gives_the_models_w_star_and_dgtd_reaches_it(episo
     ref = data.reference(problem.gamma)
     w = exact.w_star(exact.Moments(problem))
     assert np.all(np.abs(ref.w_star - w) <= 4 * ref.w_star_stderr), (ref.w_star, w, ref.w_star_stderr)
-    result = run(ref, random_edges(topologies.ring(3), 1.0), make_algorithm("dgtd"), Sampling(),
-                 RunSettings(iterations=40_000, seeds=2, checkpoints=5), source=DataSource(data, [0, 1], seed=3))
+    result = run(
+        ref,
+        random_edges(topologies.ring(3), 1.0),
+        make_algorithm("dgtd"),
+        Sampling(),
+        RunSettings(iterations=40_000, seeds=2, checkpoints=5),
+        source=DataSource(data, [0, 1], seed=3),
+    )
     assert result.metrics["value_error_tail"][-1].max() < 0.03
 
 
@@ -186,7 +211,7 @@ def test_a_seeds_order_of_episodes_does_not_depend_on_the_other_seeds(episodes):
     one, two = DataSource(data, [1], seed=5), DataSource(data, [0, 1], seed=5)
     a, b = one.next_block(300), two.next_block(300)
     assert np.array_equal(a.r[:, 0], b.r[:, 1]) and not np.array_equal(b.r[:, 0], b.r[:, 1])
-    stream = np.concatenate([data.rows[data.offsets[u]: data.offsets[u + 1], :, 2 * data.q] for u in data.order(5, 1)])
+    stream = np.concatenate([data.rows[data.offsets[u] : data.offsets[u + 1], :, 2 * data.q] for u in data.order(5, 1)])
     assert np.array_equal(a.r[:, 0], stream[:300])  # episode after episode, in the seed's order
 
 
@@ -200,8 +225,17 @@ def test_a_run_on_recordings_draws_the_links_of_its_network(recorded):
     ref = data.reference(problem.gamma)
     settings = RunSettings(iterations=20_000, seeds=2, checkpoints=5)
     networks = {p: random_edges(topologies.ring(3), p) for p in (1.0, 0.5)}
-    runs = {p: run(ref, net, make_algorithm("dgtd"), Sampling(), settings,
-                   source=DataSource(data, seed_ids=[0, 1], network=net)) for p, net in networks.items()}
+    runs = {
+        p: run(
+            ref,
+            net,
+            make_algorithm("dgtd"),
+            Sampling(),
+            settings,
+            source=DataSource(data, seed_ids=[0, 1], network=net),
+        )
+        for p, net in networks.items()
+    }
     sent = {p: r.info["messages"].sum() for p, r in runs.items()}
     assert abs(sent[0.5] / sent[1.0] - 0.5) < 0.01, sent
     assert runs[0.5].metrics["value_error_tail"][-1].max() < 0.03

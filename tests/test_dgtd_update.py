@@ -8,8 +8,8 @@ from numpy.testing import assert_allclose
 
 from dgtd.algorithms import dgtd as alg
 from dgtd.algorithms.dgtd import DGTD
-from dgtd.graphs import topologies
 from dgtd.channels import Arcs, Perfect
+from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.problems.generators import random_mdp_problem, random_problem
@@ -39,8 +39,13 @@ def expected_direction(problem, network, state, kappa, rho):
                     phin = np.broadcast_to(problem.Phi[sn], (1, N, problem.n_features))
                     r = problem.R_sample[:, s, a][None, :]
                     ratio = np.full((1, N), problem.ratio[s, a])
-                    g = alg.direction(state, Sample(phi, phin, r, ratio, problem.gamma),
-                                      Perfect().inbox(arcs, sent, mask[None]), kappa, rho)
+                    g = alg.direction(
+                        state,
+                        Sample(phi, phin, r, ratio, problem.gamma),
+                        Perfect().inbox(arcs, sent, mask[None]),
+                        kappa,
+                        rho,
+                    )
                     for acc, x in zip(total, g):
                         acc += weight * x
     return total

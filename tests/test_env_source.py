@@ -57,7 +57,13 @@ class Chain(ParallelEnv):
         rewards = {a: R[i, self.s] for i, a in enumerate(self.agents)}
         self.s = int(self.rng.choice(4, p=P[self.s]))
         obs = {a: self.state() for a in self.agents}
-        return obs, rewards, {a: False for a in self.agents}, {a: False for a in self.agents}, {a: {} for a in self.agents}
+        return (
+            obs,
+            rewards,
+            {a: False for a in self.agents},
+            {a: False for a in self.agents},
+            {a: {} for a in self.agents},
+        )
 
 
 def exact_w_star() -> np.ndarray:
@@ -65,14 +71,16 @@ def exact_w_star() -> np.ndarray:
 
 
 def source(seed, seed_ids, offset=0):
-    return EnvSource(Chain, lambda states: states, seed, seed_ids, network=random_edges(topologies.path(3), 0.8),
-                     seed_offset=offset)
+    return EnvSource(
+        Chain, lambda states: states, seed, seed_ids, network=random_edges(topologies.path(3), 0.8), seed_offset=offset
+    )
 
 
 @pytest.fixture(scope="module")
 def reference():
-    reference, links = reference_from_env(lambda g: source(123, [g], offset=10_000), 4, GAMMA, "chain", steps=20_000,
-                                          groups=8)
+    reference, links = reference_from_env(
+        lambda g: source(123, [g], offset=10_000), 4, GAMMA, "chain", steps=20_000, groups=8
+    )
     assert np.allclose(links, 0.8, atol=0.01)  # each link up with probability 0.8: 160,000 draws each
     return reference
 
@@ -90,8 +98,14 @@ def test_dgtd_on_the_environment_reaches_the_reference(reference):
     """DGTD's defaults on 3 agents that each see only their own reward: the tail average of every agent within 5 % of
     the estimated reference in the d-weighted value error (measured: 0.26 % and 0.07 % on 2 seeds of 60,000 steps;
     0.16 % and 0.17 % from the exact w*)."""
-    result = run(reference, random_edges(topologies.path(3), 0.8), make_algorithm("dgtd"), Sampling(),
-                 RunSettings(iterations=60_000, seeds=2, checkpoints=10), source=source(0, range(2)))
+    result = run(
+        reference,
+        random_edges(topologies.path(3), 0.8),
+        make_algorithm("dgtd"),
+        Sampling(),
+        RunSettings(iterations=60_000, seeds=2, checkpoints=10),
+        source=source(0, range(2)),
+    )
     assert np.allclose(result.w_star, reference.w_star)
     assert result.metrics["value_error_tail"][-1].max() < 0.05
     assert result.info["d"] is None  # no model: no stationary distribution

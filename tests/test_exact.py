@@ -157,8 +157,9 @@ def _iid_problem():
     from dgtd.problems.model import make_problem
 
     d = np.array([0.5, 0.25, 0.25])
-    return make_problem(np.tile(d, (3, 1)), np.array([[2.0, 0, 0], [0, 0, 0]]),
-                        np.array([[1.0, 0], [0, 1], [1, 1]]), 0.5, name="iid")
+    return make_problem(
+        np.tile(d, (3, 1)), np.array([[2.0, 0, 0], [0, 0, 0]]), np.array([[1.0, 0], [0, 1], [1, 1]]), 0.5, name="iid"
+    )
 
 
 def test_value_error_is_the_d_weighted_norm_of_the_value_difference():

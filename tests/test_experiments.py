@@ -21,9 +21,18 @@ def write(tmp_path, text, name="exp.toml"):
 
 
 def test_fields_go_to_spec_output_grid_and_sweep():
-    exp = parse({"scenario": "paper-example-1", "alpha0": 2, "out": "x", "checkpoint_every": 5,
-                 "params": {}, "algorithm_params": {"box_scale": 3},
-                 "grid": {"kappa": [0, 1], "params": {"n": [1, 2]}}, "sweep": {"executor": "ray", "workers": 4}})
+    exp = parse(
+        {
+            "scenario": "paper-example-1",
+            "alpha0": 2,
+            "out": "x",
+            "checkpoint_every": 5,
+            "params": {},
+            "algorithm_params": {"box_scale": 3},
+            "grid": {"kappa": [0, 1], "params": {"n": [1, 2]}},
+            "sweep": {"executor": "ray", "workers": 4},
+        }
+    )
     assert exp.spec.alpha0 == 2.0 and isinstance(exp.spec.alpha0, float)  # an integer is accepted for a float
     assert exp.spec.algorithm_params == {"box_scale": 3}
     assert exp.output == Output(out="x", checkpoint_every=5)
@@ -32,8 +41,9 @@ def test_fields_go_to_spec_output_grid_and_sweep():
 
 
 def test_toml_round_trip_is_exact(tmp_path):
-    spec = RunSpec(scenario="paper-example-1", alpha0=0.1 + 0.2, iterations=123, params=None,
-                   algorithm_params={"box_scale": 2.5})
+    spec = RunSpec(
+        scenario="paper-example-1", alpha0=0.1 + 0.2, iterations=123, params=None, algorithm_params={"box_scale": 2.5}
+    )
     exp = Experiment(spec=spec, output=Output(out="o", plots=False), grid={"kappa": [0.0, 1.5]})
     path = write(tmp_path, to_toml(exp, "a comment"))
     back = load(path)
@@ -48,29 +58,44 @@ def test_flags_override_the_file(tmp_path):
     assert exp.output.out == "elsewhere" and exp.sweep.resume is False
 
 
-@pytest.mark.parametrize("text, message", [
-    ('scenario = "paper-example-1"\nkapa = 1.0\n', "unknown field 'kapa' in .*did you mean 'kappa'"),
-    ('scenario = "paper-example-1"\nalpha0 = "big"\n', "field 'alpha0' .* must be a number, got 'big'"),
-    ('scenario = "paper-example-1"\nseeds = 2.5\n', "field 'seeds' .* must be an integer"),
-    ('scenario = "paper-example-1"\nshared = 1\n', "field 'shared' .* must be true or false"),
-    ('scenario = "paper-example-1"\n[grid]\nkapa = [1.0]\n', r"unknown field 'kapa' in \[grid\].*did you mean 'kappa'"),
-    ('scenario = "paper-example-1"\n[grid]\nkappa = 1.0\n', "grid.kappa .* must be a non-empty list"),
-    ('scenario = "paper-example-1"\n[sweep]\nexecuter = "ray"\n', "unknown field 'executer'.*did you mean 'executor'"),
-    ('scenario = "paper-example-1"\n[sweep]\nexecutor = "dask"\n', "executor must be one of process, ray"),
-    ('scenario = "paper-example-1\n', "is not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('scenario = "paper-example-1"\nkapa = 1.0\n', "unknown field 'kapa' in .*did you mean 'kappa'"),
+        ('scenario = "paper-example-1"\nalpha0 = "big"\n', "field 'alpha0' .* must be a number, got 'big'"),
+        ('scenario = "paper-example-1"\nseeds = 2.5\n', "field 'seeds' .* must be an integer"),
+        ('scenario = "paper-example-1"\nshared = 1\n', "field 'shared' .* must be true or false"),
+        (
+            'scenario = "paper-example-1"\n[grid]\nkapa = [1.0]\n',
+            r"unknown field 'kapa' in \[grid\].*did you mean 'kappa'",
+        ),
+        ('scenario = "paper-example-1"\n[grid]\nkappa = 1.0\n', "grid.kappa .* must be a non-empty list"),
+        (
+            'scenario = "paper-example-1"\n[sweep]\nexecuter = "ray"\n',
+            "unknown field 'executer'.*did you mean 'executor'",
+        ),
+        ('scenario = "paper-example-1"\n[sweep]\nexecutor = "dask"\n', "executor must be one of process, ray"),
+        ('scenario = "paper-example-1\n', "is not valid TOML"),
+    ],
+)
 def test_bad_files_name_the_field(tmp_path, text, message):
     with pytest.raises(DgtdInputError, match=message):
         load(write(tmp_path, text))
 
 
-@pytest.mark.parametrize("spec, message", [
-    (RunSpec(scenario="paper-exmple-1"), "unknown scenario 'paper-exmple-1'.*did you mean 'paper-example-1'"),
-    (RunSpec(scenario="paper-example-1", algorithm="dgdt"), "unknown algorithm 'dgdt'; did you mean 'dgtd'"),
-    (RunSpec(scenario="paper-example-1", params={"size": 3}), "scenario 'paper-example-1' has no parameter 'size'"),
-    (RunSpec(scenario="paper-example-1", algorithm_params={"box_scal": 3.0}), "no parameter 'box_scal'; did you mean 'box_scale'"),
-    (RunSpec(scenario="paper-example-1", algorithm_params={"box_scale": "x"}), "box_scale must be a number"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        (RunSpec(scenario="paper-exmple-1"), "unknown scenario 'paper-exmple-1'.*did you mean 'paper-example-1'"),
+        (RunSpec(scenario="paper-example-1", algorithm="dgdt"), "unknown algorithm 'dgdt'; did you mean 'dgtd'"),
+        (RunSpec(scenario="paper-example-1", params={"size": 3}), "scenario 'paper-example-1' has no parameter 'size'"),
+        (
+            RunSpec(scenario="paper-example-1", algorithm_params={"box_scal": 3.0}),
+            "no parameter 'box_scal'; did you mean 'box_scale'",
+        ),
+        (RunSpec(scenario="paper-example-1", algorithm_params={"box_scale": "x"}), "box_scale must be a number"),
+    ],
+)
 def test_bad_specs_fail_with_a_useful_message(spec, message):
     with pytest.raises(DgtdInputError, match=message):
         resolve(spec)
@@ -85,13 +110,16 @@ def test_resolved_spec_records_everything():
     assert resolve(resolved)[-1] == resolved
 
 
-@pytest.mark.parametrize("args, message", [
-    (("run", "{dir}/exp.toml"), "unknown field 'kapa'"),
-    (("run", "paper-exmple-1"), "unknown scenario 'paper-exmple-1'"),
-    (("run", "{dir}/grid.toml"), "has a \\[grid\\]: run it with `dgtd sweep FILE`"),
-    (("sweep", "{dir}/exp.toml"), "unknown field 'kapa'"),
-    (("run", "{dir}/missing.toml"), "does not exist"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("run", "{dir}/exp.toml"), "unknown field 'kapa'"),
+        (("run", "paper-exmple-1"), "unknown scenario 'paper-exmple-1'"),
+        (("run", "{dir}/grid.toml"), "has a \\[grid\\]: run it with `dgtd sweep FILE`"),
+        (("sweep", "{dir}/exp.toml"), "unknown field 'kapa'"),
+        (("run", "{dir}/missing.toml"), "does not exist"),
+    ],
+)
 def test_cli_exits_2_with_one_line(tmp_path, run_cli, args, message):
     import re
 
@@ -116,9 +144,28 @@ def test_config_toml_reproduces_the_run(tmp_path, run_cli):
     sa.pop("seconds"), sb.pop("seconds")
     assert sa == sb
     # and the flags alone give the same run as the file
-    code, out, err = run_cli("run", "paper-example-1", "-T", "3000", "--seeds", "2", "--checkpoints", "10",
-                             "--backend", "numpy", "--reward-noise", "bernoulli", "--edge-prob", "0.6", "--kappa", "0.5",
-                             "--no-plots", "--no-progress", "--out", tmp_path / "c")
+    code, out, err = run_cli(
+        "run",
+        "paper-example-1",
+        "-T",
+        "3000",
+        "--seeds",
+        "2",
+        "--checkpoints",
+        "10",
+        "--backend",
+        "numpy",
+        "--reward-noise",
+        "bernoulli",
+        "--edge-prob",
+        "0.6",
+        "--kappa",
+        "0.5",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "c",
+    )
     assert code == 0, err
     assert (tmp_path / "a" / "metrics.csv").read_bytes() == (tmp_path / "c" / "metrics.csv").read_bytes()
 
@@ -151,8 +198,11 @@ def test_problem_files_are_recorded_with_absolute_paths(tmp_path, monkeypatch, r
     monkeypatch.chdir(tmp_path)
     save_problem("chain.npz", get_scenario("paper-example-1").problem)
     (tmp_path / "edges.txt").write_text("0 1\n1 2\n2 3\n3 4\n")
-    write(tmp_path, 'problem_file = "chain.npz"\ngraph = "edges.txt"\niterations = 500\nbackend = "numpy"\n'
-                    'plots = false\nprogress = false\nout = "o"\n')
+    write(
+        tmp_path,
+        'problem_file = "chain.npz"\ngraph = "edges.txt"\niterations = 500\nbackend = "numpy"\n'
+        'plots = false\nprogress = false\nout = "o"\n',
+    )
     code, out, err = run_cli("run", "exp.toml")
     assert code == 0, err
     saved = tomllib.loads((tmp_path / "o" / "config.toml").read_text())

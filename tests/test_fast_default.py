@@ -18,9 +18,11 @@ def test_dgtd_run_uses_the_fast_defaults_and_the_paper_example_keeps_the_papers(
     from dgtd.problems.io import save_problem
 
     save_problem(tmp_path / "p.npz", get_scenario("garnet").problem)
-    for args, expected in (((("--problem", tmp_path / "p.npz")), (10.0, 1000.0, 3.0)),
-                           (("boyan",), (10.0, 1000.0, 3.0)),
-                           (("paper-example-1",), (10.0, 100.0, 1.0))):
+    for args, expected in (
+        ((("--problem", tmp_path / "p.npz")), (10.0, 1000.0, 3.0)),
+        (("boyan",), (10.0, 1000.0, 3.0)),
+        (("paper-example-1",), (10.0, 100.0, 1.0)),
+    ):
         out = tmp_path / args[-1].__str__().replace("/", "_")
         code, _, err = run_cli("run", *args, "-T", "100", "--no-plots", "--no-progress", "--out", out)
         assert code == 0, err
@@ -42,8 +44,9 @@ def test_the_tail_average_error_falls_like_one_over_sqrt_t():
     Ts = np.array([20_000, 80_000, 320_000, 1_280_000])
     rms = []
     for T in Ts:
-        r = run(sc.problem, sc.network, DGTD(), sc.sampling, RunSettings(iterations=int(T), seeds=16, seed=7,
-                                                                            checkpoints=2))
+        r = run(
+            sc.problem, sc.network, DGTD(), sc.sampling, RunSettings(iterations=int(T), seeds=16, seed=7, checkpoints=2)
+        )
         e = exact.value_error(m, r.w_tail, r.w_star).max(-1)
         rms.append(np.sqrt(np.mean(e**2)))
     slope = np.polyfit(np.log(Ts), np.log(rms), 1)[0]

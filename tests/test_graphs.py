@@ -54,8 +54,9 @@ def test_mean_laplacian_matches_sampled_average():
     net = random_edges(topologies.complete(4), 0.3)
     u = np.random.default_rng(0).random((20_000, net.n_edges))
     masks = net.masks_from_uniforms(u)
-    Ls = np.einsum("te,eij->ij", masks.astype(float), np.stack([
-        topologies.from_edges(4, [e]).laplacian() for e in net.base.edges])) / len(u)
+    Ls = np.einsum(
+        "te,eij->ij", masks.astype(float), np.stack([topologies.from_edges(4, [e]).laplacian() for e in net.base.edges])
+    ) / len(u)
     assert_allclose(Ls, net.mean_laplacian(), atol=0.03)
 
 

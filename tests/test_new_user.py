@@ -37,8 +37,11 @@ def test_sweep_with_zero_workers_is_refused(run_cli, tmp_path):
 
 @pytest.mark.parametrize("graph, hint", [("rnig", "did you mean 'ring'?"), ("no-such-file.txt", "known graphs: path")])
 def test_an_unknown_graph_name_lists_the_known_ones(run_cli, tmp_path, graph, hint):
-    one_line_error(*run_cli("run", "paper-example-1", "--graph", graph, "-T", "10", "--out", tmp_path / "r"),
-                   "neither a known graph nor an edge-list file", hint)
+    one_line_error(
+        *run_cli("run", "paper-example-1", "--graph", graph, "-T", "10", "--out", tmp_path / "r"),
+        "neither a known graph nor an edge-list file",
+        hint,
+    )
 
 
 def test_bench_with_an_unknown_backend_is_one_line(run_cli, tmp_path):
@@ -46,17 +49,31 @@ def test_bench_with_an_unknown_backend_is_one_line(run_cli, tmp_path):
 
 
 def test_bench_with_an_unknown_algorithm_is_one_line(run_cli, tmp_path):
-    one_line_error(*run_cli("bench", "--algorithm", "dgtd,td1", "--cases", "A", "--out", tmp_path),
-                   "unknown algorithm(s) td1", "or all")
+    one_line_error(
+        *run_cli("bench", "--algorithm", "dgtd,td1", "--cases", "A", "--out", tmp_path),
+        "unknown algorithm(s) td1",
+        "or all",
+    )
 
 
 def test_a_huge_step_size_that_pins_the_iterates_to_the_boxes_is_reported(run_cli, tmp_path):
-    code, out, err = run_cli("run", "paper-example-1", "-T", "200", "--alpha0", "1e300", "--no-plots",
-                             "--no-progress", "--out", tmp_path / "r")
+    code, out, err = run_cli(
+        "run",
+        "paper-example-1",
+        "-T",
+        "200",
+        "--alpha0",
+        "1e300",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "r",
+    )
     assert code == 0
     assert "warning:" in err and "100% of w" in err and "--alpha0" in err
-    code, out, err = run_cli("run", "paper-example-1", "-T", "100000", "--no-plots", "--no-progress",
-                             "--out", tmp_path / "ok")
+    code, out, err = run_cli(
+        "run", "paper-example-1", "-T", "100000", "--no-plots", "--no-progress", "--out", tmp_path / "ok"
+    )
     assert code == 0 and "warning" not in err  # the paper's settings leave the boxes by then
 
 
@@ -109,15 +126,20 @@ def test_resuming_a_directory_without_a_run_says_so(run_cli, tmp_path):
     one_line_error(*run_cli("run", "--resume", tmp_path / "empty"), "holds no run (no config.toml)")
 
 
-@pytest.mark.parametrize("damage, words", [
-    (lambda d: (d / "metrics.csv").write_text((d / "metrics.csv").read_text()[:300]), "lacks the metric(s)"),
-    (lambda d: (d / "metrics.csv").write_text("algorithm,seed,step,metric,value\ndgtd,0,x,error_avg,1\n"),
-     "is not a number"),
-    (lambda d: (d / "metrics.csv").write_text("algorithm,seed\ndgtd,0\n"), "lacks the column(s)"),
-    (lambda d: (d / "summary.json").write_text('{"w_star": '), "is not valid JSON"),
-    (lambda d: (d / "trajectory.npz").write_bytes(b"PK\x03\x04junk"), "not a complete .npz file"),
-    (lambda d: (d / "trajectory.npz").write_text("not arrays"), "is not an .npz file of plain arrays"),
-])
+@pytest.mark.parametrize(
+    "damage, words",
+    [
+        (lambda d: (d / "metrics.csv").write_text((d / "metrics.csv").read_text()[:300]), "lacks the metric(s)"),
+        (
+            lambda d: (d / "metrics.csv").write_text("algorithm,seed,step,metric,value\ndgtd,0,x,error_avg,1\n"),
+            "is not a number",
+        ),
+        (lambda d: (d / "metrics.csv").write_text("algorithm,seed\ndgtd,0\n"), "lacks the column(s)"),
+        (lambda d: (d / "summary.json").write_text('{"w_star": '), "is not valid JSON"),
+        (lambda d: (d / "trajectory.npz").write_bytes(b"PK\x03\x04junk"), "not a complete .npz file"),
+        (lambda d: (d / "trajectory.npz").write_text("not arrays"), "is not an .npz file of plain arrays"),
+    ],
+)
 def test_plot_on_damaged_results_is_one_line(run_cli, tmp_path, damage, words):
     out = tmp_path / "r"
     code, _, _ = run_cli("run", "paper-example-1", "-T", "300", "--no-progress", "--no-plots", "--out", out)
@@ -129,10 +151,12 @@ def test_plot_on_damaged_results_is_one_line(run_cli, tmp_path, damage, words):
 def test_a_single_agent_problem_runs(run_cli, tmp_path):
     import numpy as np
 
-    np.savez(tmp_path / "one.npz", P=np.array([[0.5, 0.5], [0.5, 0.5]]), R=np.array([[1.0, 0.0]]), Phi=np.eye(2),
-             gamma=0.9)
-    code, out, err = run_cli("run", "--problem", tmp_path / "one.npz", "-T", "300", "--no-progress", "--out",
-                             tmp_path / "r")
+    np.savez(
+        tmp_path / "one.npz", P=np.array([[0.5, 0.5], [0.5, 0.5]]), R=np.array([[1.0, 0.0]]), Phi=np.eye(2), gamma=0.9
+    )
+    code, out, err = run_cli(
+        "run", "--problem", tmp_path / "one.npz", "-T", "300", "--no-progress", "--out", tmp_path / "r"
+    )
     assert code == 0, err
     assert "1 agent, no links" in out and (tmp_path / "r" / "summary.json").exists()
 
@@ -155,20 +179,30 @@ def test_a_directory_never_mixes_two_runs(run_cli, tmp_path):
 def test_the_kernels_load_before_the_first_iteration_and_the_times_are_reported(run_cli, tmp_path):
     """run() loads (or compiles) the kernel on an empty block and says so before the first block, so a progress
     bar started then measures the run alone; the empty block changes nothing; the command reports each phase."""
+    import numpy as np
+
     from dgtd.algorithms import DGTD
     from dgtd.graphs import topologies
     from dgtd.graphs.random import random_edges
     from dgtd.problems.generators import random_problem
     from dgtd.run.loop import RunSettings, run
     from dgtd.sources.model import Sampling
-    import numpy as np
 
     events = []
     p = random_problem(5, 4, 3, np.random.default_rng(0))
     net = random_edges(topologies.ring(4), 0.5)
-    r = run(p, net, DGTD(alpha0=0.5, beta=10), Sampling(), RunSettings(iterations=50, seeds=2),
-            progress=lambda n: events.append(("progress", n)), kernel_ready=lambda s: events.append(("ready", s)))
-    assert events[0][0] == "ready" and events[0][1] >= 0 and [e for e, _ in events[1:]] == ["progress"] * (len(events) - 1)
+    r = run(
+        p,
+        net,
+        DGTD(alpha0=0.5, beta=10),
+        Sampling(),
+        RunSettings(iterations=50, seeds=2),
+        progress=lambda n: events.append(("progress", n)),
+        kernel_ready=lambda s: events.append(("ready", s)),
+    )
+    assert (
+        events[0][0] == "ready" and events[0][1] >= 0 and [e for e, _ in events[1:]] == ["progress"] * (len(events) - 1)
+    )
     plain = run(p, net, DGTD(alpha0=0.5, beta=10), Sampling(), RunSettings(iterations=50, seeds=2, block_size=7))
     assert np.array_equal(r.w_last, plain.w_last)
     code, out, err = run_cli("run", "paper-example-1", "-T", "300", "--out", tmp_path / "r")
@@ -179,8 +213,9 @@ def test_the_kernels_load_before_the_first_iteration_and_the_times_are_reported(
 
 def test_plot_on_a_compare_directory_redraws_the_comparison(run_cli, tmp_path):
     out = tmp_path / "c"
-    code, _, err = run_cli("compare", "boyan", "-T", "2000", "--seeds", "2", "-a", "dgtd,gtd2", "--no-progress",
-                           "--no-plots", "--out", out)
+    code, _, err = run_cli(
+        "compare", "boyan", "-T", "2000", "--seeds", "2", "-a", "dgtd,gtd2", "--no-progress", "--no-plots", "--out", out
+    )
     assert code == 0, err
     assert not (out / "compare.png").exists()
     code, text, err = run_cli("plot", out)
@@ -251,8 +286,20 @@ def test_an_interrupted_compare_keeps_the_finished_algorithms(run_cli, tmp_path,
 
     monkeypatch.setattr(compare_module, "run", interrupted_second)
     out = tmp_path / "c"
-    code, _, err = run_cli("compare", "boyan", "-T", "1000", "--seeds", "2", "-a", "gtd2,td0,dgtd", "--no-progress",
-                           "--no-plots", "--out", out)
+    code, _, err = run_cli(
+        "compare",
+        "boyan",
+        "-T",
+        "1000",
+        "--seeds",
+        "2",
+        "-a",
+        "gtd2,td0,dgtd",
+        "--no-progress",
+        "--no-plots",
+        "--out",
+        out,
+    )
     assert code == 130
     assert "the results of gtd2 are written" in err and "td0, dgtd did not run to the end" in err, err
     summary = json.loads((out / "summary.json").read_text())

@@ -70,8 +70,9 @@ def test_a_second_process_loads_the_cached_kernel_without_refresh(tmp_path):
     outs = []
     for k in range(2):
         out = tmp_path / f"w{k}.npy"
-        r = subprocess.run([sys.executable, "-c", SECOND_PROCESS, str(out)], capture_output=True, text=True,
-                           env=cli_env())
+        r = subprocess.run(
+            [sys.executable, "-c", SECOND_PROCESS, str(out)], capture_output=True, text=True, env=cli_env()
+        )
         assert r.returncode == 0, r.stderr
         outs.append((r.stdout.strip(), np.load(out)))
     assert outs[1][0] == "not refreshed"
@@ -99,8 +100,9 @@ def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path)
     from pathlib import Path
 
     src = tmp_path / "src"
-    shutil.copytree(Path(__file__).resolve().parents[1] / "src" / "dgtd", src / "dgtd",
-                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(
+        Path(__file__).resolve().parents[1] / "src" / "dgtd", src / "dgtd", ignore=shutil.ignore_patterns("__pycache__")
+    )
     env = {**cli_env(), "PYTHONPATH": str(src)}
 
     def value() -> str:

@@ -6,9 +6,9 @@ from __future__ import annotations
 import os
 
 import pytest
+from test_new_user import one_line_error
 
 from dgtd.run.owner import Owner, kind_of
-from test_new_user import one_line_error
 
 QUICK = ("-T", 20, "--no-progress", "--no-plots")
 
@@ -32,11 +32,14 @@ def test_a_run_lets_its_directory_go_when_it_fails(run_cli, tmp_path):
     assert code == 0, err
 
 
-@pytest.mark.parametrize("there, command", [
-    ("sweep", ("run", "paper-example-1", *QUICK)),
-    ("comparison", ("run", "paper-example-1", *QUICK)),
-    ("run", ("compare", "paper-example-1", "-a", "td0", "--seeds", 1, *QUICK)),
-])
+@pytest.mark.parametrize(
+    "there, command",
+    [
+        ("sweep", ("run", "paper-example-1", *QUICK)),
+        ("comparison", ("run", "paper-example-1", *QUICK)),
+        ("run", ("compare", "paper-example-1", "-a", "td0", "--seeds", 1, *QUICK)),
+    ],
+)
 def test_one_kind_of_results_is_not_written_into_anothers_directory(run_cli, tmp_path, there, command):
     out = tmp_path / "o"
     out.mkdir()

@@ -18,7 +18,8 @@ def _png(path) -> bool:
 
 def test_a_run_directory_reads_back_exactly(tmp_path, run_cli):
     problem, network, algorithm, samp, settings, resolved = resolve(
-        RunSpec(scenario="paper-example-1", iterations=2000, seeds=3, checkpoints=12, backend="numpy"))
+        RunSpec(scenario="paper-example-1", iterations=2000, seeds=3, checkpoints=12, backend="numpy")
+    )
     result = run(problem, network, algorithm, samp, settings)
     write_results(tmp_path, result, resolved.to_dict(), resolved.algorithm)
     saved = load_run(tmp_path)
@@ -32,8 +33,17 @@ def test_a_run_directory_reads_back_exactly(tmp_path, run_cli):
 
 
 def test_a_sweep_directory_gives_curves_and_final_errors(tmp_path, run_cli):
-    exp = parse({"scenario": "paper-example-1", "iterations": 1500, "seeds": 2, "checkpoints": 8, "backend": "numpy",
-                 "grid": {"alpha0": [1.0, 5.0], "kappa": [0.0, 1.0, 2.0]}, "sweep": {"workers": 2}})
+    exp = parse(
+        {
+            "scenario": "paper-example-1",
+            "iterations": 1500,
+            "seeds": 2,
+            "checkpoints": 8,
+            "backend": "numpy",
+            "grid": {"alpha0": [1.0, 5.0], "kappa": [0.0, 1.0, 2.0]},
+            "sweep": {"workers": 2},
+        }
+    )
     run_sweep(exp, tmp_path / "two", echo=lambda s: None, progress=False)
     code, out, err = run_cli("plot", tmp_path / "two")
     assert code == 0, err
@@ -62,8 +72,13 @@ def _result(steps, w_star, w_trace=None, consensus=None):
 
     C = len(steps)
     ones = np.ones((C, 2))
-    metrics = {"error_last": ones, "error_avg": ones, "consensus": ones if consensus is None else consensus,
-               "mspbe_last": ones, "mspbe_avg": ones}
+    metrics = {
+        "error_last": ones,
+        "error_avg": ones,
+        "consensus": ones if consensus is None else consensus,
+        "mspbe_last": ones,
+        "mspbe_avg": ones,
+    }
     return SimpleNamespace(steps=np.asarray(steps), w_star=np.asarray(w_star, float), w_trace=w_trace, metrics=metrics)
 
 

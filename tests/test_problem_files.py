@@ -16,9 +16,16 @@ def chain_arrays(to_first: float = 0.32) -> dict:
     target always to the second state, behaviour to the first with probability ``to_first``; w* = 105 at 0.32."""
     P = np.zeros((2, 2, 2))
     P[:, 0, 0] = P[:, 1, 1] = 1.0
-    return {"P": P, "R": np.stack([np.full((2, 2), 1.5), np.full((2, 2), 0.5)]), "Phi": np.array([[1.0], [2.0]]),
-            "gamma": 0.9, "policy_0": np.array([[0.0, 1.0], [0.0, 1.0]]), "policy_1": np.ones((2, 1)),
-            "behaviour_0": np.array([[to_first, 1 - to_first]] * 2), "behaviour_1": np.ones((2, 1))}
+    return {
+        "P": P,
+        "R": np.stack([np.full((2, 2), 1.5), np.full((2, 2), 0.5)]),
+        "Phi": np.array([[1.0], [2.0]]),
+        "gamma": 0.9,
+        "policy_0": np.array([[0.0, 1.0], [0.0, 1.0]]),
+        "policy_1": np.ones((2, 1)),
+        "behaviour_0": np.array([[to_first, 1 - to_first]] * 2),
+        "behaviour_1": np.ones((2, 1)),
+    }
 
 
 def write(tmp_path, name="mdp.npz", **arrays):
@@ -35,8 +42,19 @@ def test_an_mdp_file_is_reduced_exactly_and_runs_off_policy(tmp_path, run_cli):
     assert code == 0, err
     solved = json.loads(out)
     assert solved["off_policy"] and solved["w_star"] == pytest.approx([105.0])
-    code, out, err = run_cli("run", "--problem", path, "--graph", "path", "-T", "2000", "--no-plots", "--no-progress",
-                             "--out", tmp_path / "run")
+    code, out, err = run_cli(
+        "run",
+        "--problem",
+        path,
+        "--graph",
+        "path",
+        "-T",
+        "2000",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "run",
+    )
     assert code == 0, err
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["w_star"] == pytest.approx([105.0])
 
@@ -56,21 +74,28 @@ def _without(arrays: dict, *keys) -> dict:
 
 
 BAD = {
-    "no policies": (_without(chain_arrays(), "policy_0", "policy_1", "behaviour_0", "behaviour_1"),
-                    "no policies: add each agent's local target policy as policy_0"),
+    "no policies": (
+        _without(chain_arrays(), "policy_0", "policy_1", "behaviour_0", "behaviour_1"),
+        "no policies: add each agent's local target policy as policy_0",
+    ),
     "a gap in the numbering": (_without(chain_arrays(), "policy_0"), "policy_0 is missing"),
     "fewer behaviour policies": (_without(chain_arrays(), "behaviour_1"), "2 target policies but 1 behaviour"),
-    "a policy row not summing to 1": ({**chain_arrays(), "policy_0": np.array([[0.5, 0.4], [0.0, 1.0]])},
-                                      "policy 0"),
-    "a policy of the wrong width": ({**chain_arrays(), "policy_1": np.ones((2, 2)) / 2,
-                                     "behaviour_1": np.ones((2, 2)) / 2}, "multiply to 4 joint actions but P has 2"),
+    "a policy row not summing to 1": ({**chain_arrays(), "policy_0": np.array([[0.5, 0.4], [0.0, 1.0]])}, "policy 0"),
+    "a policy of the wrong width": (
+        {**chain_arrays(), "policy_1": np.ones((2, 2)) / 2, "behaviour_1": np.ones((2, 2)) / 2},
+        "multiply to 4 joint actions but P has 2",
+    ),
     "rewards of the wrong shape": ({**chain_arrays(), "R": np.ones((2, 2))}, "rewards must have 3 dimensions"),
     "NaN in P": ({**chain_arrays(), "P": np.full((2, 2, 2), np.nan)}, "NaN"),
     "P(s, a, .) not summing to 1": ({**chain_arrays(), "P": np.full((2, 2, 2), 0.4)}, "P(s, a, .)"),
-    "a target action the behaviour never takes": ({**chain_arrays(0.32), "behaviour_0": np.array([[1.0, 0.0]] * 2)},
-                                                  "never takes joint action 1"),
-    "policies with an MRP-form P": ({**chain_arrays(), "P": np.full((2, 2), 0.5), "R": np.ones((2, 2))},
-                                    "policies belong to the multi-agent MDP form"),
+    "a target action the behaviour never takes": (
+        {**chain_arrays(0.32), "behaviour_0": np.array([[1.0, 0.0]] * 2)},
+        "never takes joint action 1",
+    ),
+    "policies with an MRP-form P": (
+        {**chain_arrays(), "P": np.full((2, 2), 0.5), "R": np.ones((2, 2))},
+        "policies belong to the multi-agent MDP form",
+    ),
     "a terminal flag that is not 0 or 1": ({**chain_arrays(), "terminal": np.array([0, 2])}, "terminal must be"),
 }
 

@@ -16,23 +16,26 @@ P2 = [[0.5, 0.5], [0.2, 0.8]]
 def test_paper_example_features():
     Phi = gaussian_rbf([1, 2, 3, 4], [0, 4])
     s = np.arange(1, 5)
-    assert_allclose(Phi, np.stack([np.exp(-s**2), np.exp(-(s - 4) ** 2)], 1))
+    assert_allclose(Phi, np.stack([np.exp(-(s**2)), np.exp(-((s - 4) ** 2))], 1))
     assert_allclose(tabular(3), np.eye(3))
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(P=[[0.5, 0.4], [0.2, 0.8]]), "sums to 0.9"),
-    (dict(P=[[1.2, -0.2], [0.2, 0.8]]), "negative"),
-    (dict(P=[[1.0, 0.0], [0.0, 1.0]]), "not ergodic"),
-    (dict(Phi=[[1.0, 2.0], [2.0, 4.0]]), "full column rank"),
-    (dict(R=[[1.0, 0.0, 1.0]]), "shape"),
-    (dict(Phi=[[1.0], [1.0], [0.0]]), "shape"),
-    (dict(gamma=1.0), "gamma"),
-    (dict(gamma=0.0), "gamma"),
-    (dict(R=[[np.nan, 0.0]]), "NaN"),
-    (dict(P=[[np.inf, 0.5], [0.2, 0.8]]), "NaN or infinite"),
-    (dict(R=[[-1.0, 0.0]]), ">= 0"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(P=[[0.5, 0.4], [0.2, 0.8]]), "sums to 0.9"),
+        (dict(P=[[1.2, -0.2], [0.2, 0.8]]), "negative"),
+        (dict(P=[[1.0, 0.0], [0.0, 1.0]]), "not ergodic"),
+        (dict(Phi=[[1.0, 2.0], [2.0, 4.0]]), "full column rank"),
+        (dict(R=[[1.0, 0.0, 1.0]]), "shape"),
+        (dict(Phi=[[1.0], [1.0], [0.0]]), "shape"),
+        (dict(gamma=1.0), "gamma"),
+        (dict(gamma=0.0), "gamma"),
+        (dict(R=[[np.nan, 0.0]]), "NaN"),
+        (dict(P=[[np.inf, 0.5], [0.2, 0.8]]), "NaN or infinite"),
+        (dict(R=[[-1.0, 0.0]]), ">= 0"),
+    ],
+)
 def test_bad_problems_are_refused(kwargs, match):
     args = dict(P=P2, R=[[1.0, 0.0]], Phi=[[1.0], [2.0]], gamma=0.9) | kwargs
     with pytest.raises(DgtdInputError, match=match):
@@ -74,5 +77,12 @@ def test_off_policy_needs_coverage():
 
 def test_sampling_model_must_reproduce_target():
     with pytest.raises(DgtdInputError, match="reproduce P"):
-        make_problem(P2, [[1.0, 0.0]], [[1.0], [2.0]], 0.9, P_sample=np.array(P2)[:, None, :][:, :, ::-1],
-                     ratio=np.ones((2, 1)), R_sample=np.array([[[1.0], [0.0]]]))
+        make_problem(
+            P2,
+            [[1.0, 0.0]],
+            [[1.0], [2.0]],
+            0.9,
+            P_sample=np.array(P2)[:, None, :][:, :, ::-1],
+            ratio=np.ones((2, 1)),
+            R_sample=np.array([[[1.0], [0.0]]]),
+        )

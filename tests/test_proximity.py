@@ -42,14 +42,21 @@ def test_masks_follow_the_complete_graphs_edge_order_and_any_leading_axes():
 
 
 def test_three_dimensional_positions_work_too():
-    assert proximity_masks(np.array([[0, 0, 0], [1, 2, 2], [1, 2, 5]], float), complete(3).edges, 3.0).tolist() == \
-        [True, False, True]
+    assert proximity_masks(np.array([[0, 0, 0], [1, 2, 2], [1, 2, 5]], float), complete(3).edges, 3.0).tolist() == [
+        True,
+        False,
+        True,
+    ]
 
 
 def test_is_connected_on_hand_cases():
     e = complete(3).edges  # (0,1), (0,2), (1,2)
-    assert is_connected(np.array([[1, 0, 1], [1, 0, 0], [0, 0, 0], [1, 1, 1]], bool), e, 3).tolist() == \
-        [True, False, False, True]
+    assert is_connected(np.array([[1, 0, 1], [1, 0, 0], [0, 0, 0], [1, 1, 1]], bool), e, 3).tolist() == [
+        True,
+        False,
+        False,
+        True,
+    ]
     assert is_connected(np.zeros((2, 0), bool), np.zeros((0, 2), np.int64), 1).tolist() == [True, True]
     assert is_connected(np.array([[True], [False]]), complete(2).edges, 2).tolist() == [True, False]
 

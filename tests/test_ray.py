@@ -65,7 +65,8 @@ def test_ray_sweep_equals_the_pool_and_listens_on_loopback_only(tmp_path, refere
     out, listen = tmp_path / "out", tmp_path / "listen.txt"
     cmd = shlex.join(dgtd_cmd("sweep", sweep_file(tmp_path), "--out", out, "--executor", "ray", "--workers", "2"))
     # while the sweep runs, record every listening TCP socket of the namespace
-    script = f"{cmd} & p=$!; while kill -0 $p 2>/dev/null; do ss -ltnH >> {shlex.quote(str(listen))}; sleep 0.3; done; wait $p"
+    record = f"ss -ltnH >> {shlex.quote(str(listen))}"
+    script = f"{cmd} & p=$!; while kill -0 $p 2>/dev/null; do {record}; sleep 0.3; done; wait $p"
     r = subprocess.run(in_namespace(script), env=ray_env(), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "12 jobs run" in r.stdout and "a local Ray on 127.0.0.1" in r.stdout
@@ -128,20 +129,22 @@ def test_a_ray_start_cluster_on_loopback(tmp_path, reference):
     logs = {name: tmp_path / f"{name}.log" for name in ("refused", "token", "beside", "after")}
     q = {name: shlex.quote(str(path)) for name, path in logs.items()}
     out = {name: shlex.quote(str(tmp_path / name)) for name in logs}
-    script = " ; ".join([
-        f"timeout 90 {ray} start --head --node-ip-address=127.0.0.1 --port=6391 --num-cpus=2 "
-        "--include-dashboard=false --disable-usage-stats > /dev/null 2>&1",
-        f"timeout 120 {dgtd} sweep {sweep} --out {out['refused']} --executor ray --address 127.0.0.1:6391 "
-        f"--no-progress > {q['refused']} 2>&1; echo refused=$? >> {q['refused']}",
-        f"RAY_AUTH_MODE=token timeout 300 {dgtd} sweep {sweep} --out {out['token']} --executor ray "
-        f"--address 127.0.0.1:6391 --no-progress > {q['token']} 2>&1; echo token=$? >> {q['token']}",
-        f"timeout 300 {dgtd} sweep {sweep} --out {out['beside']} --executor ray --workers 2 --no-progress "
-        f"> {q['beside']} 2>&1; echo beside=$? >> {q['beside']}",
-        "pkill -9 -f 'gcs_serve[r]' ; pkill -9 -f 'rayle[t]' ; sleep 2",  # [r]: not this script's own line
-        f"timeout 300 {dgtd} sweep {sweep} --out {out['after']} --executor ray --workers 2 --no-progress "
-        f"> {q['after']} 2>&1; echo after=$? >> {q['after']}",
-        f"timeout 60 {ray} stop --force > /dev/null 2>&1",
-    ])
+    script = " ; ".join(
+        [
+            f"timeout 90 {ray} start --head --node-ip-address=127.0.0.1 --port=6391 --num-cpus=2 "
+            "--include-dashboard=false --disable-usage-stats > /dev/null 2>&1",
+            f"timeout 120 {dgtd} sweep {sweep} --out {out['refused']} --executor ray --address 127.0.0.1:6391 "
+            f"--no-progress > {q['refused']} 2>&1; echo refused=$? >> {q['refused']}",
+            f"RAY_AUTH_MODE=token timeout 300 {dgtd} sweep {sweep} --out {out['token']} --executor ray "
+            f"--address 127.0.0.1:6391 --no-progress > {q['token']} 2>&1; echo token=$? >> {q['token']}",
+            f"timeout 300 {dgtd} sweep {sweep} --out {out['beside']} --executor ray --workers 2 --no-progress "
+            f"> {q['beside']} 2>&1; echo beside=$? >> {q['beside']}",
+            "pkill -9 -f 'gcs_serve[r]' ; pkill -9 -f 'rayle[t]' ; sleep 2",  # [r]: not this script's own line
+            f"timeout 300 {dgtd} sweep {sweep} --out {out['after']} --executor ray --workers 2 --no-progress "
+            f"> {q['after']} 2>&1; echo after=$? >> {q['after']}",
+            f"timeout 60 {ray} stop --force > /dev/null 2>&1",
+        ]
+    )
     subprocess.run(in_namespace(script), env=ray_env(), capture_output=True, text=True, timeout=1200)
     text = {name: path.read_text() for name, path in logs.items()}
     assert "refused=2" in text["refused"], text["refused"]

@@ -14,8 +14,10 @@ import pytest
 
 pytest.importorskip("ray")
 ADDRESS = "10.200.0.1"
-SETUP = (f"ip link set lo up && ip link add veth0 type veth peer name veth1 && ip addr add {ADDRESS}/24 dev veth0 "
-         "&& ip link set veth1 up && ip link set veth0 up && ip route add default via 10.200.0.2 dev veth0")
+SETUP = (
+    f"ip link set lo up && ip link add veth0 type veth peer name veth1 && ip addr add {ADDRESS}/24 dev veth0 "
+    "&& ip link set veth1 up && ip link set veth0 up && ip route add default via 10.200.0.2 dev veth0"
+)
 
 
 def namespace_available() -> bool:
@@ -36,7 +38,7 @@ def test_a_local_ray_refuses_work_from_clients_without_its_token():
     r = subprocess.run(["unshare", "-n", "sh", "-c", cmd], capture_output=True, text=True, timeout=540)
     line = next((x for x in r.stdout.splitlines() if x.startswith("RESULT ")), None)
     assert line is not None, r.stdout[-2000:] + r.stderr[-2000:]
-    result = json.loads(line[len("RESULT "):])
+    result = json.loads(line[len("RESULT ") :])
     assert result["ran"] and result["auth_mode"] == "token"
     # What it listens on (Ray 2.60: every interface, not only loopback): reported, and then the token must hold.
     print("a local Ray listens on", result["listening"])

@@ -12,7 +12,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 def python_example() -> str:
     text = README.read_text()
-    section = text[text.index("## In Python"):]
+    section = text[text.index("## In Python") :]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
@@ -38,8 +38,9 @@ def test_read_results_gives_back_what_dgtd_run_wrote(run_cli, tmp_path):
     from dgtd.errors import DgtdInputError
 
     out = tmp_path / "r"
-    code, _, err = run_cli("run", "paper-example-1", "-T", "500", "--seeds", "2", "--no-progress", "--no-plots",
-                           "--out", out)
+    code, _, err = run_cli(
+        "run", "paper-example-1", "-T", "500", "--seeds", "2", "--no-progress", "--no-plots", "--out", out
+    )
     assert code == 0, err
     results = dgtd.read_results(out)
     last = (np.asarray(results.metrics["metric"]) == "error_avg") & (results.metrics["step"] == 500)
@@ -60,7 +61,7 @@ def test_the_simulator_example_runs_and_says_how_precise_its_reference_is():
 
     pytest.importorskip("gymnasium", reason="the environment extra (pip install dgtd[envs]) is not installed")
     text = README.read_text()
-    section = text[text.index("## Your own simulator or recorded data"):]
+    section = text[text.index("## Your own simulator or recorded data") :]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     out = io.StringIO()
     with contextlib.redirect_stdout(out):

@@ -29,7 +29,9 @@ def test_errors_are_measured_against_the_regularised_saddle_point(small_problem)
     shift = np.abs(w_rho - exact.w_star(m)).max() / np.abs(exact.w_star(m)).max()
     assert shift > 1e-3  # the two differ: the test tells them apart
     s = summary(result, {})
-    assert s["regularisation_shift"] == result.info["regularisation_shift"] and np.isclose(s["regularisation_shift"], shift)
+    assert s["regularisation_shift"] == result.info["regularisation_shift"] and np.isclose(
+        s["regularisation_shift"], shift
+    )
     assert_allclose(s["error_last"], expected)
 
 

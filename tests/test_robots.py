@@ -12,11 +12,19 @@ from dgtd.problems import exact
 from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_star
 from dgtd.problems.features import tabular
 from dgtd.problems.model import make_problem
-from dgtd.scenarios.robots import (
-    PatrolSource, PatrolWorld, cell_index, map_correlation, move, patrol_scenario, region_cells, reward_table,
-    simulate_reference, trajectory,
-)
 from dgtd.run.loop import RunSettings, run
+from dgtd.scenarios.robots import (
+    PatrolSource,
+    PatrolWorld,
+    cell_index,
+    map_correlation,
+    move,
+    patrol_scenario,
+    region_cells,
+    reward_table,
+    simulate_reference,
+    trajectory,
+)
 
 # A small world for fast tests: a 10 m square on a 5 x 5 grid (2 m cells), two robots, two corner regions.
 SMALL = PatrolWorld(size=10.0, grid=5, regions=((0.0, 6.0, 4.0, 10.0), (6.0, 0.0, 10.0, 4.0)))
@@ -69,7 +77,8 @@ def test_bad_world_parameters_are_refused():
         PatrolWorld(gain=0.0)
 
 
-def source(seed_ids=range(3), seed=7, world=PatrolWorld()):
+def source(seed_ids=range(3), seed=7, world=None):
+    world = PatrolWorld() if world is None else world
     src = PatrolSource(world, ProximityNetwork(world.n_robots, 5.0), seed, seed_ids)
     src.start()
     return src
@@ -175,13 +184,21 @@ def test_unvisited_states_are_reported_with_a_fix():
 
 def test_minibatch_td_on_a_hand_computed_case():
     # Two states, w = (1, 2), gamma 0.5, r = (3, 0); samples (0 -> 1), (0 -> 0), (1 -> 0); first visits.
-    w, n = minibatch_td(np.array([1.0, 2.0]), np.array([0, 0]), np.array([0, 0, 1]), np.array([1, 0, 0]),
-                        np.array([3.0, 0.0]), 0.5, omega=1.0)
+    w, n = minibatch_td(
+        np.array([1.0, 2.0]),
+        np.array([0, 0]),
+        np.array([0, 0, 1]),
+        np.array([1, 0, 0]),
+        np.array([3.0, 0.0]),
+        0.5,
+        omega=1.0,
+    )
     # deltas: 3 + 1 - 1 = 3, 3 + 0.5 - 1 = 2.5, 0 + 0.5 - 2 = -1.5; steps min(1, c / n^omega) = 1 for both states
     assert_allclose(w, [1.0 + 2.75, 2.0 - 1.5])
     assert n.tolist() == [2, 1]
-    w2, _ = minibatch_td(np.array([1.0, 2.0]), np.array([6, 0]), np.array([0, 0]), np.array([1, 0]),
-                         np.array([3.0, 0.0]), 0.5, omega=1.0)
+    w2, _ = minibatch_td(
+        np.array([1.0, 2.0]), np.array([6, 0]), np.array([0, 0]), np.array([1, 0]), np.array([3.0, 0.0]), 0.5, omega=1.0
+    )
     assert_allclose(w2[0], 1.0 + (2 / 8) * 2.75)  # c = 2 samples, n = 8 so far: step 2/8 on the mean delta
 
 
@@ -194,14 +211,22 @@ def test_tabular_w_star_solves_the_bellman_equation():
 
 def test_map_correlation():
     ref = np.array([0.0, 1.0, 2.0, 3.0])
-    assert_allclose(map_correlation(np.stack([2 * ref + 5, -ref, ref ** 2]), ref),
-                    [1.0, -1.0, np.corrcoef(ref ** 2, ref)[0, 1]])
+    assert_allclose(
+        map_correlation(np.stack([2 * ref + 5, -ref, ref**2]), ref), [1.0, -1.0, np.corrcoef(ref**2, ref)[0, 1]]
+    )
 
 
 def small_scenario(iterations=100_000, schedule="sqrt", alpha0=10.0, beta=1000.0):
-    return patrol_scenario(SMALL, 4.0, algorithm=DGTD(alpha0=alpha0, beta=beta, schedule=schedule, kappa=3.0),
-                           iterations=iterations, name="small-patrol", description="a small patrol world",
-                           reference_teams=200, reference_steps=2000)
+    return patrol_scenario(
+        SMALL,
+        4.0,
+        algorithm=DGTD(alpha0=alpha0, beta=beta, schedule=schedule, kappa=3.0),
+        iterations=iterations,
+        name="small-patrol",
+        description="a small patrol world",
+        reference_teams=200,
+        reference_steps=2000,
+    )
 
 
 def test_numpy_and_numba_kernels_agree_on_the_patrol_source():
@@ -269,14 +294,24 @@ def test_a_simulators_kernel_is_loaded_before_the_first_step_not_inside_it(monke
 
     def recording(backend, name):
         kernel = real(backend, name)
-        return lambda ctx, state, channel, sums, alpha, block: (lengths.append(len(alpha)),
-                                                                kernel(ctx, state, channel, sums, alpha, block))[1]
+        return lambda ctx, state, channel, sums, alpha, block: (
+            lengths.append(len(alpha)),
+            kernel(ctx, state, channel, sums, alpha, block),
+        )[1]
 
     monkeypatch.setattr(loop, "kernel_for", recording)
     sc = small_scenario()
     events = []
     settings = RunSettings(iterations=300, seeds=1, checkpoints=3, backend="numba", block_size=100)
-    run(sc.problem, sc.network, sc.algorithm, sc.sampling, settings, source=sc.source(0, range(1)),
-        progress=lambda n: events.append("step"), kernel_ready=lambda s: events.append("ready"))
+    run(
+        sc.problem,
+        sc.network,
+        sc.algorithm,
+        sc.sampling,
+        settings,
+        source=sc.source(0, range(1)),
+        progress=lambda n: events.append("step"),
+        kernel_ready=lambda s: events.append("ready"),
+    )
     assert lengths[0] == 0 and sum(lengths) == 300, lengths
     assert events[0] == "ready" and events.count("ready") == 1 and "step" in events

@@ -13,8 +13,8 @@ from dgtd.algorithms.dgtd import DGTD
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.generators import random_mdp_problem, random_problem
-from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
+from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
 
 
@@ -22,8 +22,13 @@ def small_run(backend="numpy", seeds=2, T=300, block=64, sampling=Sampling(), pr
     problem = problem or random_problem(5, 4, 3, np.random.default_rng(3), reward_noise=kw.pop("noise", "none"))
     net = random_edges(topologies.ring(problem.n_agents), p_edge)
     alg = DGTD(alpha0=0.5, beta=10, kappa=1.0, **kw)
-    return run(problem, net, alg, sampling, RunSettings(iterations=T, seeds=seeds, seed=11, checkpoints=5,
-                                                        block_size=block, backend=backend))
+    return run(
+        problem,
+        net,
+        alg,
+        sampling,
+        RunSettings(iterations=T, seeds=seeds, seed=11, checkpoints=5, block_size=block, backend=backend),
+    )
 
 
 def test_same_seed_same_numbers():
@@ -73,8 +78,9 @@ def test_numba_matches_numpy_with_the_regulariser():
     """DGTD's rho terms, off-policy on trajectories, in the compiled step (every other setting of every algorithm:
     tests/test_compiled_steps.py)."""
     problem = random_mdp_problem(4, (2, 2, 1, 2), 3, np.random.default_rng(5))
-    ref, fast = (small_run(backend, problem=problem, sampling=Sampling("markov"), rho=0.05)
-                 for backend in ("numpy", "numba"))
+    ref, fast = (
+        small_run(backend, problem=problem, sampling=Sampling("markov"), rho=0.05) for backend in ("numpy", "numba")
+    )
     scale = np.abs(ref.w_last).max()
     assert_allclose(fast.w_last, ref.w_last, rtol=1e-9, atol=1e-9 * scale)
     assert_allclose(fast.w_avg, ref.w_avg, rtol=1e-9, atol=1e-9 * scale)
@@ -118,8 +124,13 @@ def test_paper_example_1_converges():
     # Example 1: every agent's averaged iterate within 5 % of w* (relative, max norm). Measured margins are
     # several-fold (about 1 %), so the seeded outcome is far from the threshold.
     sc = get_scenario("paper-example-1")
-    res = run(sc.problem, sc.network, sc.algorithm, sc.sampling,
-              RunSettings(iterations=sc.iterations, seeds=3, seed=0, backend="numba"))
+    res = run(
+        sc.problem,
+        sc.network,
+        sc.algorithm,
+        sc.sampling,
+        RunSettings(iterations=sc.iterations, seeds=3, seed=0, backend="numba"),
+    )
     assert res.metrics["error_avg"][-1].max() < 0.05
     assert np.abs(res.w_tail - res.w_star).max() / np.abs(res.w_star).max() < 0.05
     assert res.metrics["consensus"][-1].max() < 1e-3 * res.metrics["consensus"].max()
@@ -142,9 +153,14 @@ def test_kappa_speeds_consensus():
     net = random_edges(topologies.path(5), 0.5)
     out = {}
     for kappa in (0.0, 2.0):
-        r = run(p, net, DGTD(alpha0=0.5, beta=10, kappa=kappa), Sampling(),
-                RunSettings(iterations=20_000, seeds=4, backend="numba", checkpoints=40))
-        out[kappa] = r.metrics["consensus"][len(r.steps) // 2:].mean()
+        r = run(
+            p,
+            net,
+            DGTD(alpha0=0.5, beta=10, kappa=kappa),
+            Sampling(),
+            RunSettings(iterations=20_000, seeds=4, backend="numba", checkpoints=40),
+        )
+        out[kappa] = r.metrics["consensus"][len(r.steps) // 2 :].mean()
     assert out[2.0] < 0.5 * out[0.0]
 
 
@@ -189,8 +205,9 @@ def test_numba_relabelled_rows_match_numpy(layout, name, monkeypatch):
     monkeypatch.setattr(numba_graph, "NEARBY_ROWS", 3)  # twelve agents are all near at the default distance
     rng = np.random.default_rng(8)
     problem = random_problem(6, 12, 3, rng, reward_noise="uniform")
-    net = random_edges(topologies.from_edges(12, [(i, (i + 5) % 12) for i in range(12)] + [(0, 1), (3, 4)], "chords"),
-                       0.7)
+    net = random_edges(
+        topologies.from_edges(12, [(i, (i + 5) % 12) for i in range(12)] + [(0, 1), (3, 4)], "chords"), 0.7
+    )
     alg = make_algorithm(name, alpha0=0.5, beta=10.0)
     settings = RunSettings(iterations=200, seeds=2, seed=4, checkpoints=4, block_size=64)
     ref = run(problem, net, alg, Sampling("markov"), dataclasses.replace(settings, backend="numpy"))
@@ -210,18 +227,25 @@ def test_agents_are_reordered_only_where_that_makes_more_edges_local():
     rng = np.random.default_rng(0)
     n = 2000
     edges = [(i, (i + 1) % n) for i in range(n)] + [tuple(rng.choice(n, 2, replace=False)) for _ in range(n)]
-    ctx = lambda graph: type("Ctx", (), {"network": random_edges(graph, 0.9)})()
+
+    def ctx(graph):
+        return type("Ctx", (), {"network": random_edges(graph, 0.9)})()
+
     assert numba_graph.storage_order(ctx(topologies.from_edges(n, edges, "ring-chords"))) is None
     label = rng.permutation(n)
     ring = [(label[i], label[(i + 1) % n]) for i in range(n)]
     order = numba_graph.storage_order(ctx(topologies.from_edges(n, ring, "shuffled-ring")))
     assert order is not None
-    assert numba_graph._local_fraction(np.array(ring), order[1]) > 0.9 > numba_graph._local_fraction(np.array(ring),
-                                                                                                  np.arange(n))
+    assert (
+        numba_graph._local_fraction(np.array(ring), order[1])
+        > 0.9
+        > numba_graph._local_fraction(np.array(ring), np.arange(n))
+    )
 
 
-@pytest.mark.parametrize("user, expected", [({}, "10000"), ({"OMP_WAIT_POLICY": "PASSIVE"}, None),
-                                            ({"GOMP_SPINCOUNT": "0"}, "0")])
+@pytest.mark.parametrize(
+    "user, expected", [({}, "10000"), ({"OMP_WAIT_POLICY": "PASSIVE"}, None), ({"GOMP_SPINCOUNT": "0"}, "0")]
+)
 def test_openmp_spin_default_keeps_what_the_user_set(user, expected):
     """Importing dgtd sets a short OpenMP spin (agent-parallel kernels hand over between steps without a wake-up),
     unless the user chose a waiting policy or a spin count."""

@@ -13,7 +13,7 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
 from dgtd.run.loop import RunSettings, run
 from dgtd.samples import Block, SampleTable
-from dgtd.sources.model import ModelSource, Sampling, SamplerTables
+from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
 
 class Tabled:
@@ -32,8 +32,7 @@ class Tabled:
         p, n = self.problem, blk.s.size
         s, a, sn = blk.s.ravel(), blk.a.ravel(), blk.s_next.ravel()
         rows = np.concatenate([s, sn])
-        table = SampleTable(p.Phi[rows], np.concatenate([p.ratio[s, a], np.ones(n)])[:, None],
-                            p.continuing[rows])
+        table = SampleTable(p.Phi[rows], np.concatenate([p.ratio[s, a], np.ones(n)])[:, None], p.continuing[rows])
         index = np.arange(n).reshape(blk.s.shape)
         return Block(index, np.zeros_like(index), index + n, blk.r, blk.up, table)
 
@@ -48,8 +47,10 @@ class Tabled:
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_a_block_with_its_own_rows_gives_the_runs_numbers(name, backend):
     """Off-policy ratios and an episodic task's terminal flags travel in the rows too (Boyan's terminal here)."""
-    for problem in (tasks.random_mdp(n_agents=4, off_policy=True, seed=2, n_states=6, n_actions=3, n_features=4,
-                                     gamma=0.9), tasks.boyan(n_agents=4, n_states=8)):
+    for problem in (
+        tasks.random_mdp(n_agents=4, off_policy=True, seed=2, n_states=6, n_actions=3, n_features=4, gamma=0.9),
+        tasks.boyan(n_agents=4, n_states=8),
+    ):
         net = random_edges(topologies.ring(4), 0.7)
         alg = make_algorithm(name, alpha0=0.05, beta=10.0)
         settings = RunSettings(iterations=300, seeds=2, seed=4, checkpoints=3, block_size=128, backend=backend)

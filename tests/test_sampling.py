@@ -8,8 +8,15 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.problems.generators import random_problem
-from dgtd.sources.model import (ModelSource, Sampling, SamplerTables, Streams, alias_pick, alias_table,
-                               reward_from_uniform)
+from dgtd.sources.model import (
+    ModelSource,
+    SamplerTables,
+    Sampling,
+    Streams,
+    alias_pick,
+    alias_table,
+    reward_from_uniform,
+)
 
 
 def alias_distribution(prob, alias):

@@ -16,7 +16,7 @@ from dgtd.problems import exact
 from dgtd.problems.generators import random_problem
 from dgtd.samples import Block
 from dgtd.sources.check import check_source
-from dgtd.sources.model import ModelSource, Sampling, SamplerTables
+from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
 sys.path.insert(0, str(Path(__file__).parent))
 
@@ -53,8 +53,13 @@ def test_a_simulator_conforms():
 
     network = random_edges(topologies.ring(3), 0.6)
     features = lambda x: np.eye(4)[np.asarray(x[:, 0], dtype=int)]  # noqa: E731
-    check_source(lambda seed, ids: EnvSource(make_chain, features, seed, ids, network=network), network, 3,
-                 steps=300, resumable=False)
+    check_source(
+        lambda seed, ids: EnvSource(make_chain, features, seed, ids, network=network),
+        network,
+        3,
+        steps=300,
+        resumable=False,
+    )
 
 
 def test_the_robots_conform():
@@ -63,8 +68,7 @@ def test_the_robots_conform():
 
     world = PatrolWorld()
     network = ProximityNetwork(world.n_robots, 5.0)
-    check_source(lambda seed, ids: PatrolSource(world, network, seed, ids), network, world.n_robots,
-                 random_links=False)
+    check_source(lambda seed, ids: PatrolSource(world, network, seed, ids), network, world.n_robots, random_links=False)
 
 
 class AllLinksUp:
@@ -95,8 +99,9 @@ class SharedStream(AllLinksUp):
         return blk._replace(s=np.roll(blk.s, 1, axis=1))
 
 
-@pytest.mark.parametrize("broken, words", [(AllLinksUp, "not drawn from the run's network"),
-                                           (SharedStream, "alone and beside others")])
+@pytest.mark.parametrize(
+    "broken, words", [(AllLinksUp, "not drawn from the run's network"), (SharedStream, "alone and beside others")]
+)
 def test_the_check_catches_a_broken_source(broken, words):
     problem = random_problem(6, 4, 3, np.random.default_rng(1))
     network = random_edges(topologies.ring(4), 0.6)
@@ -116,4 +121,6 @@ def test_a_block_without_links_on_a_random_network_is_refused():
             return Block(*self.inner.next_block(T)[:4], None)
 
     with pytest.raises(AssertionError, match="no links"):
-        check_source(lambda seed, ids: NoLinks(ModelSource(problem, network, Sampling(), tables, seed, ids)), network, 4)
+        check_source(
+            lambda seed, ids: NoLinks(ModelSource(problem, network, Sampling(), tables, seed, ids)), network, 4
+        )

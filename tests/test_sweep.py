@@ -62,10 +62,24 @@ def assert_store_intact(out: Path, n_jobs: int) -> None:
             assert data["metric.error_avg"].shape == (len(data["steps"]), 2)
     assert not list(out.rglob("*.tmp"))
     rows = table_of(out)
-    metrics = {"error_last", "error_avg", "error_tail", "value_error_last", "value_error_avg", "value_error_tail",
-               "consensus", "mspbe_last", "mspbe_avg", "rmspbe_last", "rmspbe_avg", "rmspbe_tail"}
+    metrics = {
+        "error_last",
+        "error_avg",
+        "error_tail",
+        "value_error_last",
+        "value_error_avg",
+        "value_error_tail",
+        "consensus",
+        "mspbe_last",
+        "mspbe_avg",
+        "rmspbe_last",
+        "rmspbe_avg",
+        "rmspbe_tail",
+    }
     assert set(rows["metric"]) == metrics
-    assert len(rows["value"]) == n_jobs * len(metrics) * len(np.unique(rows["step"])) * 2  # jobs x metrics x checkpoints x seeds
+    assert (
+        len(rows["value"]) == n_jobs * len(metrics) * len(np.unique(rows["step"])) * 2
+    )  # jobs x metrics x checkpoints x seeds
 
 
 @pytest.fixture(scope="module")
@@ -100,8 +114,11 @@ def test_fields_an_algorithm_lacks_are_dropped_and_jobs_merged(monkeypatch):
     monkeypatch.setitem(dgtd.algorithms.ALGORITHMS, "plain", Plain)
     exp = parse({"scenario": "paper-example-1", "grid": {"algorithm": ["dgtd", "plain"], "kappa": [0.0, 1.0]}})
     jobs = expand(exp)
-    assert [j.point for j in jobs] == [{"algorithm": "dgtd", "kappa": 0.0}, {"algorithm": "dgtd", "kappa": 1.0},
-                                       {"algorithm": "plain", "kappa": None}]
+    assert [j.point for j in jobs] == [
+        {"algorithm": "dgtd", "kappa": 0.0},
+        {"algorithm": "dgtd", "kappa": 1.0},
+        {"algorithm": "plain", "kappa": None},
+    ]
     assert jobs[2].spec.kappa is None and jobs[2].spec.alpha0 == 10.0  # the scenario's step sizes carry over
 
 
@@ -122,7 +139,9 @@ def test_sweep_resumes_and_tables_agree_across_formats(tmp_path, reference, run_
     assert_store_intact(out, 12)
     # one job's config alone reproduces its rows
     job = json.loads((out / "sweep.json").read_text())["jobs"][5]["job"]
-    code, _, err = run_cli("run", out / "jobs" / f"{job}.toml", "--out", tmp_path / "alone", "--no-plots", "--no-progress")
+    code, _, err = run_cli(
+        "run", out / "jobs" / f"{job}.toml", "--out", tmp_path / "alone", "--no-plots", "--no-progress"
+    )
     assert code == 0, err
     with np.load(out / "jobs" / f"{job}.npz") as data:
         ours = data["metric.error_avg"]
@@ -153,8 +172,10 @@ def test_failed_jobs_are_reported_and_retried_on_rerun(tmp_path, monkeypatch, ru
 
     monkeypatch.setitem(dgtd.algorithms.ALGORITHMS, "ghost", Ghost)
     exp = tmp_path / "e.toml"
-    exp.write_text('scenario = "paper-example-1"\niterations = 2000\nprogress = false\nbackend = "numpy"\n'
-                   '[grid]\nalgorithm = ["dgtd", "ghost"]\n')
+    exp.write_text(
+        'scenario = "paper-example-1"\niterations = 2000\nprogress = false\nbackend = "numpy"\n'
+        '[grid]\nalgorithm = ["dgtd", "ghost"]\n'
+    )
     code, text, err = run_cli("sweep", exp, "--out", tmp_path / "o", "--workers", "1")
     assert code == 1 and "1 jobs run" in text and "unknown algorithm 'ghost'" in err
     index = json.loads((tmp_path / "o" / "sweep.json").read_text())
@@ -180,7 +201,9 @@ def test_killed_sweep_reruns_to_the_same_table(tmp_path, reference):
     """SIGKILL the sweep (driver and workers) after a few jobs; the rerun finishes the rest, once each."""
     out = tmp_path / "out"
     cmd = dgtd_cmd("sweep", sweep_file(tmp_path), "--out", out, "--workers", "2")
-    proc = subprocess.Popen(cmd, env=cli_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, env=cli_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     _wait_for(lambda: _finished(out) >= 3 or proc.poll() is not None)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
@@ -211,8 +234,13 @@ def _pool_workers(driver: int) -> list[int]:
 def test_killed_pool_worker_is_replaced(tmp_path, reference):
     """SIGKILL one worker of the pool mid-sweep: the pool is rebuilt, unfinished jobs rerun, the table is the same."""
     out = tmp_path / "out"
-    proc = subprocess.Popen(dgtd_cmd("sweep", sweep_file(tmp_path), "--out", out, "--workers", "2"), env=cli_env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        dgtd_cmd("sweep", sweep_file(tmp_path), "--out", out, "--workers", "2"),
+        env=cli_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_for(lambda: _finished(out) >= 1 or proc.poll() is not None)
     workers = _pool_workers(proc.pid)
     assert workers and proc.poll() is None
@@ -240,8 +268,16 @@ def test_address_needs_the_ray_executor(tmp_path, run_cli):
 def test_a_sweep_over_algorithm_names_from_the_registry(tmp_path):
     import dgtd.algorithms
 
-    exp = parse({"scenario": "paper-example-1", "iterations": 1000, "backend": "numpy", "progress": False,
-                 "grid": {"algorithm": list(dgtd.algorithms.ALGORITHMS), "kappa": [0.0, 1.0]}, "sweep": {"workers": 1}})
+    exp = parse(
+        {
+            "scenario": "paper-example-1",
+            "iterations": 1000,
+            "backend": "numpy",
+            "progress": False,
+            "grid": {"algorithm": list(dgtd.algorithms.ALGORITHMS), "kappa": [0.0, 1.0]},
+            "sweep": {"workers": 1},
+        }
+    )
     report = run_sweep(exp, tmp_path / "o", echo=lambda s: None, progress=False)
     assert report["ran"] == len(expand(exp)) >= 2 and not report["failed"]  # kappa = 0, 1 for dgtd at least
     table = table_of(tmp_path / "o")

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from dgtd.algorithms import make_algorithm
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact, tasks
 from dgtd.problems.model import chain_period, make_problem
-from dgtd.scenarios import SCENARIOS, get_scenario
-from dgtd.algorithms import make_algorithm
 from dgtd.run.loop import RunSettings, run
+from dgtd.scenarios import SCENARIOS, get_scenario
 from dgtd.sources.model import Sampling
 
 

@@ -49,8 +49,13 @@ def test_it_reaches_w_star_off_policy_on_random_links(backend):
     Tolerance: the measured worst error over 8 seeds (base seeds 0 and 1) is 0.28 %; 2 % is seven times that and
     below the 7.4 % distance from w* to the nearest agent's own fixed point A^-1 b_i, so a wrong average fails."""
     p = small_mdp(True, n_agents=3)
-    r = run(p, random_edges(topologies.ring(3), 0.7), TDCTracking(alpha0=3.0, beta=10.0), Sampling(),
-            RunSettings(iterations=100_000, seeds=4, checkpoints=5, backend=backend))
+    r = run(
+        p,
+        random_edges(topologies.ring(3), 0.7),
+        TDCTracking(alpha0=3.0, beta=10.0),
+        Sampling(),
+        RunSettings(iterations=100_000, seeds=4, checkpoints=5, backend=backend),
+    )
     assert exact.relative_error(r.w_tail, r.w_star).max() < 0.02
     m = exact.Moments(p)
     own = np.linalg.solve(m.A, m.b.T).T

@@ -14,7 +14,7 @@ def test_every_algorithm_has_tuned_steps_for_every_task():
     assert set(TUNED_STEPS) == set(ALGORITHMS)
     for name, steps in TUNED_STEPS.items():
         assert set(steps) == set(TASKS), name
-        for task, fields in steps.items():
+        for fields in steps.values():
             make_algorithm(name, **fields)  # every field is one of the algorithm's, with a valid value
 
 

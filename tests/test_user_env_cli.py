@@ -33,11 +33,11 @@ pytest.importorskip("pettingzoo", reason="the environment extra (pip install dgt
 
 from pathlib import Path  # noqa: E402
 
-from dgtd.problems import exact  # noqa: E402
-from dgtd.problems.model import make_problem  # noqa: E402
-
 from envs import chain  # noqa: E402
 from test_new_user import one_line_error  # noqa: E402
+
+from dgtd.problems import exact  # noqa: E402
+from dgtd.problems.model import make_problem  # noqa: E402
 
 ENVS = Path(__file__).resolve().parent / "envs" / "chain.py"
 
@@ -55,8 +55,25 @@ def test_run_on_a_users_parallel_env_reaches_its_exact_w_star(run_cli, tmp_path)
     within 4 standard errors of the exact w* of the chain's model (4 sigma: a false alarm once in 16,000 runs per
     weight), and DGTD's tail average within 3 % of the reference in value error (it ends near 1 %)."""
     out = tmp_path / "chain"
-    code, text, err = run_cli("run", "--env", env("make_chain"), "--features", "one-hot", "--agents", 4, "--gamma",
-                              chain.GAMMA, "-T", 30_000, "--seeds", 2, "--out", out, "--no-plots", "--no-progress")
+    code, text, err = run_cli(
+        "run",
+        "--env",
+        env("make_chain"),
+        "--features",
+        "one-hot",
+        "--agents",
+        4,
+        "--gamma",
+        chain.GAMMA,
+        "-T",
+        30_000,
+        "--seeds",
+        2,
+        "--out",
+        out,
+        "--no-plots",
+        "--no-progress",
+    )
     assert code == 0, err
     assert "w* is estimated (no model)" in text and "one-hot features of 4 states" in text
     s = summary(out)
@@ -75,12 +92,30 @@ def test_run_on_a_users_parallel_env_reaches_its_exact_w_star(run_cli, tmp_path)
 
 def test_an_env_table_in_an_experiment_file_is_the_same_run_as_the_flags(run_cli, tmp_path):
     file = tmp_path / "chain.toml"
-    file.write_text(f'gamma = 0.8\niterations = 2000\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n'
-                    'policy = "random"\n')
+    file.write_text(
+        f'gamma = 0.8\niterations = 2000\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n'
+        'policy = "random"\n'
+    )
     a, b = tmp_path / "a", tmp_path / "b"
     assert run_cli("run", file, "--out", a, "--no-plots", "--no-progress")[0] == 0
-    assert run_cli("run", "--env", env("make_chain"), "--features", "one-hot", "--gamma", 0.8, "-T", 2000, "--out", b,
-                   "--no-plots", "--no-progress")[0] == 0
+    assert (
+        run_cli(
+            "run",
+            "--env",
+            env("make_chain"),
+            "--features",
+            "one-hot",
+            "--gamma",
+            0.8,
+            "-T",
+            2000,
+            "--out",
+            b,
+            "--no-plots",
+            "--no-progress",
+        )[0]
+        == 0
+    )
     assert (a / "metrics.csv").read_bytes() == (b / "metrics.csv").read_bytes()
 
 
@@ -109,8 +144,21 @@ def test_run_on_a_gymnasium_env_split_among_three_agents(run_cli, tmp_path):
     average within 20 % of the estimated reference after 20,000 steps (measured 13.1 %, and 9.0 % after 80,000: the
     Fourier weights are ill-conditioned here, their standard error 13 % of |w*|, so gradient TD is slow)."""
     out = tmp_path / "cartpole"
-    code, text, err = run_cli("run", "--env", "gymnasium:CartPole-v1", "--agents", 3, "--features", "fourier:1",
-                              "-T", 20_000, "--out", out, "--no-plots", "--no-progress")
+    code, text, err = run_cli(
+        "run",
+        "--env",
+        "gymnasium:CartPole-v1",
+        "--agents",
+        3,
+        "--features",
+        "fourier:1",
+        "-T",
+        20_000,
+        "--out",
+        out,
+        "--no-plots",
+        "--no-progress",
+    )
     assert code == 0, err
     assert "Gymnasium env gymnasium:CartPole-v1, 3 agents, fourier features (16)" in text
     assert np.max(summary(out)["value_error_tail"]) < 0.20
@@ -119,10 +167,9 @@ def test_run_on_a_gymnasium_env_split_among_three_agents(run_cli, tmp_path):
 def record_parquet(path, seeds=4, steps=10_000):
     import pyarrow as pa
     import pyarrow.parquet as pq
+    from test_data_source import record
 
     from dgtd.problems.tasks import garnet
-
-    from test_data_source import record
 
     problem = garnet(n_states=8, branching=3, n_agents=3, n_features=3, seed=1)
     pq.write_table(pa.table(record(problem, seeds=seeds, steps=steps)), path)
@@ -134,8 +181,19 @@ def test_run_on_recorded_transitions_reaches_the_models_w_star(run_cli, tmp_path
     w*, DGTD within 3 % of the reference."""
     problem = record_parquet(tmp_path / "t.parquet")
     out = tmp_path / "data"
-    code, text, err = run_cli("run", "--data", tmp_path / "t.parquet", "--gamma", problem.gamma, "--seeds", 2,
-                              "--out", out, "--no-plots", "--no-progress")
+    code, text, err = run_cli(
+        "run",
+        "--data",
+        tmp_path / "t.parquet",
+        "--gamma",
+        problem.gamma,
+        "--seeds",
+        2,
+        "--out",
+        out,
+        "--no-plots",
+        "--no-progress",
+    )
     assert code == 0, err
     s = summary(out)
     assert s["config"]["iterations"] == 10_000  # the recordings' length
@@ -152,8 +210,21 @@ def test_a_data_run_draws_its_links_from_the_networks_edge_probability(run_cli, 
     sent = {}
     for p in (1.0, 0.5):
         out = tmp_path / f"p{p}"
-        code, _, err = run_cli("run", "--data", tmp_path / "t.parquet", "--gamma", problem.gamma, "--seeds", 2,
-                               "--edge-prob", p, "--out", out, "--no-plots", "--no-progress")
+        code, _, err = run_cli(
+            "run",
+            "--data",
+            tmp_path / "t.parquet",
+            "--gamma",
+            problem.gamma,
+            "--seeds",
+            2,
+            "--edge-prob",
+            p,
+            "--out",
+            out,
+            "--no-plots",
+            "--no-progress",
+        )
         assert code == 0, err
         s = summary(out)
         sent[p] = np.sum(s["messages"])
@@ -190,31 +261,48 @@ def test_bad_env_input_is_one_line(run_cli, tmp_path, args, words):
 
 def test_bad_data_runs_are_one_line(run_cli, tmp_path):
     record_parquet(tmp_path / "t.parquet", seeds=3, steps=50)
-    for args, words in ((["--seeds", 4], ["holds 3 recordings", "--seeds 3"]),
-                        (["-T", 51], ["run at most --iterations 50"])):
+    for args, words in (
+        (["--seeds", 4], ["holds 3 recordings", "--seeds 3"]),
+        (["-T", 51], ["run at most --iterations 50"]),
+    ):
         one_line_error(*run_cli("run", "--data", tmp_path / "t.parquet", *args, "--out", tmp_path / "r"), *words)
     (tmp_path / "bad.csv").write_text("seed,step,agent,phi_0,next_phi_0,reward\n0,0,one,1.0,1.0,0.5\n")
-    one_line_error(*run_cli("run", "--data", tmp_path / "bad.csv", "--out", tmp_path / "r"),
-                   "column agent must hold integers")
+    one_line_error(
+        *run_cli("run", "--data", tmp_path / "bad.csv", "--out", tmp_path / "r"), "column agent must hold integers"
+    )
     (tmp_path / "short.csv").write_text("seed,step,agent,phi_0,reward\n0,0,0,1.0,0.5\n")
-    one_line_error(*run_cli("run", "--data", tmp_path / "short.csv", "--out", tmp_path / "r"),
-                   "lacks the column(s) next_phi_0")
+    one_line_error(
+        *run_cli("run", "--data", tmp_path / "short.csv", "--out", tmp_path / "r"), "lacks the column(s) next_phi_0"
+    )
     assert not (tmp_path / "r" / "summary.json").exists()
 
 
 def test_an_unknown_env_field_names_the_closest(run_cli, tmp_path):
     file = tmp_path / "e.toml"
     file.write_text(f'[env]\nmake = "{env("make_chain")}"\nfeature = "one-hot"\n')
-    one_line_error(*run_cli("run", file, "--out", tmp_path / "r"), "unknown field 'feature' in [env]",
-                   "did you mean 'features'?")
+    one_line_error(
+        *run_cli("run", file, "--out", tmp_path / "r"), "unknown field 'feature' in [env]", "did you mean 'features'?"
+    )
 
 
 def test_a_run_on_an_env_draws_every_agents_values_along_a_trajectory(run_cli, tmp_path):
     """values.png, and in summary.json each agent's RMS value error along that trajectory (measured 0.23 % at 30,000
     steps; 5 % is what an unconverged run exceeds)."""
     out = tmp_path / "chain"
-    code, text, err = run_cli("run", "--env", env("make_chain"), "--features", "one-hot", "--gamma", chain.GAMMA,
-                              "-T", 30_000, "--out", out, "--no-progress")
+    code, text, err = run_cli(
+        "run",
+        "--env",
+        env("make_chain"),
+        "--features",
+        "one-hot",
+        "--gamma",
+        chain.GAMMA,
+        "-T",
+        30_000,
+        "--out",
+        out,
+        "--no-progress",
+    )
     assert code == 0, err
     assert (out / "values.png").stat().st_size > 10_000 and "values.png" in text
     numbers = summary(out)["scenario"]
@@ -239,8 +327,14 @@ def test_a_sweep_grid_can_vary_the_env_table():
     from dgtd.experiments import parse
     from dgtd.sweep import expand
 
-    exp = parse({"env": {"make": env("make_chain")}, "gamma": 0.8, "iterations": 100,
-                 "grid": {"env": {"features": ["one-hot", "linear"]}, "alpha0": [1.0, 2.0]}})
+    exp = parse(
+        {
+            "env": {"make": env("make_chain")},
+            "gamma": 0.8,
+            "iterations": 100,
+            "grid": {"env": {"features": ["one-hot", "linear"]}, "alpha0": [1.0, 2.0]},
+        }
+    )
     jobs = expand(exp)
     assert len(jobs) == 4
     assert {job.spec.env["features"] for job in jobs} == {"one-hot", "linear"}
@@ -250,11 +344,29 @@ def test_a_sweep_grid_can_vary_the_env_table():
 def test_a_reward_mapping_in_the_env_table_gives_each_agent_its_mapped_reward(run_cli, tmp_path):
     """rewards = team_rewards gives every agent the sum of the chain's rewards, so w* is N x that of the average."""
     file = tmp_path / "team.toml"
-    file.write_text(f'gamma = 0.8\niterations = 200\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n'
-                    f'rewards = "{env("team_rewards")}"\n')
+    file.write_text(
+        f'gamma = 0.8\niterations = 200\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n'
+        f'rewards = "{env("team_rewards")}"\n'
+    )
     assert run_cli("run", file, "--out", tmp_path / "team", "--no-plots", "--no-progress")[0] == 0
-    assert run_cli("run", "--env", env("make_chain"), "--features", "one-hot", "--gamma", 0.8, "-T", 200, "--out",
-                   tmp_path / "own", "--no-plots", "--no-progress")[0] == 0
+    assert (
+        run_cli(
+            "run",
+            "--env",
+            env("make_chain"),
+            "--features",
+            "one-hot",
+            "--gamma",
+            0.8,
+            "-T",
+            200,
+            "--out",
+            tmp_path / "own",
+            "--no-plots",
+            "--no-progress",
+        )[0]
+        == 0
+    )
     team, own = np.array(summary(tmp_path / "team")["w_star"]), np.array(summary(tmp_path / "own")["w_star"])
     np.testing.assert_allclose(team, 3 * own, rtol=1e-9)
 
@@ -262,15 +374,42 @@ def test_a_reward_mapping_in_the_env_table_gives_each_agent_its_mapped_reward(ru
 def test_compare_runs_on_an_env_and_on_recordings(run_cli, tmp_path):
     """`dgtd compare --env ...` and `--data ...`: every algorithm on the same samples, the reference said to be an
     estimate in summary.json."""
-    code, text, err = run_cli("compare", "--env", env("make_chain"), "--features", "one-hot", "--gamma", 0.8,
-                              "-a", "dgtd,td0", "-T", 3000, "--seeds", 2, "--out", tmp_path / "c", "--no-plots",
-                              "--no-progress")
+    code, text, err = run_cli(
+        "compare",
+        "--env",
+        env("make_chain"),
+        "--features",
+        "one-hot",
+        "--gamma",
+        0.8,
+        "-a",
+        "dgtd,td0",
+        "-T",
+        3000,
+        "--seeds",
+        2,
+        "--out",
+        tmp_path / "c",
+        "--no-plots",
+        "--no-progress",
+    )
     assert code == 0, err
     s = summary(tmp_path / "c")
     assert s["reference"]["estimated"] and set(s["algorithms"]) == {"dgtd", "td0"}
     record_parquet(tmp_path / "t.parquet", seeds=2, steps=3000)
-    code, text, err = run_cli("compare", "--data", tmp_path / "t.parquet", "-a", "dgtd,gtd2", "--seeds", 2,
-                              "--out", tmp_path / "d", "--no-plots", "--no-progress")
+    code, text, err = run_cli(
+        "compare",
+        "--data",
+        tmp_path / "t.parquet",
+        "-a",
+        "dgtd,gtd2",
+        "--seeds",
+        2,
+        "--out",
+        tmp_path / "d",
+        "--no-plots",
+        "--no-progress",
+    )
     assert code == 0, err
     assert summary(tmp_path / "d")["config"]["iterations"] == 3000
 
@@ -300,14 +439,20 @@ def feature_maps_of_corners():
 
 def test_a_policy_per_agent_in_the_env_table(run_cli, tmp_path):
     file = tmp_path / "p.toml"
-    table = f'gamma = 0.8\niterations = 300\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n\n[env.policy]\n'
+    table = (
+        f'gamma = 0.8\niterations = 300\n\n[env]\nmake = "{env("make_chain")}"\nfeatures = "one-hot"\n\n[env.policy]\n'
+    )
     file.write_text(table + f'agent_0 = "random"\nagent_1 = "{env("stay")}"\nagent_2 = "{env("stay")}"\n')
     code, text, err = run_cli("run", file, "--out", tmp_path / "p", "--no-plots", "--no-progress")
     assert code == 0, err
     assert "policy one per agent" in text and "[env.policy]" in (tmp_path / "p" / "config.toml").read_text()
     file.write_text(table + 'agent_0 = "random"\nagent_7 = "random"\n')
-    one_line_error(*run_cli("run", file, "--out", tmp_path / "q"), "must name every agent once",
-                   "missing agent_1, agent_2", "unknown agent_7")
+    one_line_error(
+        *run_cli("run", file, "--out", tmp_path / "q"),
+        "must name every agent once",
+        "missing agent_1, agent_2",
+        "unknown agent_7",
+    )
 
 
 def test_the_trajectory_report_measures_each_result_not_the_first():

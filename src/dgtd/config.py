@@ -20,8 +20,8 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
 from dgtd.problems.model import with_reward_noise
-from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings
+from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
 
 
@@ -90,8 +90,15 @@ def closest(name: str, valid) -> str:
     return f"; did you mean {close[0]!r}?" if close else ""
 
 
-_TYPE_WORDS = {int: "an integer", float: "a number", str: "a string", bool: "true or false", dict: "a table",
-               list: "a list", tuple: "a list"}
+_TYPE_WORDS = {
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    bool: "true or false",
+    dict: "a table",
+    list: "a list",
+    tuple: "a list",
+}
 
 
 def check_type(where: str, value, hint) -> object:
@@ -126,12 +133,16 @@ def _network(graph: str, n_agents: int, edge_prob: float):
     if graph in topologies.TOPOLOGIES:
         base = topologies.TOPOLOGIES[graph](n_agents)
     elif not Path(graph).is_file():
-        raise DgtdInputError(f"graph {graph!r} is neither a known graph nor an edge-list file (known graphs: "
-                             f"{', '.join(topologies.TOPOLOGIES)}){closest(Path(graph).name, topologies.TOPOLOGIES)}")
+        raise DgtdInputError(
+            f"graph {graph!r} is neither a known graph nor an edge-list file (known graphs: "
+            f"{', '.join(topologies.TOPOLOGIES)}){closest(Path(graph).name, topologies.TOPOLOGIES)}"
+        )
     else:
         base = topologies.read_edge_list(graph)
         if base.n_nodes > n_agents:
-            raise DgtdInputError(f"edge list {graph} names agent {base.n_nodes - 1} but the problem has {n_agents} agents")
+            raise DgtdInputError(
+                f"edge list {graph} names agent {base.n_nodes - 1} but the problem has {n_agents} agents"
+            )
         base = topologies.from_edges(n_agents, base.edges, base.name)
     return random_edges(base, edge_prob)
 
@@ -142,12 +153,16 @@ PROBLEM_FIELDS = ("scenario", "problem_file", "env", "data")
 def resolve(spec: RunSpec):
     """(problem, network, algorithm, sampling, settings, resolved spec) for a spec."""
     if spec.env is not None and not spec.env.get("make"):
-        raise DgtdInputError(f"{', '.join(sorted(spec.env))} set the fields of an env run; name the env too: --env "
-                             "module.path:make_env (make = ... in the [env] table)")
+        raise DgtdInputError(
+            f"{', '.join(sorted(spec.env))} set the fields of an env run; name the env too: --env "
+            "module.path:make_env (make = ... in the [env] table)"
+        )
     given = [name for name in PROBLEM_FIELDS if getattr(spec, name) is not None]
     if len(given) != 1:
-        raise DgtdInputError("name exactly one problem: a scenario (e.g. paper-example-1), --problem FILE.npz, "
-                             "--env module:make_env or --data FILE" + (f" (got {', '.join(given)})" if given else ""))
+        raise DgtdInputError(
+            "name exactly one problem: a scenario (e.g. paper-example-1), --problem FILE.npz, "
+            "--env module:make_env or --data FILE" + (f" (got {', '.join(given)})" if given else "")
+        )
     params, env = None, None
     if spec.gamma is not None and spec.env is None and spec.data is None:
         raise DgtdInputError("gamma is the discount of an --env or --data run; a scenario or problem file has its own")
@@ -156,13 +171,21 @@ def resolve(spec: RunSpec):
     if spec.scenario is not None:
         kwargs, params, edge_prob = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)
         sc = scenario_of(spec)
-        problem, network, algorithm, sampling, iterations = sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations
+        problem, network, algorithm, sampling, iterations = (
+            sc.problem,
+            sc.network,
+            sc.algorithm,
+            sc.sampling,
+            sc.iterations,
+        )
         graph = None  # the scenario's own network, rebuilt from the same parameters
         if sc.source is not None:
             _refuse_model_overrides(spec, sc)  # its source sets the links, states and rewards
         if spec.edge_prob is not None and "edge_prob" not in kwargs and spec.graph is None:
             if not hasattr(network, "base"):
-                raise DgtdInputError(f"scenario {spec.scenario!r} has no random-edge network, so edge_prob does not apply; remove it")
+                raise DgtdInputError(
+                    f"scenario {spec.scenario!r} has no random-edge network, so edge_prob does not apply; remove it"
+                )
             network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
         if spec.reward_noise not in (None, problem.reward_noise):
             problem = with_reward_noise(problem, spec.reward_noise)
@@ -179,11 +202,19 @@ def resolve(spec: RunSpec):
         spec = replace(spec, env=env, gamma=DEFAULT_GAMMA if spec.gamma is None else spec.gamma)
         sc = scenario_of(spec)
         _refuse_model_overrides(spec, sc, graph_applies=True)
-        problem, network, algorithm, sampling, iterations = sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations
+        problem, network, algorithm, sampling, iterations = (
+            sc.problem,
+            sc.network,
+            sc.algorithm,
+            sc.sampling,
+            sc.iterations,
+        )
         proximity = env is not None and env["positions"] is not None
         if proximity and (spec.graph is not None or spec.edge_prob is not None):
-            raise DgtdInputError("this env links its agents by their positions (env.positions, env.radius); --graph "
-                                 "and --edge-prob do not apply")
+            raise DgtdInputError(
+                "this env links its agents by their positions (env.positions, env.radius); --graph "
+                "and --edge-prob do not apply"
+            )
         graph, edge_prob = (None, None) if proximity else (spec.graph or "ring", _edge_prob(spec))
         if spec.data is not None:
             _check_recordings(spec, sc)
@@ -192,19 +223,37 @@ def resolve(spec: RunSpec):
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph, problem.n_agents, edge_prob)
     algorithm = build_algorithm(spec, algorithm)
-    sampling = Sampling(mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared)
+    sampling = Sampling(
+        mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
+    )
     settings = RunSettings(
-        iterations=int(iterations if spec.iterations is None else spec.iterations), seeds=spec.seeds, seed=spec.seed, checkpoints=spec.checkpoints,
-        tail_fraction=spec.tail_fraction, block_size=spec.block_size, backend=spec.backend,
+        iterations=int(iterations if spec.iterations is None else spec.iterations),
+        seeds=spec.seeds,
+        seed=spec.seed,
+        checkpoints=spec.checkpoints,
+        tail_fraction=spec.tail_fraction,
+        block_size=spec.block_size,
+        backend=spec.backend,
     )
     own = field_types(type(algorithm))
     resolved = replace(
-        spec, graph=graph, edge_prob=edge_prob, iterations=settings.iterations,
+        spec,
+        graph=graph,
+        edge_prob=edge_prob,
+        iterations=settings.iterations,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
-        sampling=sampling.mode, shared=sampling.shared, reward_noise=problem.reward_noise, algorithm=algorithm.name,
-        params=params, env=_plain_env(env),
-        algorithm_params={k: _plain(getattr(algorithm, k)) for k in own
-                          if k not in ALGORITHM_FIELDS and getattr(algorithm, k) is not None} or None,
+        sampling=sampling.mode,
+        shared=sampling.shared,
+        reward_noise=problem.reward_noise,
+        algorithm=algorithm.name,
+        params=params,
+        env=_plain_env(env),
+        algorithm_params={
+            k: _plain(getattr(algorithm, k))
+            for k in own
+            if k not in ALGORITHM_FIELDS and getattr(algorithm, k) is not None
+        }
+        or None,
     )
     return problem, network, algorithm, sampling, settings, resolved
 
@@ -223,12 +272,15 @@ def env_spec(table: dict):
     types = field_types(EnvSpec)
     for key in table:
         if key not in types:
-            raise DgtdInputError(f"unknown field {key!r} in [env]{closest(key, types)} (its fields: {', '.join(types)})")
+            raise DgtdInputError(
+                f"unknown field {key!r} in [env]{closest(key, types)} (its fields: {', '.join(types)})"
+            )
     values = {k: check_type(f"env.{k}", v, types[k]) for k, v in table.items() if v is not None}
     for key in ("agents", "reference_steps", "reference_groups", "pilot_steps"):
         if values.get(key) is not None and values[key] < (2 if key in ("agents", "reference_groups") else 1):
-            raise DgtdInputError(f"env.{key} must be at least {2 if key in ('agents', 'reference_groups') else 1}, "
-                                 f"got {values[key]}")
+            raise DgtdInputError(
+                f"env.{key} must be at least {2 if key in ('agents', 'reference_groups') else 1}, got {values[key]}"
+            )
     if values.get("radius") is not None and values["radius"] <= 0:
         raise DgtdInputError(f"env.radius must be > 0, got {values['radius']}")
     return EnvSpec(**values)
@@ -251,12 +303,16 @@ def _check_recordings(spec: RunSpec, sc) -> None:
     """A run on recordings takes one recording per seed and at most as many steps as they hold."""
     data = sc.data
     if data.recordings is not None and spec.seeds > data.recordings:
-        raise DgtdInputError(f"{spec.data} holds {data.recordings} recordings, one per seed: run at most --seeds "
-                             f"{data.recordings}")
+        raise DgtdInputError(
+            f"{spec.data} holds {data.recordings} recordings, one per seed: run at most --seeds {data.recordings}"
+        )
     steps = data.steps(range(spec.seeds))
     if spec.iterations is not None and spec.iterations > steps:
-        held = (f"the first {spec.seeds} recordings of {spec.data} hold {steps:,} steps each (the shortest)"
-                if data.by_seed else f"the episodes of {spec.data} hold {steps:,} steps in all")
+        held = (
+            f"the first {spec.seeds} recordings of {spec.data} hold {steps:,} steps each (the shortest)"
+            if data.by_seed
+            else f"the episodes of {spec.data} hold {steps:,} steps in all"
+        )
         raise DgtdInputError(f"{held}: run at most --iterations {steps}")
 
 
@@ -264,14 +320,28 @@ def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> N
     """A scenario with its own sample source sets the links, states and rewards itself: flags that would change
     them could not apply, so they are refused (values equal to the scenario's own, as recorded, are accepted).
     The graph of a user's env or recordings is the run's (``graph_applies``)."""
-    own = {"--graph": spec.graph if graph_applies else None, "--sampling": sc.sampling.mode, "--shared": sc.sampling.shared,
-           "--reward-noise": sc.problem.reward_noise}
-    given = [flag for flag, value in (("--graph", spec.graph), ("--sampling", spec.sampling), ("--shared", spec.shared),
-                                      ("--reward-noise", spec.reward_noise)) if value is not None and value != own[flag]]
+    own = {
+        "--graph": spec.graph if graph_applies else None,
+        "--sampling": sc.sampling.mode,
+        "--shared": sc.sampling.shared,
+        "--reward-noise": sc.problem.reward_noise,
+    }
+    given = [
+        flag
+        for flag, value in (
+            ("--graph", spec.graph),
+            ("--sampling", spec.sampling),
+            ("--shared", spec.shared),
+            ("--reward-noise", spec.reward_noise),
+        )
+        if value is not None and value != own[flag]
+    ]
     if given:
         what = f"scenario {spec.scenario}" if spec.scenario else "an --env or --data run"
-        raise DgtdInputError(f"{what} simulates its own samples and links; {', '.join(given)} "
-                             f"{'does' if len(given) == 1 else 'do'} not apply to it (leave {'it' if len(given) == 1 else 'them'} out)")
+        raise DgtdInputError(
+            f"{what} simulates its own samples and links; {', '.join(given)} "
+            f"{'does' if len(given) == 1 else 'do'} not apply to it (leave {'it' if len(given) == 1 else 'them'} out)"
+        )
 
 
 def scenario_of(spec: RunSpec):
@@ -282,9 +352,13 @@ def scenario_of(spec: RunSpec):
         kwargs = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)[0]
         return _scenario(json.dumps({"scenario": spec.scenario, **kwargs}, sort_keys=True))
     if spec.env is not None or spec.data is not None:
-        key = {"env": asdict(env_spec(spec.env)) if spec.env is not None else None, "data": spec.data,
-               "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma, "graph": spec.graph,
-               "edge_prob": spec.edge_prob}
+        key = {
+            "env": asdict(env_spec(spec.env)) if spec.env is not None else None,
+            "data": spec.data,
+            "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma,
+            "graph": spec.graph,
+            "edge_prob": spec.edge_prob,
+        }
         if spec.data is not None:
             from pathlib import Path
 
@@ -347,7 +421,9 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
             raise DgtdInputError("edge_prob is a field of its own: write it at the top level, not under params")
         if k not in names:
             known = ", ".join(n for n in names if n != "edge_prob") or "none"
-            raise DgtdInputError(f"scenario {name!r} has no parameter {k!r}{closest(k, names)} (its parameters: {known})")
+            raise DgtdInputError(
+                f"scenario {name!r} has no parameter {k!r}{closest(k, names)} (its parameters: {known})"
+            )
     kwargs = {p.name: p.default for p in sig.parameters.values() if p.name in names and p.default is not p.empty}
     kwargs.update(params)
     if edge_prob is not None and "edge_prob" in names:
@@ -380,13 +456,17 @@ def build_algorithm(spec: RunSpec, default):
     for k in ALGORITHM_FIELDS:
         if getattr(spec, k) is not None:
             if k not in own:
-                raise DgtdInputError(f"algorithm {name!r} has no parameter {k!r} (its parameters: {', '.join(own)}); remove it")
+                raise DgtdInputError(
+                    f"algorithm {name!r} has no parameter {k!r} (its parameters: {', '.join(own)}); remove it"
+                )
             over[k] = getattr(spec, k)
     for k, v in (spec.algorithm_params or {}).items():
         if k in ALGORITHM_FIELDS:
             raise DgtdInputError(f"{k} is a field of its own: write it at the top level, not under algorithm_params")
         if k not in own:
-            raise DgtdInputError(f"algorithm {name!r} has no parameter {k!r}{closest(k, own)} (its parameters: {', '.join(own)})")
+            raise DgtdInputError(
+                f"algorithm {name!r} has no parameter {k!r}{closest(k, own)} (its parameters: {', '.join(own)})"
+            )
         over[k] = check_type(f"algorithm_params.{k}", v, own[k])
     return replace(algorithm, **over)
 

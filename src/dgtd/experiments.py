@@ -210,8 +210,12 @@ def override(exp: Experiment, values: dict) -> Experiment:
             parts["sweep"][key] = value
         else:
             raise _unknown(key, TOP_LEVEL, "the command-line options")
-    exp = replace(exp, spec=replace(exp.spec, **parts["spec"]), output=replace(exp.output, **parts["output"]),
-                  sweep=replace(exp.sweep, **parts["sweep"]))
+    exp = replace(
+        exp,
+        spec=replace(exp.spec, **parts["spec"]),
+        output=replace(exp.output, **parts["output"]),
+        sweep=replace(exp.sweep, **parts["sweep"]),
+    )
     check_choices(exp)
     return exp
 

@@ -33,8 +33,10 @@ def open_npz(path):
     hand back the array, which has no named arrays to read)."""
     data = np.load(path, allow_pickle=False)
     if not isinstance(data, np.lib.npyio.NpzFile):
-        raise DgtdInputError(f"{path} holds one .npy array, not an .npz of named arrays: save the arrays with "
-                             "numpy.savez(file, NAME=array, ...)")
+        raise DgtdInputError(
+            f"{path} holds one .npy array, not an .npz of named arrays: save the arrays with "
+            "numpy.savez(file, NAME=array, ...)"
+        )
     return data
 
 
@@ -96,5 +98,6 @@ def numbers(rows: list[dict], column: str, kind, path, what: str, fix: str) -> n
     try:
         return np.asarray([kind(r[column]) for r in rows], dtype=np.float64 if kind is float else np.int64)
     except ValueError as e:
-        raise DgtdInputError(f"{what} {path}: column {column} holds something that is not a number ({e}); "
-                             f"{fix}") from None
+        raise DgtdInputError(
+            f"{what} {path}: column {column} holds something that is not a number ({e}); {fix}"
+        ) from None

@@ -56,7 +56,7 @@ class Block(NamedTuple):
     table: SampleTable | None = None
 
     @classmethod
-    def empty(cls, seeds: int, observations: int, agents: int, edges: int) -> "Block":
+    def empty(cls, seeds: int, observations: int, agents: int, edges: int) -> Block:
         """A block of no steps with the documented dtypes: run through a kernel, it loads or compiles it."""
         s = np.zeros((0, seeds, observations), np.int64)
         return cls(s, s.copy(), s.copy(), np.zeros((0, seeds, agents)), np.zeros((0, seeds, edges), bool))
@@ -89,7 +89,7 @@ class Source(Protocol):
 
     def start(self) -> None: ...
 
-    def next_block(self, T: int) -> "Block": ...
+    def next_block(self, T: int) -> Block: ...
 
     def get_state(self) -> dict: ...
 

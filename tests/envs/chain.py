@@ -41,8 +41,13 @@ class Chain(ParallelEnv):
     def step(self, actions):
         rewards = {a: R[i, self.s] for i, a in enumerate(self.agents)}
         self.s = int(self.rng.choice(4, p=P[self.s]))
-        return ({a: self.s for a in self.agents}, rewards, {a: False for a in self.agents},
-                {a: False for a in self.agents}, {a: {} for a in self.agents})
+        return (
+            {a: self.s for a in self.agents},
+            rewards,
+            {a: False for a in self.agents},
+            {a: False for a in self.agents},
+            {a: {} for a in self.agents},
+        )
 
 
 def make_chain(n_agents: int = 3):

@@ -40,5 +40,16 @@ def make_algorithm(name: str, **fields):
     return cls(**fields)
 
 
-__all__ = ["ALGORITHMS", "ConsensusTD0", "DGTD", "GTD2", "Local", "PDTD", "TD0", "TDC", "TDCTracking", "TDTracking",
-           "make_algorithm"]
+__all__ = [
+    "ALGORITHMS",
+    "ConsensusTD0",
+    "DGTD",
+    "GTD2",
+    "Local",
+    "PDTD",
+    "TD0",
+    "TDC",
+    "TDCTracking",
+    "TDTracking",
+    "make_algorithm",
+]

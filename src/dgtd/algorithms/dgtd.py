@@ -67,22 +67,27 @@ class DGTD(StepSizes):
         check_nonnegative("kappa", self.kappa)
         check_nonnegative("rho", self.rho)
         if not (np.isfinite(self.box_scale) and self.box_scale > 1.0):
-            raise DgtdInputError(f"box_scale must be > 1 (the boxes must contain the saddle point), got {self.box_scale}")
+            raise DgtdInputError(
+                f"box_scale must be > 1 (the boxes must contain the saddle point), got {self.box_scale}"
+            )
         # v and mu may be pinned at 0 (no links: their bounds of Lemma 2 are 0); theta and w may not
-        if self.boxes is not None and (len(self.boxes) != 4 or not all(b >= 0 for b in self.boxes)
-                                       or not (self.boxes[0] > 0 and self.boxes[3] > 0)):
-            raise DgtdInputError("boxes must be four half-widths (theta, v, mu, w), theta and w positive, v and mu "
-                                 f">= 0, got {self.boxes}")
+        if self.boxes is not None and (
+            len(self.boxes) != 4 or not all(b >= 0 for b in self.boxes) or not (self.boxes[0] > 0 and self.boxes[3] > 0)
+        ):
+            raise DgtdInputError(
+                "boxes must be four half-widths (theta, v, mu, w), theta and w positive, v and mu "
+                f">= 0, got {self.boxes}"
+            )
 
-    def init(self, seeds: int, agents: int, features: int) -> "DGTDState":
+    def init(self, seeds: int, agents: int, features: int) -> DGTDState:
         """Algorithm 1 line 3: all variables start at zero."""
         return DGTDState(*zeros(seeds, agents, features, 4))
 
-    def sends(self, state: "DGTDState") -> dict:
+    def sends(self, state: DGTDState) -> dict:
         """w_i and v_i + mu_i at step k: all that the neighbours' updates read of agent i."""
         return {"w": state.w, "vmu": state.v + state.mu}
 
-    def update(self, state: "DGTDState", sample: Sample, inbox, alpha: float) -> "DGTDState":
+    def update(self, state: DGTDState, sample: Sample, inbox, alpha: float) -> DGTDState:
         """One step of Algorithm 1: lines 7-8 (descent on theta, v, mu; ascent on w) and line 9 (projection
         onto the max-norm balls C_theta, C_v, C_mu, C_w of half-widths ``boxes``; none while it is None)."""
         g_theta, g_v, g_mu, g_w = direction(state, sample, inbox, self.kappa, self.rho)
@@ -104,9 +109,15 @@ class DGTD(StepSizes):
         if moments.b.shape[0] * w_star.shape[0] > exact.REGULARISED_MAX:
             rho = 0.0  # too large to solve densely: report the unregularised saddle point, the problem's own
         saddle = exact.saddle_point(moments, mean_laplacian, self.kappa, rho)
-        return FixedPoint(saddle.w if rho > 0 else w_star[None, :],
-                          {"theta_star": saddle.theta, "v_star": saddle.v, "mu_star": saddle.mu,
-                           "kkt_residuals": exact.kkt_residuals(moments, mean_laplacian, self.kappa, rho, saddle)})
+        return FixedPoint(
+            saddle.w if rho > 0 else w_star[None, :],
+            {
+                "theta_star": saddle.theta,
+                "v_star": saddle.v,
+                "mu_star": saddle.mu,
+                "kkt_residuals": exact.kkt_residuals(moments, mean_laplacian, self.kappa, rho, saddle),
+            },
+        )
 
     def prepare(self, moments, network, fixed: FixedPoint) -> tuple:
         """DGTD projecting onto the boxes it resolves here (`resolve_boxes`), and the boxes it uses."""
@@ -114,9 +125,10 @@ class DGTD(StepSizes):
         boxes, grown = resolve_boxes(self, moments, network, saddle)
         return replace(self, boxes=boxes), {
             "boxes": dict(zip(BOX_NAMES, boxes)),
-            "boxes_grown": {name: {"lemma": lemma, "used": used} for name, (lemma, used) in grown.items()}}
+            "boxes_grown": {name: {"lemma": lemma, "used": used} for name, (lemma, used) in grown.items()},
+        }
 
-    def diagnostics(self, state: "DGTDState", moments, mean_laplacian) -> dict:
+    def diagnostics(self, state: DGTDState, moments, mean_laplacian) -> dict:
         """|gradient of the Lagrangian|_inf at the last iterate, per variable: how far from a KKT point it is."""
         from dgtd.problems import exact
 
@@ -124,9 +136,11 @@ class DGTD(StepSizes):
         return {"kkt_residuals_last": {name: float(np.abs(g).max()) for name, g in zip(BOX_NAMES, grads)}}
 
     def describe(self) -> str:
-        return (f"Algorithm 1: alpha_k = {self.alpha0:.4g}/{'sqrt(k+' if self.schedule == 'sqrt' else '(k+'}"
-                f"{self.beta:g}){'' if self.schedule != 'constant' else ' (constant)'}, kappa {self.kappa:g}, "
-                f"rho {self.rho:g}")
+        return (
+            f"Algorithm 1: alpha_k = {self.alpha0:.4g}/{'sqrt(k+' if self.schedule == 'sqrt' else '(k+'}"
+            f"{self.beta:g}){'' if self.schedule != 'constant' else ' (constant)'}, kappa {self.kappa:g}, "
+            f"rho {self.rho:g}"
+        )
 
 
 class DGTDState(NamedTuple):
@@ -176,10 +190,12 @@ def resolve_boxes(algorithm: DGTD, moments, network, saddle: tuple) -> tuple:
         boxes = tuple(float(b) for b in algorithm.boxes)
         for name, box, x in zip(BOX_NAMES, boxes, needed):
             if box < x:
-                raise DgtdInputError(f"the {name} box {box:g} excludes the saddle point (|{name}*|_inf = {x:.6g}), so "
-                                     f"the iterates could never reach it; give a {name} box of at least "
-                                     f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or "
-                                     "leave the boxes to dgtd")
+                raise DgtdInputError(
+                    f"the {name} box {box:g} excludes the saddle point (|{name}*|_inf = {x:.6g}), so "
+                    f"the iterates could never reach it; give a {name} box of at least "
+                    f"{algorithm.box_scale * x:.6g} ({algorithm.box_scale:g} x |{name}*|_inf), or "
+                    "leave the boxes to dgtd"
+                )
         return boxes, {}
     if not moments.model:
         return (np.inf,) * 4, {}

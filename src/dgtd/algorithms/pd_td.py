@@ -55,4 +55,6 @@ class PDTD(StepSizes):
         w, mu = state
         Lw = inbox.laplacian("w")
         td = ratio_td_step(sample, w)
-        return PDTDState(w + alpha * (td - self.eta * Lw - self.eta * inbox.laplacian("mu")), mu + alpha * self.eta * Lw)
+        return PDTDState(
+            w + alpha * (td - self.eta * Lw - self.eta * inbox.laplacian("mu")), mu + alpha * self.eta * Lw
+        )

@@ -21,7 +21,7 @@ class Arcs:
     dst: np.ndarray
 
     @classmethod
-    def of(cls, edges: np.ndarray, n_agents: int) -> "Arcs":
+    def of(cls, edges: np.ndarray, n_agents: int) -> Arcs:
         edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
         return cls(int(n_agents), edges[:, ::-1].ravel(), edges.ravel())
 

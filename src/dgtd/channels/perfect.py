@@ -36,7 +36,9 @@ class Perfect:
         inbox = self.inbox(arcs, sent, up)
         arrived = inbox.heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())  # coordinates per arc, all messages together
-        return inbox, ChannelState(state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER)
+        return inbox, ChannelState(
+            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER
+        )
 
     def inbox(self, arcs: Arcs, sent: dict, up: np.ndarray | None = None) -> Inbox:
         """What every agent hears of ``sent`` (name -> (B, N, q)) over the edges up (B, E) (None: every edge)."""

@@ -17,15 +17,32 @@ from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
 
 
 def _problem_options(f):
-    f = click.option("--problem", "problem_file", type=str, default=None,
-                     help="An .npz with arrays P (S,S), R (N,S), Phi (S,q) and scalar gamma, instead of a scenario.")(f)
-    f = click.option("--graph", type=str, default=None,
-                     help="ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the scenario's, else ring).")(f)
-    f = click.option("--edge-prob", type=float, default=None,
-                     help="Probability that each edge of the graph is up at each step (1 = fixed graph).")(f)
-    f = click.option("--kappa", type=float, default=None,
-                     help="Weight of the consensus term of the Lagrangian (section 5; default: the scenario's, DGTD's "
-                          "own is 3).")(f)
+    f = click.option(
+        "--problem",
+        "problem_file",
+        type=str,
+        default=None,
+        help="An .npz with arrays P (S,S), R (N,S), Phi (S,q) and scalar gamma, instead of a scenario.",
+    )(f)
+    f = click.option(
+        "--graph",
+        type=str,
+        default=None,
+        help="ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the scenario's, "
+        "else ring).",
+    )(f)
+    f = click.option(
+        "--edge-prob",
+        type=float,
+        default=None,
+        help="Probability that each edge of the graph is up at each step (1 = fixed graph).",
+    )(f)
+    f = click.option(
+        "--kappa",
+        type=float,
+        default=None,
+        help="Weight of the consensus term of the Lagrangian (section 5; default: the scenario's, DGTD's own is 3).",
+    )(f)
     f = click.option("--rho", type=float, default=None, help="Regulariser (rho/2)|mu|^2 - (rho/2)|w|^2 (0 = none).")(f)
     return f
 
@@ -35,8 +52,12 @@ DEBUG = {"on": False}  # set by `dgtd --debug`: the traceback of an error raised
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="dgtd")
-@click.option("--debug", is_flag=True, default=False,
-              help="Where your own code (env, policy, features) raised an error, print its traceback too.")
+@click.option(
+    "--debug",
+    is_flag=True,
+    default=False,
+    help="Where your own code (env, policy, features) raised an error, print its traceback too.",
+)
 def cli(debug):
     """dgtd: distributed policy evaluation with the primal-dual distributed GTD method (Algorithm 1)."""
     DEBUG["on"] = debug
@@ -46,8 +67,12 @@ def given_flags(ctx: click.Context, exclude=()) -> dict:
     """The options typed on the command line (not defaults): they override an experiment file's fields."""
     from click.core import ParameterSource
 
-    return {name: value for name, value in ctx.params.items()
-            if name not in exclude and ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)}
+    return {
+        name: value
+        for name, value in ctx.params.items()
+        if name not in exclude
+        and ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+    }
 
 
 def _is_experiment_file(arg: str | None) -> bool:
@@ -65,28 +90,79 @@ def _spec_options(f):
     d = spec_default
     options = [
         click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
-        click.option("--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."),
-        click.option("--seeds", type=int, default=d("seeds"), show_default=True, help="Independent runs, side by side."),
-        click.option("--seed", type=int, default=d("seed"), show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))."),
-        click.option("--alpha0", type=float, default=None,
-                     help="Step-size scale alpha0 (default: the scenario's; DGTD's own is 10, for features of unit "
-                          "scale: lower it in proportion to |phi(s)|^2)."),
-        click.option("--beta", type=float, default=None,
-                     help="Step-size offset beta in alpha0/sqrt(k+beta) (default: the scenario's; DGTD's own is 1000)."),
-        click.option("--schedule", type=click.Choice(CHOICES["schedule"]), default=None,
-                     help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0."),
-        click.option("--sampling", type=click.Choice(CHOICES["sampling"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."),
-        click.option("--shared/--independent", default=None,
-                     help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2)."),
-        click.option("--reward-noise", type=click.Choice(CHOICES["reward_noise"]), default=None,
-                     help="How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in "
-                          "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
-                          "r(s, a, s') where the problem gives rewards per transition (transition)."),
+        click.option(
+            "--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."
+        ),
+        click.option(
+            "--seeds", type=int, default=d("seeds"), show_default=True, help="Independent runs, side by side."
+        ),
+        click.option(
+            "--seed",
+            type=int,
+            default=d("seed"),
+            show_default=True,
+            help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).",
+        ),
+        click.option(
+            "--alpha0",
+            type=float,
+            default=None,
+            help="Step-size scale alpha0 (default: the scenario's; DGTD's own is 10, for features of unit "
+            "scale: lower it in proportion to |phi(s)|^2).",
+        ),
+        click.option(
+            "--beta",
+            type=float,
+            default=None,
+            help="Step-size offset beta in alpha0/sqrt(k+beta) (default: the scenario's; DGTD's own is 1000).",
+        ),
+        click.option(
+            "--schedule",
+            type=click.Choice(CHOICES["schedule"]),
+            default=None,
+            help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.",
+        ),
+        click.option(
+            "--sampling",
+            type=click.Choice(CHOICES["sampling"]),
+            default=None,
+            help="i.i.d. s ~ d or Markovian trajectories.",
+        ),
+        click.option(
+            "--shared/--independent",
+            default=None,
+            help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).",
+        ),
+        click.option(
+            "--reward-noise",
+            type=click.Choice(CHOICES["reward_noise"]),
+            default=None,
+            help="How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in "
+            "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
+            "r(s, a, s') where the problem gives rewards per transition (transition).",
+        ),
         click.option("--backend", type=click.Choice(CHOICES["backend"]), default=d("backend"), show_default=True),
-        click.option("--checkpoints", type=int, default=d("checkpoints"), show_default=True,
-                     help="How many times to record metrics (at most once per iteration)."),
-        click.option("--tail-fraction", type=float, default=d("tail_fraction"), show_default=True, help="Final fraction of the run averaged for w_tail."),
-        click.option("--block-size", type=int, default=d("block_size"), show_default=True, help="Steps drawn and advanced per block (no effect on results)."),
+        click.option(
+            "--checkpoints",
+            type=int,
+            default=d("checkpoints"),
+            show_default=True,
+            help="How many times to record metrics (at most once per iteration).",
+        ),
+        click.option(
+            "--tail-fraction",
+            type=float,
+            default=d("tail_fraction"),
+            show_default=True,
+            help="Final fraction of the run averaged for w_tail.",
+        ),
+        click.option(
+            "--block-size",
+            type=int,
+            default=d("block_size"),
+            show_default=True,
+            help="Steps drawn and advanced per block (no effect on results).",
+        ),
     ]
     f = with_env_options(f)
     for option in reversed(options):
@@ -100,12 +176,26 @@ def _spec_options(f):
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
 @click.option("--progress/--no-progress", default=Output.progress, show_default=True)
 @click.option("--plots/--no-plots", default=Output.plots, show_default=True)
-@click.option("--overwrite/--no-overwrite", default=Output.overwrite, show_default=True,
-              help="Replace the results of another run in OUT (refused without it; the same run is simply redone).")
-@click.option("--checkpoint-every", type=int, default=Output.checkpoint_every, show_default=True,
-              help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never).")
-@click.option("--resume", "resume_dir", type=click.Path(file_okay=False), default=None,
-              help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run.")
+@click.option(
+    "--overwrite/--no-overwrite",
+    default=Output.overwrite,
+    show_default=True,
+    help="Replace the results of another run in OUT (refused without it; the same run is simply redone).",
+)
+@click.option(
+    "--checkpoint-every",
+    type=int,
+    default=Output.checkpoint_every,
+    show_default=True,
+    help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never).",
+)
+@click.option(
+    "--resume",
+    "resume_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run.",
+)
 @click.pass_context
 def run(ctx, scenario, resume_dir, **_):
     """Run an algorithm on a named SCENARIO (e.g. paper-example-1), on --problem FILE.npz, or as an EXPERIMENT.toml.
@@ -132,8 +222,8 @@ def run(ctx, scenario, resume_dir, **_):
     average (the last --tail-fraction of the run, which forgets the start):
     metrics.csv per seed, bands.csv the median and 90 % band over seeds.
     """
-    from dgtd.experiments import experiment_from
     from dgtd.cli.job import CONFIG, prepare
+    from dgtd.experiments import experiment_from
 
     flags = given_flags(ctx, exclude=("scenario", "resume_dir"))
     file = scenario if _is_experiment_file(scenario) else None
@@ -141,18 +231,24 @@ def run(ctx, scenario, resume_dir, **_):
         flags["scenario"] = scenario
     if resume_dir is not None:
         if "out" in flags and Path(flags["out"]).resolve() != Path(resume_dir).resolve():
-            raise DgtdInputError(f"--resume continues the run in {resume_dir} and writes there; leave out --out "
-                                 f"{flags['out']} (or resume that directory instead)")
+            raise DgtdInputError(
+                f"--resume continues the run in {resume_dir} and writes there; leave out --out "
+                f"{flags['out']} (or resume that directory instead)"
+            )
         flags.update(out=resume_dir, resume=True)
         if not (Path(resume_dir) / CONFIG).is_file():
             what = "is not a directory" if not Path(resume_dir).is_dir() else f"holds no run (no {CONFIG})"
-            raise DgtdInputError(f"--resume {resume_dir}: {what}; start a run there with `dgtd run SCENARIO --out "
-                                 f"{resume_dir} --checkpoint-every K`, then resume it")
+            raise DgtdInputError(
+                f"--resume {resume_dir}: {what}; start a run there with `dgtd run SCENARIO --out "
+                f"{resume_dir} --checkpoint-every K`, then resume it"
+            )
         if file is None and not PROBLEM_FLAGS & set(flags):
             file = str(Path(resume_dir) / CONFIG)
     if file is None and not PROBLEM_FLAGS & set(flags):
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
-                             "module:make_env, --data FILE, or an EXPERIMENT.toml")
+        raise DgtdInputError(
+            "name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
+            "module:make_env, --data FILE, or an EXPERIMENT.toml"
+        )
     import time
 
     t_start = time.perf_counter()
@@ -179,8 +275,10 @@ def _run_job(job, t_start: float) -> None:
     if job.resolved.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
     click.echo(problem_line(problem, links))
-    click.echo(f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
-               f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend")
+    click.echo(
+        f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
+        f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend"
+    )
     if job.resolved.env is not None or job.resolved.data is not None:
         click.echo(scenario_of(job.resolved).description)
     if job.snapshot is not None:
@@ -195,19 +293,28 @@ def _run_job(job, t_start: float) -> None:
     from dgtd.run.results import pinned_to_boxes
 
     for name, box in result.report.get("boxes_grown", {}).items():
-        click.echo(f"note: the {name} box grew from {box['lemma']:.4g} (Lemma 2's bound) to {box['used']:.4g} "
-                   f"(box_scale x |{name}*|_inf), so that it contains the saddle point", err=True)
+        click.echo(
+            f"note: the {name} box grew from {box['lemma']:.4g} (Lemma 2's bound) to {box['used']:.4g} "
+            f"(box_scale x |{name}*|_inf), so that it contains the saddle point",
+            err=True,
+        )
     pinned = pinned_to_boxes(result)
     if pinned:
-        click.echo("warning: at the end of the run " + ", ".join(f"{frac:.0%} of {name}" for name, frac in pinned.items())
-                   + " sit on the projection boxes: the step sizes are likely too large (lower --alpha0 or raise "
-                   "--beta), or the boxes too small", err=True)
+        click.echo(
+            "warning: at the end of the run "
+            + ", ".join(f"{frac:.0%} of {name}" for name, frac in pinned.items())
+            + " sit on the projection boxes: the step sizes are likely too large (lower --alpha0 or raise "
+            "--beta), or the boxes too small",
+            err=True,
+        )
     if job.report_text:
         click.echo(job.report_text)
     kernels = result.info.get("kernel_seconds", 0.0)
-    click.echo(f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({t_saved - t_start:.1f} s in all: setup "
-               f"{t_prepared - t_start:.1f} s, kernels {kernels:.1f} s, run {t_ran - t_prepared - kernels:.1f} s, "
-               f"results and figures {t_saved - t_ran:.1f} s)")
+    click.echo(
+        f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({t_saved - t_start:.1f} s in all: setup "
+        f"{t_prepared - t_start:.1f} s, kernels {kernels:.1f} s, run {t_ran - t_prepared - kernels:.1f} s, "
+        f"results and figures {t_saved - t_ran:.1f} s)"
+    )
 
 
 PROBLEM_FLAGS = {"scenario", "problem_file", "env_make", "data"}
@@ -218,8 +325,10 @@ def problem_line(problem, links: str) -> str:
     from dgtd.problems.model import Problem
 
     states = f"{problem.n_states} states" if isinstance(problem, Problem) else "no model (an estimated reference)"
-    return (f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
-            f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}")
+    return (
+        f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
+        f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}"
+    )
 
 
 def _vec(x, n=4) -> str:
@@ -238,38 +347,61 @@ def final_table(result) -> str:
     e_tail = exact.relative_error(result.w_tail, ref)
     cons = exact.consensus_error(result.w_last)
     shift = result.info.get("regularisation_shift", 0.0)
-    rows = [f"w* = {_vec(result.w_star, 8)}   (relative errors are |w_i - w*|_inf / |w*|_inf)" if not shift else
-            f"w* = {_vec(result.w_star, 8)}; with rho > 0 the errors are against each agent's w of the regularised "
-            f"saddle point, {shift:.3%} of |w*|_inf away from w*",
-            f"{'agent':>5}  {'w_last (seed 0)':<34}{'err':>8}  {'w_avg (seed 0)':<34}{'err':>8}  {'w_tail err':>10}"]
+    rows = [
+        f"w* = {_vec(result.w_star, 8)}   (relative errors are |w_i - w*|_inf / |w*|_inf)"
+        if not shift
+        else f"w* = {_vec(result.w_star, 8)}; with rho > 0 the errors are against each agent's w of the regularised "
+        f"saddle point, {shift:.3%} of |w*|_inf away from w*",
+        f"{'agent':>5}  {'w_last (seed 0)':<34}{'err':>8}  {'w_avg (seed 0)':<34}{'err':>8}  {'w_tail err':>10}",
+    ]
     for i in range(result.w_last.shape[1]):
-        rows.append(f"{i + 1:>5}  {_vec(result.w_last[0, i]):<34}{e_last[0, i]:>8.2%}  {_vec(result.w_avg[0, i]):<34}"
-                    f"{e_avg[0, i]:>8.2%}  {e_tail[0, i]:>10.2%}")
+        rows.append(
+            f"{i + 1:>5}  {_vec(result.w_last[0, i]):<34}{e_last[0, i]:>8.2%}  {_vec(result.w_avg[0, i]):<34}"
+            f"{e_avg[0, i]:>8.2%}  {e_tail[0, i]:>10.2%}"
+        )
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
     moments = result.info.get("moments")
     if moments is not None and not moments.model:
         est = moments.problem.summary()
-        rows.insert(0, f"w* is estimated (no model): LSTD with ridge {est['ridge']:.2g} on {est['transitions']:,} "
-                       f"independent transitions in {est['groups']} groups; its standard error is "
-                       f"{est['value_stderr_relative']:.2%} of |Phi w*|_d in values ({est['w_star_stderr_relative']:.2%}"
-                       " of |w*|_inf in weights)" + (
-                           f"; a centralised TD(0) run on {est['td_check_transitions']:,} of them ends "
-                           f"{est['td_check_value_gap']:.2%} from it" if "td_check_value_gap" in est else ""))
+        rows.insert(
+            0,
+            f"w* is estimated (no model): LSTD with ridge {est['ridge']:.2g} on {est['transitions']:,} "
+            f"independent transitions in {est['groups']} groups; its standard error is "
+            f"{est['value_stderr_relative']:.2%} of |Phi w*|_d in values ({est['w_star_stderr_relative']:.2%}"
+            " of |w*|_inf in weights)"
+            + (
+                f"; a centralised TD(0) run on {est['td_check_transitions']:,} of them ends "
+                f"{est['td_check_value_gap']:.2%} from it"
+                if "td_check_value_gap" in est
+                else ""
+            ),
+        )
     if moments is not None:
-        v = {k: exact.value_error(moments, W, ref).max() for k, W in
-             (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))}
-        rows.append("value error |Phi (w_i - w*)|_d / |Phi w*|_d (d: the sampled states' distribution), worst agent "
-                    "over seeds: " + ", ".join(f"{k} {x:.2%}" for k, x in v.items()))
+        v = {
+            k: exact.value_error(moments, W, ref).max()
+            for k, W in (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))
+        }
+        rows.append(
+            "value error |Phi (w_i - w*)|_d / |Phi w*|_d (d: the sampled states' distribution), worst agent "
+            "over seeds: " + ", ".join(f"{k} {x:.2%}" for k, x in v.items())
+        )
     if result.w_last.shape[0] > 1:
-        rows.append(f"over {result.w_last.shape[0]} seeds, worst agent: last {e_last.max():.2%}, averaged {e_avg.max():.2%}, "
-                    f"tail-averaged {e_tail.max():.2%}; consensus error max {cons.max():.3g}")
+        rows.append(
+            f"over {result.w_last.shape[0]} seeds, worst agent: last {e_last.max():.2%}, averaged {e_avg.max():.2%}, "
+            f"tail-averaged {e_tail.max():.2%}; consensus error max {cons.max():.3g}"
+        )
     div = np.asarray(result.info.get("diverged_at", []))
     if np.any(div >= 0):  # stopped seeds: their estimates are NaN from then on
-        rows.append(f"DIVERGED: seed(s) {np.flatnonzero(div >= 0).tolist()} stopped at step(s) {div[div >= 0].tolist()} "
-                    "(estimates beyond 1e6 x the scale of w*, or not finite)" + (
-                        "; without a model there are no projection boxes: lower --alpha0 (below sqrt(beta) / "
-                        "lambda_max of the graph's Laplacian is safe)" if moments is not None and
-                        not moments.model else ""))
+        rows.append(
+            f"DIVERGED: seed(s) {np.flatnonzero(div >= 0).tolist()} stopped at step(s) {div[div >= 0].tolist()} "
+            "(estimates beyond 1e6 x the scale of w*, or not finite)"
+            + (
+                "; without a model there are no projection boxes: lower --alpha0 (below sqrt(beta) / "
+                "lambda_max of the graph's Laplacian is safe)"
+                if moments is not None and not moments.model
+                else ""
+            )
+        )
     return "\n".join(rows)
 
 
@@ -293,13 +425,22 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
     fixed = algorithm.fixed_point(m, L, w)
     _, prepared = algorithm.prepare(m, network, fixed)
     out = {
-        "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
-        "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
-        "w_star": w.tolist(), "algorithm": algorithm.name, "w_fixed": fixed.w.tolist(),
-        **plain(fixed.report), **plain(prepared),
+        "problem": problem.name,
+        "n_states": problem.n_states,
+        "n_agents": problem.n_agents,
+        "n_features": problem.n_features,
+        "gamma": problem.gamma,
+        "off_policy": problem.off_policy,
+        "w_star": w.tolist(),
+        "algorithm": algorithm.name,
+        "w_fixed": fixed.w.tolist(),
+        **plain(fixed.report),
+        **plain(prepared),
         "w_star_per_agent_reward": exact.fixed_point(m, m.b).tolist(),
-        "stationary_distribution": m.d.tolist(), "mspbe_w_star": float(exact.mspbe(m, w)),
-        "value_function": exact.value_function(m).tolist(), "approximate_values": (problem.Phi @ w).tolist(),
+        "stationary_distribution": m.d.tolist(),
+        "mspbe_w_star": float(exact.mspbe(m, w)),
+        "value_function": exact.value_function(m).tolist(),
+        "approximate_values": (problem.Phi @ w).tolist(),
         "mean_laplacian": L.tolist(),
         "config": {k: v for k, v in dataclasses.asdict(algorithm).items() if v is not None},
     }
@@ -307,13 +448,24 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
 
 @cli.command()
-@click.option("--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.cli.bench.CASES).")
-@click.option("--algorithm", "algorithms", default="dgtd", show_default=True,
-              help="Algorithms to measure: names separated by commas, or all.")
+@click.option(
+    "--cases", default="A,B,C,D,E", show_default=True, help="Which configurations (see dgtd.cli.bench.CASES)."
+)
+@click.option(
+    "--algorithm",
+    "algorithms",
+    default="dgtd",
+    show_default=True,
+    help="Algorithms to measure: names separated by commas, or all.",
+)
 @click.option("--backend", "backends", default="numba,numpy", show_default=True, help="Backends to measure.")
 @click.option("--repeats", type=int, default=3, show_default=True, help="Runs per measurement; the median is reported.")
-@click.option("--scaling/--no-scaling", default=False, show_default=True,
-              help="Also the scaling table: one seed, N from 16 to 16 384, idle and beside a busy process.")
+@click.option(
+    "--scaling/--no-scaling",
+    default=False,
+    show_default=True,
+    help="Also the scaling table: one seed, N from 16 to 16 384, idle and beside a busy process.",
+)
 @click.option("--out", type=click.Path(file_okay=False), default="bench", show_default=True)
 def bench(cases, algorithms, backends, repeats, scaling, out):
     """Measure agent-steps per second on the standard configurations; writes JSON and a Markdown table."""
@@ -349,20 +501,43 @@ def bench(cases, algorithms, backends, repeats, scaling, out):
 @cli.command()
 @click.argument("experiment", type=click.Path(dir_okay=False))
 @_spec_options
-@click.option("--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file).")
-@click.option("--executor", type=click.Choice(EXECUTORS), default=SweepOptions.executor, show_default=True,
-              help="A pool of local processes, or Ray (pip install 'dgtd[ray]').")
-@click.option("--address", type=str, default=None,
-              help="Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1.")
-@click.option("--workers", type=int, default=None, help="Jobs at once (default: the local cores / the local Ray's CPUs).")
-@click.option("--resume/--no-resume", default=None,
-              help="Skip jobs already finished in OUT (default: on when OUT exists).")
-@click.option("--format", "format", type=click.Choice(TABLE_FORMATS), default=SweepOptions.format, show_default=True,
-              help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.")
+@click.option(
+    "--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file)."
+)
+@click.option(
+    "--executor",
+    type=click.Choice(EXECUTORS),
+    default=SweepOptions.executor,
+    show_default=True,
+    help="A pool of local processes, or Ray (pip install 'dgtd[ray]').",
+)
+@click.option(
+    "--address",
+    type=str,
+    default=None,
+    help="Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1.",
+)
+@click.option(
+    "--workers", type=int, default=None, help="Jobs at once (default: the local cores / the local Ray's CPUs)."
+)
+@click.option(
+    "--resume/--no-resume", default=None, help="Skip jobs already finished in OUT (default: on when OUT exists)."
+)
+@click.option(
+    "--format",
+    "format",
+    type=click.Choice(TABLE_FORMATS),
+    default=SweepOptions.format,
+    show_default=True,
+    help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.",
+)
 @click.option("--progress/--no-progress", default=Output.progress, show_default=True)
-@click.option("--overwrite/--no-overwrite", default=Output.overwrite, show_default=True,
-              help="Write the sweep into a directory that holds a run's or a comparison's results (refused "
-                   "without it).")
+@click.option(
+    "--overwrite/--no-overwrite",
+    default=Output.overwrite,
+    show_default=True,
+    help="Write the sweep into a directory that holds a run's or a comparison's results (refused without it).",
+)
 @click.pass_context
 def sweep(ctx, experiment, **_):
     """Run every point of EXPERIMENT.toml's [grid] as a job; one long table and per-job summaries in OUT.
@@ -379,8 +554,10 @@ def sweep(ctx, experiment, **_):
     exp = experiment_from(experiment, flags)
     out = Path(exp.output.out) if exp.output.out else default_out(experiment)
     report = run_sweep(exp, out, echo=click.echo, progress=exp.output.progress)
-    click.echo(f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed "
-               f"in {report['seconds']:.1f} s" + (f"; table: {report['table']}" if report["table"] else ""))
+    click.echo(
+        f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed "
+        f"in {report['seconds']:.1f} s" + (f"; table: {report['table']}" if report["table"] else "")
+    )
     if report["failed"]:
         for job, message in report["failed"].items():
             click.echo(f"dgtd: job {job} failed: {message}", err=True)
@@ -401,10 +578,10 @@ def plot(directory):
 @cli.command()
 def scenarios():
     """List the named scenarios."""
-    from dgtd.scenarios import SCENARIOS
-
     import shutil
     import textwrap
+
+    from dgtd.scenarios import SCENARIOS
 
     width = max(shutil.get_terminal_size().columns, 60)
     for name, builder in SCENARIOS.items():  # the builders' first doc paragraphs, whole: listing builds nothing

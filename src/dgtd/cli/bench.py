@@ -21,8 +21,8 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import RandomEdges, random_edges
 from dgtd.problems.generators import random_problem
 from dgtd.problems.model import Problem
-from dgtd.scenarios import get_scenario
 from dgtd.run.loop import RunSettings, run
+from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
 
 
@@ -65,18 +65,29 @@ def _case_a():
 
 def _case_b():
     rng = np.random.default_rng(1)
-    return (random_problem(128, 16, 64, rng), random_edges(topologies.ring_with_chords(16, 4), 0.5),
-            DGTD(alpha0=0.5, beta=10))
+    return (
+        random_problem(128, 16, 64, rng),
+        random_edges(topologies.ring_with_chords(16, 4), 0.5),
+        DGTD(alpha0=0.5, beta=10),
+    )
 
 
 def _case_c():
     rng = np.random.default_rng(2)
-    return random_problem(128, 1000, 64, rng), random_edges(_connected_geometric(1000, 10, 2), 0.9), DGTD(alpha0=0.5, beta=10)
+    return (
+        random_problem(128, 1000, 64, rng),
+        random_edges(_connected_geometric(1000, 10, 2), 0.9),
+        DGTD(alpha0=0.5, beta=10),
+    )
 
 
 def _case_d():
     rng = np.random.default_rng(3)
-    return random_problem(128, 10_000, 64, rng), random_edges(_sparse_random(10_000, 6, rng), 0.9), DGTD(alpha0=0.5, beta=10)
+    return (
+        random_problem(128, 10_000, 64, rng),
+        random_edges(_sparse_random(10_000, 6, rng), 0.9),
+        DGTD(alpha0=0.5, beta=10),
+    )
 
 
 def _case_e():
@@ -86,14 +97,30 @@ def _case_e():
 
 CASES = {
     "A": BenchCase("A", "paper-example-1 (N=5, q=2), 1 seed", _case_a, 1, {"numba": 1_000_000, "numpy": 20_000}),
-    "B": BenchCase("B", "N=16, q=64, random 128-state problem, ring with chords, p=0.5, 32 seeds", _case_b, 32,
-                   {"numba": 20_000, "numpy": 1_000}),
-    "C": BenchCase("C", "N=1000, q=64, random geometric graph (mean degree ~10), p=0.9, 1 seed", _case_c, 1,
-                   {"numba": 5_000, "numpy": 200}),
-    "D": BenchCase("D", "N=10000, q=64, sparse random graph (mean degree 6), p=0.9, 1 seed", _case_d, 1,
-                   {"numba": 500, "numpy": 20}),
-    "E": BenchCase("E", "tabular, 400 states, N=3, complete graph, p=0.5, 1 seed", _case_e, 1,
-                   {"numba": 100_000, "numpy": 5_000}),
+    "B": BenchCase(
+        "B",
+        "N=16, q=64, random 128-state problem, ring with chords, p=0.5, 32 seeds",
+        _case_b,
+        32,
+        {"numba": 20_000, "numpy": 1_000},
+    ),
+    "C": BenchCase(
+        "C",
+        "N=1000, q=64, random geometric graph (mean degree ~10), p=0.9, 1 seed",
+        _case_c,
+        1,
+        {"numba": 5_000, "numpy": 200},
+    ),
+    "D": BenchCase(
+        "D",
+        "N=10000, q=64, sparse random graph (mean degree 6), p=0.9, 1 seed",
+        _case_d,
+        1,
+        {"numba": 500, "numpy": 20},
+    ),
+    "E": BenchCase(
+        "E", "tabular, 400 states, N=3, complete graph, p=0.5, 1 seed", _case_e, 1, {"numba": 100_000, "numpy": 5_000}
+    ),
 }
 
 
@@ -107,8 +134,13 @@ def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: 
     """Wall seconds of `run`'s iterations (sampling, updates, the final metric checkpoint), after a warm-up run;
     the one-off setup (exact solution, tables) is timed apart by `setup_seconds`."""
     settings = RunSettings(iterations=iterations, seeds=seeds, checkpoints=1, backend=backend)
-    run(problem, network, algorithm, Sampling(), RunSettings(iterations=min(iterations, 50), seeds=seeds,
-                                                             checkpoints=1, backend=backend))
+    run(
+        problem,
+        network,
+        algorithm,
+        Sampling(),
+        RunSettings(iterations=min(iterations, 50), seeds=seeds, checkpoints=1, backend=backend),
+    )
     out = []
     for _ in range(repeats):
         result = run(problem, network, algorithm, Sampling(), settings)
@@ -193,8 +225,9 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
 
 
-def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats: int = 3, progress=print,
-            algorithms=("dgtd",)) -> dict:
+def measure(
+    keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats: int = 3, progress=print, algorithms=("dgtd",)
+) -> dict:
     """Agent-steps per second (median of ``repeats``) for each case, algorithm and backend, with bandwidth and flop
     context (DGTD's)."""
     from numba import get_num_threads
@@ -214,20 +247,42 @@ def measure(keys=("A", "B", "C", "D", "E"), backends=("numba", "numpy"), repeats
                 secs = time_run(problem, network, algorithm, case.seeds, T, backend, repeats)
                 med = float(np.median(secs))
                 rate = T * case.seeds * N / med
-                row = {"case": key, "description": case.description, "algorithm": name, "backend": backend, "N": N,
-                       "q": q, "setup_seconds": setup_seconds(problem, network, algorithm), "seeds": case.seeds,
-                       "iterations": T, "seconds": secs, "agent_steps_per_s": rate, "mean_up_degree": mean_deg}
+                row = {
+                    "case": key,
+                    "description": case.description,
+                    "algorithm": name,
+                    "backend": backend,
+                    "N": N,
+                    "q": q,
+                    "setup_seconds": setup_seconds(problem, network, algorithm),
+                    "seeds": case.seeds,
+                    "iterations": T,
+                    "seconds": secs,
+                    "agent_steps_per_s": rate,
+                    "mean_up_degree": mean_deg,
+                }
                 if name == "dgtd":
                     by, fl = bytes_per_agent_step(q, mean_deg), flops_per_agent_step(q, mean_deg)
-                    row |= {"bytes_per_agent_step": by, "flops_per_agent_step": fl,
-                            "bandwidth_bound_agent_steps_per_s": bw / by["compulsory"],
-                            "fraction_of_bandwidth_bound": rate / (bw / by["compulsory"]),
-                            "fraction_of_peak_flops": rate * fl / peak}
+                    row |= {
+                        "bytes_per_agent_step": by,
+                        "flops_per_agent_step": fl,
+                        "bandwidth_bound_agent_steps_per_s": bw / by["compulsory"],
+                        "fraction_of_bandwidth_bound": rate / (bw / by["compulsory"]),
+                        "fraction_of_peak_flops": rate * fl / peak,
+                    }
                 rows.append(row)
-                progress(f"{key} {name:14s} {backend:6s} {rate:14,.0f} agent-steps/s  (median of {repeats}: "
-                         f"{med:.3f} s)")
-    return {"machine": machine(), "threads": get_num_threads(), "copy_bandwidth_bytes_per_s": bw,
-            "peak_flops": peak, "peak_basis": peak_basis, "date": time.strftime("%Y-%m-%d"), "rows": rows}
+                progress(
+                    f"{key} {name:14s} {backend:6s} {rate:14,.0f} agent-steps/s  (median of {repeats}: {med:.3f} s)"
+                )
+    return {
+        "machine": machine(),
+        "threads": get_num_threads(),
+        "copy_bandwidth_bytes_per_s": bw,
+        "peak_flops": peak,
+        "peak_basis": peak_basis,
+        "date": time.strftime("%Y-%m-%d"),
+        "rows": rows,
+    }
 
 
 SCALING_AGENTS = (16, 64, 256, 1024, 4096, 16384)
@@ -273,26 +328,44 @@ def beside_a_busy_process(measure_fn, seconds: float = 3600.0):
 
 def markdown(report: dict, extra_rows: list | None = None) -> str:
     """The report as Markdown tables: the cases (DGTD's with its bytes and flops), and the scaling table if any."""
-    lines = [f"Measured {report['date']} on {report['machine']} ({report['threads']} threads); "
-             f"STREAM-style copy bandwidth {report['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s (read + write); "
-             f"double-precision peak {report['peak_flops'] / 1e9:.0f} GFLOP/s ({report['peak_basis']}).",
-             "",
-             "| case | algorithm | backend | N | q | seeds | agent-steps/s | bytes/agent-step (compulsory + neighbours) | "
-             "bandwidth bound | of bound | flops/agent-step | of peak |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        f"Measured {report['date']} on {report['machine']} ({report['threads']} threads); "
+        f"STREAM-style copy bandwidth {report['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s (read + write); "
+        f"double-precision peak {report['peak_flops'] / 1e9:.0f} GFLOP/s ({report['peak_basis']}).",
+        "",
+        "| case | algorithm | backend | N | q | seeds | agent-steps/s | bytes/agent-step (compulsory + neighbours) | "
+        "bandwidth bound | of bound | flops/agent-step | of peak |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in report["rows"] + (extra_rows or []):
         by = r.get("bytes_per_agent_step")
         lines.append(
             f"| {r['case']} | {r.get('algorithm', 'dgtd')} | {r['backend']} | {r['N']} | {r['q']} | {r['seeds']} | "
             f"{r['agent_steps_per_s']:,.0f} | "
-            + (f"{by['compulsory']:,} + {by['neighbours']:,.0f} | {r['bandwidth_bound_agent_steps_per_s']:,.0f} | "
-               f"{r['fraction_of_bandwidth_bound']:.0%} | {r['flops_per_agent_step']:,.0f} | {r['fraction_of_peak_flops']:.1%} |"
-               if by else "| | | | |"))
+            + (
+                f"{by['compulsory']:,} + {by['neighbours']:,.0f} | {r['bandwidth_bound_agent_steps_per_s']:,.0f} | "
+                f"{r['fraction_of_bandwidth_bound']:.0%} | {r['flops_per_agent_step']:,.0f} | "
+                f"{r['fraction_of_peak_flops']:.1%} |"
+                if by
+                else "| | | | |"
+            )
+        )
     if report.get("scaling"):
-        lines += ["", "Scaling, one seed (`scaling_case`): agent-steps per second idle and beside a process that keeps "
-                  "one core busy.", "", "| N | idle | beside a busy process | busy / idle |", "| --- | --- | --- | --- |"]
+        lines += [
+            "",
+            "Scaling, one seed (`scaling_case`): agent-steps per second idle and beside a process that keeps "
+            "one core busy.",
+            "",
+            "| N | idle | beside a busy process | busy / idle |",
+            "| --- | --- | --- | --- |",
+        ]
         for idle, busy in zip(report["scaling"]["idle"], report["scaling"].get("busy") or [None] * 99):
-            lines.append(f"| {idle['N']} | {idle['agent_steps_per_s']:,.0f} | "
-                         + (f"{busy['agent_steps_per_s']:,.0f} | {busy['agent_steps_per_s'] / idle['agent_steps_per_s']:.2f} |"
-                            if busy else "| |"))
+            lines.append(
+                f"| {idle['N']} | {idle['agent_steps_per_s']:,.0f} | "
+                + (
+                    f"{busy['agent_steps_per_s']:,.0f} | {busy['agent_steps_per_s'] / idle['agent_steps_per_s']:.2f} |"
+                    if busy
+                    else "| |"
+                )
+            )
     return "\n".join(lines)

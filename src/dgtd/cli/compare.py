@@ -22,81 +22,179 @@ def _names(text: str | None) -> tuple[str, ...]:
 
 @click.command()
 @click.argument("scenario", required=False)
-@click.option("--algorithms", "-a", type=str, default=None,
-              help=f"Comma-separated: {', '.join(ALGORITHMS)} (default: all).")
-@click.option("--seeds", type=int, default=5, show_default=True, help="Independent runs per algorithm, the same for all.")
-@click.option("--seed", type=int, default=RunSettings.seed, show_default=True, help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).")
+@click.option(
+    "--algorithms", "-a", type=str, default=None, help=f"Comma-separated: {', '.join(ALGORITHMS)} (default: all)."
+)
+@click.option(
+    "--seeds", type=int, default=5, show_default=True, help="Independent runs per algorithm, the same for all."
+)
+@click.option(
+    "--seed",
+    type=int,
+    default=RunSettings.seed,
+    show_default=True,
+    help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).",
+)
 @click.option("--iterations", "-T", type=int, default=None, help="Iterations T (default: the scenario's).")
 @click.option("--edge-prob", type=float, default=None, help="Probability that each link is up at each step.")
-@click.option("--sampling", type=click.Choice(CHOICES["sampling"]), default=None, help="i.i.d. s ~ d or Markovian trajectories.")
-@click.option("--shared/--independent", default=None,
-              help="All agents observe one state trajectory, or each its own copy (default: the scenario's).")
-@click.option("--tune/--no-tune", default=False, show_default=True,
-              help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.")
+@click.option(
+    "--sampling", type=click.Choice(CHOICES["sampling"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."
+)
+@click.option(
+    "--shared/--independent",
+    default=None,
+    help="All agents observe one state trajectory, or each its own copy (default: the scenario's).",
+)
+@click.option(
+    "--tune/--no-tune",
+    default=False,
+    show_default=True,
+    help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.",
+)
 @click.option("--tune-seeds", type=int, default=2, show_default=True, help="Seeds per tuning run.")
 @click.option("--backend", type=click.Choice(CHOICES["backend"]), default=RunSettings.backend, show_default=True)
-@click.option("--checkpoints", type=int, default=RunSettings.checkpoints, show_default=True,
-              help="How many times to record metrics.")
-@click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO).")
+@click.option(
+    "--checkpoints",
+    type=int,
+    default=RunSettings.checkpoints,
+    show_default=True,
+    help="How many times to record metrics.",
+)
+@click.option(
+    "--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO)."
+)
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @click.option("--plots/--no-plots", default=True, show_default=True)
-@click.option("--overwrite", is_flag=True, default=False,
-              help="Replace another comparison's results in --out (otherwise refused).")
-@click.option("--problem", "problem_file", type=str, default=None,
-              help="Your own problem, an .npz as `dgtd run --problem` takes, instead of a scenario.")
-@click.option("--graph", type=str, default=None,
-              help="The network of a --problem, --env or --data run (default: ring).")
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    default=False,
+    help="Replace another comparison's results in --out (otherwise refused).",
+)
+@click.option(
+    "--problem",
+    "problem_file",
+    type=str,
+    default=None,
+    help="Your own problem, an .npz as `dgtd run --problem` takes, instead of a scenario.",
+)
+@click.option(
+    "--graph", type=str, default=None, help="The network of a --problem, --env or --data run (default: ring)."
+)
 @with_env_options
-def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, shared, tune, tune_seeds, backend,
-            checkpoints, out, progress, plots, overwrite, problem_file, **user):
+def compare(
+    scenario,
+    algorithms,
+    seeds,
+    seed,
+    iterations,
+    edge_prob,
+    sampling,
+    shared,
+    tune,
+    tune_seeds,
+    backend,
+    checkpoints,
+    out,
+    progress,
+    plots,
+    overwrite,
+    problem_file,
+    **user,
+):
     """Run several algorithms on SCENARIO (or --problem FILE.npz, --env, --data, as `dgtd run`) with the same
     samples; write metrics.csv, summary.json and plots.
 
     The run is described, checked and recorded as the `RunSpec` of `dgtd run` (the same fields, defaults and
     checks), plus the algorithms compared and the tuning. Each algorithm's numbers are saved as it finishes: after
     an interrupt, the same command again runs only the algorithms that had not finished."""
-    from dgtd.config import PROBLEM_FIELDS, RunSpec, resolve, scenario_of, spec_record
     from tqdm import tqdm
 
-    from dgtd.run.compare import (CompareSettings, compare as run_compare, configs_for, finish_directory,
-                                  prepare_directory, save_part, write_compare)
-    from dgtd.run.owner import Owner
-
     from dgtd.cli import problem_line
+    from dgtd.config import PROBLEM_FIELDS, RunSpec, resolve, scenario_of, spec_record
     from dgtd.errors import DgtdInputError
     from dgtd.experiments import Experiment, absolute_paths, override
+    from dgtd.run.compare import (
+        CompareSettings,
+        configs_for,
+        finish_directory,
+        prepare_directory,
+        save_part,
+        write_compare,
+    )
+    from dgtd.run.compare import (
+        compare as run_compare,
+    )
+    from dgtd.run.owner import Owner
     from dgtd.scenarios.user import problem_scenario
 
-    spec = RunSpec(scenario=scenario, problem_file=problem_file, edge_prob=edge_prob, iterations=iterations,
-                   seeds=seeds, seed=seed, sampling=sampling, shared=shared, backend=backend, checkpoints=checkpoints)
+    spec = RunSpec(
+        scenario=scenario,
+        problem_file=problem_file,
+        edge_prob=edge_prob,
+        iterations=iterations,
+        seeds=seeds,
+        seed=seed,
+        sampling=sampling,
+        shared=shared,
+        backend=backend,
+        checkpoints=checkpoints,
+    )
     spec = override(Experiment(spec=spec), {k: v for k, v in user.items() if v is not None}).spec
     if all(getattr(spec, name) is None for name in PROBLEM_FIELDS):
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env "
-                             "or --data FILE")
+        raise DgtdInputError(
+            "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
+        )
     p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(spec))
     sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
     out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
-    click.echo(f"{problem_line(p, network.describe())}; {samp.mode} sampling, "
-               f"{'shared' if samp.shared else 'independent'} states")
-    click.echo(f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
-               f"{', step sizes tuned first' if tune else ''}")
-    record = {**spec_record(resolved), "algorithms": list(cs.algorithms), "tune": tune,
-              "tune_seeds": tune_seeds if tune else None}
+    click.echo(
+        f"{problem_line(p, network.describe())}; {samp.mode} sampling, "
+        f"{'shared' if samp.shared else 'independent'} states"
+    )
+    click.echo(
+        f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
+        f"{', step sizes tuned first' if tune else ''}"
+    )
+    record = {
+        **spec_record(resolved),
+        "algorithms": list(cs.algorithms),
+        "tune": tune,
+        "tune_seeds": tune_seeds if tune else None,
+    }
     record = json.loads(json.dumps(record))  # as summary.json holds it (lists, not tuples), to compare with it
     with Owner(out, "comparison", overwrite):  # the directory is this comparison's until it ends
         results, used, tables = prepare_directory(out, record, overwrite)
         if results:
-            click.echo(f"resuming the interrupted comparison in {out}: {', '.join(results)} finished before; running "
-                       f"{', '.join(a for a in cs.algorithms if a not in results)}")
-        bar = tqdm(total=settings.iterations * len(cs.algorithms), initial=settings.iterations * len(results),
-                   unit="it", unit_scale=True, disable=not progress, file=sys.stderr, mininterval=0.5)
+            click.echo(
+                f"resuming the interrupted comparison in {out}: {', '.join(results)} finished before; running "
+                f"{', '.join(a for a in cs.algorithms if a not in results)}"
+            )
+        bar = tqdm(
+            total=settings.iterations * len(cs.algorithms),
+            initial=settings.iterations * len(results),
+            unit="it",
+            unit_scale=True,
+            disable=not progress,
+            file=sys.stderr,
+            mininterval=0.5,
+        )
         try:
-            run_compare(p, network, samp, configs, cs, progress=lambda name, n: bar.update(n),
-                        log=bar.write if tune else None, source_factory=sc.source, done=(results, used, tables),
-                        on_finished=lambda *part: save_part(out, *part, record),
-                        kernel_ready=lambda seconds: bar.unpause())  # the compilation is not in the ETA
+            run_compare(
+                p,
+                network,
+                samp,
+                configs,
+                cs,
+                progress=lambda name, n: bar.update(n),
+                log=bar.write if tune else None,
+                source_factory=sc.source,
+                done=(results, used, tables),
+                on_finished=lambda *part: save_part(out, *part, record),
+                kernel_ready=lambda seconds: bar.unpause(),
+            )  # the compilation is not in the ETA
         except KeyboardInterrupt:
             bar.close()
             finished = [name for name in cs.algorithms if name in results]
@@ -104,9 +202,11 @@ def compare(scenario, algorithms, seeds, seed, iterations, edge_prob, sampling, 
                 raise
             missing = [name for name in cs.algorithms if name not in results]
             write_compare(out, p, network, results, used, tables, {**record, "interrupted": True, "missing": missing})
-            raise KeyboardInterrupt(f"interrupted: the results of {', '.join(finished)} are written to {out} "
-                                    f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
-                                    f"to the end: run the same command again to run only those") from None
+            raise KeyboardInterrupt(
+                f"interrupted: the results of {', '.join(finished)} are written to {out} "
+                f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
+                f"to the end: run the same command again to run only those"
+            ) from None
         finally:
             bar.close()
         write_compare(out, p, network, results, used, tables, record)
@@ -127,13 +227,24 @@ def table(results: dict, used: dict) -> str:
     norm, value errors |Phi (w_i - w*)|_d / |Phi w*|_d."""
     import numpy as np
 
-    rows = [f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'value last':>12}{'value avg':>12}"
-            f"{'MSPBE last':>12}{'messages':>12}  diverged"]
+    rows = [
+        f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'value last':>12}{'value avg':>12}"
+        f"{'MSPBE last':>12}{'messages':>12}  diverged"
+    ]
     for name, r in results.items():
-        med = lambda k: np.nanmedian(r.metrics[k][-1]) if np.isfinite(r.metrics[k][-1]).any() else float("nan")  # noqa: E731
+
+        def med(k, r=r):
+            return np.nanmedian(r.metrics[k][-1]) if np.isfinite(r.metrics[k][-1]).any() else float("nan")
+
         div = r.info["diverged_at"]
-        d = "no" if not np.any(div >= 0) else f"{int(np.sum(div >= 0))}/{len(div)} seeds (first at step {int(div[div >= 0].min()):,})"
-        rows.append(f"{name:<14}{used[name].alpha0:>8.3g}{med('error_last'):>12.3g}{med('error_avg'):>12.3g}"
-                    f"{med('value_error_last'):>12.3g}{med('value_error_avg'):>12.3g}"
-                    f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}  {d}")
+        d = (
+            "no"
+            if not np.any(div >= 0)
+            else f"{int(np.sum(div >= 0))}/{len(div)} seeds (first at step {int(div[div >= 0].min()):,})"
+        )
+        rows.append(
+            f"{name:<14}{used[name].alpha0:>8.3g}{med('error_last'):>12.3g}{med('error_avg'):>12.3g}"
+            f"{med('value_error_last'):>12.3g}{med('value_error_avg'):>12.3g}"
+            f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}  {d}"
+        )
     return "\n".join(rows)

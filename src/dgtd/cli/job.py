@@ -65,10 +65,23 @@ class PreparedRun:
         def start_bar(kernel_seconds: float) -> None:
             """The kernels are loaded (or compiled): only now does the bar start, so that its rate is the run's."""
             if kernel_seconds > 1.0 and show:
-                print(f"compiled the {self.settings.backend} kernels in {kernel_seconds:.1f} s (once per machine: "
-                      "later runs load them from the cache)", file=sys.stderr, flush=True)
-            bars.append(tqdm(total=self.settings.iterations, initial=done, unit="it", unit_scale=True,
-                             disable=not show, file=sys.stderr, mininterval=0.5))
+                print(
+                    f"compiled the {self.settings.backend} kernels in {kernel_seconds:.1f} s (once per machine: "
+                    "later runs load them from the cache)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            bars.append(
+                tqdm(
+                    total=self.settings.iterations,
+                    initial=done,
+                    unit="it",
+                    unit_scale=True,
+                    disable=not show,
+                    file=sys.stderr,
+                    mininterval=0.5,
+                )
+            )
 
         def advance(n: int) -> None:
             bars[0].update(n)
@@ -77,10 +90,19 @@ class PreparedRun:
         ckpt = self.out / CHECKPOINT
         self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
         try:
-            return run_loop(self.problem, self.network, self.algorithm, self.sampling, self.settings,
-                            progress=advance, source=self.source, checkpoint_every=every,
-                            on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record), resume=self.snapshot,
-                            kernel_ready=start_bar)
+            return run_loop(
+                self.problem,
+                self.network,
+                self.algorithm,
+                self.sampling,
+                self.settings,
+                progress=advance,
+                source=self.source,
+                checkpoint_every=every,
+                on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record),
+                resume=self.snapshot,
+                kernel_ready=start_bar,
+            )
         finally:
             for bar in bars:
                 bar.close()
@@ -125,9 +147,11 @@ class FiguresInterrupted(KeyboardInterrupt):
     """Ctrl-C while the figures were drawn: the numbers are all written already, and the message says so."""
 
     def __init__(self, out):
-        super().__init__(f"interrupted while drawing the figures: the results (summary.json, metrics.csv, "
-                         f"trajectory.npz) are complete in {out}; some figures are missing, and `dgtd plot {out}` "
-                         "draws the error and iterate figures again")
+        super().__init__(
+            f"interrupted while drawing the figures: the results (summary.json, metrics.csv, "
+            f"trajectory.npz) are complete in {out}; some figures are missing, and `dgtd plot {out}` "
+            "draws the error and iterate figures again"
+        )
 
 
 def prepare(exp: Experiment) -> PreparedRun:
@@ -135,14 +159,26 @@ def prepare(exp: Experiment) -> PreparedRun:
     if exp.grid:
         raise DgtdInputError("this experiment has a [grid]: run it with `dgtd sweep FILE`")
     if all(getattr(exp.spec, name) is None for name in PROBLEM_FIELDS):
-        raise DgtdInputError("name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
-                             "module:make_env, --data FILE, or an experiment file")
+        raise DgtdInputError(
+            "name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
+            "module:make_env, --data FILE, or an experiment file"
+        )
     problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(exp.spec))
     out = Path(exp.output.out) if exp.output.out else Path("runs") / problem.name
     out = out.resolve()
     record = json.loads(json.dumps(spec_record(resolved)))
-    run = PreparedRun(exp, problem, network, algorithm, sampling, settings, resolved, out, record,
-                      owner=Owner(out, "run", exp.output.overwrite))
+    run = PreparedRun(
+        exp,
+        problem,
+        network,
+        algorithm,
+        sampling,
+        settings,
+        resolved,
+        out,
+        record,
+        owner=Owner(out, "run", exp.output.overwrite),
+    )
     try:
         return _claim(run, exp, out, record)
     except BaseException:
@@ -171,8 +207,21 @@ def _claim(run: PreparedRun, exp: Experiment, out: Path, record: dict) -> Prepar
 
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's
 # copies of them go before a new run writes. Nothing else in the directory is touched.
-RUN_FILES = ("summary.json", "metrics.csv", "bands.csv", "trajectory.npz", CHECKPOINT, "iterates.png", "errors.png", "maps.png",
-             "reference.png", "snapshots.png", "patrol.gif", "curves.png", "values.png")
+RUN_FILES = (
+    "summary.json",
+    "metrics.csv",
+    "bands.csv",
+    "trajectory.npz",
+    CHECKPOINT,
+    "iterates.png",
+    "errors.png",
+    "maps.png",
+    "reference.png",
+    "snapshots.png",
+    "patrol.gif",
+    "curves.png",
+    "values.png",
+)
 
 
 def clear_previous_run(out: Path, record: dict, overwrite: bool) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.topologies import Graph
 
@@ -83,7 +84,8 @@ def check_mean_connected(process: RandomEdges) -> None:
         alone = np.flatnonzero(labels != labels[0])[:5].tolist()
         raise DgtdInputError(
             f"the mean communication graph is disconnected ({n} components; e.g. agents {alone} cannot reach agent 0); "
-            "add edges or raise the edge probability so that every agent is connected (the mean connectivity assumption)"
+            "add edges or raise the edge probability so that every agent is connected (the mean connectivity "
+            "assumption)"
         )
 
 

@@ -23,8 +23,9 @@ def _save(fig, path: Path) -> None:
     atomic_write(path, buf.getvalue())
 
 
-def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: int = 4, max_agents: int = 10,
-                  algorithm: str = "") -> bool:
+def plot_iterates(
+    result: RunResult, path: Path, seed: int = 0, max_components: int = 4, max_agents: int = 10, algorithm: str = ""
+) -> bool:
     """Every agent's w_k components against k for one seed, with w* dotted (the paper's Fig. 2): one colour per
     agent, one line style per component; the title says which components and agents are shown."""
     if result.w_trace is None:
@@ -40,7 +41,7 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = ["-", "--", ":", "-."]
     shown = W[:, :shown_n]
-    settled = shown[len(W) // 3:]
+    settled = shown[len(W) // 3 :]
     settled = settled[np.isfinite(settled)]  # a diverged run is NaN from where it was stopped
     lo = min(settled.min(initial=np.inf), w_star.min())
     hi = max(settled.max(initial=-np.inf), w_star.max())
@@ -52,23 +53,45 @@ def plot_iterates(result: RunResult, path: Path, seed: int = 0, max_components: 
     early = int(np.flatnonzero(off).max()) + 1 if off[: max(1, len(W) // 3)].any() else 0
     if early:
         ax.axvspan(result.steps[0], result.steps[early - 1], color="0.9", lw=0)
-        ax.text(np.sqrt(result.steps[0] * result.steps[early - 1]), hi - 0.05 * (hi - lo),
-                f"k < {result.steps[early - 1]:,}: off this scale\n(the iterates swing between the boxes)",
-                ha="center", va="top", fontsize=7, color="0.35")
+        ax.text(
+            np.sqrt(result.steps[0] * result.steps[early - 1]),
+            hi - 0.05 * (hi - lo),
+            f"k < {result.steps[early - 1]:,}: off this scale\n(the iterates swing between the boxes)",
+            ha="center",
+            va="top",
+            fontsize=7,
+            color="0.35",
+        )
     for i in range(shown_n):
         for f in range(shown_q):
-            ax.plot(result.steps[early:], shown[early:, i, f], color=colors[i % len(colors)],
-                    ls=styles[f % len(styles)], lw=0.9, alpha=0.85, label=f"agent {i + 1}" if f == 0 else None)
+            ax.plot(
+                result.steps[early:],
+                shown[early:, i, f],
+                color=colors[i % len(colors)],
+                ls=styles[f % len(styles)],
+                lw=0.9,
+                alpha=0.85,
+                label=f"agent {i + 1}" if f == 0 else None,
+            )
     for f in range(shown_q):
-        ax.axhline(w_star[f], color="black", ls=styles[f % len(styles)], lw=1.6, alpha=0.6,
-                   label=f"w*[{picked[f] + 1}] = {w_star[f]:.3g} ({styles[f % len(styles)]})")
+        ax.axhline(
+            w_star[f],
+            color="black",
+            ls=styles[f % len(styles)],
+            lw=1.6,
+            alpha=0.6,
+            label=f"w*[{picked[f] + 1}] = {w_star[f]:.3g} ({styles[f % len(styles)]})",
+        )
     ax.set_ylim(lo, hi)
     ax.set_xlim(result.steps[0], result.steps[-1])
     ax.set_xscale("log")
     ax.set_xlabel("iteration k (log scale)")
     ax.set_ylabel("w_k")
-    what = (f"the {shown_q} of {q} components with the largest |w*|" if shown_q < q
-            else f"all {q} component{'s' if q > 1 else ''}")
+    what = (
+        f"the {shown_q} of {q} components with the largest |w*|"
+        if shown_q < q
+        else f"all {q} component{'s' if q > 1 else ''}"
+    )
     who = f"agents 1-{shown_n} of {N}" if shown_n < N else f"{N} agent{'s' if N > 1 else ''}"
     ax.set_title(f"{algorithm + ' ' if algorithm else ''}iterates, seed {seed}: {what}, {who}", fontsize=10)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
@@ -97,7 +120,7 @@ def median_band(Y: np.ndarray):
 def band(ax, x, Y, label, color=None):
     """Median over seeds with the 90 % band (`median_band`)."""
     med, lo, hi = median_band(Y)
-    line, = ax.plot(x, med, label=label, color=color)
+    (line,) = ax.plot(x, med, label=label, color=color)
     if Y.shape[1] > 1:
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
 
@@ -113,7 +136,8 @@ def _log_or_zero(ax, x, Y, label):
     zero = np.all(Y == 0, axis=1)
     if zero.any():
         n = int(zero.sum())
-        label += f" (zero at {n} checkpoint{'s' if n > 1 else ''} up to k = {int(x[np.flatnonzero(zero).max()]):,}, not drawn)"
+        last = int(x[np.flatnonzero(zero).max()])
+        label += f" (zero at {n} checkpoint{'s' if n > 1 else ''} up to k = {last:,}, not drawn)"
     band(ax, x, np.where(Y > 0, Y, np.nan), label)  # NaN also marks checkpoints after a divergence
     ax.set_yscale("log")
     return True
@@ -124,8 +148,12 @@ def plot_errors(result: RunResult, path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), gridspec_kw={"wspace": 0.32})
     x = result.steps
     m = result.metrics
-    for key, label, style in (("error_last", "last, weights", "-"), ("error_avg", "averaged, weights", "-"),
-                              ("value_error_last", "last, values", "--"), ("value_error_avg", "averaged, values", "--")):
+    for key, label, style in (
+        ("error_last", "last, weights", "-"),
+        ("error_avg", "averaged, weights", "-"),
+        ("value_error_last", "last, values", "--"),
+        ("value_error_avg", "averaged, values", "--"),
+    ):
         if key in m:  # results saved before the value errors existed have the weight errors only
             band(axes[0], x, m[key], label, color="C0" if "last" in key else "C1")
             axes[0].get_lines()[-1].set_linestyle(style)
@@ -147,8 +175,9 @@ def plot_errors(result: RunResult, path: Path) -> None:
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
-    fig.suptitle(f"median over {seeds} seed{'s' if seeds > 1 else ''}" + (f", {BAND_WORDS}" if seeds > 1 else ""),
-                 fontsize=9)
+    fig.suptitle(
+        f"median over {seeds} seed{'s' if seeds > 1 else ''}" + (f", {BAND_WORDS}" if seeds > 1 else ""), fontsize=9
+    )
     _save(fig, path)
 
 

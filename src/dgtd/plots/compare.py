@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from dgtd.plots import BAND_WORDS, _save, median_band  # noqa: E402
 
+
 def color(name: str) -> str | None:
     """The algorithm's own colour (`dgtd.algorithms.base`), the same in every figure."""
     from dgtd.algorithms import ALGORITHMS
@@ -53,8 +54,9 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
     parameter vectors sent. Algorithms that send nothing appear on the message panels as a dotted line at
     their final level."""
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
-    for row, (metric, label) in enumerate((("error_last", "max_i |w_i - w*|_inf / |w*|_inf"),
-                                           ("mspbe_last", "MSPBE of the average reward (worst agent)"))):
+    for row, (metric, label) in enumerate(
+        (("error_last", "max_i |w_i - w*|_inf / |w*|_inf"), ("mspbe_last", "MSPBE of the average reward (worst agent)"))
+    ):
         floor, top = _limits(results, metric)
         for name, r in results.items():
             Y = r.metrics[metric]
@@ -62,8 +64,13 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
             if r.info["messages"].max() > 0:
                 _curve(axes[row, 1], r.info["counts"]["messages"], Y, name, floor, top)
             elif np.isfinite(median_band(Y)[0][-1]):
-                axes[row, 1].axhline(max(median_band(Y)[0][-1], floor), color=color(name), ls=":", lw=1.2,
-                                     label=f"{name} (no messages; final level)")
+                axes[row, 1].axhline(
+                    max(median_band(Y)[0][-1], floor),
+                    color=color(name),
+                    ls=":",
+                    lw=1.2,
+                    label=f"{name} (no messages; final level)",
+                )
             else:
                 axes[row, 1].plot([], [], "x", color=color(name), label=f"{name} (no messages; diverged)")
         axes[row, 0].set_ylabel(label)
@@ -77,8 +84,11 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
     handles, labels = axes[0, 1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
     fig.subplots_adjust(bottom=0.12)
-    fig.suptitle(title + "\nmedian over seeds, " + BAND_WORDS + "; x: the median run diverged; curves beyond 1000x the "
-                 "largest starting value are cut at the frame's top", fontsize=10)
+    fig.suptitle(
+        title + "\nmedian over seeds, " + BAND_WORDS + "; x: the median run diverged; curves beyond 1000x the "
+        "largest starting value are cut at the frame's top",
+        fontsize=10,
+    )
     _save(fig, path)
 
 
@@ -93,7 +103,9 @@ def plot_consensus(results: dict, path: Path, title: str = "") -> None:
     ax.set_yscale("log")
     ax.set_xlabel("agent-samples consumed")
     ax.set_ylabel("sum_i |w_i - mean_j w_j|^2")
-    ax.set_title(title + ": consensus error\n(median over seeds, " + BAND_WORDS + "; exact zeros not drawn)", fontsize=10)
+    ax.set_title(
+        title + ": consensus error\n(median over seeds, " + BAND_WORDS + "; exact zeros not drawn)", fontsize=10
+    )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _save(fig, path)

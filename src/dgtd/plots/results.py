@@ -17,10 +17,15 @@ from dgtd.files import numbers, read_csv, read_json, read_npz
 from dgtd.plots import BAND_WORDS, _save, band, median_band, plot_errors, plot_iterates, plt
 
 # What each metric of a run is, in words, for titles and axes.
-METRIC_WORDS = {"error_avg": "worst agent's relative error (max norm) of the averaged iterate",
-                "error_last": "worst agent's relative error (max norm) of the last iterate"}
-CURVES = (("error_avg", "max relative error, averaged iterate"), ("consensus", "consensus error (zeros not drawn)"),
-          ("mspbe_avg", "MSPBE, averaged iterate"))
+METRIC_WORDS = {
+    "error_avg": "worst agent's relative error (max norm) of the averaged iterate",
+    "error_last": "worst agent's relative error (max norm) of the last iterate",
+}
+CURVES = (
+    ("error_avg", "max relative error, averaged iterate"),
+    ("consensus", "consensus error (zeros not drawn)"),
+    ("mspbe_avg", "MSPBE, averaged iterate"),
+)
 CURVE_AXES = ("max_i |w_i - w*|_inf / |w*|_inf", "sum_i |w_i - mean_j w_j|^2", "MSPBE")
 
 
@@ -31,7 +36,10 @@ def load_run(directory: Path) -> SimpleNamespace:
     rows = read_csv(path, "results file", fix, required=("seed", "step", "metric", "value"))
     if not rows:
         raise DgtdInputError(f"results file {path} holds no rows; {fix}")
-    step_of, seed_of = numbers(rows, "step", int, path, "results file", fix), numbers(rows, "seed", int, path, "results file", fix)
+    step_of, seed_of = (
+        numbers(rows, "step", int, path, "results file", fix),
+        numbers(rows, "seed", int, path, "results file", fix),
+    )
     values = numbers(rows, "value", float, path, "results file", fix)
     if step_of.min() < 0 or seed_of.min() < 0:
         raise DgtdInputError(f"results file {path} has negative steps or seeds; {fix}")
@@ -48,8 +56,13 @@ def load_run(directory: Path) -> SimpleNamespace:
     w_trace = None
     if (directory / "trajectory.npz").exists():
         w_trace = read_npz(directory / "trajectory.npz", "results file", fix).get("w_trace")
-    return SimpleNamespace(steps=steps, metrics=metrics, w_trace=w_trace, w_star=np.asarray(summary["w_star"]),
-                           algorithm=rows[0].get("algorithm") or summary.get("config", {}).get("algorithm", ""))
+    return SimpleNamespace(
+        steps=steps,
+        metrics=metrics,
+        w_trace=w_trace,
+        w_star=np.asarray(summary["w_star"]),
+        algorithm=rows[0].get("algorithm") or summary.get("config", {}).get("algorithm", ""),
+    )
 
 
 def load_compare(directory: Path):
@@ -57,7 +70,10 @@ def load_compare(directory: Path):
     fix = "run the comparison again"
     path = directory / "metrics.csv"
     rows = read_csv(path, "comparison results", fix, required=("algorithm", "seed", "step", "metric", "value"))
-    step_of, seed_of = numbers(rows, "step", int, path, "comparison results", fix), numbers(rows, "seed", int, path, "comparison results", fix)
+    step_of, seed_of = (
+        numbers(rows, "step", int, path, "comparison results", fix),
+        numbers(rows, "seed", int, path, "comparison results", fix),
+    )
     values = numbers(rows, "value", float, path, "comparison results", fix)
     summary = read_json(directory / "summary.json", "comparison results", fix, required=("problem",))
     tables: dict = {}
@@ -79,8 +95,11 @@ def load_compare(directory: Path):
             arrays[metric] = Y
         counts = {m: arrays[m] for m in ("samples", "messages", "diverged") if m in arrays}
         one_estimate = not np.any(np.nan_to_num(arrays["consensus"]) > 0)  # a centralised learner
-        results[name] = SimpleNamespace(metrics=arrays, info={"counts": counts, "messages": np.nan_to_num(
-            arrays["messages"][-1])}, w_last=np.zeros((arrays["error_last"].shape[1], 1 if one_estimate else 2, 1)))
+        results[name] = SimpleNamespace(
+            metrics=arrays,
+            info={"counts": counts, "messages": np.nan_to_num(arrays["messages"][-1])},
+            w_last=np.zeros((arrays["error_last"].shape[1], 1 if one_estimate else 2, 1)),
+        )
     seeds = next(iter(results.values())).metrics["error_last"].shape[1] if results else 0
     return results, f"{summary['problem']}, {seeds} seeds"
 
@@ -126,8 +145,13 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
         for ax, (name, _) in zip(axes, CURVES, strict=True):
             if name in ms:
                 # exact zeros (consensus before any link) have no place on a log axis: left out, not floored
-                band(ax, steps, np.where(ms[name] > 0, ms[name], np.nan), label if ax is axes[0] else None,
-                     color=color_of[group])
+                band(
+                    ax,
+                    steps,
+                    np.where(ms[name] > 0, ms[name], np.nan),
+                    label if ax is axes[0] else None,
+                    color=color_of[group],
+                )
     for ax, (_, title), ylabel in zip(axes, CURVES, CURVE_AXES, strict=True):
         ax.set_ylabel(ylabel)
         ax.set_xscale("log")
@@ -136,7 +160,9 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
         ax.set_title(title)
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
-    note = f"{len(jobs)} jobs, median over seeds, {BAND_WORDS}" + (f"; colour: {by} (every job with that value)" if by else "")
+    note = f"{len(jobs)} jobs, median over seeds, {BAND_WORDS}" + (
+        f"; colour: {by} (every job with that value)" if by else ""
+    )
     fig.suptitle(note, fontsize=9)
     _save(fig, path)
 
@@ -159,8 +185,9 @@ def _heat_maps(final: dict, points: dict, kx: str, ky: str, panels: dict, metric
         grids.append(Z)
     positive = np.concatenate([Z[np.isfinite(Z) & (Z > 0)] for Z in grids])
     norm = LogNorm(positive.min(), positive.max()) if positive.size and positive.min() < positive.max() else None
-    fig, axes = plt.subplots(1, len(grids), figsize=(len(grids) * (1.1 * len(xs) + 1.5) + 1.5, 0.7 * len(ys) + 2),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(grids), figsize=(len(grids) * (1.1 * len(xs) + 1.5) + 1.5, 0.7 * len(ys) + 2), squeeze=False
+    )
     for ax, Z, group in zip(axes[0], grids, panels, strict=True):
         im = ax.imshow(Z, origin="lower", cmap="viridis", norm=norm, aspect="auto")
         for (iy, ix), z in np.ndenumerate(Z):
@@ -174,9 +201,11 @@ def _heat_maps(final: dict, points: dict, kx: str, ky: str, panels: dict, metric
         ax.set_title(_label(dict(group)) or f"k = {k_end:,}", fontsize=9)
     fig.colorbar(im, ax=axes[0].tolist(), label=f"final {metric} at k = {k_end:,} (median over seeds)")
     best = min(final, key=lambda j: np.median(final[j]))
-    fig.suptitle(f"{METRIC_WORDS.get(metric, metric)} after {k_end:,} iterations, median over seeds; the smallest, "
-                 f"{np.median(final[best]):.2g}, at {_label({k: points[best][k] for k in (kx, ky, *dict(next(iter(panels))))})}",
-                 fontsize=9)
+    fig.suptitle(
+        f"{METRIC_WORDS.get(metric, metric)} after {k_end:,} iterations, median over seeds; the smallest, "
+        f"{np.median(final[best]):.2g}, at {_label({k: points[best][k] for k in (kx, ky, *dict(next(iter(panels))))})}",
+        fontsize=9,
+    )
     _save(fig, path)
 
 
@@ -212,7 +241,7 @@ def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metr
         x = [xs[i] if kx in numeric else str(xs[i]) for i in order]
         Y = np.array([final[members[i]] for i in order])
         med, lo, hi = median_band(Y)
-        line, = ax.plot(x, med, marker="o", label=_label(dict(group)) or None)
+        (line,) = ax.plot(x, med, marker="o", label=_label(dict(group)) or None)
         if Y.shape[1] > 1:
             ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
     if kx in numeric and all(points[j][kx] > 0 for j in final):
@@ -235,8 +264,12 @@ def plot_directory(directory: Path) -> list[Path]:
     if (directory / "sweep.json").exists():
         from dgtd.run.store import read_table
 
-        index = read_json(directory / "sweep.json", "sweep index", "run the sweep again (it skips finished jobs)",
-                          required=("jobs", "grid"))
+        index = read_json(
+            directory / "sweep.json",
+            "sweep index",
+            "run the sweep again (it skips finished jobs)",
+            required=("jobs", "grid"),
+        )
         if not index.get("table"):
             raise DgtdInputError(f"{directory} holds no finished job yet; run the sweep first")
         points = {j["job"]: j["point"] for j in index["jobs"]}
@@ -248,8 +281,9 @@ def plot_directory(directory: Path) -> list[Path]:
                 written.append(directory / f"final_{metric}.png")
         return written
     if not (directory / "metrics.csv").exists():
-        raise DgtdInputError(f"{directory} is not a results directory of dgtd run, compare or sweep (no metrics.csv "
-                             "or sweep.json)")
+        raise DgtdInputError(
+            f"{directory} is not a results directory of dgtd run, compare or sweep (no metrics.csv or sweep.json)"
+        )
     if (directory / "agent_errors.npz").exists():  # a comparison: its own figures, one curve per algorithm
         from dgtd.plots.compare import plot_compare, plot_consensus
 

@@ -24,8 +24,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from dgtd.plots import band  # noqa: E402
-from dgtd.scenarios.robots import PatrolReport, map_correlation  # noqa: E402
 from dgtd.run.results import atomic_write, file_mode  # noqa: E402
+from dgtd.scenarios.robots import PatrolReport, map_correlation  # noqa: E402
 
 AGENT_COLOURS = ("tab:blue", "tab:red", "black", "tab:green", "tab:purple", "tab:orange")
 CMAP = "viridis"
@@ -44,10 +44,20 @@ def _save(fig, path: Path, dpi: int = 110) -> None:
 
 def draw_map(ax, world, values, vmin, vmax, cmap=CMAP):
     """A grid map (S,) as a heat map in metres, origin at the lower left, with every region outlined."""
-    im = ax.imshow(np.asarray(values).reshape(world.grid, world.grid), origin="lower", cmap=cmap, vmin=vmin, vmax=vmax,
-                   extent=(0, world.size, 0, world.size), interpolation="nearest")
+    im = ax.imshow(
+        np.asarray(values).reshape(world.grid, world.grid),
+        origin="lower",
+        cmap=cmap,
+        vmin=vmin,
+        vmax=vmax,
+        extent=(0, world.size, 0, world.size),
+        interpolation="nearest",
+    )
     for i, (x0, y0, x1, y1) in enumerate(world.regions):
-        for colour, lw in (("white", 3.2), (agent_colour(i), 1.6)):  # a white halo keeps the outline visible on any colour
+        for colour, lw in (
+            ("white", 3.2),
+            (agent_colour(i), 1.6),
+        ):  # a white halo keeps the outline visible on any colour
             ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec=colour, lw=lw))
     ax.set_xticks([0, world.size / 2, world.size])
     ax.set_yticks([0, world.size / 2, world.size])
@@ -62,12 +72,13 @@ def draw_robots(ax, trail, up, edges, radius=None):
     x = trail[-1]
     arts = []
     for e, (u, v) in enumerate(edges):
-        line, = ax.plot([x[u, 0], x[v, 0]], [x[u, 1], x[v, 1]], color="white", lw=2.0, ls="-", zorder=4,
-                        visible=bool(up[e]))
+        (line,) = ax.plot(
+            [x[u, 0], x[v, 0]], [x[u, 1], x[v, 1]], color="white", lw=2.0, ls="-", zorder=4, visible=bool(up[e])
+        )
         arts.append(line)
     for i in range(x.shape[0]):
-        path, = ax.plot(trail[:, i, 0], trail[:, i, 1], color=agent_colour(i), lw=1.0, alpha=0.9, zorder=5)
-        dot, = ax.plot(x[i, 0], x[i, 1], "o", ms=7, mfc=agent_colour(i), mec="white", mew=1.5, zorder=6)
+        (path,) = ax.plot(trail[:, i, 0], trail[:, i, 1], color=agent_colour(i), lw=1.0, alpha=0.9, zorder=5)
+        (dot,) = ax.plot(x[i, 0], x[i, 1], "o", ms=7, mfc=agent_colour(i), mec="white", mew=1.5, zorder=6)
         arts += [path, dot]
     return arts
 
@@ -81,8 +92,12 @@ def plot_maps(world, result, path: Path, seed: int = 0) -> None:
     fig, axes = plt.subplots(1, N + 1, figsize=(3.3 * (N + 1), 3.5), constrained_layout=True)
     for i in range(N):
         im = draw_map(axes[i], world, W[i], 0.0, vmax)
-        axes[i].set_title(f"agent {i + 1} (senses the {agent_colour(i).replace('tab:', '')} region)\n"
-                          f"correlation with w*: {corr[i]:.3f}", fontsize=9, color=agent_colour(i))
+        axes[i].set_title(
+            f"agent {i + 1} (senses the {agent_colour(i).replace('tab:', '')} region)\n"
+            f"correlation with w*: {corr[i]:.3f}",
+            fontsize=9,
+            color=agent_colour(i),
+        )
     draw_map(axes[N], world, result.w_star, 0.0, vmax)
     axes[N].set_title("reference w* (estimated chain)\naverage reward of all robots", fontsize=9)
     axes[0].set_xlabel("x (m)", fontsize=8)
@@ -105,8 +120,11 @@ def plot_reference(world, reference, path: Path) -> None:
     axes[2].set_title(f"centralised TD(0), same samples\nmax |w_TD - w*| = {gap:.2%} of max w*", fontsize=9)
     fig.colorbar(im0, ax=[axes[0], axes[2]], shrink=0.85, label="value")
     fig.colorbar(im1, ax=axes[1], shrink=0.85, label="probability")
-    fig.suptitle(f"reference from {reference.n_transitions:,} simulated transitions "
-                 f"({reference.teams * world.n_robots} robots x {reference.steps:,} steps)", fontsize=10)
+    fig.suptitle(
+        f"reference from {reference.n_transitions:,} simulated transitions "
+        f"({reference.teams * world.n_robots} robots x {reference.steps:,} steps)",
+        fontsize=10,
+    )
     _save(fig, path)
 
 
@@ -133,7 +151,9 @@ def plot_snapshots(world, network, result, source, path: Path, n: int = 6) -> bo
     chosen = pick_steps(result.steps, rec, n)
     N = result.w_last.shape[1]
     vmax = float(max(result.w_star.max(), result.w_last[0].max()))
-    fig, axes = plt.subplots(N, len(chosen), figsize=(2.3 * len(chosen), 2.35 * N), squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(
+        N, len(chosen), figsize=(2.3 * len(chosen), 2.35 * N), squeeze=False, constrained_layout=True
+    )
     index = {int(s): c for c, s in enumerate(result.steps)}
     for col, k in enumerate(chosen):
         trail, up = rec[k]
@@ -148,8 +168,11 @@ def plot_snapshots(world, network, result, source, path: Path, n: int = 6) -> bo
             if col == 0:
                 ax.set_ylabel(f"agent {i + 1}", color=agent_colour(i), fontsize=10)
     fig.colorbar(im, ax=axes, shrink=0.6, label="value")
-    fig.suptitle("each agent's map forming (seed 0); dots: robots, lines: links up (distance <= "
-                 f"{network.radius:g} m), tails: last {trail.shape[0]} steps", fontsize=10)
+    fig.suptitle(
+        "each agent's map forming (seed 0); dots: robots, lines: links up (distance <= "
+        f"{network.radius:g} m), tails: last {trail.shape[0]} steps",
+        fontsize=10,
+    )
     _save(fig, path)
     return True
 
@@ -186,8 +209,11 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
         robots.clear()
         for i in range(N):
             robots.extend(draw_robots(axes[i], trail, up, network.base.edges))
-        fig.suptitle(f"each agent's value map at k = {k:,} (seed 0)\ndots: robots; white lines: links up "
-                     f"(within {network.radius:g} m)", fontsize=9)
+        fig.suptitle(
+            f"each agent's value map at k = {k:,} (seed 0)\ndots: robots; white lines: links up "
+            f"(within {network.radius:g} m)",
+            fontsize=9,
+        )
         return ims + robots
 
     anim = FuncAnimation(fig, draw, frames=len(chosen), init_func=lambda: [], blit=False)
@@ -217,8 +243,14 @@ def plot_curves(result, d: np.ndarray, path: Path) -> bool:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
     for i in range(N):
         band(axes[0], x, result.agent_error_last[:, :, i], f"agent {i + 1}, sup norm", color=agent_colour(i))
-        axes[0].plot(x, np.median(err_d[:, :, i], axis=1), color=agent_colour(i), ls="--", lw=1.0,
-                     label=f"agent {i + 1}, D-weighted")
+        axes[0].plot(
+            x,
+            np.median(err_d[:, :, i], axis=1),
+            color=agent_colour(i),
+            ls="--",
+            lw=1.0,
+            label=f"agent {i + 1}, D-weighted",
+        )
         band(axes[1], x, corr[:, :, i], f"agent {i + 1}", color=agent_colour(i))
     axes[0].set_yscale("log")
     axes[0].set_title("relative error of the last iterate")
@@ -228,7 +260,9 @@ def plot_curves(result, d: np.ndarray, path: Path) -> bool:
     axes[1].set_title("correlation of agent i's map with w*")
     axes[1].set_ylim(min(0.0, float(np.nanmin(corr))), 1.0)
     cons = result.metrics["consensus"]
-    band(axes[2], x, np.where(cons > 0, cons, np.nan), "sum_i |w_i - mean w|^2")  # exact zeros (before any link) left out
+    band(
+        axes[2], x, np.where(cons > 0, cons, np.nan), "sum_i |w_i - mean w|^2"
+    )  # exact zeros (before any link) left out
     axes[2].set_yscale("log")
     axes[2].set_title("consensus error")
     for ax in axes:

@@ -44,8 +44,14 @@ def value_figures(report, result, out) -> list[str]:
     bottom.set_ylabel("minus reference")
     bottom.set_xlabel("step along a fresh trajectory (same policy, streams of its own)")
     top.set_title("every agent's value (tail average, seed 0) along a trajectory, and the reference's")
-    bottom.legend(*top.get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, -0.45),
-                  ncol=min(len(agents) + 2, 5), fontsize=8, frameon=False)
+    bottom.legend(
+        *top.get_legend_handles_labels(),
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.45),
+        ncol=min(len(agents) + 2, 5),
+        fontsize=8,
+        frameon=False,
+    )
     fig.subplots_adjust(hspace=0.08)
     _save(fig, Path(out) / "values.png")
     return ["values.png"]

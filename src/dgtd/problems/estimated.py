@@ -39,8 +39,15 @@ def tabular_w_star(P: np.ndarray, r_mean: np.ndarray, gamma: float) -> np.ndarra
     return np.linalg.solve(np.eye(P.shape[0]) - gamma * P, r_mean)
 
 
-def minibatch_td(w: np.ndarray, n_seen: np.ndarray, s: np.ndarray, s_next: np.ndarray, r_mean: np.ndarray,
-                 gamma: float, omega: float = 0.7) -> tuple[np.ndarray, np.ndarray]:
+def minibatch_td(
+    w: np.ndarray,
+    n_seen: np.ndarray,
+    s: np.ndarray,
+    s_next: np.ndarray,
+    r_mean: np.ndarray,
+    gamma: float,
+    omega: float = 0.7,
+) -> tuple[np.ndarray, np.ndarray]:
     """One step of centralised tabular TD(0) on a minibatch of simultaneous transitions (s_j, s'_j).
 
     Each visited state moves by its mean TD error delta_j = r(s_j) + gamma w(s'_j) - w(s_j) times

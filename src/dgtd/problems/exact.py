@@ -119,7 +119,9 @@ def fixed_point(m: Moments, b: np.ndarray) -> np.ndarray:
     try:
         return np.linalg.solve(m.A, b.reshape(-1, b.shape[-1]).T).T.reshape(b.shape)
     except np.linalg.LinAlgError:
-        raise DgtdInputError("Phi^T D (I - gamma P) Phi is singular; the projected Bellman equation has no unique solution") from None
+        raise DgtdInputError(
+            "Phi^T D (I - gamma P) Phi is singular; the projected Bellman equation has no unique solution"
+        ) from None
 
 
 def theta_star(m: Moments) -> np.ndarray:
@@ -224,7 +226,8 @@ def saddle_point(m: Moments, L, kappa: float = 0.0, rho: float = 0.0) -> SaddleP
 
 
 def lagrangian_gradient(m: Moments, L, kappa, rho, theta, v, mu, w):
-    """Gradient of the Lagrangian of section 5 (with the consensus term -(kappa/2) w^T L w) plus (rho/2)|mu|^2 - (rho/2)|w|^2, at stacked (N, q) points.
+    """Gradient of the Lagrangian of section 5 (with the consensus term -(kappa/2) w^T L w) plus
+    (rho/2)|mu|^2 - (rho/2)|w|^2, at stacked (N, q) points.
 
     Returns (dL/dtheta, dL/dv, dL/dmu, dL/dw); the KKT conditions (section 6) are that all four vanish.
     """

@@ -41,7 +41,10 @@ def from_matrix(Phi) -> np.ndarray:
 def _unit(states, low, high) -> np.ndarray:
     """States scaled to [0, 1]^dim by the box [low, high], clipped; shape (K, dim)."""
     x = np.atleast_2d(np.asarray(states, dtype=np.float64))
-    low, high = np.broadcast_to(np.asarray(low, np.float64), x.shape[1:]), np.broadcast_to(np.asarray(high, np.float64), x.shape[1:])
+    low, high = (
+        np.broadcast_to(np.asarray(low, np.float64), x.shape[1:]),
+        np.broadcast_to(np.asarray(high, np.float64), x.shape[1:]),
+    )
     if np.any(high <= low):
         raise DgtdInputError(f"the features' box needs high > low in every dimension, got low {low}, high {high}")
     return np.clip((x - low) / (high - low), 0.0, 1.0)

@@ -7,8 +7,17 @@ import numpy as np
 from dgtd.problems.model import Problem, make_problem
 
 
-def random_problem(n_states: int, n_agents: int, n_features: int, rng: np.random.Generator, *, gamma: float = 0.9,
-                   sigma: float = 1.0, reward_noise: str = "none", name: str = "random") -> Problem:
+def random_problem(
+    n_states: int,
+    n_agents: int,
+    n_features: int,
+    rng: np.random.Generator,
+    *,
+    gamma: float = 0.9,
+    sigma: float = 1.0,
+    reward_noise: str = "none",
+    name: str = "random",
+) -> Problem:
     """A dense random ergodic chain with random nonnegative features and agent rewards in [0, sigma].
 
     P has positive entries (so the chain is ergodic and aperiodic); Phi = I when n_features == n_states,
@@ -21,8 +30,16 @@ def random_problem(n_states: int, n_agents: int, n_features: int, rng: np.random
     return make_problem(P, R, Phi, gamma, sigma=sigma, reward_noise=reward_noise, name=name)
 
 
-def random_mdp_problem(n_states: int, action_sizes: tuple, n_features: int, rng: np.random.Generator, *,
-                       gamma: float = 0.9, off_policy: bool = True, name: str = "random-mdp") -> Problem:
+def random_mdp_problem(
+    n_states: int,
+    action_sizes: tuple,
+    n_features: int,
+    rng: np.random.Generator,
+    *,
+    gamma: float = 0.9,
+    off_policy: bool = True,
+    name: str = "random-mdp",
+) -> Problem:
     """A random multi-agent MDP (one local action set per agent) reduced by `from_mdp`, optionally off-policy."""
     from dgtd.problems.mdp import from_mdp
 

@@ -22,8 +22,10 @@ from dgtd.files import read_npz
 from dgtd.problems.model import Problem, make_problem
 
 REQUIRED = ("P", "R", "Phi", "gamma")
-FORMS = ("give an .npz saved with numpy.savez that holds arrays P (S, S), R (N, S), Phi (S, q) and a scalar gamma, "
-         "or for a multi-agent MDP P (S, A, S), R (N, S, A), Phi, gamma and policies policy_0, policy_1, ...")
+FORMS = (
+    "give an .npz saved with numpy.savez that holds arrays P (S, S), R (N, S), Phi (S, q) and a scalar gamma, "
+    "or for a multi-agent MDP P (S, A, S), R (N, S, A), Phi, gamma and policies policy_0, policy_1, ..."
+)
 
 
 def load_problem(path: str, reward_noise: str = "none") -> Problem:
@@ -44,15 +46,26 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
         return _load_mdp(p, arrays, gamma, sigma, reward_noise, terminal, signed)
     stray = sorted(k for k in arrays if k.startswith(("policy_", "behaviour_")))
     if stray:
-        raise DgtdInputError(f"{path} holds {', '.join(stray)} but P has shape {np.shape(arrays['P'])}; policies belong "
-                             "to the multi-agent MDP form, whose P is (S, A, S)")
-    return make_problem(arrays["P"], arrays["R"], arrays["Phi"], gamma, sigma=sigma, reward_noise=reward_noise,
-                        name=p.stem, terminal=terminal, signed_rewards=signed)
+        raise DgtdInputError(
+            f"{path} holds {', '.join(stray)} but P has shape {np.shape(arrays['P'])}; policies belong "
+            "to the multi-agent MDP form, whose P is (S, A, S)"
+        )
+    return make_problem(
+        arrays["P"],
+        arrays["R"],
+        arrays["Phi"],
+        gamma,
+        sigma=sigma,
+        reward_noise=reward_noise,
+        name=p.stem,
+        terminal=terminal,
+        signed_rewards=signed,
+    )
 
 
 def _numbered(arrays: dict, prefix: str) -> list:
     """arrays prefix_0, prefix_1, ... in order; a gap in the numbering is an error."""
-    found = sorted(int(k[len(prefix):]) for k in arrays if k.startswith(prefix) and k[len(prefix):].isdigit())
+    found = sorted(int(k[len(prefix) :]) for k in arrays if k.startswith(prefix) and k[len(prefix) :].isdigit())
     if found != list(range(len(found))):
         missing = min(set(range(max(found) + 1)) - set(found))
         raise DgtdInputError(f"{prefix}{missing} is missing: number the arrays {prefix}0, {prefix}1, ... without gaps")
@@ -65,14 +78,29 @@ def _load_mdp(path: Path, arrays: dict, gamma: float, sigma, reward_noise: str, 
 
     policies = _numbered(arrays, "policy_")
     if not policies:
-        raise DgtdInputError(f"{path} holds a joint P (S, A, S) but no policies: add each agent's local target policy "
-                             "as policy_0, policy_1, ... (arrays (S, A_k) whose rows sum to 1)")
+        raise DgtdInputError(
+            f"{path} holds a joint P (S, A, S) but no policies: add each agent's local target policy "
+            "as policy_0, policy_1, ... (arrays (S, A_k) whose rows sum to 1)"
+        )
     behaviour = _numbered(arrays, "behaviour_") or None
     if behaviour is not None and len(behaviour) != len(policies):
-        raise DgtdInputError(f"{path} holds {len(policies)} target policies but {len(behaviour)} behaviour policies; "
-                             "give one behaviour policy per target policy, or none (on-policy)")
-    return from_mdp(arrays["P"], arrays["R"], arrays["Phi"], gamma, policies, behaviour, sigma=sigma,
-                    reward_noise=reward_noise, name=path.stem, terminal=terminal, signed_rewards=signed)
+        raise DgtdInputError(
+            f"{path} holds {len(policies)} target policies but {len(behaviour)} behaviour policies; "
+            "give one behaviour policy per target policy, or none (on-policy)"
+        )
+    return from_mdp(
+        arrays["P"],
+        arrays["R"],
+        arrays["Phi"],
+        gamma,
+        policies,
+        behaviour,
+        sigma=sigma,
+        reward_noise=reward_noise,
+        name=path.stem,
+        terminal=terminal,
+        signed_rewards=signed,
+    )
 
 
 def save_problem(path: str, problem: Problem) -> None:

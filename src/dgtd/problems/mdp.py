@@ -60,9 +60,7 @@ def from_mdp(
         check_stochastic(f"policy {i}", p)
     pi = joint_policy(policies)
     if pi.shape[1] != A:
-        raise DgtdInputError(
-            f"the local policies' action counts multiply to {pi.shape[1]} joint actions but P has {A}"
-        )
+        raise DgtdInputError(f"the local policies' action counts multiply to {pi.shape[1]} joint actions but P has {A}")
     rewards = np.asarray(rewards, dtype=np.float64)
     if rewards.ndim == 4:
         rewards = _as_float_array("rewards", rewards, 4)
@@ -79,8 +77,10 @@ def from_mdp(
     else:
         behaviour = [_as_float_array(f"behaviour policy {i}", b, 2) for i, b in enumerate(behaviour)]
         if len(behaviour) != len(policies):
-            raise DgtdInputError(f"{len(policies)} target policies but {len(behaviour)} behaviour policies; give one "
-                                 "behaviour policy per target policy")
+            raise DgtdInputError(
+                f"{len(policies)} target policies but {len(behaviour)} behaviour policies; give one "
+                "behaviour policy per target policy"
+            )
         for i, (b, p) in enumerate(zip(behaviour, policies, strict=True)):
             if b.shape != p.shape:
                 raise DgtdInputError(f"behaviour policy {i} has shape {b.shape}, its target policy {p.shape}")

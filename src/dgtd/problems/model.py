@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+
 from dgtd.errors import DgtdInputError
 
 ROW_SUM_TOL = 1e-8
@@ -199,7 +200,8 @@ def check_size(problem) -> None:
         raise DgtdInputError(
             f"the exact solution of this problem ({S:,} states, {q:,} features) "
             f"takes about {n_bytes / 1e9:.1f} GB and {seconds / 60:.0f} min of dense linear algebra, over the limit of "
-            f"{limit:g} GB; use fewer states or features, or raise the limit with DGTD_MEMORY_LIMIT_GB")
+            f"{limit:g} GB; use fewer states or features, or raise the limit with DGTD_MEMORY_LIMIT_GB"
+        )
 
 
 def check_reward_noise(reward_noise: str, R_transition) -> None:
@@ -207,9 +209,11 @@ def check_reward_noise(reward_noise: str, R_transition) -> None:
     if reward_noise not in REWARD_NOISES:
         raise DgtdInputError(f"reward_noise must be one of {', '.join(REWARD_NOISES)}, got {reward_noise!r}")
     if reward_noise == "transition" and R_transition is None:
-        raise DgtdInputError("reward noise 'transition' draws the reward of each sampled transition r(s, a, s'), but "
-                             "this problem gives rewards per state (and action) only; give rewards of shape "
-                             "(N, S, A, S) in a multi-agent MDP, or choose another reward noise")
+        raise DgtdInputError(
+            "reward noise 'transition' draws the reward of each sampled transition r(s, a, s'), but "
+            "this problem gives rewards per state (and action) only; give rewards of shape "
+            "(N, S, A, S) in a multi-agent MDP, or choose another reward noise"
+        )
 
 
 def with_reward_noise(problem: Problem, reward_noise: str) -> Problem:
@@ -264,13 +268,16 @@ def make_problem(
     if terminal is not None:
         terminal = np.asarray(terminal)
         if terminal.shape != (S,) or terminal.dtype.kind not in "biu" or not np.isin(terminal, (0, 1)).all():
-            raise DgtdInputError(f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
-                                 f"shape {terminal.shape}")
+            raise DgtdInputError(
+                f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
+                f"shape {terminal.shape}"
+            )
         terminal = terminal.astype(bool) if terminal.any() else None
     episodic = terminal is not None
     if not np.isfinite(gamma) or not (0.0 < gamma < 1.0 or (episodic and gamma == 1.0)):
-        raise DgtdInputError(f"gamma must lie strictly between 0 and 1 (or be 1 in an episodic task, with terminal "
-                             f"states), got {gamma}")
+        raise DgtdInputError(
+            f"gamma must lie strictly between 0 and 1 (or be 1 in an episodic task, with terminal states), got {gamma}"
+        )
     if P.shape != (S, S):
         raise DgtdInputError(f"P must be square (S, S), got shape {P.shape}")
     if R.shape[1] != S:
@@ -315,33 +322,57 @@ def make_problem(
     if R_transition is not None:
         R_transition = _as_float_array("R_transition", R_transition, 4)
         if R_transition.shape != (R.shape[0], S, A, S):
-            raise DgtdInputError(f"R_transition must have shape (N, S, A, S) = {(R.shape[0], S, A, S)}, got "
-                                 f"{R_transition.shape}")
+            raise DgtdInputError(
+                f"R_transition must have shape (N, S, A, S) = {(R.shape[0], S, A, S)}, got {R_transition.shape}"
+            )
         P_sa = np.divide(P_sample, beta[:, :, None], out=np.zeros_like(P_sample), where=beta[:, :, None] > 0)
-        if not np.allclose(np.einsum("sat,nsat->nsa", P_sa, R_transition)[:, beta > 0], R_sample[:, beta > 0],
-                           atol=1e-8 * max(1.0, np.abs(R_sample).max())):
+        if not np.allclose(
+            np.einsum("sat,nsat->nsa", P_sa, R_transition)[:, beta > 0],
+            R_sample[:, beta > 0],
+            atol=1e-8 * max(1.0, np.abs(R_sample).max()),
+        ):
             raise DgtdInputError("R_sample must be the expectation of R_transition over the next state")
     check_reward_noise(reward_noise, R_transition)
     P_beh = P_sample.sum(axis=1)
     check_irreducible("the behaviour chain" if A > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
     if not signed_rewards and (np.any(R < 0) or np.any(R_sample < 0)):
         raise DgtdInputError("rewards must be >= 0 (the paper's rewards lie in [0, sigma]); shift them by a constant")
-    r_max = float(max(np.abs(R).max(), np.abs(R_sample).max(),
-                      0.0 if R_transition is None else np.abs(R_transition).max()))
+    r_max = float(
+        max(np.abs(R).max(), np.abs(R_sample).max(), 0.0 if R_transition is None else np.abs(R_transition).max())
+    )
     if sigma is None:
         sigma = r_max if r_max > 0 else 1.0
     sigma = float(sigma)
     if not np.isfinite(sigma) or sigma <= 0 or sigma < r_max - 1e-12:
         raise DgtdInputError(f"sigma must be positive and at least the largest mean reward {r_max:g}, got {sigma}")
     if signed_rewards and reward_noise not in ("none", "transition"):
-        raise DgtdInputError("reward noise draws rewards in [0, sigma]; a problem with signed rewards needs reward_noise='none'")
+        raise DgtdInputError(
+            "reward noise draws rewards in [0, sigma]; a problem with signed rewards needs reward_noise='none'"
+        )
     if w0 is not None:
         w0 = _as_float_array("w0", w0, 1)
         if w0.shape != (Phi.shape[1],):
             raise DgtdInputError(f"w0 must have one entry per feature ({Phi.shape[1]}), got shape {w0.shape}")
         w0.setflags(write=False)
-    for a in (P, R, Phi, P_sample, ratio, R_sample) + ((terminal,) if episodic else ()) + \
-            (() if R_transition is None else (R_transition,)):
+    for a in (
+        (P, R, Phi, P_sample, ratio, R_sample)
+        + ((terminal,) if episodic else ())
+        + (() if R_transition is None else (R_transition,))
+    ):
         a.setflags(write=False)
-    return Problem(P, R, Phi, gamma, P_sample, ratio, R_sample, sigma, reward_noise, name, tuple(state_labels), w0,
-                   terminal, R_transition)
+    return Problem(
+        P,
+        R,
+        Phi,
+        gamma,
+        P_sample,
+        ratio,
+        R_sample,
+        sigma,
+        reward_noise,
+        name,
+        tuple(state_labels),
+        w0,
+        terminal,
+        R_transition,
+    )

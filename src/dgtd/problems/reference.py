@@ -47,22 +47,35 @@ class MomentSums:
         self.A = np.zeros((q, q)) if self.A is None else self.A
         self.b = np.zeros((N, q)) if self.b is None else self.b
 
-    def add(self, phi: np.ndarray, phi_next: np.ndarray, r: np.ndarray, discount: np.ndarray,
-            ratio: np.ndarray | None = None) -> None:
+    def add(
+        self,
+        phi: np.ndarray,
+        phi_next: np.ndarray,
+        r: np.ndarray,
+        discount: np.ndarray,
+        ratio: np.ndarray | None = None,
+    ) -> None:
         """K transitions: features phi, phi' (K, q), rewards r (K, N), discounts gamma(s, s') (K,), ratios (K,)."""
         phi, phi_next = np.asarray(phi, np.float64), np.asarray(phi_next, np.float64)
         if not (np.isfinite(phi).all() and np.isfinite(phi_next).all() and np.isfinite(r).all()):
-            raise DgtdInputError("a transition has NaN or infinite features or rewards; check the states and the "
-                                 "features")
+            raise DgtdInputError(
+                "a transition has NaN or infinite features or rewards; check the states and the features"
+            )
         rho = np.ones(len(phi)) if ratio is None else np.asarray(ratio, np.float64)
         self.M += phi.T @ phi
         self.A += (phi * rho[:, None]).T @ (phi - np.asarray(discount)[:, None] * phi_next)
         self.b += ((phi * rho[:, None]).T @ np.asarray(r, np.float64)).T
         self.count += len(phi)
 
-    def merged(self, other: "MomentSums") -> "MomentSums":
-        return MomentSums(self.n_agents, self.n_features, self.count + other.count, self.M + other.M,
-                          self.A + other.A, self.b + other.b)
+    def merged(self, other: MomentSums) -> MomentSums:
+        return MomentSums(
+            self.n_agents,
+            self.n_features,
+            self.count + other.count,
+            self.M + other.M,
+            self.A + other.A,
+            self.b + other.b,
+        )
 
 
 @dataclass
@@ -105,7 +118,7 @@ class TDCheck:
 class EstimatedMoments:
     """Sample means of the moments (what `dgtd.problems.exact` reads of `Moments`), with the ridge in A."""
 
-    problem: "EstimatedProblem"
+    problem: EstimatedProblem
     M: np.ndarray
     A: np.ndarray
     b: np.ndarray
@@ -196,11 +209,21 @@ class EstimatedProblem:
         """What summary.json says of the reference: that it is estimated, from how much, and how precisely."""
         w, se = self.w_star, self.w_star_stderr
         scale = max(float(np.abs(w).max()), 1e-300)
-        return {"estimated": True, "method": "LSTD with a ridge", "ridge": self.ridge, "transitions": self.transitions,
-                "groups": len(self.groups), "w_star_stderr": se.tolist(),
-                "w_star_stderr_relative": float(np.abs(se).max() / scale), "value_stderr_relative": self.value_stderr,
-                **({} if self.td_check is None else {"td_check_transitions": self.td_check.k,
-                                                     "td_check_value_gap": self.td_gap})}
+        return {
+            "estimated": True,
+            "method": "LSTD with a ridge",
+            "ridge": self.ridge,
+            "transitions": self.transitions,
+            "groups": len(self.groups),
+            "w_star_stderr": se.tolist(),
+            "w_star_stderr_relative": float(np.abs(se).max() / scale),
+            "value_stderr_relative": self.value_stderr,
+            **(
+                {}
+                if self.td_check is None
+                else {"td_check_transitions": self.td_check.k, "td_check_value_gap": self.td_gap}
+            ),
+        }
 
     @property
     def td_gap(self) -> float:
@@ -238,8 +261,15 @@ class EstimatedProblem:
         return np.ones(1)
 
 
-def estimate(name: str, gamma: float, group_sums: list[MomentSums], ridge: float = RIDGE, off_policy: bool = False,
-             description: str = "", td_check: TDCheck | None = None) -> EstimatedProblem:
+def estimate(
+    name: str,
+    gamma: float,
+    group_sums: list[MomentSums],
+    ridge: float = RIDGE,
+    off_policy: bool = False,
+    description: str = "",
+    td_check: TDCheck | None = None,
+) -> EstimatedProblem:
     """The reference from G >= 2 independent groups of transitions' moment sums (and a TD(0) check, if run)."""
     if len(group_sums) < 2:
         raise DgtdInputError("the reference needs at least two independent groups of transitions for its error")
@@ -250,5 +280,15 @@ def estimate(name: str, gamma: float, group_sums: list[MomentSums], ridge: float
     for g in group_sums:
         _, A, b, _ = solve_moments(g, ridge)
         groups.append(np.linalg.solve(A, b.mean(axis=0)))
-    return EstimatedProblem(name, total.n_agents, total.n_features, float(gamma), total, np.array(groups), ridge,
-                            off_policy=off_policy, description=description, td_check=td_check)
+    return EstimatedProblem(
+        name,
+        total.n_agents,
+        total.n_features,
+        float(gamma),
+        total,
+        np.array(groups),
+        ridge,
+        off_policy=off_policy,
+        description=description,
+        td_check=td_check,
+    )

@@ -18,8 +18,14 @@ from dgtd.errors import DgtdInputError
 from dgtd.problems.model import Problem, chain_period, check_irreducible, make_problem
 
 
-def split_rewards(mean: np.ndarray, n_agents: int, rng: np.random.Generator, spread: float = 1.0,
-                  low: float | None = None, high: float | None = None) -> np.ndarray:
+def split_rewards(
+    mean: np.ndarray,
+    n_agents: int,
+    rng: np.random.Generator,
+    spread: float = 1.0,
+    low: float | None = None,
+    high: float | None = None,
+) -> np.ndarray:
     """Agents' rewards r_i = mean + spread * h * z_i with sum_i z_i = 0 exactly and |z_i| <= 1, shape (N, *mean.shape).
 
     The z_i are uniform draws centred over agents. With bounds [low, high] the half-width h is
@@ -71,9 +77,20 @@ def baird(n_agents: int = 5, seed: int = 0) -> Problem:
     Phi[:upper, 7] = 1.0
     Phi[lower, 6], Phi[lower, 7] = 1.0, 2.0
     R_sample = split_rewards(np.zeros((S, 2)), n_agents, np.random.default_rng(seed))
-    return make_problem(P, R_sample[:, :, 1], Phi, 0.99, P_sample=P_sample, ratio=ratio, R_sample=R_sample,
-                        name="baird", w0=BAIRD_W0, signed_rewards=True, dependent_features=True,
-                        state_labels=tuple(f"upper {i + 1}" for i in range(upper)) + ("lower",))
+    return make_problem(
+        P,
+        R_sample[:, :, 1],
+        Phi,
+        0.99,
+        P_sample=P_sample,
+        ratio=ratio,
+        R_sample=R_sample,
+        name="baird",
+        w0=BAIRD_W0,
+        signed_rewards=True,
+        dependent_features=True,
+        state_labels=tuple(f"upper {i + 1}" for i in range(upper)) + ("lower",),
+    )
 
 
 def triangular_features(n_states: int, n_features: int) -> np.ndarray:
@@ -113,16 +130,24 @@ def boyan(n_agents: int = 10, seed: int = 0, n_states: int = 14, gamma: float = 
     P, r = boyan_chain(n_states)
     R = split_rewards(r, n_agents, np.random.default_rng(seed))
     terminal = np.arange(n_states) == n_states - 1
-    return make_problem(P, R, triangular_features(n_states, 4), gamma, name="boyan", signed_rewards=True,
-                        terminal=terminal)
+    return make_problem(
+        P, R, triangular_features(n_states, 4), gamma, name="boyan", signed_rewards=True, terminal=terminal
+    )
 
 
 def _normalise(x: np.ndarray) -> np.ndarray:
     return x / x.sum(axis=-1, keepdims=True)
 
 
-def random_mdp(n_agents: int = 10, off_policy: bool = False, seed: int = 0, n_states: int = 400,
-               n_actions: int = 10, n_features: int = 200, gamma: float = 0.95) -> Problem:
+def random_mdp(
+    n_agents: int = 10,
+    off_policy: bool = False,
+    seed: int = 0,
+    n_states: int = 400,
+    n_actions: int = 10,
+    n_features: int = 200,
+    gamma: float = 0.95,
+) -> Problem:
     """The random MDP of Dann, Neumann and Peters (2014): 400 states, 10 actions, 200 features, gamma 0.95.
 
     P(s' | s, a) proportional to U[0, 1] + 1e-5; rewards r(s, a, s') ~ U[0, 1]; features: 199 entries
@@ -141,14 +166,27 @@ def random_mdp(n_agents: int = 10, off_policy: bool = False, seed: int = 0, n_st
     beta = _normalise(rng.uniform(size=(S, A))) if off_policy else pi
     R_sample = split_rewards(r_sa, n_agents, rng, low=0.0, high=1.0)
     return make_problem(
-        np.einsum("sa,sat->st", pi, P_sas), np.einsum("sa,nsa->ns", pi, R_sample), Phi, gamma,
-        P_sample=beta[:, :, None] * P_sas, ratio=pi / beta, R_sample=R_sample, sigma=1.0,
+        np.einsum("sa,sat->st", pi, P_sas),
+        np.einsum("sa,nsa->ns", pi, R_sample),
+        Phi,
+        gamma,
+        P_sample=beta[:, :, None] * P_sas,
+        ratio=pi / beta,
+        R_sample=R_sample,
+        sigma=1.0,
         name="random-mdp-off" if off_policy else "random-mdp",
     )
 
 
-def garnet(n_states: int = 30, branching: int = 3, n_agents: int = 10, n_features: int = 8, gamma: float = 0.9,
-           seed: int = 0, max_tries: int = 1000) -> Problem:
+def garnet(
+    n_states: int = 30,
+    branching: int = 3,
+    n_agents: int = 10,
+    n_features: int = 8,
+    gamma: float = 0.9,
+    seed: int = 0,
+    max_tries: int = 1000,
+) -> Problem:
     """A Garnet chain (Archibald, McKinnon and Thomas 1995): each state moves to ``branching`` distinct random
     successors with probabilities from a uniform random partition of [0, 1] (Dirichlet(1, ..., 1)).
 
@@ -174,8 +212,9 @@ def garnet(n_states: int = 30, branching: int = 3, n_agents: int = 10, n_feature
         if chain_period(P) == 1:
             break
     else:
-        raise DgtdInputError(f"no ergodic Garnet chain with {S} states and {branching} successors in {max_tries} draws; "
-                             "raise branching")
+        raise DgtdInputError(
+            f"no ergodic Garnet chain with {S} states and {branching} successors in {max_tries} draws; raise branching"
+        )
     Phi = np.ones((S, n_features))
     for _ in range(max_tries):
         Phi[:, :-1] = rng.uniform(size=(S, n_features - 1))

@@ -19,11 +19,10 @@ import numpy as np
 from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.algorithms.base import FixedPoint
 from dgtd.errors import DgtdInputError
-from dgtd.problems.model import Problem
 from dgtd.problems import exact
+from dgtd.problems.model import Problem
 from dgtd.run.loop import RunResult, RunSettings, run
-from dgtd.run.results import (atomic_write, atomic_write_json, bands_csv, metrics_rows, reference,
-                              refuse_other_results)
+from dgtd.run.results import atomic_write, atomic_write_json, bands_csv, metrics_rows, reference, refuse_other_results
 
 TUNE_SEED_OFFSET = 1_000_003
 TUNE_GRID = (0.1, 1 / 3, 1.0, 3.0, 10.0)
@@ -65,8 +64,9 @@ def configs_for(scenario, names) -> dict:
         if name == scenario.algorithm.name:
             out[name] = replace(scenario.algorithm, **fields)
         else:
-            out[name] = make_algorithm(name, schedule=scenario.algorithm.schedule, beta=scenario.algorithm.beta,
-                                       **fields)
+            out[name] = make_algorithm(
+                name, schedule=scenario.algorithm.schedule, beta=scenario.algorithm.beta, **fields
+            )
     return out
 
 
@@ -85,8 +85,9 @@ def _source(source_factory, settings: RunSettings):
     return None if source_factory is None else source_factory(settings.seed, range(settings.seeds))
 
 
-def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE_GRID, seeds: int = 2,
-         source_factory=None):
+def tune(
+    problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE_GRID, seeds: int = 2, source_factory=None
+):
     """(best config, table of (alpha0, score)) over ``algorithm.alpha0 x grid`` on the tuning seeds."""
     tune_settings = replace(settings, seeds=int(seeds), seed=settings.seed + TUNE_SEED_OFFSET)
     table = []
@@ -98,8 +99,19 @@ def tune(problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE
     return replace(algorithm, alpha0=table[best][0]), table
 
 
-def compare(problem, network, sampling, configs: dict, cs: CompareSettings, progress=None, log=None,
-            source_factory=None, done=None, on_finished=None, kernel_ready=None):
+def compare(
+    problem,
+    network,
+    sampling,
+    configs: dict,
+    cs: CompareSettings,
+    progress=None,
+    log=None,
+    source_factory=None,
+    done=None,
+    on_finished=None,
+    kernel_ready=None,
+):
     """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
 
     ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.scenarios.Scenario.source`);
@@ -116,15 +128,26 @@ def compare(problem, network, sampling, configs: dict, cs: CompareSettings, prog
             continue
         alg = configs[name]
         if cs.tune:
-            alg, tables[name] = tune(problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds,
-                                     source_factory)
+            alg, tables[name] = tune(
+                problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds, source_factory
+            )
             if log is not None:
-                log(f"{name}: alpha0 = {alg.alpha0:g} (tuning scores " +
-                    ", ".join(f"{a:.3g}: {s:.3g}" for a, s in tables[name]) + ")")
+                log(
+                    f"{name}: alpha0 = {alg.alpha0:g} (tuning scores "
+                    + ", ".join(f"{a:.3g}: {s:.3g}" for a, s in tables[name])
+                    + ")"
+                )
         used[name] = alg
-        results[name] = run(problem, network, alg, sampling, cs.settings,
-                            progress=None if progress is None else (lambda n, name=name: progress(name, n)),
-                            source=_source(source_factory, cs.settings), kernel_ready=kernel_ready)
+        results[name] = run(
+            problem,
+            network,
+            alg,
+            sampling,
+            cs.settings,
+            progress=None if progress is None else (lambda n, name=name: progress(name, n)),
+            source=_source(source_factory, cs.settings),
+            kernel_ready=kernel_ready,
+        )
         if on_finished is not None:
             on_finished(name, results[name], used[name], tables.get(name, []))
     return results, used, tables
@@ -167,10 +190,18 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
     m = exact.Moments(problem) if isinstance(problem, Problem) else problem.moments  # a resumed part keeps none
     model = m.model
     out = {
-        "problem": problem.name, "n_states": problem.n_states, "n_agents": problem.n_agents,
-        "n_features": problem.n_features, "gamma": problem.gamma, "off_policy": problem.off_policy,
-        "network": network.describe(), "w_star": first.w_star.tolist(), "mspbe_w_star": first.info["mspbe_w_star"],
-        "values_exact": exact.value_function(m).tolist() if model else None, "config": spec, "algorithms": {},
+        "problem": problem.name,
+        "n_states": problem.n_states,
+        "n_agents": problem.n_agents,
+        "n_features": problem.n_features,
+        "gamma": problem.gamma,
+        "off_policy": problem.off_policy,
+        "network": network.describe(),
+        "w_star": first.w_star.tolist(),
+        "mspbe_w_star": first.info["mspbe_w_star"],
+        "values_exact": exact.value_function(m).tolist() if model else None,
+        "config": spec,
+        "algorithms": {},
         **({} if model else {"reference": problem.summary()}),  # no model: an estimate, and how precise it is
     }
     for name, r in results.items():
@@ -223,10 +254,16 @@ def save_part(out: Path, name: str, result: RunResult, alg, table, record: dict)
     arrays = {k: getattr(result, k) for k in _ARRAYS} | {"w_ref": result.w_ref}
     arrays |= {f"metrics/{k}": v for k, v in result.metrics.items()}
     arrays |= {f"counts/{k}": v for k, v in result.info["counts"].items()}
-    arrays |= {k: np.asarray(result.info[k]) for k in ("diverged_at", "messages", "bits", "samples_per_step",
-                                                        "mspbe_w_star")}
-    meta = {"record": record, "config": config_dict(alg), "tuning": [list(t) for t in table],
-            "seconds": result.seconds, "tail_window": result.tail_window}
+    arrays |= {
+        k: np.asarray(result.info[k]) for k in ("diverged_at", "messages", "bits", "samples_per_step", "mspbe_w_star")
+    }
+    meta = {
+        "record": record,
+        "config": config_dict(alg),
+        "tuning": [list(t) for t in table],
+        "seconds": result.seconds,
+        "tail_window": result.tail_window,
+    }
     arrays["meta"] = np.asarray(json.dumps(meta))
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
@@ -240,8 +277,12 @@ def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:
     results, used, tables = {}, {}, {}
     paths = [Path(out) / PARTS / f"{name}.npz" for name in record.get("algorithms", ())]
     for path in filter(Path.is_file, paths):  # in the comparison's order, so that the files come out the same
-        a = read_npz(path, "saved part of a comparison", f"delete it (or {path.parent}) to run that algorithm again",
-                     required=(*_ARRAYS, "w_ref", "bits", "meta"))
+        a = read_npz(
+            path,
+            "saved part of a comparison",
+            f"delete it (or {path.parent}) to run that algorithm again",
+            required=(*_ARRAYS, "w_ref", "bits", "meta"),
+        )
         meta = json.loads(str(a["meta"]))
         if meta["record"] != record:
             continue
@@ -250,12 +291,21 @@ def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:
         used[name] = make_algorithm(name, **config)
         tables[name] = [tuple(t) for t in meta["tuning"]]
         info = {k: a[k] for k in ("diverged_at", "messages", "bits")}
-        info |= {"samples_per_step": int(a["samples_per_step"]), "mspbe_w_star": float(a["mspbe_w_star"]),
-                 "counts": {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("counts/")}}
+        info |= {
+            "samples_per_step": int(a["samples_per_step"]),
+            "mspbe_w_star": float(a["mspbe_w_star"]),
+            "counts": {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("counts/")},
+        }
         results[name] = RunResult(
-            **{k: a[k] for k in _ARRAYS}, metrics={k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("metrics/")},
-            w_trace=None, tail_window=int(meta["tail_window"]), fixed=FixedPoint(a["w_ref"]), final_state={},
-            seconds=float(meta["seconds"]), info=info)
+            **{k: a[k] for k in _ARRAYS},
+            metrics={k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("metrics/")},
+            w_trace=None,
+            tail_window=int(meta["tail_window"]),
+            fixed=FixedPoint(a["w_ref"]),
+            final_state={},
+            seconds=float(meta["seconds"]),
+            info=info,
+        )
     return results, used, tables
 
 

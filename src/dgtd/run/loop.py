@@ -17,7 +17,7 @@ from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
 from dgtd.run.memory import check_memory
 from dgtd.samples import Block
-from dgtd.sources.model import ModelSource, Sampling, SamplerTables
+from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
 BACKENDS = ("numpy", "numba")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
@@ -125,7 +125,7 @@ class RunResult:
         return self.fixed.w
 
 
-_MODEL_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_MODEL_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _model_tables(problem: Problem):
@@ -166,14 +166,18 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     """Check that the pieces fit and compute the exact reference quantities."""
     if network.n_nodes != problem.n_agents:
         raise DgtdInputError(
-            f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them agree"
+            f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them "
+            "agree"
         )
     if problem.reward_noise not in ("none", "transition") and (problem.R_sample.min() < 0 or problem.R.min() < 0):
-        raise DgtdInputError("reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; "
-                             "use --reward-noise none")
+        raise DgtdInputError(
+            "reward noise draws rewards in [0, sigma] but this problem has negative mean rewards; "
+            "use --reward-noise none"
+        )
     if isinstance(problem, Problem) and sampling.mode == "markov" and chain_period(problem.P_behaviour) > 1:
         raise DgtdInputError(
-            "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling (--sampling iid)"
+            "the behaviour chain is periodic, so Markovian samples never settle to d; use i.i.d. sampling "
+            "(--sampling iid)"
         )
     moments, tables = _model_tables(problem)
     L_mean = network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N)  # O(N + |E|) memory for many agents
@@ -182,14 +186,26 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     algorithm, report = algorithm.prepare(moments, network, fixed)  # the algorithm as it runs here (DGTD's boxes)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
-    ctx = Context(problem, network, algorithm, sampling, tables, Arcs.of(network.base.edges, network.n_nodes),
-                  T - tail_window)
+    ctx = Context(
+        problem, network, algorithm, sampling, tables, Arcs.of(network.base.edges, network.n_nodes), T - tail_window
+    )
     return ctx, moments, L_mean, fixed, report, w_star, tail_window
 
 
-def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = Sampling(),
-        settings: RunSettings = RunSettings(), progress=None, source=None, *, checkpoint_every: int = 0,
-        on_checkpoint=None, resume: dict | None = None, kernel_ready=None) -> RunResult:
+def run(
+    problem: Problem,
+    network: RandomEdges,
+    algorithm,
+    sampling: Sampling = Sampling(),
+    settings: RunSettings = RunSettings(),
+    progress=None,
+    source=None,
+    *,
+    checkpoint_every: int = 0,
+    on_checkpoint=None,
+    resume: dict | None = None,
+    kernel_ready=None,
+) -> RunResult:
     """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
 
     ``source`` supplies the samples (default: a `ModelSource` drawing from the problem's model); a simulator
@@ -205,19 +221,29 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     function of the step only, so the result equals that of an uninterrupted run bit for bit.
     """
     t_start = time.perf_counter()
-    check_memory(algorithm, int(settings.seeds), problem.n_agents, problem.n_features, 2 * network.n_edges,
-                 len(checkpoint_steps(int(settings.iterations), int(settings.checkpoints))), settings.backend)
+    check_memory(
+        algorithm,
+        int(settings.seeds),
+        problem.n_agents,
+        problem.n_features,
+        2 * network.n_edges,
+        len(checkpoint_steps(int(settings.iterations), int(settings.checkpoints))),
+        settings.backend,
+    )
     ctx, moments, L_mean, fixed, report, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
     w_ref = fixed.w
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
         if ctx.tables is None:
-            raise DgtdInputError(f"{problem.name} has no model to draw samples from; pass its simulator or data as the "
-                                 "source")
+            raise DgtdInputError(
+                f"{problem.name} has no model to draw samples from; pass its simulator or data as the source"
+            )
         source = ModelSource(problem, network, sampling, ctx.tables, settings.seed, range(B), settings.backend)
     if checkpoint_every > 0 and not getattr(source, "resumable", True):
-        raise DgtdInputError("this run's samples come from a simulator whose state cannot be saved, so it cannot be "
-                             "resumed from a checkpoint: leave out --checkpoint-every (checkpoint_every)")
+        raise DgtdInputError(
+            "this run's samples come from a simulator whose state cannot be saved, so it cannot be "
+            "resumed from a checkpoint: leave out --checkpoint-every (checkpoint_every)"
+        )
     kernel = kernel_for(settings.backend, algorithm.name)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N, q)
@@ -231,8 +257,20 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     tail_base = None
     steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
-    names = ("error_last", "error_avg", "error_tail", "value_error_last", "value_error_avg", "value_error_tail",
-             "consensus", "mspbe_last", "mspbe_avg", "rmspbe_last", "rmspbe_avg", "rmspbe_tail")
+    names = (
+        "error_last",
+        "error_avg",
+        "error_tail",
+        "value_error_last",
+        "value_error_avg",
+        "value_error_tail",
+        "consensus",
+        "mspbe_last",
+        "mspbe_avg",
+        "rmspbe_last",
+        "rmspbe_avg",
+        "rmspbe_tail",
+    )
     metrics = {m: np.zeros((C, B)) for m in names}
     counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
@@ -284,8 +322,12 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
     while k < T:
         if k == ctx.tail_start and tail_base is None:
             tail_base = sums["all"].copy()
-        k1 = min(k + block, int(steps[c]), (k // every + 1) * every if every else T,
-                 ctx.tail_start if k < ctx.tail_start else T)
+        k1 = min(
+            k + block,
+            int(steps[c]),
+            (k // every + 1) * every if every else T,
+            ctx.tail_start if k < ctx.tail_start else T,
+        )
         blk = source.draws(k1 - k) if fused else source.next_block(k1 - k)
         alphas = step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, k, k1)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging seed is detected below, not warned about
@@ -338,23 +380,58 @@ def run(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling = 
                     w_trace[c:] = np.nan
                 break
         if every and k % every == 0 and k < T and on_checkpoint is not None:
-            on_checkpoint(snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source.get_state(),
-                                   seconds_before + time.perf_counter() - t_start,
-                                   extra={"messages": messages, "bits": bits, "channel": channel._asdict(),
-                                          "diverged_at": diverged_at, "counts": counts,
-                                          **({} if tail_base is None else {"tail_base": tail_base}),
-                                          **({} if sum_trace is None else {"sum_trace": sum_trace})}))
+            on_checkpoint(
+                snapshot(
+                    k,
+                    c,
+                    state,
+                    sums,
+                    metrics,
+                    err_last,
+                    err_avg,
+                    w_trace,
+                    source.get_state(),
+                    seconds_before + time.perf_counter() - t_start,
+                    extra={
+                        "messages": messages,
+                        "bits": bits,
+                        "channel": channel._asdict(),
+                        "diverged_at": diverged_at,
+                        "counts": counts,
+                        **({} if tail_base is None else {"tail_base": tail_base}),
+                        **({} if sum_trace is None else {"sum_trace": sum_trace}),
+                    },
+                )
+            )
     report = {**fixed.report, **report, **algorithm.diagnostics(state, moments, L_mean)}
     return RunResult(
-        steps=steps, metrics=metrics, agent_error_last=err_last, agent_error_avg=err_avg, w_trace=w_trace,
-        w_last=algorithm.estimate(state), w_avg=sums["all"] / T,
-        w_tail=(sums["all"] - (np.nan if tail_base is None else tail_base)) / tail_window, tail_window=tail_window,
-        w_star=w_star, fixed=fixed, final_state=state._asdict(), report=report,
+        steps=steps,
+        metrics=metrics,
+        agent_error_last=err_last,
+        agent_error_avg=err_avg,
+        w_trace=w_trace,
+        w_last=algorithm.estimate(state),
+        w_avg=sums["all"] / T,
+        w_tail=(sums["all"] - (np.nan if tail_base is None else tail_base)) / tail_window,
+        tail_window=tail_window,
+        w_star=w_star,
+        fixed=fixed,
+        final_state=state._asdict(),
+        report=report,
         seconds=seconds_before + time.perf_counter() - t_start,
-        info={"d": moments.d, "moments": moments, "mspbe_w_star": float(exact.mspbe(moments, w_star)), "diverged_at": diverged_at,
-              "samples_per_step": N, "messages": messages, "bits": bits, "counts": counts,
-              "regularisation_shift": float(exact.relative_error(w_ref, w_star).max()),
-              "loop_seconds": time.perf_counter() - t_loop, "kernel_seconds": kernel_seconds},
+        info={
+            "d": moments.d,
+            "moments": moments,
+            "mspbe_w_star": float(exact.mspbe(moments, w_star)),
+            "diverged_at": diverged_at,
+            "samples_per_step": N,
+            "messages": messages,
+            "bits": bits,
+            "counts": counts,
+            "regularisation_shift": float(exact.relative_error(w_ref, w_star).max()),
+            "loop_seconds": time.perf_counter() - t_loop,
+            "kernel_seconds": kernel_seconds,
+        },
     )
 
 
@@ -395,13 +472,19 @@ def tail_at(c: int, steps: np.ndarray, sum_trace: np.ndarray, fraction: float) -
 def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_state, seconds, extra=None) -> dict:
     """The loop's whole state after step k, as copies: what `run` needs to continue (its ``resume``).
     ``extra``: more arrays to restore (messages sent so far, divergence steps)."""
-    return {**{name: (np.array(v) if not isinstance(v, dict) else {n: np.array(x) for n, x in v.items()})
-               for name, v in (extra or {}).items()},
-        "k": int(k), "c": int(c), "seconds": float(seconds),
+    return {
+        **{
+            name: (np.array(v) if not isinstance(v, dict) else {n: np.array(x) for n, x in v.items()})
+            for name, v in (extra or {}).items()
+        },
+        "k": int(k),
+        "c": int(c),
+        "seconds": float(seconds),
         "state": {f: np.array(x) for f, x in state._asdict().items()},
         "sums": {name: v.copy() for name, v in sums.items()},
         "metrics": {name: v.copy() for name, v in metrics.items()},
-        "agent_error_last": err_last.copy(), "agent_error_avg": err_avg.copy(),
+        "agent_error_last": err_last.copy(),
+        "agent_error_avg": err_avg.copy(),
         "w_trace": None if w_trace is None else w_trace.copy(),
         "source": source_state,
     }
@@ -414,20 +497,31 @@ def kernel_for(backend: str, algorithm: str):
 
     if backend == "numpy":
         return run_block
-    from dgtd.backends.compiled import STEPS, run_block as compiled
+    from dgtd.backends.compiled import STEPS
+    from dgtd.backends.compiled import run_block as compiled
 
     if algorithm not in STEPS:
         import warnings
 
-        warnings.warn(f"algorithm {algorithm!r} has no compiled step: it runs on the NumPy reference backend",
-                      stacklevel=3)
+        warnings.warn(
+            f"algorithm {algorithm!r} has no compiled step: it runs on the NumPy reference backend", stacklevel=3
+        )
         return run_block
     return compiled
 
 
-def evaluate(problem: Problem, network: RandomEdges, algorithm, *, sampling: Sampling = Sampling(),
-             iterations: int = RunSettings.iterations, seeds: int = RunSettings.seeds, seed: int = RunSettings.seed,
-             backend: str = RunSettings.backend, **settings) -> RunResult:
+def evaluate(
+    problem: Problem,
+    network: RandomEdges,
+    algorithm,
+    *,
+    sampling: Sampling = Sampling(),
+    iterations: int = RunSettings.iterations,
+    seeds: int = RunSettings.seeds,
+    seed: int = RunSettings.seed,
+    backend: str = RunSettings.backend,
+    **settings,
+) -> RunResult:
     """Run ``algorithm`` on ``problem`` over ``network``: `run` with its `RunSettings` given as keywords.
 
     Example::
@@ -439,5 +533,10 @@ def evaluate(problem: Problem, network: RandomEdges, algorithm, *, sampling: Sam
         >>> result.w_last.shape  # (seeds, agents, features)
         (2, 5, 2)
     """
-    return run(problem, network, algorithm, sampling,
-               RunSettings(iterations=iterations, seeds=seeds, seed=seed, backend=backend, **settings))
+    return run(
+        problem,
+        network,
+        algorithm,
+        sampling,
+        RunSettings(iterations=iterations, seeds=seeds, seed=seed, backend=backend, **settings),
+    )

@@ -45,8 +45,7 @@ def run_bytes(algorithm, seeds: int, agents: int, features: int, arcs: int, chec
     return BYTES * numbers
 
 
-def check_memory(algorithm, seeds: int, agents: int, features: int, arcs: int, checkpoints: int,
-                 backend: str) -> None:
+def check_memory(algorithm, seeds: int, agents: int, features: int, arcs: int, checkpoints: int, backend: str) -> None:
     """Refuse, in one line with the estimate and the most seeds that fit, a run that needs more memory than the
     machine has free."""
     free = available_bytes()
@@ -55,7 +54,12 @@ def check_memory(algorithm, seeds: int, agents: int, features: int, arcs: int, c
         return
     one = run_bytes(algorithm, 1, agents, features, arcs, checkpoints, backend)
     fit = free // one
-    lower = (f"lower --seeds to at most {fit:,}" if fit >= 1 else
-             "a single seed does not fit: fewer agents or features, or --checkpoints lower")
-    raise DgtdInputError(f"this run needs about {need / 1e9:,.1f} GB ({seeds:,} seeds x {agents:,} agents x "
-                         f"{features:,} features), more than the {free / 1e9:,.1f} GB free on this machine; {lower}")
+    lower = (
+        f"lower --seeds to at most {fit:,}"
+        if fit >= 1
+        else "a single seed does not fit: fewer agents or features, or --checkpoints lower"
+    )
+    raise DgtdInputError(
+        f"this run needs about {need / 1e9:,.1f} GB ({seeds:,} seeds x {agents:,} agents x "
+        f"{features:,} features), more than the {free / 1e9:,.1f} GB free on this machine; {lower}"
+    )

@@ -39,8 +39,10 @@ class Owner:
         self.out, self.kind, self.fd = Path(out), kind, None
         there = kind_of(self.out)
         if there is not None and there != kind and not overwrite:
-            raise DgtdInputError(f"{self.out} holds the results of a {there}, not of a {kind}; choose another --out, "
-                                 f"or pass --overwrite to write a {kind} there")
+            raise DgtdInputError(
+                f"{self.out} holds the results of a {there}, not of a {kind}; choose another --out, "
+                f"or pass --overwrite to write a {kind} there"
+            )
         self.out.mkdir(parents=True, exist_ok=True)
         try:
             import fcntl
@@ -52,11 +54,15 @@ class Owner:
         except OSError:
             holder = os.read(fd, 4096).decode(errors="replace").strip() or "another process"
             os.close(fd)
-            raise DgtdInputError(f"{self.out} is being written by {holder}; wait for it to end, or choose another "
-                                 "--out") from None
+            raise DgtdInputError(
+                f"{self.out} is being written by {holder}; wait for it to end, or choose another --out"
+            ) from None
         os.ftruncate(fd, 0)
-        os.write(fd, f"a dgtd {kind} (process {os.getpid()}, `{' '.join(['dgtd', *sys.argv[1:]])[:200]}`, since "
-                     f"{time.strftime('%Y-%m-%d %H:%M:%S')})\n".encode())
+        os.write(
+            fd,
+            f"a dgtd {kind} (process {os.getpid()}, `{' '.join(['dgtd', *sys.argv[1:]])[:200]}`, since "
+            f"{time.strftime('%Y-%m-%d %H:%M:%S')})\n".encode(),
+        )
         self.fd = fd
 
     def release(self) -> None:
@@ -65,7 +71,7 @@ class Owner:
             os.close(self.fd)  # closing the last descriptor drops the flock
             self.fd = None
 
-    def __enter__(self) -> "Owner":
+    def __enter__(self) -> Owner:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -64,8 +64,10 @@ def refuse_other_results(out: Path, record: dict, what: str, ignore=()) -> None:
     saved = {k: v for k, v in saved.items() if k not in ignore}
     diff = first_difference(saved, record) if saved else ""
     if diff:
-        raise DgtdInputError(f"{out} holds the results of another {what} ({diff}); choose another --out, or pass "
-                             "--overwrite to replace them")
+        raise DgtdInputError(
+            f"{out} holds the results of another {what} ({diff}); choose another --out, or pass "
+            "--overwrite to replace them"
+        )
 
 
 def json_ready(obj):
@@ -121,8 +123,10 @@ def bands_csv(results: dict) -> bytes:
                 med = np.nanmedian(Y, axis=1)
                 lo, hi = np.nanpercentile(Y, BAND, axis=1)
             alive = np.isfinite(Y).sum(axis=1)
-            w.writerows([name, int(k), metric, float(m), float(a), float(b), int(n)]
-                        for k, m, a, b, n in zip(result.steps, med, lo, hi, alive))
+            w.writerows(
+                [name, int(k), metric, float(m), float(a), float(b), int(n)]
+                for k, m, a, b, n in zip(result.steps, med, lo, hi, alive)
+            )
     return buf.getvalue().encode()
 
 
@@ -143,7 +147,9 @@ def summary(result: RunResult, config: dict) -> dict:
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
         "regularisation_shift": result.info.get("regularisation_shift", 0.0),
-        **plain(result.report),  # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
+        **plain(
+            result.report
+        ),  # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
         "mspbe_w_star": result.info["mspbe_w_star"],
         "w_last": result.w_last.tolist(),
         "w_avg": result.w_avg.tolist(),
@@ -153,8 +159,9 @@ def summary(result: RunResult, config: dict) -> dict:
         # the d-weighted value error (RMSVE relative to |Phi w*|_d; `exact.value_error`), and the error to the true
         # value function, which the features may not represent
         **per_output("value_error", verr, result),
-        **(true_value_errors(moments, result) if moments.model else
-           {"reference": moments.problem.summary()}),  # no model: the reference is estimated, and says how well
+        **(
+            true_value_errors(moments, result) if moments.model else {"reference": moments.problem.summary()}
+        ),  # no model: the reference is estimated, and says how well
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "messages": result.info["messages"].tolist(),
@@ -175,8 +182,10 @@ def per_output(name: str, error, result: RunResult) -> dict:
 
 def true_value_errors(moments, result: RunResult) -> dict:
     """Each agent's error to the true value function (`exact.true_value_error`), where there is a model."""
-    out = {f"true_value_error_{k}": exact.true_value_error(moments, W).tolist()
-           for k, W in (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))}
+    out = {
+        f"true_value_error_{k}": exact.true_value_error(moments, W).tolist()
+        for k, W in (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))
+    }
     return out | {"true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0])}
 
 
@@ -190,7 +199,11 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str, ex
     atomic_write(out / "metrics.csv", metrics_csv(result, algorithm))
     atomic_write(out / "bands.csv", bands_csv({algorithm: result}))
     buf = io.BytesIO()
-    arrays = {"steps": result.steps, "agent_error_last": result.agent_error_last, "agent_error_avg": result.agent_error_avg}
+    arrays = {
+        "steps": result.steps,
+        "agent_error_last": result.agent_error_last,
+        "agent_error_avg": result.agent_error_avg,
+    }
     if result.w_trace is not None:
         arrays["w_trace"] = result.w_trace
     np.savez_compressed(buf, **arrays)
@@ -237,9 +250,11 @@ def read_results(out) -> Results:
     fix = "run it again"
     summary = read_json(out / "summary.json", "results file", fix)
     rows = read_csv(out / "metrics.csv", "results file", fix, required=("seed", "step", "metric", "value"))
-    metrics = {"seed": numbers(rows, "seed", int, out / "metrics.csv", "results file", fix),
-               "step": numbers(rows, "step", int, out / "metrics.csv", "results file", fix),
-               "metric": [r["metric"] for r in rows],
-               "value": numbers(rows, "value", float, out / "metrics.csv", "results file", fix)}
+    metrics = {
+        "seed": numbers(rows, "seed", int, out / "metrics.csv", "results file", fix),
+        "step": numbers(rows, "step", int, out / "metrics.csv", "results file", fix),
+        "metric": [r["metric"] for r in rows],
+        "value": numbers(rows, "value", float, out / "metrics.csv", "results file", fix),
+    }
     trajectory = read_npz(out / "trajectory.npz", "results file", fix) if (out / "trajectory.npz").exists() else {}
     return Results(summary, metrics, trajectory)

@@ -82,8 +82,10 @@ class SweepStore:
         np.savez(buf, steps=result["steps"], **{f"metric.{k}": v for k, v in result["metrics"].items()})
         atomic_write(self.jobs / f"{job_id}.npz", buf.getvalue())
         atomic_write(self.jobs / f"{job_id}.toml", config_toml.encode())
-        atomic_write_json(self.jobs / f"{job_id}.json", {"job": job_id, "point": point, "algorithm": result["algorithm"],
-                                                          **result["summary"]})
+        atomic_write_json(
+            self.jobs / f"{job_id}.json",
+            {"job": job_id, "point": point, "algorithm": result["algorithm"], **result["summary"]},
+        )
         (self.jobs / f"{job_id}.error.txt").unlink(missing_ok=True)
 
     def write_error(self, job_id: str, message: str) -> None:
@@ -110,8 +112,12 @@ class SweepStore:
         if not parts:
             return None
         names = list(parts[0])
-        cols = {k: [x for part in parts for x in part[k]] if not isinstance(parts[0][k], np.ndarray)
-                else np.concatenate([part[k] for part in parts]) for k in names}
+        cols = {
+            k: [x for part in parts for x in part[k]]
+            if not isinstance(parts[0][k], np.ndarray)
+            else np.concatenate([part[k] for part in parts])
+            for k in names
+        }
         if self.format == "parquet":
             import pyarrow as pa
             import pyarrow.parquet as pq
@@ -123,8 +129,14 @@ class SweepStore:
             text = io.StringIO()
             w = csv.writer(text, lineterminator="\n")
             w.writerow(names)
-            w.writerows(zip(*(["" if x is None else x for x in cols[k]] if isinstance(cols[k], list) else cols[k].tolist()
-                              for k in names)))
+            w.writerows(
+                zip(
+                    *(
+                        ["" if x is None else x for x in cols[k]] if isinstance(cols[k], list) else cols[k].tolist()
+                        for k in names
+                    )
+                )
+            )
             data = text.getvalue().encode()
         atomic_write(self.table_path, data)
         return self.table_path

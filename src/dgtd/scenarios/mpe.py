@@ -51,7 +51,7 @@ def spread_policy(n_agents: int, epsilon: float = 0.2):
         if rng.random() < epsilon:
             return int(rng.integers(len(MOVES)))
         i = int(agent.rsplit("_", 1)[1])
-        gap = np.asarray(observation[4 + 2 * i: 6 + 2 * i], dtype=np.float64)
+        gap = np.asarray(observation[4 + 2 * i : 6 + 2 * i], dtype=np.float64)
         axis = int(np.argmax(np.abs(gap)))
         return (1 if gap[0] < 0 else 2) if axis == 0 else (3 if gap[1] < 0 else 4)
 
@@ -65,7 +65,7 @@ def spread_features(n_agents: int):
     def features(states: np.ndarray) -> np.ndarray:
         obs = np.asarray(states, dtype=np.float64).reshape(len(states), N, -1)
         pos = obs[:, :, 2:4]  # (K, N, 2) the particles
-        landmarks = pos[:, :1, :] + obs[:, 0, 4: 4 + 2 * N].reshape(-1, N, 2)  # (K, N, 2) from particle 0's view
+        landmarks = pos[:, :1, :] + obs[:, 0, 4 : 4 + 2 * N].reshape(-1, N, 2)  # (K, N, 2) from particle 0's view
         dist = np.linalg.norm(pos[:, :, None, :] - landmarks[:, None, :, :], axis=-1).min(axis=1)  # (K, N)
         return np.concatenate([np.ones((len(obs), 1)), dist, dist**2], axis=1)
 
@@ -77,16 +77,29 @@ def agent_positions(env) -> np.ndarray:
     return np.array([a.state.p_pos for a in env.unwrapped.world.agents])
 
 
-def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterations: int = 60_000,
-               reference_steps: int = 4000, reference_groups: int = 8, epsilon: float = 0.2,
-               policy: str = "heuristic"):
+def mpe_spread(
+    agents: int = 3,
+    radius: float = 1.0,
+    gamma: float = 0.9,
+    iterations: int = 60_000,
+    reference_steps: int = 4000,
+    reference_groups: int = 8,
+    epsilon: float = 0.2,
+    policy: str = "heuristic",
+):
     """MPE2 simple_spread, N agents (3), linked within ``radius`` (1.0), DGTD scaled to the features; LSTD reference.
     ``policy``: "heuristic" (`spread_policy`) or "random" (uniform over the 5 moves)."""
     from dgtd.graphs.proximity import ProximityNetwork
     from dgtd.scenarios import Scenario
+    from dgtd.scenarios.user import (
+        REFERENCE_SEED_OFFSET,
+        TRAJECTORY_SEED_OFFSET,
+        TrajectoryReport,
+        compare_steps,
+        mean_proximity_network,
+        scaled_dgtd,
+    )
     from dgtd.sources.env import EnvSource, reference_from_env
-    from dgtd.scenarios.user import (REFERENCE_SEED_OFFSET, TRAJECTORY_SEED_OFFSET, TrajectoryReport, compare_steps,
-                                     mean_proximity_network, scaled_dgtd)
     from dgtd.sources.model import Sampling
 
     N = int(agents)
@@ -100,7 +113,12 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
     features = spread_features(N)
     reference, link_frequency = reference_from_env(
         lambda g: EnvSource(partial(make_spread, N), features, 0, [g], seed_offset=REFERENCE_SEED_OFFSET, **common),
-        1 + 2 * N, gamma, "mpe-spread", steps=int(reference_steps), groups=int(reference_groups))
+        1 + 2 * N,
+        gamma,
+        "mpe-spread",
+        steps=int(reference_steps),
+        groups=int(reference_groups),
+    )
     return Scenario(
         problem=reference,
         network=mean_proximity_network(proximity, link_frequency),
@@ -109,7 +127,9 @@ def mpe_spread(agents: int = 3, radius: float = 1.0, gamma: float = 0.9, iterati
         iterations=int(iterations),
         description=f"MPE2 simple_spread, {N} agents linked within {radius:g}, {policy} policy, LSTD reference",
         source=lambda seed, seed_ids: EnvSource(partial(make_spread, N), features, seed, seed_ids, **common),
-        report=TrajectoryReport(lambda: EnvSource(partial(make_spread, N), features, 0, [0],
-                                                  seed_offset=TRAJECTORY_SEED_OFFSET, **common), steps=100),
+        report=TrajectoryReport(
+            lambda: EnvSource(partial(make_spread, N), features, 0, [0], seed_offset=TRAJECTORY_SEED_OFFSET, **common),
+            steps=100,
+        ),
         compare_settings=compare_steps(reference.moments),
     )

@@ -32,15 +32,15 @@ from tqdm import tqdm
 
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.proximity import LinkStats, ProximityNetwork, count_links, empty_stats
-from dgtd.scenarios.tuned import TASKS, tuned_steps
 from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_star, visit_frequencies
 from dgtd.samples import Block
+from dgtd.scenarios.tuned import TASKS, tuned_steps
 
 # (x0, y0, x1, y1) in metres: region i is detected only by robot i's sensor.
 PAPER_REGIONS = (
-    (2.0, 12.0, 7.0, 18.0),   # robot 1 (blue): a 5 m x 6 m block in the upper left
+    (2.0, 12.0, 7.0, 18.0),  # robot 1 (blue): a 5 m x 6 m block in the upper left
     (12.0, 13.0, 18.0, 17.0),  # robot 2 (red): a 6 m x 4 m block in the upper right
-    (8.0, 2.0, 14.0, 6.0),    # robot 3 (black): a 6 m x 4 m block at the bottom centre
+    (8.0, 2.0, 14.0, 6.0),  # robot 3 (black): a 6 m x 4 m block at the bottom centre
 )
 
 
@@ -109,8 +109,12 @@ def region_cells(world: PatrolWorld) -> np.ndarray:
     """(N, S) bool: cell s belongs to region i when its centre lies in region i's rectangle."""
     c = cell_centres(world)
     b = np.asarray(world.regions, dtype=np.float64)
-    return ((c[None, :, 0] >= b[:, None, 0]) & (c[None, :, 0] <= b[:, None, 2])
-            & (c[None, :, 1] >= b[:, None, 1]) & (c[None, :, 1] <= b[:, None, 3]))
+    return (
+        (c[None, :, 0] >= b[:, None, 0])
+        & (c[None, :, 0] <= b[:, None, 2])
+        & (c[None, :, 1] >= b[:, None, 1])
+        & (c[None, :, 1] <= b[:, None, 3])
+    )
 
 
 def reward_table(world: PatrolWorld) -> np.ndarray:
@@ -160,8 +164,10 @@ class PatrolSource:
         self.edges = network.base.edges
         self.R = reward_table(world)
         self.seed, self.seed_ids = int(seed), np.asarray(list(seed_ids), dtype=np.int64)
-        self.gens = [np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(int(k),)).spawn(3)[0]))
-                     for k in self.seed_ids]
+        self.gens = [
+            np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(int(k),)).spawn(3)[0]))
+            for k in self.seed_ids
+        ]
         self.record = int(record)
         self.x = self.r = None
         self.k = 0
@@ -169,8 +175,10 @@ class PatrolSource:
         self.snapshots: list[tuple[int, np.ndarray, np.ndarray]] = []
 
     def describe(self) -> str:
-        return (f"links between {self.world.n_robots} simulated robots whenever within {self.network.radius:g} m, "
-                "recomputed at every step")
+        return (
+            f"links between {self.world.n_robots} simulated robots whenever within {self.network.radius:g} m, "
+            "recomputed at every step"
+        )
 
     def start(self) -> None:
         N = self.world.n_robots
@@ -192,13 +200,18 @@ class PatrolSource:
         self.stats = count_links(self.stats, up, self.edges, N)
         self.k += T
         if self.record:
-            self.snapshots.append((self.k, X[-self.record:, 0].copy(), self.network.masks(X[-1, 0])))
+            self.snapshots.append((self.k, X[-self.record :, 0].copy(), self.network.masks(X[-1, 0])))
         r = self.R[np.arange(N), s]  # agent i's reward at its own cell
         return Block(s, np.zeros_like(s), np.ascontiguousarray(s_next), r, up)
 
     def get_state(self) -> dict:
-        return {"gens": [g.bit_generator.state for g in self.gens], "x": self.x.copy(), "r": self.r.copy(),
-                "k": self.k, "stats": self.stats}
+        return {
+            "gens": [g.bit_generator.state for g in self.gens],
+            "x": self.x.copy(),
+            "r": self.r.copy(),
+            "k": self.k,
+            "stats": self.stats,
+        }
 
     def set_state(self, state: dict) -> None:
         for g, st in zip(self.gens, state["gens"], strict=True):
@@ -245,8 +258,12 @@ class ReferenceChain:
     def summary(self) -> dict:
         scale = float(np.abs(self.w_star).max())
         return {
-            "teams": self.teams, "robots": self.teams * self.world.n_robots, "steps": self.steps,
-            "burn_in": self.burn_in, "seed": self.seed, "transitions": self.n_transitions,
+            "teams": self.teams,
+            "robots": self.teams * self.world.n_robots,
+            "steps": self.steps,
+            "burn_in": self.burn_in,
+            "seed": self.seed,
+            "transitions": self.n_transitions,
             "min_visits": int(self.counts.sum(axis=1).min()),
             "w_star_stderr_relative": self.w_star_stderr / scale,
             "td_vs_w_star_relative": float(np.abs(self.w_td - self.w_star).max()) / scale,
@@ -256,8 +273,17 @@ class ReferenceChain:
         }
 
 
-def simulate_reference(world: PatrolWorld, network: ProximityNetwork, teams: int, steps: int, burn_in: int = 200,
-                       seed: int = 0, replicates: int = 4, block: int = 256, omega: float = 0.85) -> ReferenceChain:
+def simulate_reference(
+    world: PatrolWorld,
+    network: ProximityNetwork,
+    teams: int,
+    steps: int,
+    burn_in: int = 200,
+    seed: int = 0,
+    replicates: int = 4,
+    block: int = 256,
+    omega: float = 0.85,
+) -> ReferenceChain:
     """Simulate ``teams`` independent teams of N robots for burn_in + steps steps and estimate the grid chain.
 
     All robots are independent copies of one chain, so their transitions are pooled; teams only matter for the
@@ -279,8 +305,15 @@ def simulate_reference(world: PatrolWorld, network: ProximityNetwork, teams: int
     links = empty_stats(network.n_edges)
     done = -burn_in
     # A few seconds before any run starts: said on a terminal, so that the wait is not silent.
-    bar = tqdm(total=burn_in + steps, desc=f"simulating the reference map ({teams} teams)", unit="step",
-               disable=None, file=sys.stderr, leave=False, mininterval=0.5)
+    bar = tqdm(
+        total=burn_in + steps,
+        desc=f"simulating the reference map ({teams} teams)",
+        unit="step",
+        disable=None,
+        file=sys.stderr,
+        leave=False,
+        mininterval=0.5,
+    )
     while done < steps:
         T = min(block, steps - done) if done >= 0 else min(block, -done)
         X, r = trajectory(world, x, r, rng.random((T, teams, N, 2)))
@@ -298,10 +331,26 @@ def simulate_reference(world: PatrolWorld, network: ProximityNetwork, teams: int
     per_group = counts.reshape(replicates, S, S)
     total = per_group.sum(axis=0)
     P = chain_from_counts(total)
-    w_rep = np.stack([tabular_w_star(chain_from_counts(c), r_mean, world.gamma) for c in per_group]) \
-        if replicates > 1 else np.zeros((0, S))
-    return ReferenceChain(world, teams, steps, burn_in, int(seed), total, P, visit_frequencies(total),
-                          stationary_distribution(P), tabular_w_star(P, r_mean, world.gamma), w_rep, w_td, links)
+    w_rep = (
+        np.stack([tabular_w_star(chain_from_counts(c), r_mean, world.gamma) for c in per_group])
+        if replicates > 1
+        else np.zeros((0, S))
+    )
+    return ReferenceChain(
+        world,
+        teams,
+        steps,
+        burn_in,
+        int(seed),
+        total,
+        P,
+        visit_frequencies(total),
+        stationary_distribution(P),
+        tabular_w_star(P, r_mean, world.gamma),
+        w_rep,
+        w_td,
+        links,
+    )
 
 
 def map_correlation(W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
@@ -339,8 +388,9 @@ class PatrolReport:
             "relative_error_d_weighted_last": err_d.tolist(),  # |w_i - w*|_D / |w*|_D
             "consensus_last": exact.consensus_error(result.w_last).tolist(),
             # sqrt(sum_i |w_i - mean w|^2 / N) / |w*|_2: the agents' typical distance from their mean, relative
-            "consensus_relative_last": (np.sqrt(exact.consensus_error(result.w_last) / result.w_last.shape[1])
-                                        / np.linalg.norm(result.w_star)).tolist(),
+            "consensus_relative_last": (
+                np.sqrt(exact.consensus_error(result.w_last) / result.w_last.shape[1]) / np.linalg.norm(result.w_star)
+            ).tolist(),
             "w_td_reference": self.reference.w_td.tolist(),
         }
 
@@ -348,22 +398,35 @@ class PatrolReport:
         info = self.numbers(result, source)
         corr = np.asarray(info["correlation_last"])
         links = info["links_during_run"]
-        text = (f"correlation of each agent's map with the reference (seed 0): "
-                f"{', '.join(f'agent {i + 1} {c:.4f}' for i, c in enumerate(corr[0]))}; worst over seeds {corr.min():.4f}\n"
-                f"final consensus error (seed 0) {info['consensus_last'][0]:.3g}: each agent's RMS distance from the "
-                f"agents' mean is {info['consensus_relative_last'][0]:.2%} of |w*|_2; D-weighted error |w_i - w*|_D / "
-                f"|w*|_D at most {max(info['relative_error_d_weighted_last'][0]):.2%}\n"
-                f"network during the run: connected at {links['connected_fraction']:.1%} of steps, link frequencies "
-                f"{', '.join(f'{p:.3f}' for p in links['link_frequency'])}; reference chain from "
-                f"{info['reference']['transitions']:,} transitions (w* standard error "
-                f"{info['reference']['w_star_stderr_relative']:.2%} of max |w*|, TD cross-check "
-                f"{info['reference']['td_vs_w_star_relative']:.2%})")
+        text = (
+            f"correlation of each agent's map with the reference (seed 0): "
+            f"{', '.join(f'agent {i + 1} {c:.4f}' for i, c in enumerate(corr[0]))}; worst over seeds {corr.min():.4f}\n"
+            f"final consensus error (seed 0) {info['consensus_last'][0]:.3g}: each agent's RMS distance from the "
+            f"agents' mean is {info['consensus_relative_last'][0]:.2%} of |w*|_2; D-weighted error |w_i - w*|_D / "
+            f"|w*|_D at most {max(info['relative_error_d_weighted_last'][0]):.2%}\n"
+            f"network during the run: connected at {links['connected_fraction']:.1%} of steps, link frequencies "
+            f"{', '.join(f'{p:.3f}' for p in links['link_frequency'])}; reference chain from "
+            f"{info['reference']['transitions']:,} transitions (w* standard error "
+            f"{info['reference']['w_star_stderr_relative']:.2%} of max |w*|, TD cross-check "
+            f"{info['reference']['td_vs_w_star_relative']:.2%})"
+        )
         return info, text
 
 
-def patrol_scenario(world: PatrolWorld = PatrolWorld(), radius: float = 5.0, *, algorithm, iterations: int, name: str,
-                    description: str, reference_teams: int = 400, reference_steps: int = 10_000,
-                    reference_burn_in: int = 200, reference_seed: int = 0, record: int = 25):
+def patrol_scenario(
+    world: PatrolWorld = PatrolWorld(),
+    radius: float = 5.0,
+    *,
+    algorithm,
+    iterations: int,
+    name: str,
+    description: str,
+    reference_teams: int = 400,
+    reference_steps: int = 10_000,
+    reference_burn_in: int = 200,
+    reference_seed: int = 0,
+    record: int = 25,
+):
     """A `Scenario` for a patrol world: the estimated grid chain as the problem, the mean proximity graph as
     the network (for mu* and the connectivity check), and a `PatrolSource` factory for the actual samples."""
     from functools import partial

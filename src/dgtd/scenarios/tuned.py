@@ -24,8 +24,10 @@ def _alpha0(*values: float) -> dict:
 
 
 TUNED_STEPS: dict[str, dict[str, dict]] = {
-    "dgtd": {"paper-example-1": {"alpha0": 10.0, "beta": 1000.0, "kappa": 3.0},
-             **{task: {} for task in TASKS if task != "paper-example-1"}},
+    "dgtd": {
+        "paper-example-1": {"alpha0": 10.0, "beta": 1000.0, "kappa": 3.0},
+        **{task: {} for task in TASKS if task != "paper-example-1"},
+    },
     #                          paper-example-1, baird, boyan, random-mdp, random-mdp-off, garnet
     "gtd2": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0),
     "tdc": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0),

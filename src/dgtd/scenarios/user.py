@@ -29,8 +29,10 @@ from dgtd.problems import features as feature_maps
 from dgtd.sources.env import random_policy
 from dgtd.sources.model import Sampling
 
-FEATURES_HELP = ("fourier:ORDER, rbf:CENTRES, tiles:TILINGS:TILES, one-hot, linear, or module:function "
-                 "(features(states (K, dim)) -> (K, q))")
+FEATURES_HELP = (
+    "fourier:ORDER, rbf:CENTRES, tiles:TILINGS:TILES, one-hot, linear, or module:function "
+    "(features(states (K, dim)) -> (K, q))"
+)
 AGENT_PARAMETERS = ("N", "n_agents", "num_agents", "agents")  # how make_env functions name their number of agents
 STEP_WORDS = "alpha0 = min(10 / E|phi|^2, sqrt(beta) / lambda_max(L))"
 REFERENCE_SEED_OFFSET = 1_000_003  # the reference's streams: seed ids no run uses
@@ -90,8 +92,10 @@ def load_callable(text: str, what: str):
     except DgtdInputError:
         raise
     except ImportError as e:
-        raise DgtdInputError(f"{what} {text!r}: cannot import {module_name} ({e}); install it, or check the name "
-                             "(a file is written path/to/file.py:function)") from None
+        raise DgtdInputError(
+            f"{what} {text!r}: cannot import {module_name} ({e}); install it, or check the name "
+            "(a file is written path/to/file.py:function)"
+        ) from None
     except Exception as e:  # noqa: BLE001  (the user's module failed while importing)
         raise user_error(f"{what} {text!r}: importing {module_name}", e) from e
     obj = module
@@ -140,18 +144,27 @@ def env_factory(spec: EnvSpec):
     if hasattr(probe, "possible_agents"):
         n = len(probe.possible_agents)
         if spec.agents is not None and spec.agents != n:
-            raise DgtdInputError(f"--env {spec.make} made {n} agents, not the {spec.agents} asked for"
-                                 f"{'' if named else ' (it takes no N, n_agents, num_agents or agents argument)'}")
+            raise DgtdInputError(
+                f"--env {spec.make} made {n} agents, not the {spec.agents} asked for"
+                f"{'' if named else ' (it takes no N, n_agents, num_agents or agents argument)'}"
+            )
         return make_raw, probe, label
     if hasattr(probe, "step") and hasattr(probe, "observation_space") and not callable(probe.action_space):
         if spec.agents is None:
-            raise DgtdInputError(f"--env {spec.make} is a single-agent Gymnasium env: give --agents N to split its "
-                                 "reward among N agents (--split random, or shares)")
-        return (lambda: SplitReward(make_raw(), spec.agents, spec.split)), SplitReward(probe, spec.agents,
-                                                                                      spec.split), label
-    raise DgtdInputError(f"--env {spec.make} returned {type(probe).__name__}, which is neither a PettingZoo ParallelEnv "
-                         "(possible_agents, reset, step) nor a Gymnasium env; wrap an AEC env with "
-                         "pettingzoo.utils.aec_to_parallel")
+            raise DgtdInputError(
+                f"--env {spec.make} is a single-agent Gymnasium env: give --agents N to split its "
+                "reward among N agents (--split random, or shares)"
+            )
+        return (
+            (lambda: SplitReward(make_raw(), spec.agents, spec.split)),
+            SplitReward(probe, spec.agents, spec.split),
+            label,
+        )
+    raise DgtdInputError(
+        f"--env {spec.make} returned {type(probe).__name__}, which is neither a PettingZoo ParallelEnv "
+        "(possible_agents, reset, step) nor a Gymnasium env; wrap an AEC env with "
+        "pettingzoo.utils.aec_to_parallel"
+    )
 
 
 def _state_spaces(env) -> list:
@@ -168,8 +181,10 @@ def _state_box(env) -> tuple[np.ndarray, np.ndarray] | None:
     spaces = _state_spaces(env)
     if not all(hasattr(s, "low") for s in spaces):
         return None
-    return (np.concatenate([np.ravel(s.low) for s in spaces]).astype(np.float64),
-            np.concatenate([np.ravel(s.high) for s in spaces]).astype(np.float64))
+    return (
+        np.concatenate([np.ravel(s.low) for s in spaces]).astype(np.float64),
+        np.concatenate([np.ravel(s.high) for s in spaces]).astype(np.float64),
+    )
 
 
 def _discrete_states(env) -> int | None:
@@ -185,9 +200,13 @@ def policy_of(policy, agents):
         return policy if policy == "random" else load_callable(policy, "--policy")
     if set(policy) != set(agents):
         missing, unknown = sorted(set(agents) - set(policy)), sorted(set(policy) - set(agents))
-        raise DgtdInputError(f"the [env] policy table must name every agent once ({', '.join(agents)}); "
-                             + "; ".join(([f"missing {', '.join(missing)}"] if missing else []) +
-                                         ([f"unknown {', '.join(unknown)}"] if unknown else [])))
+        raise DgtdInputError(
+            f"the [env] policy table must name every agent once ({', '.join(agents)}); "
+            + "; ".join(
+                ([f"missing {', '.join(missing)}"] if missing else [])
+                + ([f"unknown {', '.join(unknown)}"] if unknown else [])
+            )
+        )
     own = {a: random_policy if p == "random" else load_callable(p, f"policy.{a}") for a, p in policy.items()}
     return lambda agent, observation, space, rng: own[agent](agent, observation, space, rng)
 
@@ -203,8 +222,10 @@ def build_features(text: str, probe, pilot_states):
             sizes = None
         wanted = 2 if kind == "tiles" else 1
         if sizes is None or len(sizes) != wanted or min(sizes) < 1:
-            raise DgtdInputError(f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
-                                 "with positive integers")
+            raise DgtdInputError(
+                f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
+                "with positive integers"
+            )
         states, box = None, _state_box(probe)
         if box is not None and len(box[0]) != pilot_states(8).shape[1]:  # state() is not the observations
             box = None
@@ -216,22 +237,31 @@ def build_features(text: str, probe, pilot_states):
                 low, high = np.where(keep, box[0], low), np.where(keep, box[1], high)
             box = (low, np.where(high > low, high, low + 1.0))
         dim = len(box[0])
-        n = {"fourier": (sizes[0] + 1) ** dim, "rbf": 1 + sizes[0] ** dim,
-             "tiles": sizes[0] * (sizes[-1] + 1) ** dim}[kind]
+        n = {"fourier": (sizes[0] + 1) ** dim, "rbf": 1 + sizes[0] ** dim, "tiles": sizes[0] * (sizes[-1] + 1) ** dim}[
+            kind
+        ]
         if n > 4096:
-            raise DgtdInputError(f"--features {text} on a {dim}-dimensional state makes {n:,} features; lower it, or "
-                                 "give your own features (module:function)")
-        f = {"fourier": lambda: feature_maps.fourier(sizes[0], *box), "rbf": lambda: feature_maps.rbf(sizes[0], *box),
-             "tiles": lambda: feature_maps.tile_coding(sizes[0], sizes[1], *box)}[kind]()
+            raise DgtdInputError(
+                f"--features {text} on a {dim}-dimensional state makes {n:,} features; lower it, or "
+                "give your own features (module:function)"
+            )
+        f = {
+            "fourier": lambda: feature_maps.fourier(sizes[0], *box),
+            "rbf": lambda: feature_maps.rbf(sizes[0], *box),
+            "tiles": lambda: feature_maps.tile_coding(sizes[0], sizes[1], *box),
+        }[kind]()
         where = "the state space's bounds" if states is None else f"the range of {len(states):,} states seen"
         return f, n, f"{kind} features ({n}) over {where}"
     if kind == "one-hot":
         n = _discrete_states(probe)
         if n is None:
-            raise DgtdInputError("--features one-hot needs a discrete state (a Discrete state or observation space); "
-                                 "use fourier, rbf or tiles for continuous states")
+            raise DgtdInputError(
+                "--features one-hot needs a discrete state (a Discrete state or observation space); "
+                "use fourier, rbf or tiles for continuous states"
+            )
         return feature_maps.one_hot(n), n, f"one-hot features of {n} states"
     if kind == "linear":
+
         def linear(states):
             s = np.asarray(states, dtype=np.float64)
             return np.concatenate([np.ones((len(s), 1)), s], axis=1)
@@ -241,11 +271,14 @@ def build_features(text: str, probe, pilot_states):
     if rest:
         function = load_callable(text, "--features")
         states = pilot_states(8)
-        phi = np.asarray(call_user(f"--features {text} on states of shape {states.shape}", function, states),
-                         dtype=np.float64)
+        phi = np.asarray(
+            call_user(f"--features {text} on states of shape {states.shape}", function, states), dtype=np.float64
+        )
         if phi.ndim != 2 or phi.shape[0] != len(states):
-            raise DgtdInputError(f"--features {text} returned shape {phi.shape} for {len(states)} states; it must return "
-                                 "(K, q): one row of features per state")
+            raise DgtdInputError(
+                f"--features {text} returned shape {phi.shape} for {len(states)} states; it must return "
+                "(K, q): one row of features per state"
+            )
         return function, phi.shape[1], f"features {text} ({phi.shape[1]})"
     raise DgtdInputError(f"--features {text!r} is not known: give {FEATURES_HELP}")
 
@@ -256,8 +289,10 @@ def mean_proximity_network(proximity, frequency):
     from dgtd.graphs.random import random_edges
 
     if np.any(frequency <= 0):
-        raise DgtdInputError(f"within radius {proximity.radius:g} some pairs of agents never met in the reference "
-                             "episodes; raise the radius")
+        raise DgtdInputError(
+            f"within radius {proximity.radius:g} some pairs of agents never met in the reference "
+            "episodes; raise the radius"
+        )
     return random_edges(proximity.base, frequency)
 
 
@@ -281,8 +316,11 @@ def compare_steps(moments) -> dict:
     from dgtd.scenarios.tuned import tuned_steps
 
     scale = feature_scale(moments)
-    return {name: {"alpha0": fields["alpha0"] / scale} for name, fields in tuned_steps("garnet").items()
-            if "alpha0" in fields}
+    return {
+        name: {"alpha0": fields["alpha0"] / scale}
+        for name, fields in tuned_steps("garnet").items()
+        if "alpha0" in fields
+    }
 
 
 def scaled_dgtd(reference, base_graph) -> DGTD:
@@ -296,8 +334,15 @@ def problem_scenario(problem, network, algorithm, sampling, iterations: int):
     from dgtd.problems.exact import Moments
     from dgtd.scenarios import Scenario
 
-    return Scenario(problem=problem, network=network, algorithm=algorithm, sampling=sampling, iterations=iterations,
-                    description=f"problem file {problem.name}", compare_settings=compare_steps(Moments(problem)))
+    return Scenario(
+        problem=problem,
+        network=network,
+        algorithm=algorithm,
+        sampling=sampling,
+        iterations=iterations,
+        description=f"problem file {problem.name}",
+        compare_settings=compare_steps(Moments(problem)),
+    )
 
 
 def env_scenario(spec: EnvSpec, gamma: float, network_for):
@@ -312,8 +357,10 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
     policy = policy_of(spec.policy, probe.possible_agents)
     reward_map = None if spec.rewards is None else load_callable(spec.rewards, "rewards")
     if (spec.positions is None) != (spec.radius is None):
-        raise DgtdInputError("positions and radius go together: positions = 'module:function' (env) -> (N, dim) "
-                             "and the radius within which agents talk")
+        raise DgtdInputError(
+            "positions and radius go together: positions = 'module:function' (env) -> (N, dim) "
+            "and the radius within which agents talk"
+        )
     if spec.positions is not None:
         links = dict(positions=load_callable(spec.positions, "positions"), proximity=ProximityNetwork(N, spec.radius))
         network = None
@@ -322,8 +369,18 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
         links = dict(network=network)
 
     def source(features, seed, seed_ids, offset=0, width=None):
-        return EnvSource(make, features, seed, seed_ids, policy=policy, seed_offset=offset, n_features=width,
-                         reward_map=reward_map, name=spec.make.rpartition(":")[2], **links)
+        return EnvSource(
+            make,
+            features,
+            seed,
+            seed_ids,
+            policy=policy,
+            seed_offset=offset,
+            n_features=width,
+            reward_map=reward_map,
+            name=spec.make.rpartition(":")[2],
+            **links,
+        )
 
     def pilot_states(steps=None):
         src = source(lambda x: np.asarray(x, dtype=np.float64), 0, [0], REFERENCE_SEED_OFFSET - 1)
@@ -336,18 +393,26 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
 
     features, q, about = build_features(spec.features, probe, pilot_states)
     reference, frequency = reference_from_env(
-        lambda g: source(features, 0, [g], REFERENCE_SEED_OFFSET, q), q, gamma, label, steps=spec.reference_steps,
-        groups=spec.reference_groups)
+        lambda g: source(features, 0, [g], REFERENCE_SEED_OFFSET, q),
+        q,
+        gamma,
+        label,
+        steps=spec.reference_steps,
+        groups=spec.reference_groups,
+    )
     if network is None:
         network = mean_proximity_network(links["proximity"], frequency)
     algorithm = scaled_dgtd(reference, network.base)
     kind = "Gymnasium" if isinstance(probe, SplitReward) else "PettingZoo"
     return Scenario(
-        problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov", shared=True),
+        problem=reference,
+        network=network,
+        algorithm=algorithm,
+        sampling=Sampling(mode="markov", shared=True),
         iterations=ENV_ITERATIONS,
         description=f"{kind} env {spec.make}, {N} agents, {about}, policy "
-                    f"{spec.policy if isinstance(spec.policy, str) else 'one per agent'}; {STEP_WORDS} = "
-                    f"{algorithm.alpha0:.4g}",
+        f"{spec.policy if isinstance(spec.policy, str) else 'one per agent'}; {STEP_WORDS} = "
+        f"{algorithm.alpha0:.4g}",
         source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
         report=TrajectoryReport(lambda: source(features, 0, [0], TRAJECTORY_SEED_OFFSET, q)),
         compare_settings=compare_steps(reference.moments),
@@ -365,13 +430,16 @@ def data_scenario(path: str, gamma: float, network_for):
     network = network_for(data.N)
     algorithm = scaled_dgtd(reference, network.base)
     return Scenario(
-        problem=reference, network=network, algorithm=algorithm, sampling=Sampling(mode="markov"),
+        problem=reference,
+        network=network,
+        algorithm=algorithm,
+        sampling=Sampling(mode="markov"),
         iterations=data.steps(range(data.recordings or 1)),
         description=f"recorded transitions {path}: "
-                    f"{data.recordings if data.by_seed else len(data.units):,} "
-                    f"{'recordings' if data.by_seed else 'episodes'} of {data.N} agents, {int(data.offsets[-1]):,} "
-                    f"steps in all{'' if data.by_seed else ', replayed by each seed in an order of its own'}; "
-                    f"{STEP_WORDS} = {algorithm.alpha0:.4g}",
+        f"{data.recordings if data.by_seed else len(data.units):,} "
+        f"{'recordings' if data.by_seed else 'episodes'} of {data.N} agents, {int(data.offsets[-1]):,} "
+        f"steps in all{'' if data.by_seed else ', replayed by each seed in an order of its own'}; "
+        f"{STEP_WORDS} = {algorithm.alpha0:.4g}",
         source=lambda seed, seed_ids: DataSource(data, seed_ids, seed, network),
         data=data,
         compare_settings=compare_steps(reference.moments),
@@ -407,8 +475,13 @@ class TrajectoryReport:
         ref, agents, restarts = self.trajectory(result)
         scale = max(float(np.sqrt(np.mean(ref**2))), 1e-300)
         err = np.sqrt(np.mean((agents - ref) ** 2, axis=1)) / scale
-        numbers = {"trajectory_steps": self.steps, "trajectory_episodes": len(restarts) + 1,
-                   "trajectory_value_error": err.tolist()}
-        text = (f"along a fresh trajectory of {self.steps} steps ({len(restarts) + 1} episode(s)), the agents' values "
-                f"(tail-averaged, seed 0) are within {err.max():.2%} (RMS, relative) of the reference's")
+        numbers = {
+            "trajectory_steps": self.steps,
+            "trajectory_episodes": len(restarts) + 1,
+            "trajectory_value_error": err.tolist(),
+        }
+        text = (
+            f"along a fresh trajectory of {self.steps} steps ({len(restarts) + 1} episode(s)), the agents' values "
+            f"(tail-averaged, seed 0) are within {err.max():.2%} (RMS, relative) of the reference's"
+        )
         return numbers, text

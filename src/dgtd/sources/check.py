@@ -26,8 +26,17 @@ from dgtd.samples import Block
 LINK_SIGMAS = 5.0  # a seeded check: 5 binomial standard errors, so a source that draws its links right passes
 
 
-def check_source(make, network, n_agents: int, steps: int = 400, seed: int = 7, seeds: int = 3,
-                 random_links: bool = True, twin=None, resumable: bool = True) -> None:
+def check_source(
+    make,
+    network,
+    n_agents: int,
+    steps: int = 400,
+    seed: int = 7,
+    seeds: int = 3,
+    random_links: bool = True,
+    twin=None,
+    resumable: bool = True,
+) -> None:
     """Check the source ``make(seed, seed_ids)`` of a run over ``network`` (its ``base`` graph's edges, and for
     ``random_links`` its edge probabilities ``p``) with ``n_agents`` agents, on ``steps`` steps of ``seeds`` seeds;
     ``twin(seed, seed_ids)``: the same source on the other backend."""
@@ -51,7 +60,9 @@ def check_source(make, network, n_agents: int, steps: int = 400, seed: int = 7, 
     resumed.start()
     if resumable:
         resumed.set_state(state)
-        _same(resumed.next_block(steps - steps // 3), second, "the block after a state was set and the one that followed")
+        _same(
+            resumed.next_block(steps - steps // 3), second, "the block after a state was set and the one that followed"
+        )
     else:
         from dgtd.errors import DgtdInputError
 
@@ -72,8 +83,10 @@ def check_source(make, network, n_agents: int, steps: int = 400, seed: int = 7, 
         p = np.broadcast_to(np.asarray(network.p, dtype=np.float64), (up.shape[1],))
         error = np.sqrt(p * (1 - p) / up.shape[0]) + 1e-12
         bad = np.flatnonzero(np.abs(up.mean(axis=0) - p) > LINK_SIGMAS * error)
-        assert bad.size == 0, (f"edge {bad[0]} was up at {up[:, bad[0]].mean():.3f} of the steps, its probability is "
-                               f"{p[bad[0]]:.3f}: the links are not drawn from the run's network")
+        assert bad.size == 0, (
+            f"edge {bad[0]} was up at {up[:, bad[0]].mean():.3f} of the steps, its probability is "
+            f"{p[bad[0]]:.3f}: the links are not drawn from the run's network"
+        )
 
 
 def _check_shapes(blk: Block, T: int, B: int, N: int, network) -> None:
@@ -90,8 +103,9 @@ def _check_shapes(blk: Block, T: int, B: int, N: int, network) -> None:
         assert blk.up.shape == (T, B, E) and blk.up.dtype == np.bool_, f"up is {blk.up.shape} {blk.up.dtype}"
     if blk.table is not None:
         rows = blk.table.phi.shape[0]
-        assert max(blk.s.max(), blk.s_next.max()) < rows and min(blk.s.min(), blk.s_next.min()) >= 0, \
+        assert max(blk.s.max(), blk.s_next.max()) < rows and min(blk.s.min(), blk.s_next.min()) >= 0, (
             "indices outside the block's table"
+        )
         assert blk.table.ratio.shape[0] == rows and blk.table.continuing.shape == (rows,), "table rows disagree"
 
 
@@ -110,8 +124,14 @@ def _joined(a: Block, b: Block) -> Block:
     shift = 0 if a.table is None else a.table.phi.shape[0]
     table = None if a.table is None else type(a.table)(*(np.concatenate([x, y]) for x, y in zip(a.table, b.table)))
     up = None if a.up is None else np.concatenate([a.up, b.up])
-    return Block(np.concatenate([a.s, b.s + shift]), np.concatenate([a.a, b.a]),
-                 np.concatenate([a.s_next, b.s_next + shift]), np.concatenate([a.r, b.r]), up, table)
+    return Block(
+        np.concatenate([a.s, b.s + shift]),
+        np.concatenate([a.a, b.a]),
+        np.concatenate([a.s_next, b.s_next + shift]),
+        np.concatenate([a.r, b.r]),
+        up,
+        table,
+    )
 
 
 def _same(a: Block | dict, b: Block | dict, what: str) -> None:

@@ -34,8 +34,10 @@ from dgtd.samples import Block, SampleTable
 KEYS = ("seed", "episode", "step", "agent")
 GROUPS = 8  # the reference's groups of episodes, without independent recordings
 STATES = ("state", "next_state")  # tabular states, instead of feature columns
-FIX = ("give one row per agent and step with columns seed, step, agent, phi_0.., next_phi_0.. (or state, "
-       "next_state), reward")
+FIX = (
+    "give one row per agent and step with columns seed, step, agent, phi_0.., next_phi_0.. (or state, "
+    "next_state), reward"
+)
 BATCH_ROWS = 1 << 16
 
 
@@ -67,8 +69,10 @@ def _read(path: Path, columns=None):
     except DgtdInputError:
         raise
     except ImportError:
-        raise DgtdInputError(f"reading {path.suffix} files needs pyarrow: pip install 'dgtd[parquet]' (or give an "
-                             ".npz of the same columns)") from None
+        raise DgtdInputError(
+            f"reading {path.suffix} files needs pyarrow: pip install 'dgtd[parquet]' (or give an "
+            ".npz of the same columns)"
+        ) from None
     except Exception as e:  # noqa: BLE001  (a reader's own error: a damaged or foreign file)
         raise DgtdInputError(f"transitions file {path} cannot be read ({type(e).__name__}: {e}); {FIX}") from None
 
@@ -88,10 +92,13 @@ def _header(path: Path) -> list[str]:
     if missing:
         raise DgtdInputError(f"transitions file {path} lacks the column(s) {', '.join(missing)}; {FIX}")
     q = sum(1 for c in names if c.startswith("phi_"))
-    if sorted((c for c in names if c.startswith("phi_")), key=lambda c: int(c[4:]) if c[4:].isdigit() else -1) \
-            != [f"phi_{j}" for j in range(q)] or any(f"next_phi_{j}" not in names for j in range(q)):
-        raise DgtdInputError(f"transitions file {path}: the feature columns must be phi_0 .. phi_{q - 1} and "
-                             f"next_phi_0 .. next_phi_{q - 1}")
+    if sorted((c for c in names if c.startswith("phi_")), key=lambda c: int(c[4:]) if c[4:].isdigit() else -1) != [
+        f"phi_{j}" for j in range(q)
+    ] or any(f"next_phi_{j}" not in names for j in range(q)):
+        raise DgtdInputError(
+            f"transitions file {path}: the feature columns must be phi_0 .. phi_{q - 1} and "
+            f"next_phi_0 .. next_phi_{q - 1}"
+        )
     return names
 
 
@@ -101,8 +108,9 @@ def _checked(path: Path, batch: dict, names) -> dict:
     lengths = {name: len(batch[name]) for name in names if name in batch}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"{name} {n:,}" for name, n in lengths.items())
-        raise DgtdInputError(f"transitions file {path} has columns of different lengths ({listed}); every column "
-                             "needs one entry per row")
+        raise DgtdInputError(
+            f"transitions file {path} has columns of different lengths ({listed}); every column needs one entry per row"
+        )
     out = {}
     for name in ("seed", "episode"):
         if name in names and name not in batch:
@@ -113,18 +121,24 @@ def _checked(path: Path, batch: dict, names) -> dict:
             try:
                 out[name] = x.astype(np.int64, casting="safe")
             except TypeError:
-                raise DgtdInputError(f"transitions file {path}: column {name} must hold integers, got {x.dtype}") from None
+                raise DgtdInputError(
+                    f"transitions file {path}: column {name} must hold integers, got {x.dtype}"
+                ) from None
         else:
             if x.dtype.kind not in "biuf" or not np.isfinite(x.astype(np.float64)).all():
                 raise DgtdInputError(f"transitions file {path}: column {name} must hold finite numbers")
             out[name] = x.astype(np.float64)
     if "ratio" in out and (out["ratio"] < 0).any():
-        raise DgtdInputError(f"transitions file {path}: column ratio must be >= 0 (an importance ratio pi(a|s) / "
-                             f"b(a|s)), got {out['ratio'].min():g}")
+        raise DgtdInputError(
+            f"transitions file {path}: column ratio must be >= 0 (an importance ratio pi(a|s) / "
+            f"b(a|s)), got {out['ratio'].min():g}"
+        )
     if "terminal" in out and not np.isin(out["terminal"], (0.0, 1.0)).all():
         bad = out["terminal"][~np.isin(out["terminal"], (0.0, 1.0))][0]
-        raise DgtdInputError(f"transitions file {path}: column terminal must be 0 or 1 (1 where the transition ended "
-                             f"an episode), got {bad:g}")
+        raise DgtdInputError(
+            f"transitions file {path}: column terminal must be 0 or 1 (1 where the transition ended "
+            f"an episode), got {bad:g}"
+        )
     return out
 
 
@@ -164,35 +178,48 @@ class TransitionFile:
         self.offsets = np.concatenate([[0], np.cumsum(self.lengths)])
         for u, T in zip(self.units, self.lengths):
             if units[u][0] != T * N:
-                raise DgtdInputError(f"{self._name(u)} does not hold every agent at every step 0..{T - 1} "
-                                     f"({units[u][0]:,} rows for {N} agents x {T:,} steps): one row per agent and "
-                                     "step is needed")
+                raise DgtdInputError(
+                    f"{self._name(u)} does not hold every agent at every step 0..{T - 1} "
+                    f"({units[u][0]:,} rows for {N} agents x {T:,} steps): one row per agent and "
+                    "step is needed"
+                )
         seeds = [k for k, _ in self.units]
         self.ids = np.unique(seeds)
-        self.groups = ([np.flatnonzero(np.array(seeds) == k) for k in self.ids] if self.by_seed else
-                       [np.arange(g, len(self.units), min(GROUPS, len(self.units))) for g in
-                        range(min(GROUPS, len(self.units)))])
+        self.groups = (
+            [np.flatnonzero(np.array(seeds) == k) for k in self.ids]
+            if self.by_seed
+            else [
+                np.arange(g, len(self.units), min(GROUPS, len(self.units))) for g in range(min(GROUPS, len(self.units)))
+            ]
+        )
         if len(self.groups) < 2:
-            raise DgtdInputError(f"transitions file {path} holds {len(self.groups)} "
-                                 f"{'recording' if self.by_seed else 'episode'}; the reference's standard error needs "
-                                 "at least two independent ones")
+            raise DgtdInputError(
+                f"transitions file {path} holds {len(self.groups)} "
+                f"{'recording' if self.by_seed else 'episode'}; the reference's standard error needs "
+                "at least two independent ones"
+            )
         self._dir = tempfile.mkdtemp(prefix="dgtd-transitions-")
         weakref.finalize(self, shutil.rmtree, self._dir, True)
         shape = (int(self.offsets[-1]), N, 2 * q + 3)
         self.rows = np.lib.format.open_memmap(Path(self._dir) / "rows.npy", "w+", np.float64, shape)
         seen = np.lib.format.open_memmap(Path(self._dir) / "seen.npy", "w+", np.bool_, shape[:2])
         index = {u: j for j, u in enumerate(self.units)}
-        values = [*(STATES if self.tabular else (*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)))),
-                  "reward"]
+        values = [
+            *(STATES if self.tabular else (*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)))),
+            "reward",
+        ]
         eye = np.eye(q) if self.tabular else None
         for batch in _read(path):
-            b = _checked(path, batch, [*KEYS, *values, *(["ratio"] if self.has_ratio else []),
-                                       *(["terminal"] if self.has_terminal else [])])
+            b = _checked(
+                path,
+                batch,
+                [*KEYS, *values, *(["ratio"] if self.has_ratio else []), *(["terminal"] if self.has_terminal else [])],
+            )
             keys, inverse = np.unique(np.stack([b["seed"], b["episode"]], axis=1), axis=0, return_inverse=True)
             where = self.offsets[[index[tuple(key)] for key in keys.tolist()]][inverse.ravel()] + b["step"]
             block = np.empty((len(where), 2 * q + 3))
             if self.tabular:  # one-hot features of the state indices
-                block[:, :q], block[:, q: 2 * q] = eye[b["state"]], eye[b["next_state"]]
+                block[:, :q], block[:, q : 2 * q] = eye[b["state"]], eye[b["next_state"]]
                 block[:, 2 * q] = b["reward"]
             else:
                 block[:, : 2 * q + 1] = np.stack([b[name] for name in values], axis=1)
@@ -202,14 +229,17 @@ class TransitionFile:
             seen[where, b["agent"]] = True
         for u, start, end in zip(self.units, self.offsets[:-1], self.offsets[1:]):
             if not seen[start:end].all():  # as many rows as cells, but some cell twice
-                raise DgtdInputError(f"{self._name(u)} does not hold every agent at every step 0..{end - start - 1}: "
-                                     "a row is repeated and another missing")
+                raise DgtdInputError(
+                    f"{self._name(u)} does not hold every agent at every step 0..{end - start - 1}: "
+                    "a row is repeated and another missing"
+                )
         self.rows.flush()
 
     def _name(self, unit) -> str:
         k, e = unit
-        return " ".join(([f"recording {k}"] if self.by_seed else []) + ([f"episode {e}"] if not self.by_seed or e
-                                                                        else []))
+        return " ".join(
+            ([f"recording {k}"] if self.by_seed else []) + ([f"episode {e}"] if not self.by_seed or e else [])
+        )
 
     @property
     def recordings(self) -> int | None:
@@ -221,8 +251,9 @@ class TransitionFile:
         SeedSequence(seed, spawn_key=(k,)) when the file has no independent recordings."""
         if self.by_seed:
             return self.groups[k]
-        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(k),)))) \
-            .permutation(len(self.units))
+        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(k),)))).permutation(
+            len(self.units)
+        )
 
     def steps(self, seed_ids) -> int:
         """How many steps a run over ``seed_ids`` can take: its shortest recording's, or every episode's."""
@@ -241,12 +272,12 @@ class TransitionFile:
             acc = MomentSums(N, q)
             for u in group:
                 for t0 in range(self.offsets[u], self.offsets[u + 1], chunk):
-                    x = np.asarray(self.rows[t0: min(self.offsets[u + 1], t0 + chunk)]).reshape(-1, 2 * q + 3)
+                    x = np.asarray(self.rows[t0 : min(self.offsets[u + 1], t0 + chunk)]).reshape(-1, 2 * q + 3)
                     agent = np.tile(np.arange(N), len(x) // N)
                     R = np.zeros((len(x), N))
                     R[np.arange(len(x)), agent] = x[:, 2 * q] * N
-                    acc.add(x[:, :q], x[:, q: 2 * q], R, gamma * x[:, -1], x[:, -2])
-                    td.add(x[:, :q], x[:, q: 2 * q], x[:, 2 * q], gamma * x[:, -1], x[:, -2])  # every agent's rows
+                    acc.add(x[:, :q], x[:, q : 2 * q], R, gamma * x[:, -1], x[:, -2])
+                    td.add(x[:, :q], x[:, q : 2 * q], x[:, 2 * q], gamma * x[:, -1], x[:, -2])  # every agent's rows
             sums.append(acc)
         return estimate(name, gamma, sums, off_policy=self.has_ratio, td_check=td)
 
@@ -270,8 +301,10 @@ class DataSource:
         orders = [data.order(seed, k) for k in self.chosen]
         self.starts = [data.offsets[o] for o in orders]
         self.ends = [np.cumsum(data.lengths[o]) for o in orders]
-        self.edges = [np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(k,)).spawn(3)[2]))
-                      for k in self.chosen]
+        self.edges = [
+            np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(k,)).spawn(3)[2]))
+            for k in self.chosen
+        ]
 
     def _positions(self, b: int, k: int, T: int) -> np.ndarray:
         """The rows of steps k .. k+T-1 of seed b's stream."""
@@ -293,9 +326,11 @@ class DataSource:
         B, N = len(self.chosen), self.N
         M = T * B * N
         index = np.arange(M).reshape(T, B, N)
-        table = SampleTable(np.concatenate([x[..., :q].reshape(M, q), x[..., q: 2 * q].reshape(M, q)]),
-                            np.concatenate([x[..., -2].ravel(), np.ones(M)])[:, None],
-                            np.concatenate([np.ones(M), x[..., -1].ravel()]))
+        table = SampleTable(
+            np.concatenate([x[..., :q].reshape(M, q), x[..., q : 2 * q].reshape(M, q)]),
+            np.concatenate([x[..., -2].ravel(), np.ones(M)])[:, None],
+            np.concatenate([np.ones(M), x[..., -1].ravel()]),
+        )
         return Block(index, np.zeros_like(index), index + M, np.ascontiguousarray(x[..., 2 * q]), self._links(T), table)
 
     def _links(self, T: int):

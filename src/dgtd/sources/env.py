@@ -33,8 +33,10 @@ from dgtd.samples import Block, SampleTable
 def random_policy(agent: str, observation, space, rng: np.random.Generator):
     """Uniform over a discrete action space; the policy of ``policy="random"``."""
     if not hasattr(space, "n"):
-        raise DgtdInputError(f"the random policy needs discrete actions; {agent}'s action space is {space}: give a "
-                             "policy callable(agent, observation, space, rng) -> action")
+        raise DgtdInputError(
+            f"the random policy needs discrete actions; {agent}'s action space is {space}: give a "
+            "policy callable(agent, observation, space, rng) -> action"
+        )
     return int(rng.integers(space.n))
 
 
@@ -68,16 +70,30 @@ class EnvSource:
     code name it (default: ``make_env``'s name).
     """
 
-    def __init__(self, make_env: Callable, features: Callable, seed: int, seed_ids, *, policy="random",
-                 network=None, positions: Callable | None = None, proximity=None,
-                 reward_map: Callable | None = None, seed_offset: int = 0, n_features: int | None = None,
-                 name: str | None = None):
+    def __init__(
+        self,
+        make_env: Callable,
+        features: Callable,
+        seed: int,
+        seed_ids,
+        *,
+        policy="random",
+        network=None,
+        positions: Callable | None = None,
+        proximity=None,
+        reward_map: Callable | None = None,
+        seed_offset: int = 0,
+        n_features: int | None = None,
+        name: str | None = None,
+    ):
         self.make_env, self.features, self.n_features = make_env, features, n_features
         self.policy = random_policy if policy == "random" else policy
         self.network, self.positions, self.proximity = network, positions, proximity
         if network is None and (positions is None or proximity is None):
-            raise DgtdInputError("give the environment's network: a random-edge network over its agents, or "
-                                 "positions(env) with a proximity network")
+            raise DgtdInputError(
+                "give the environment's network: a random-edge network over its agents, or "
+                "positions(env) with a proximity network"
+            )
         self.reward_map = reward_map
         self.name = name or named(make_env)
         self.seed, self.seed_ids, self.seed_offset = int(seed), [int(k) for k in seed_ids], int(seed_offset)
@@ -89,7 +105,9 @@ class EnvSource:
 
     def _streams(self, k: int) -> np.random.Generator:
         """Seed id k's generator for actions and links: its own, so that it does not depend on the other seeds."""
-        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(self.seed_offset + k,))))
+        return np.random.Generator(
+            np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(self.seed_offset + k,)))
+        )
 
     def start(self) -> None:
         self.envs, self.gens, self.current, self.spaces = [], [], [], []
@@ -98,9 +116,11 @@ class EnvSource:
             gen = self._streams(k)
             for name in ("reset", "step", "possible_agents", "action_space"):
                 if not hasattr(env, name):
-                    raise DgtdInputError(f"make_env() returned {type(env).__name__}, which has no {name}: give a "
-                                         "PettingZoo ParallelEnv (pettingzoo.ParallelEnv; wrap an AEC env with "
-                                         "pettingzoo.utils.aec_to_parallel)")
+                    raise DgtdInputError(
+                        f"make_env() returned {type(env).__name__}, which has no {name}: give a "
+                        "PettingZoo ParallelEnv (pettingzoo.ParallelEnv; wrap an AEC env with "
+                        "pettingzoo.utils.aec_to_parallel)"
+                    )
             self.envs.append(env)
             self.gens.append(gen)
             self.spaces.append({a: env.action_space(a) for a in env.possible_agents})  # fixed, as PettingZoo asks
@@ -122,8 +142,10 @@ class EnvSource:
         for b, (env, gen, spaces) in enumerate(zip(self.envs, self.gens, self.spaces)):
             for t in range(T):
                 obs = env._dgtd_last_obs
-                actions = {a: call_user(f"the policy {named(self.policy)}", self.policy, a, obs[a], spaces[a], gen)
-                           for a in env.agents}
+                actions = {
+                    a: call_user(f"the policy {named(self.policy)}", self.policy, a, obs[a], spaces[a], gen)
+                    for a in env.agents
+                }
                 if self.positions is not None:
                     where = call_user(f"positions {named(self.positions)}", self.positions, env)
                     up[t, b] = self.proximity.masks(np.asarray(where, dtype=np.float64))
@@ -143,19 +165,27 @@ class EnvSource:
         try:
             rows = np.stack(list(states.ravel()) + list(nexts.ravel()))
         except ValueError:
-            raise DgtdInputError("the environment's states change size from step to step; its state() (or its "
-                                 "observations) must have one shape") from None
+            raise DgtdInputError(
+                "the environment's states change size from step to step; its state() (or its "
+                "observations) must have one shape"
+            ) from None
         if not np.isfinite(rows).all():
-            raise DgtdInputError("the environment returned NaN or infinite states (its state() or observations); "
-                                 "check the env, or wrap it to clip them")
+            raise DgtdInputError(
+                "the environment returned NaN or infinite states (its state() or observations); "
+                "check the env, or wrap it to clip them"
+            )
         phi = np.asarray(call_user(f"the features {named(self.features)}", self.features, rows), dtype=np.float64)
         if self.n_features is not None and phi.ndim == 2 and phi.shape[1] != self.n_features:
-            raise DgtdInputError(f"the features came out {phi.shape[1]} wide, not {self.n_features} as on the first "
-                                 "states; features(states) must return the same number of columns for every batch")
+            raise DgtdInputError(
+                f"the features came out {phi.shape[1]} wide, not {self.n_features} as on the first "
+                "states; features(states) must return the same number of columns for every batch"
+            )
         if phi.ndim != 2 or phi.shape[0] != len(rows) or not np.isfinite(phi).all():
-            raise DgtdInputError(f"the features of {len(rows)} states came out with shape {np.shape(phi)}"
-                                 f"{'' if np.isfinite(phi).all() else ' and NaN or infinite entries'}; features(states "
-                                 "(K, dim)) must return finite (K, q)")
+            raise DgtdInputError(
+                f"the features of {len(rows)} states came out with shape {np.shape(phi)}"
+                f"{'' if np.isfinite(phi).all() else ' and NaN or infinite entries'}; features(states "
+                "(K, dim)) must return finite (K, q)"
+            )
         M = T * B
         index = np.arange(M).reshape(T, B, 1)
         table = SampleTable(phi, np.ones((2 * M, 1)), np.concatenate([np.ones(M), cont_next.ravel()]))
@@ -165,37 +195,46 @@ class EnvSource:
         """Each agent's reward of a step, checked: every agent that acted has one, and each is a number. An agent
         that did not act at the step (not among the env's live agents) earns 0."""
         if not isinstance(rewards, dict):
-            raise DgtdInputError(f"the env's step() ({self.name}) returned rewards of type {type(rewards).__name__}, "
-                                 "not a dict of each agent's reward")
+            raise DgtdInputError(
+                f"the env's step() ({self.name}) returned rewards of type {type(rewards).__name__}, "
+                "not a dict of each agent's reward"
+            )
         if self.reward_map is not None:
             r = call_user(f"the reward map {named(self.reward_map)}", self.reward_map, rewards)
         else:
             missing = [a for a in acted if a not in rewards]
             if missing:
-                raise DgtdInputError(f"the env's step() ({self.name}) gave no reward for "
-                                     f"{', '.join(map(str, missing))}, which acted at that step: every live agent "
-                                     "needs its reward (0 is a reward)")
+                raise DgtdInputError(
+                    f"the env's step() ({self.name}) gave no reward for "
+                    f"{', '.join(map(str, missing))}, which acted at that step: every live agent "
+                    "needs its reward (0 is a reward)"
+                )
             unknown = [a for a in rewards if a not in self.agents]
             if unknown:
-                raise DgtdInputError(f"the env's step() ({self.name}) gave a reward for "
-                                     f"{', '.join(map(str, unknown))}, not among its possible_agents "
-                                     f"({', '.join(map(str, self.agents))})")
+                raise DgtdInputError(
+                    f"the env's step() ({self.name}) gave a reward for "
+                    f"{', '.join(map(str, unknown))}, not among its possible_agents "
+                    f"({', '.join(map(str, self.agents))})"
+                )
             r = []
             for a in self.agents:
                 value = rewards.get(a, 0.0)
                 try:
                     r.append(float(value))
                 except (TypeError, ValueError):
-                    raise DgtdInputError(f"the env's step() ({self.name}) gave {a} the reward {value!r}, which is "
-                                         "not a number") from None
+                    raise DgtdInputError(
+                        f"the env's step() ({self.name}) gave {a} the reward {value!r}, which is not a number"
+                    ) from None
         try:
             r = np.asarray(r, dtype=np.float64)
         except (TypeError, ValueError):
-            raise DgtdInputError(f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a "
-                                 "finite number") from None
+            raise DgtdInputError(
+                f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a finite number"
+            ) from None
         if r.shape != (len(self.agents),) or not np.isfinite(r).all():
-            raise DgtdInputError(f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a "
-                                 "finite reward")
+            raise DgtdInputError(
+                f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a finite reward"
+            )
         return r
 
     resumable = False  # a simulator's state cannot be saved: runs on environments take no checkpoints
@@ -207,8 +246,9 @@ class EnvSource:
         raise DgtdInputError("a run on an environment cannot be resumed from a checkpoint; run it again")
 
 
-def reference_from_env(make_source: Callable, n_features: int, gamma: float, name: str, steps: int, groups: int = 8,
-                       block: int = 2048):
+def reference_from_env(
+    make_source: Callable, n_features: int, gamma: float, name: str, steps: int, groups: int = 8, block: int = 2048
+):
     """(the LSTD reference, how often each link was up): `dgtd.problems.reference.estimate` from ``groups``
     independent sources of ``steps`` steps each; ``make_source(group)`` returns a fresh `EnvSource` whose streams are
     separate from the run's. The link frequencies give the mean graph of a proximity network."""

@@ -69,8 +69,13 @@ class SplitReward:
         if terminated or truncated:
             self.agents = []
         agents = self.possible_agents
-        return ({a: self.obs for a in agents}, {a: float(x) for a, x in zip(agents, rewards)},
-                {a: bool(terminated) for a in agents}, {a: bool(truncated) for a in agents}, {a: info for a in agents})
+        return (
+            {a: self.obs for a in agents},
+            {a: float(x) for a, x in zip(agents, rewards)},
+            {a: bool(terminated) for a in agents},
+            {a: bool(truncated) for a in agents},
+            {a: info for a in agents},
+        )
 
     def close(self) -> None:
         self.env.close()

@@ -11,6 +11,7 @@ NumPy reference and the compiled kernels see identical samples.
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import numpy as np
 
 from dgtd.errors import DgtdInputError
@@ -49,11 +50,11 @@ def alias_table(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         small = [j for j in range(K) if scaled[j] < 1.0]
         large = [j for j in range(K) if scaled[j] >= 1.0]
         while small and large:
-            j, l = small.pop(), large.pop()
+            j, big = small.pop(), large.pop()
             prob[r, j] = scaled[j]
-            alias[r, j] = l
-            scaled[l] -= 1.0 - scaled[j]
-            (small if scaled[l] < 1.0 else large).append(l)
+            alias[r, j] = big
+            scaled[big] -= 1.0 - scaled[j]
+            (small if scaled[big] < 1.0 else large).append(big)
         for j in small + large:  # numerical leftovers are certain outcomes
             prob[r, j] = 1.0
     return prob.reshape(p.shape), alias.reshape(p.shape)
@@ -83,7 +84,7 @@ class SamplerTables:
     sa_alias: np.ndarray
 
     @staticmethod
-    def build(problem: Problem, d: np.ndarray) -> "SamplerTables":
+    def build(problem: Problem, d: np.ndarray) -> SamplerTables:
         dp, da = alias_table(d)
         S, A, _ = problem.P_sample.shape
         sp, sa = alias_table(problem.P_sample.reshape(S, A * S))
@@ -104,8 +105,18 @@ def reward_from_uniform(mean: np.ndarray, sigma: float, noise: str, u) -> np.nda
 class Streams:
     """The uniform streams of B seeds; ``draw(T)`` returns the next T steps of every stream."""
 
-    def __init__(self, seed: int, seed_ids, n_obs: int, n_agents: int, n_edges: int, *, mode: str,
-                 reward_noise: bool, random_edges: bool):
+    def __init__(
+        self,
+        seed: int,
+        seed_ids,
+        n_obs: int,
+        n_agents: int,
+        n_edges: int,
+        *,
+        mode: str,
+        reward_noise: bool,
+        random_edges: bool,
+    ):
         self.seed = int(seed)
         self.seed_ids = np.asarray(seed_ids, dtype=np.int64)
         self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, n_edges
@@ -159,8 +170,9 @@ def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.
     if current is None:
         K = tables.d_prob.shape[0]
         shape = u_state.shape[:-1]
-        s = alias_pick(np.broadcast_to(tables.d_prob, shape + (K,)),
-                       np.broadcast_to(tables.d_alias, shape + (K,)), u_state[..., 0])
+        s = alias_pick(
+            np.broadcast_to(tables.d_prob, shape + (K,)), np.broadcast_to(tables.d_alias, shape + (K,)), u_state[..., 0]
+        )
     else:
         s = current
     idx = alias_pick(tables.sa_prob[s], tables.sa_alias[s], u_state[..., -1])
@@ -202,13 +214,29 @@ class ModelSource:
     anything with ``start()``, ``next_block(T) -> Block``, ``get_state()`` and ``set_state()`` will do.
     """
 
-    def __init__(self, problem: Problem, network, sampling: Sampling, tables: SamplerTables, seed: int, seed_ids,
-                 backend: str = "numpy"):
+    def __init__(
+        self,
+        problem: Problem,
+        network,
+        sampling: Sampling,
+        tables: SamplerTables,
+        seed: int,
+        seed_ids,
+        backend: str = "numpy",
+    ):
         self.problem, self.network, self.tables = problem, network, tables
         N = problem.n_agents
         self.n_obs = 1 if sampling.shared else N
-        self.streams = Streams(seed, seed_ids, self.n_obs, N, network.n_edges, mode=sampling.mode,
-                               reward_noise=problem.reward_noise not in ("none", "transition"), random_edges=not network.fixed)
+        self.streams = Streams(
+            seed,
+            seed_ids,
+            self.n_obs,
+            N,
+            network.n_edges,
+            mode=sampling.mode,
+            reward_noise=problem.reward_noise not in ("none", "transition"),
+            random_edges=not network.fixed,
+        )
         self.markov = sampling.mode == "markov"
         self.backend = backend
         self.current = None

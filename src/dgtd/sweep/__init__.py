@@ -63,8 +63,11 @@ def apply_point(spec: RunSpec, point: dict) -> RunSpec:
 
         if spec.algorithm in ALGORITHMS:
             own = field_types(ALGORITHMS[spec.algorithm])
-            spec = replace(spec, **{k: None for k in ALGORITHM_FIELDS if k not in own},
-                           algorithm_params={k: v for k, v in (spec.algorithm_params or {}).items() if k in own} or None)
+            spec = replace(
+                spec,
+                **{k: None for k in ALGORITHM_FIELDS if k not in own},
+                algorithm_params={k: v for k, v in (spec.algorithm_params or {}).items() if k in own} or None,
+            )
     return spec
 
 
@@ -110,8 +113,12 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
 
         numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
     result = run_loop(problem, network, algorithm, sampling, settings, source=make_source(resolved, settings))
-    return {"steps": result.steps, "metrics": result.metrics, "algorithm": algorithm.name,
-            "summary": summary(result, json.loads(json.dumps(spec_record(resolved))))}
+    return {
+        "steps": result.steps,
+        "metrics": result.metrics,
+        "algorithm": algorithm.name,
+        "summary": summary(result, json.loads(json.dumps(spec_record(resolved)))),
+    }
 
 
 def make_executor(exp: Experiment, n_jobs: int) -> Executor:
@@ -143,8 +150,9 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
 
     t_start = time.perf_counter()
     if not exp.grid:
-        raise DgtdInputError("a sweep needs a [grid] table of lists, e.g. [grid] alpha0 = [1.0, 10.0]; "
-                             "use `dgtd run` for a single run")
+        raise DgtdInputError(
+            "a sweep needs a [grid] table of lists, e.g. [grid] alpha0 = [1.0, 10.0]; use `dgtd run` for a single run"
+        )
     jobs = expand(exp)
     out = Path(out).resolve()
     resume = exp.sweep.resume if exp.sweep.resume is not None else out.exists()
@@ -163,7 +171,9 @@ def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, prog
     store.begin(to_toml(saved, "A dgtd sweep: `dgtd sweep THIS_FILE` runs it again, skipping finished jobs."))
     todo = [j for j in jobs if not (resume and store.done(j.id))]
     where = exp.sweep.address or ("a local Ray on 127.0.0.1" if exp.sweep.executor == "ray" else "a local process pool")
-    echo(f"{len(jobs)} jobs ({len(jobs) - len(todo)} already finished), {len(todo)} to run on {where}; results in {out}")
+    echo(
+        f"{len(jobs)} jobs ({len(jobs) - len(todo)} already finished), {len(todo)} to run on {where}; results in {out}"
+    )
     failed: dict[str, str] = {}
     bar = tqdm(total=len(todo), unit="job", file=sys.stderr, disable=not progress, smoothing=0.1)
     try:
@@ -175,13 +185,22 @@ def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, prog
         status = lambda j: "failed" if j.id in failed else ("finished" if store.done(j.id) else "not run")  # noqa: E731
         from dgtd.run.results import atomic_write_json
 
-        atomic_write_json(out / "sweep.json", {
-            "grid": [k for k, _ in grid_keys(exp.grid)],
-            "table": None if table is None else table.name,
-            "jobs": [{"job": j.id, "point": j.point, "status": status(j)} for j in jobs],
-        })
-    return {"jobs": len(jobs), "skipped": len(jobs) - len(todo), "ran": len(todo) - len(failed), "failed": failed,
-            "table": table, "seconds": time.perf_counter() - t_start}
+        atomic_write_json(
+            out / "sweep.json",
+            {
+                "grid": [k for k, _ in grid_keys(exp.grid)],
+                "table": None if table is None else table.name,
+                "jobs": [{"job": j.id, "point": j.point, "status": status(j)} for j in jobs],
+            },
+        )
+    return {
+        "jobs": len(jobs),
+        "skipped": len(jobs) - len(todo),
+        "ran": len(todo) - len(failed),
+        "failed": failed,
+        "table": table,
+        "seconds": time.perf_counter() - t_start,
+    }
 
 
 def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict, bar, echo) -> None:
@@ -206,7 +225,9 @@ def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict,
                 except Exception as e:  # a job's own failure must not stop the others
                     message = f"{type(e).__name__}: {e}"
                 else:
-                    config = to_toml(Experiment(spec=job.spec), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone.")
+                    config = to_toml(
+                        Experiment(spec=job.spec), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone."
+                    )
                     store.write_job(job.id, job.point, config, result)
                     del pending[job.id]
                     bar.update()

@@ -48,19 +48,29 @@ def connection_refused(address: str, error: Exception) -> str:
     """The one line for a cluster that refused the connection: clusters of Ray 2.60 on ask for a token, which a client
     connecting by address sends only with RAY_AUTH_MODE=token."""
     if os.environ.get("RAY_AUTH_MODE", "").lower() != "token":
-        return (f"cannot connect to the Ray cluster at {address} ({error}): a cluster of Ray 2.60 or later asks for "
-                "its token, which is sent only with RAY_AUTH_MODE=token set (the token is read from RAY_AUTH_TOKEN, "
-                "RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token); set it and run again (docs/experiments.md: Pointing the same command at a Ray cluster)")
-    return (f"cannot connect to the Ray cluster at {address} ({error}): check that it runs (`ray status --address "
-            f"{address}`) and that the token dgtd sends (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token) is "
-            "the cluster's (docs/experiments.md: Pointing the same command at a Ray cluster)")
+        return (
+            f"cannot connect to the Ray cluster at {address} ({error}): a cluster of Ray 2.60 or later asks for "
+            "its token, which is sent only with RAY_AUTH_MODE=token set (the token is read from RAY_AUTH_TOKEN, "
+            "RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token); set it and run again (docs/experiments.md: Pointing the "
+            "same command at a Ray cluster)"
+        )
+    return (
+        f"cannot connect to the Ray cluster at {address} ({error}): check that it runs (`ray status --address "
+        f"{address}`) and that the token dgtd sends (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token) is "
+        "the cluster's (docs/experiments.md: Pointing the same command at a Ray cluster)"
+    )
 
 
 class RayExecutor(Executor):
     """Runs ``fn(*args)`` as a Ray task of ``num_cpus_per_task`` CPUs; futures are Ray's own."""
 
-    def __init__(self, address: str | None = None, num_cpus: int | None = None, num_cpus_per_task: float = 1,
-                 max_retries: int = 3):
+    def __init__(
+        self,
+        address: str | None = None,
+        num_cpus: int | None = None,
+        num_cpus_per_task: float = 1,
+        max_retries: int = 3,
+    ):
         self.ray = import_ray()
         self.options = {"num_cpus": num_cpus_per_task, "max_retries": max_retries}
         self._remote: dict = {}
@@ -75,8 +85,14 @@ class RayExecutor(Executor):
             os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
             # "local": a new instance of our own, even where a `ray start` cluster runs on this machine (without it,
             # init() joins the latest one, or hangs on one that stopped uncleanly)
-            self.ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, _node_ip_address="127.0.0.1",
-                          logging_level=logging.WARNING, log_to_driver=False)
+            self.ray.init(
+                address="local",
+                num_cpus=num_cpus,
+                include_dashboard=False,
+                _node_ip_address="127.0.0.1",
+                logging_level=logging.WARNING,
+                log_to_driver=False,
+            )
 
     def submit(self, fn, /, *args, **kwargs) -> Future:
         if fn not in self._remote:

@@ -32,7 +32,6 @@ from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _st
 from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
 from dgtd.samples import Block, Draws, SampleTable
 
-
 # The kernels below are templates: `driver` compiles a copy of each per algorithm, with the algorithm's step in
 # place of `agent_step` and its flag in place of NEEDS_DEGREES, under the numba options it names.
 
@@ -59,8 +58,26 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     """Seeds b0 .. b1 - 1 one after another, each its steps in order, each step its learners in order. No threads of
     its own (it releases the GIL: `Layouts` runs several calls at once over separate seeds, each with its own
     ``space``, `_space`)."""
-    (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
-     sn_blk, r_blk, up_blk, n_up) = sampler
+    (
+        fused,
+        rng,
+        markov,
+        current,
+        d_prob,
+        d_alias,
+        sa_prob,
+        sa_alias,
+        R_sample,
+        sigma,
+        noise,
+        p_edge,
+        s_blk,
+        a_blk,
+        sn_blk,
+        r_blk,
+        up_blk,
+        n_up,
+    ) = sampler
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     indptr, eid = graph[0], graph[2]
     L, T = sums.shape[1], alphas.shape[0]
@@ -68,9 +85,33 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     for b in range(b0, b1):
         edges_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
         for t in range(T):
-            edges_up += _step_samples(b, 0, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias,
-                                      R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t,
-                                      sn_t, r_t, up_t)
+            edges_up += _step_samples(
+                b,
+                0,
+                t,
+                fused,
+                rng,
+                markov,
+                current,
+                d_prob,
+                d_alias,
+                sa_prob,
+                sa_alias,
+                R_sample,
+                sigma,
+                noise,
+                p_edge,
+                s_blk,
+                a_blk,
+                sn_blk,
+                r_blk,
+                up_blk,
+                s_t,
+                a_t,
+                sn_t,
+                r_t,
+                up_t,
+            )
             if NEEDS_DEGREES:
                 count_heard(up_t, 0, indptr, eid, degree, 0)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
@@ -80,10 +121,59 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
         n_up[b] += edges_up
 
 
-def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias, sa_prob,
-           sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi, sparse, ptr, idx,
-           val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights,
-           degree, scratch, work):
+def _chunk(
+    c,
+    n_chunks,
+    t,
+    p,
+    own,
+    sums,
+    buffers,
+    first,
+    q,
+    alphas,
+    fused,
+    words,
+    markov,
+    current,
+    d_prob,
+    d_alias,
+    sa_prob,
+    sa_alias,
+    R_sample,
+    sigma,
+    noise,
+    p_edge,
+    s_blk,
+    a_blk,
+    sn_blk,
+    r_blk,
+    up_blk,
+    n_up,
+    Phi,
+    sparse,
+    ptr,
+    idx,
+    val,
+    ratio,
+    cont,
+    gamma,
+    indptr,
+    nbr,
+    eid,
+    agent_of,
+    s_t,
+    a_t,
+    sn_t,
+    r_t,
+    up_t,
+    heard,
+    n_heard,
+    weights,
+    degree,
+    scratch,
+    work,
+):
     """Chunk c of the agent layout at step t: its share of the B * N (seed, agent) pairs, then its share of the
     sampling of step t + 1 (`_agents`)."""
     B, L, T = sums.shape[0], sums.shape[1], alphas.shape[0]
@@ -101,9 +191,30 @@ def _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words
             if j * n_chunks // (2 * B) == c:
                 sb = j // 2
                 if j % 2 == 0:
-                    _step_observations(sb, nxt + sb, t + 1, fused, words, markov, current, d_prob, d_alias, sa_prob,
-                                       sa_alias, R_sample, sigma, noise, s_blk, a_blk, sn_blk, r_blk, s_t, a_t, sn_t,
-                                       r_t)
+                    _step_observations(
+                        sb,
+                        nxt + sb,
+                        t + 1,
+                        fused,
+                        words,
+                        markov,
+                        current,
+                        d_prob,
+                        d_alias,
+                        sa_prob,
+                        sa_alias,
+                        R_sample,
+                        sigma,
+                        noise,
+                        s_blk,
+                        a_blk,
+                        sn_blk,
+                        r_blk,
+                        s_t,
+                        a_t,
+                        sn_t,
+                        r_t,
+                    )
                 else:
                     n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, up_blk, up_t)
                     if NEEDS_DEGREES:
@@ -116,8 +227,26 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
     update with step k's, the chunks also draw step k + 1's, each seed's state and reward streams in one chunk and its
     edge stream in another (a stream is sequential, but the streams are independent), so that no core waits while
     another samples. numba hands a parallel loop arrays and numbers, not tuples: they are unpacked first."""
-    (fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk,
-     sn_blk, r_blk, up_blk, n_up) = sampler
+    (
+        fused,
+        rng,
+        markov,
+        current,
+        d_prob,
+        d_alias,
+        sa_prob,
+        sa_alias,
+        R_sample,
+        sigma,
+        noise,
+        p_edge,
+        s_blk,
+        a_blk,
+        sn_blk,
+        r_blk,
+        up_blk,
+        n_up,
+    ) = sampler
     Phi, sparse, ptr, idx, val = feat
     indptr, nbr, eid, agent_of = graph
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
@@ -126,16 +255,90 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
     words = np.zeros((B, 3, 16), np.uint64)
     words[:, :, :4] = rng
     for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
-        n_up[b] += _step_samples(b, b, 0, fused, words, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
-                                 sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t)
+        n_up[b] += _step_samples(
+            b,
+            b,
+            0,
+            fused,
+            words,
+            markov,
+            current,
+            d_prob,
+            d_alias,
+            sa_prob,
+            sa_alias,
+            R_sample,
+            sigma,
+            noise,
+            p_edge,
+            s_blk,
+            a_blk,
+            sn_blk,
+            r_blk,
+            up_blk,
+            s_t,
+            a_t,
+            sn_t,
+            r_t,
+            up_t,
+        )
         if NEEDS_DEGREES:
             count_heard(up_t, b, indptr, eid, degree, b)
     for t in range(T):
         for c in prange(n_chunks):
-            _chunk(c, n_chunks, t, p, own, sums, buffers, first, q, alphas, fused, words, markov, current, d_prob, d_alias,
-                   sa_prob, sa_alias, R_sample, sigma, noise, p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, n_up, Phi,
-                   sparse, ptr, idx, val, ratio, cont, gamma, indptr, nbr, eid, agent_of, s_t, a_t, sn_t, r_t, up_t,
-                   heard, n_heard, weights, degree, scratch, work)
+            _chunk(
+                c,
+                n_chunks,
+                t,
+                p,
+                own,
+                sums,
+                buffers,
+                first,
+                q,
+                alphas,
+                fused,
+                words,
+                markov,
+                current,
+                d_prob,
+                d_alias,
+                sa_prob,
+                sa_alias,
+                R_sample,
+                sigma,
+                noise,
+                p_edge,
+                s_blk,
+                a_blk,
+                sn_blk,
+                r_blk,
+                up_blk,
+                n_up,
+                Phi,
+                sparse,
+                ptr,
+                idx,
+                val,
+                ratio,
+                cont,
+                gamma,
+                indptr,
+                nbr,
+                eid,
+                agent_of,
+                s_t,
+                a_t,
+                sn_t,
+                r_t,
+                up_t,
+                heard,
+                n_heard,
+                weights,
+                degree,
+                scratch,
+                work,
+            )
     # element by element: in a parallel function, numba loses a slice assignment to an array unpacked from a tuple
     for b in range(B):
         for k in range(3):
@@ -212,10 +415,22 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     sums = copy(w_sum)
     sampler = sample_args(ctx, blk, B)
     Phi, ratio = rows_of(ctx, blk)
-    args = (compiled.params(algorithm, ctx), own, sums, q, N, sampler, Features(*feature_arrays(ctx, blk)),
-            readonly(ratio), continuing_flags(ctx, blk), float(ctx.gamma), _graph(ctx, bool(messages)))
-    newest = _layouts(ctx, B, L, q, bool(messages)).run(driver(algorithm.name), args, buffers,
-                                                        np.ascontiguousarray(alphas), blk, len(messages), compiled.work)
+    args = (
+        compiled.params(algorithm, ctx),
+        own,
+        sums,
+        q,
+        N,
+        sampler,
+        Features(*feature_arrays(ctx, blk)),
+        readonly(ratio),
+        continuing_flags(ctx, blk),
+        float(ctx.gamma),
+        _graph(ctx, bool(messages)),
+    )
+    newest = _layouts(ctx, B, L, q, bool(messages)).run(
+        driver(algorithm.name), args, buffers, np.ascontiguousarray(alphas), blk, len(messages), compiled.work
+    )
     if isinstance(blk, Draws):
         _, rng, markov, current = sampler[:4]
         blk.settle(rng, current if markov else None)
@@ -308,13 +523,30 @@ class Layouts:
         if layout == "agents":
             chunks = 4 * get_num_threads()
             space = self._space("agents", 2 * B, chunks, n_obs, N, E, degree, q, n_messages, n_work)
-            _agents(p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph, space,
-                    chunks)
+            _agents(
+                p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph, space, chunks
+            )
             return
         threads = min(get_num_threads(), B)
         if threads <= 1 or (t1 - t0) * self.per_step < THREADED_WORK:
-            _seeds(p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph,
-                   self._space(0, 1, 1, n_obs, N, E, degree, q, n_messages, n_work), 0, B)
+            _seeds(
+                p,
+                own,
+                sums,
+                buffers,
+                first,
+                q,
+                alphas[t0:t1],
+                sampler,
+                feat,
+                ratio,
+                cont,
+                gamma,
+                graph,
+                self._space(0, 1, 1, n_obs, N, E, degree, q, n_messages, n_work),
+                0,
+                B,
+            )
             return
         # seeds in small groups taken by whichever thread is free: a thread slowed by another process takes fewer.
         # Each seed's stream words and trajectory states, written at every step, get cache lines of their own.
@@ -327,16 +559,36 @@ class Layouts:
         work = (t1 - t0) * self.per_step
         n_groups = min(B, GROUPS_PER_THREAD * threads, max(threads, work // JOB_WORK))
         groups = np.linspace(0, B, n_groups + 1).astype(int)
-        jobs = [_POOL[0].submit(_seeds, p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont,
-                                gamma, graph, self._space(j, 1, 1, n_obs, N, E, degree, q, n_messages, n_work), int(b0),
-                                int(b1)) for j, (b0, b1) in enumerate(zip(groups[:-1], groups[1:]))]
+        jobs = [
+            _POOL[0].submit(
+                _seeds,
+                p,
+                own,
+                sums,
+                buffers,
+                first,
+                q,
+                alphas[t0:t1],
+                sampler,
+                feat,
+                ratio,
+                cont,
+                gamma,
+                graph,
+                self._space(j, 1, 1, n_obs, N, E, degree, q, n_messages, n_work),
+                int(b0),
+                int(b1),
+            )
+            for j, (b0, b1) in enumerate(zip(groups[:-1], groups[1:]))
+        ]
         for job in jobs:
             job.result()
         rng[...], current[...] = words[:, :, :4], states
 
 
-def _space(steps: int, threads: int, n_obs: int, N: int, E: int, degree: int, q: int, n_messages: int,
-           n_work: int) -> tuple:
+def _space(
+    steps: int, threads: int, n_obs: int, N: int, E: int, degree: int, q: int, n_messages: int, n_work: int
+) -> tuple:
     """The arrays a kernel works in: ``steps`` rows of a step's samples (s, a, s' (n_obs), r (N), edges up (E)) and of
     every agent's count of messages heard (N); per thread, the neighbours heard (``degree`` at most), how many and
     their weights, the inbox's aggregates (messages, threads, q) and the step's work rows (work, threads, q). Each
@@ -344,12 +596,19 @@ def _space(steps: int, threads: int, n_obs: int, N: int, E: int, degree: int, q:
     every agent-step, and a line two threads write in turn moves between their cores at every write (measured: two
     threads over seeds ran at 1.3x one thread with the arrays of one next to the other's, against 1.8x apart)."""
     lines = lambda width, dtype: -(-width * np.dtype(dtype).itemsize // LINE) * LINE // np.dtype(dtype).itemsize  # noqa: E731
-    return (_private((steps, n_obs), np.int64), _private((steps, n_obs), np.int64), _private((steps, n_obs), np.int64),
-            _private((steps, N), np.float64), _private((steps, E), np.bool_, 1),
-            _private((threads, lines(degree, np.int64)), np.int64), _private((threads, lines(1, np.int64)), np.int64),
-            _private((threads, lines(degree, np.float64)), np.float64), _private((steps, N), np.int64),
-            _private((n_messages, threads, lines(q, np.float64)), np.float64),
-            _private((n_work, threads, lines(q, np.float64)), np.float64))
+    return (
+        _private((steps, n_obs), np.int64),
+        _private((steps, n_obs), np.int64),
+        _private((steps, n_obs), np.int64),
+        _private((steps, N), np.float64),
+        _private((steps, E), np.bool_, 1),
+        _private((threads, lines(degree, np.int64)), np.int64),
+        _private((threads, lines(1, np.int64)), np.int64),
+        _private((threads, lines(degree, np.float64)), np.float64),
+        _private((steps, N), np.int64),
+        _private((n_messages, threads, lines(q, np.float64)), np.float64),
+        _private((n_work, threads, lines(q, np.float64)), np.float64),
+    )
 
 
 LINE = 64  # bytes in a cache line
@@ -361,7 +620,7 @@ def _private(shape: tuple, dtype, fill=0) -> np.ndarray:
     pad = LINE // size
     buffer = np.full(n + 3 * pad, fill, dtype)
     start = (-buffer.ctypes.data // size) % pad + pad  # the next line boundary, and a whole line before it
-    return buffer[start: start + n].reshape(shape)
+    return buffer[start : start + n].reshape(shape)
 
 
 def _max_degree(indptr: np.ndarray) -> int:

@@ -68,8 +68,26 @@ def _reward(mean, sigma, noise, u):
 
 
 @njit(cache=True, parallel=True)
-def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample,
-                   sigma, noise, p_edge, s_out, a_out, sn_out, r_out, up_out):
+def _sample_kernel(
+    u_state,
+    u_reward,
+    u_edge,
+    markov,
+    current,
+    d_prob,
+    d_alias,
+    sa_prob,
+    sa_alias,
+    R_sample,
+    sigma,
+    noise,
+    p_edge,
+    s_out,
+    a_out,
+    sn_out,
+    r_out,
+    up_out,
+):
     """Samples of a block: each (seed, observation) pair runs its own trajectory, so they are spread over the cores."""
     T, B, n_obs, width = u_state.shape
     N = R_sample.shape[0]
@@ -78,8 +96,19 @@ def _sample_kernel(u_state, u_reward, u_edge, markov, current, d_prob, d_alias, 
         b = flat // n_obs
         o = flat % n_obs
         for t in range(T):
-            s, a, sn = _transition(u_state[t, b, o, 0], u_state[t, b, o, width - 1], markov, current, b, o, d_prob,
-                                   d_alias, sa_prob, sa_alias, S)
+            s, a, sn = _transition(
+                u_state[t, b, o, 0],
+                u_state[t, b, o, width - 1],
+                markov,
+                current,
+                b,
+                o,
+                d_prob,
+                d_alias,
+                sa_prob,
+                sa_alias,
+                S,
+            )
             s_out[t, b, o] = s
             a_out[t, b, o] = a
             sn_out[t, b, o] = sn
@@ -109,16 +138,57 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
     s, a, sn = (np.empty((T, B, n_obs), np.int64) for _ in range(3))
     r = np.empty((T, B, N))
     up = np.empty((T, B, network.n_edges), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
-    _sample_kernel(np.ascontiguousarray(U["state"]), U.get("reward", np.zeros((0, 0, 0))), U.get("edge", np.zeros((0, 0, 0))),
-                   markov, cur, tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias,
-                   np.ascontiguousarray(problem.reward_table), float(problem.sigma), NOISE_CODES[problem.reward_noise],
-                   np.asarray(network.p, dtype=np.float64), s, a, sn, r, up)
+    _sample_kernel(
+        np.ascontiguousarray(U["state"]),
+        U.get("reward", np.zeros((0, 0, 0))),
+        U.get("edge", np.zeros((0, 0, 0))),
+        markov,
+        cur,
+        tables.d_prob,
+        tables.d_alias,
+        tables.sa_prob,
+        tables.sa_alias,
+        np.ascontiguousarray(problem.reward_table),
+        float(problem.sigma),
+        NOISE_CODES[problem.reward_noise],
+        np.asarray(network.p, dtype=np.float64),
+        s,
+        a,
+        sn,
+        r,
+        up,
+    )
     return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
 
 @njit(cache=True, inline="always")
-def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma, noise,
-                  p_edge, s_blk, a_blk, sn_blk, r_blk, up_blk, s_t, a_t, sn_t, r_t, up_t):
+def _step_samples(
+    b,
+    row,
+    t,
+    fused,
+    rng,
+    markov,
+    current,
+    d_prob,
+    d_alias,
+    sa_prob,
+    sa_alias,
+    R_sample,
+    sigma,
+    noise,
+    p_edge,
+    s_blk,
+    a_blk,
+    sn_blk,
+    r_blk,
+    up_blk,
+    s_t,
+    a_t,
+    sn_t,
+    r_t,
+    up_t,
+):
     """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
     and up_t (edges); returns how many edges are up.
 
@@ -127,14 +197,58 @@ def _step_samples(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_pr
     `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
     (samples from a simulator). The two halves, `_step_observations` and `_step_edges`, read disjoint streams
     and write disjoint arrays: a kernel may run them at the same time."""
-    _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma,
-                       noise, s_blk, a_blk, sn_blk, r_blk, s_t, a_t, sn_t, r_t)
+    _step_observations(
+        b,
+        row,
+        t,
+        fused,
+        rng,
+        markov,
+        current,
+        d_prob,
+        d_alias,
+        sa_prob,
+        sa_alias,
+        R_sample,
+        sigma,
+        noise,
+        s_blk,
+        a_blk,
+        sn_blk,
+        r_blk,
+        s_t,
+        a_t,
+        sn_t,
+        r_t,
+    )
     return _step_edges(b, row, t, fused, rng, p_edge, up_blk, up_t)
 
 
 @njit(cache=True, inline="always")
-def _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, sa_prob, sa_alias, R_sample, sigma,
-                       noise, s_blk, a_blk, sn_blk, r_blk, s_t, a_t, sn_t, r_t):
+def _step_observations(
+    b,
+    row,
+    t,
+    fused,
+    rng,
+    markov,
+    current,
+    d_prob,
+    d_alias,
+    sa_prob,
+    sa_alias,
+    R_sample,
+    sigma,
+    noise,
+    s_blk,
+    a_blk,
+    sn_blk,
+    r_blk,
+    s_t,
+    a_t,
+    sn_t,
+    r_t,
+):
     """The states, actions, next states and rewards of `_step_samples` (seed b's state and reward streams)."""
     n_obs = s_t.shape[1]
     N = r_t.shape[1]
@@ -151,13 +265,16 @@ def _step_observations(b, row, t, fused, rng, markov, current, d_prob, d_alias, 
         if not markov:  # drawn first, as `Streams.draw` lays them out
             hi, lo, u_s = pcg_step(hi, lo, inc_hi, inc_lo)
         hi, lo, u_sa = pcg_step(hi, lo, inc_hi, inc_lo)
-        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias,
-                                                             sa_prob, sa_alias, S)
+        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(
+            u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, S
+        )
     rng[b, 0, 0], rng[b, 0, 1] = hi, lo
     hi, lo, inc_hi, inc_lo = rng[b, 1, 0], rng[b, 1, 1], rng[b, 1, 2], rng[b, 1, 3]
     for i in range(N):
         o = i if n_obs == N else 0
-        r = R_sample[i, s_t[row, o], a_t[row, o], sn_t[row, o] if R_sample.shape[3] > 1 else 0]  # (`Problem.reward_table`)
+        r = R_sample[
+            i, s_t[row, o], a_t[row, o], sn_t[row, o] if R_sample.shape[3] > 1 else 0
+        ]  # (`Problem.reward_table`)
         if noise != 0:
             hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
             r = _reward(r, sigma, noise, u)
@@ -212,18 +329,37 @@ def sample_args(ctx, blk, B: int):
         fused, rng = True, src.streams.pcg_words()
     else:
         markov, current = False, np.zeros((B, blk.s.shape[2]), np.int64)
-        samples = (writable(blk.s, np.int64), writable(blk.a, np.int64), writable(blk.s_next, np.int64),
-                   writable(blk.r, np.float64), writable(up_mask(blk), np.bool_))
+        samples = (
+            writable(blk.s, np.int64),
+            writable(blk.a, np.int64),
+            writable(blk.s_next, np.int64),
+            writable(blk.r, np.float64),
+            writable(up_mask(blk), np.bool_),
+        )
         fused, rng = False, np.zeros((B, 3, 4), np.uint64)
     if tables is None:  # no model (a simulator's or a data file's samples): the drawing arguments go unread
         empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
         model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros((1, 1, 1, 1)), 1.0, 0)
     else:
-        model = (tables.d_prob, tables.d_alias, tables.sa_prob, tables.sa_alias, problem.reward_table,
-                 float(problem.sigma), NOISE_CODES[problem.reward_noise])
+        model = (
+            tables.d_prob,
+            tables.d_alias,
+            tables.sa_prob,
+            tables.sa_alias,
+            problem.reward_table,
+            float(problem.sigma),
+            NOISE_CODES[problem.reward_noise],
+        )
     d_prob, d_alias, sa_prob, sa_alias, R, sigma, noise = model
-    model = (frozen(d_prob, np.float64), frozen(d_alias, np.int64), frozen(sa_prob, np.float64),
-             frozen(sa_alias, np.int64), frozen(R, np.float64), sigma, noise)
+    model = (
+        frozen(d_prob, np.float64),
+        frozen(d_alias, np.int64),
+        frozen(sa_prob, np.float64),
+        frozen(sa_alias, np.int64),
+        frozen(R, np.float64),
+        sigma,
+        noise,
+    )
     return (fused, rng, markov, current, *model, frozen(p_edge, np.float64), *samples, np.zeros(B, np.int64))
 
 

@@ -47,8 +47,9 @@ def _index(context, builder, ty, value) -> list:
 
 
 def _index_type_ok(ty) -> bool:
-    return isinstance(ty, types.Integer) or (isinstance(ty, types.BaseTuple)
-                                             and all(isinstance(t, types.Integer) for t in ty))
+    return isinstance(ty, types.Integer) or (
+        isinstance(ty, types.BaseTuple) and all(isinstance(t, types.Integer) for t in ty)
+    )
 
 
 def _row(context, builder, aryty, ary, index):
@@ -120,8 +121,10 @@ def dot(typingctx, X, x_at, Y, y_at, n):
         a0, a1 = cgutils.alloca_once_value(builder, zero), cgutils.alloca_once_value(builder, zero)
 
         def product(f, ty):
-            return builder.fmul(builder.load(_vector_at(builder, px, f, ty), align=8),
-                                builder.load(_vector_at(builder, py, f, ty), align=8))
+            return builder.fmul(
+                builder.load(_vector_at(builder, px, f, ty), align=8),
+                builder.load(_vector_at(builder, py, f, ty), align=8),
+            )
 
         with cgutils.for_range_slice(builder, ir.Constant(i64, 0), n2, ir.Constant(i64, 2 * LANES)) as (f, _):
             builder.store(builder.fadd(builder.load(a0), product(f, vec)), a0)
@@ -173,8 +176,9 @@ def neighbour_sums(typingctx, Z, z_at, i, J, j_at, count, out, out_at):
             else:
                 slot = cgutils.alloca_once_value(builder, acc)
                 with cgutils.for_range(builder, n_) as loop:
-                    builder.store(builder.fsub(builder.load(slot), builder.load(at(neighbour_row(loop.index)),
-                                                                               align=8)), slot)
+                    builder.store(
+                        builder.fsub(builder.load(slot), builder.load(at(neighbour_row(loop.index)), align=8)), slot
+                    )
                 acc = builder.load(slot)
             builder.store(acc, at(pout), align=8)
 
@@ -205,8 +209,9 @@ def weighted_sums(typingctx, Z, z_at, i, J, C, j_at, count, out, out_at):
     listed in J[j_at], with their weights in C[j_at]: sum_j c_ij (x_i - x_j), added from 0 in the order of the list
     (as `dgtd.channels.Inbox.metropolis` adds its terms), in vector chunks of LANES elements with the accumulator in
     a register across the neighbours."""
-    if not (_c_contiguous(Z, J, C, out) and J.ndim == 2 and C.ndim == 2 and _index_type_ok(z_at)
-            and _index_type_ok(out_at)):
+    if not (
+        _c_contiguous(Z, J, C, out) and J.ndim == 2 and C.ndim == 2 and _index_type_ok(z_at) and _index_type_ok(out_at)
+    ):
         return None
     sig = types.void(Z, z_at, i, J, C, j_at, count, out, out_at)
 

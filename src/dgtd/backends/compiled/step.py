@@ -33,8 +33,9 @@ vectorise as over separate arrays.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -61,8 +62,15 @@ STEPS: dict[str, CompiledStep] = {}
 """Algorithm name -> its compiled step."""
 
 
-def register(name: str, params_type: type, params: Callable | None = None, *, own: tuple[str, ...] = (),
-             degrees: bool = False, work: int = 0):
+def register(
+    name: str,
+    params_type: type,
+    params: Callable | None = None,
+    *,
+    own: tuple[str, ...] = (),
+    degrees: bool = False,
+    work: int = 0,
+):
     """Register the decorated njit function as the compiled step of algorithm ``name``; ``params(algorithm, ctx)``
     builds its ``params_type`` (default: the algorithm's fields of the same names); ``own`` names the state's arrays
     that are not messages, in the order the step indexes them."""

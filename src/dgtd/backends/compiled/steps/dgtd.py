@@ -69,13 +69,29 @@ def dgtd_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
     if feat.sparse:  # the loop took phi = phi' = 0; w and theta again where phi(s) or phi(s') is not zero
         for k in range(feat.ptr[s], feat.ptr[s + 1]):
             f = feat.idx[k]
-            _sparse_feature(p, own, sent, out, L, at, b, i, f, feat.val[k], phi_value(feat, sn, f), alpha, gamma,
-                            ratio_phi_theta, c_theta)
+            _sparse_feature(
+                p,
+                own,
+                sent,
+                out,
+                L,
+                at,
+                b,
+                i,
+                f,
+                feat.val[k],
+                phi_value(feat, sn, f),
+                alpha,
+                gamma,
+                ratio_phi_theta,
+                c_theta,
+            )
         for k in range(feat.ptr[sn], feat.ptr[sn + 1]):
             f = feat.idx[k]
             if phi_value(feat, s, f) == 0.0:  # not done above
-                _sparse_feature(p, own, sent, out, L, at, b, i, f, 0.0, feat.val[k], alpha, gamma, ratio_phi_theta,
-                                c_theta)
+                _sparse_feature(
+                    p, own, sent, out, L, at, b, i, f, 0.0, feat.val[k], alpha, gamma, ratio_phi_theta, c_theta
+                )
 
 
 @njit(cache=True, inline="always")

@@ -34,5 +34,6 @@ def tdc_tracking_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alph
     phi_axpy(feat, sn, -gamma * (ratio * phi_theta), work, (G_NEW, at), q)
     track(own, G, sums, inbox, out, work[G_NEW], b, i, alpha, q)
     # theta_i's own TDC step: beta_k (ratio delta - phi^T theta) phi
-    phi_axpy(feat, s, aux_step(alpha, p.eta, p.alpha0, p.timescale) * (ratio * delta - phi_theta), own, (THETA, b, i),
-             q)
+    phi_axpy(
+        feat, s, aux_step(alpha, p.eta, p.alpha0, p.timescale) * (ratio * delta - phi_theta), own, (THETA, b, i), q
+    )
