@@ -7,7 +7,7 @@ agent runs its own copy of the chain, n = 1 when all observe one shared trajecto
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -102,7 +102,7 @@ class Draws:
     from ``source.streams`` where it uses them (nothing is materialised) and hands the advanced streams back with
     `settle`. The samples are those the source's ``next_block(T)`` would have returned."""
 
-    source: object
+    source: Any  # a `dgtd.sources.model.ModelSource` (a layer above this one)
     T: int
 
     def settle(self, words: np.ndarray, current: np.ndarray | None) -> None:

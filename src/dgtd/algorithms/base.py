@@ -79,6 +79,7 @@ class StepSizes:
     beta: float = 1.0
     schedule: str = "sqrt"
 
+    name: ClassVar[str]  # each algorithm's own
     messages: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self):

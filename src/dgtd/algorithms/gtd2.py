@@ -31,8 +31,8 @@ class GTDState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class GTDConfig(StepSizes):
-    """Fields shared by the two-timescale gradient-TD learners (GTD2, TDC, local GTD2).
+class TwoTimescale(StepSizes):
+    """Fields shared by the two-timescale gradient-TD learners (GTD2, TDC, local GTD2, TDC with tracking).
 
     - ``alpha0``, ``beta``, ``schedule``: the value step sizes alpha_k (see `dgtd.algorithms.stepsizes`).
     - ``eta``, ``timescale`` p in (0, 1]: the auxiliary step size is beta_k = eta alpha0 (alpha_k / alpha0)^p
@@ -54,6 +54,17 @@ class GTDConfig(StepSizes):
     def aux_step(self, alpha: float) -> float:
         """beta_k = eta alpha0 (alpha_k / alpha0)^timescale; eta alpha_k exactly for timescale 1."""
         return aux_step(alpha, self.eta, self.alpha0, self.timescale)
+
+
+@dataclass(frozen=True)
+class GTDConfig(TwoTimescale):
+    """A centralised two-timescale learner (GTD2, TDC): the value step of ``value_terms`` and theta's step, averaged
+    over the N observed transitions."""
+
+    @staticmethod
+    def value_terms(state: GTDState, sample: Sample) -> np.ndarray:
+        """The value step's terms of each observed transition: each learner's own."""
+        raise NotImplementedError
 
     def init(self, seeds: int, agents: int, features: int) -> GTDState:
         return GTDState(*zeros(seeds, 1, features, 2))

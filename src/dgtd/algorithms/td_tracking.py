@@ -50,7 +50,8 @@ class TDTracking(StepSizes):
     def update(self, state: TrackingState, sample: Sample, inbox, alpha: float) -> TrackingState:
         """One step: the tracker first (it needs this step's direction), then w along it."""
         g = ratio_td_step(sample, state.w)
-        return TrackingState(*track(state.w, state.z, state.g, g, inbox, alpha), g)
+        w, z = track(state.w, state.z, state.g, g, inbox, alpha)
+        return TrackingState(w, z, g)
 
 
 def track(w: np.ndarray, z: np.ndarray, g_prev: np.ndarray, g: np.ndarray, inbox, alpha: float) -> tuple:

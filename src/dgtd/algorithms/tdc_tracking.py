@@ -29,7 +29,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.algorithms.base import zeros
-from dgtd.algorithms.gtd2 import GTDConfig, GTDState, theta_terms
+from dgtd.algorithms.gtd2 import GTDState, TwoTimescale, theta_terms
 from dgtd.algorithms.td_tracking import track
 from dgtd.algorithms.tdc import w_terms
 from dgtd.samples import Sample
@@ -43,7 +43,7 @@ class TDCTrackingState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class TDCTracking(GTDConfig):
+class TDCTracking(TwoTimescale):
     """TDC with gradient tracking; ``alpha0``, ``beta``, ``schedule`` give alpha_k, ``eta`` and ``timescale`` the
     auxiliary step beta_k (two timescales by default, as `dgtd.algorithms.tdc.TDC`)."""
 

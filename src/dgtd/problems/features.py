@@ -7,6 +7,16 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 
 
+class FeatureMap:
+    """A feature map of states: ``features(states (K, dim)) -> (K, q)``, with its width ``n_features`` = q."""
+
+    def __init__(self, function, n_features: int):
+        self.function, self.n_features = function, int(n_features)
+
+    def __call__(self, states) -> np.ndarray:
+        return self.function(states)
+
+
 def tabular(n_states: int) -> np.ndarray:
     """Phi = I: the tabular case of the paper's remark after Proposition 1."""
     return np.eye(n_states)
@@ -60,8 +70,7 @@ def fourier(order: int, low, high):
     def features(states):
         return np.cos(np.pi * _unit(states, low, high) @ C.T)
 
-    features.n_features = len(C)
-    return features
+    return FeatureMap(features, len(C))
 
 
 def rbf(centres_per_dim: int, low, high, width: float | None = None):
@@ -78,8 +87,7 @@ def rbf(centres_per_dim: int, low, high, width: float | None = None):
         sq = ((x[:, None, :] - centres[None, :, :]) ** 2).sum(-1)
         return np.concatenate([np.ones((len(x), 1)), np.exp(-sq / (2 * sigma**2))], axis=1)
 
-    features.n_features = 1 + len(centres)
-    return features
+    return FeatureMap(features, 1 + len(centres))
 
 
 def tile_coding(tilings: int, tiles_per_dim: int, low, high):
@@ -101,8 +109,7 @@ def tile_coding(tilings: int, tiles_per_dim: int, low, high):
         np.put_along_axis(out, cols, 1.0, axis=1)
         return out
 
-    features.n_features = tilings * n**dim
-    return features
+    return FeatureMap(features, tilings * n**dim)
 
 
 def one_hot(n_states: int):
@@ -115,5 +122,4 @@ def one_hot(n_states: int):
             raise DgtdInputError(f"a state index outside 0..{n_states - 1} reached the one-hot features")
         return eye[s]
 
-    features.n_features = n_states
-    return features
+    return FeatureMap(features, n_states)

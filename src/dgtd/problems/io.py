@@ -105,7 +105,9 @@ def _load_mdp(path: Path, arrays: dict, gamma: float, sigma, reward_noise: str, 
 
 def save_problem(path: str, problem: Problem) -> None:
     """Write a problem's Markov reward process form (P, R, Phi, gamma, sigma) as .npz."""
-    extra = {} if problem.terminal is None else {"terminal": problem.terminal.astype(np.int64)}
+    extra: dict = {}
+    if problem.terminal is not None:
+        extra["terminal"] = problem.terminal.astype(np.int64)
     if min(problem.R.min(), problem.R_sample.min()) < 0:
         extra["signed_rewards"] = 1
     np.savez(path, P=problem.P, R=problem.R, Phi=problem.Phi, gamma=problem.gamma, sigma=problem.sigma, **extra)

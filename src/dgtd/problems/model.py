@@ -68,7 +68,10 @@ class Problem:
     def reward_table(self) -> np.ndarray:
         """(N, S, A, S') of the rewards a sample draws from: r_i(s, a, s') for reward noise 'transition', else the
         mean E[r_i | s, a] as a table with S' = 1 (a view: the same whichever the next state)."""
-        return self.R_transition if self.reward_noise == "transition" else self.R_sample[..., None]
+        if self.reward_noise == "transition":
+            assert self.R_transition is not None, "reward noise 'transition' needs rewards per transition"
+            return self.R_transition
+        return self.R_sample[..., None]
 
     @property
     def continuing(self) -> np.ndarray:
@@ -138,17 +141,17 @@ def chain_period(P: np.ndarray) -> int:
     S = P.shape[0]
     level = np.full(S, -1)
     level[0] = 0
-    frontier = [0]
+    frontier: list = [0]
     while frontier:
-        nxt = []
+        nxt: list = []
         for u in frontier:
             for v in np.flatnonzero(P[u] > 0):
                 if level[v] < 0:
                     level[v] = level[u] + 1
                     nxt.append(v)
         frontier = nxt
-    u, v = np.nonzero(P > 0)
-    return int(np.gcd.reduce(np.abs(level[u] + 1 - level[v])))
+    tails, heads = np.nonzero(P > 0)
+    return int(np.gcd.reduce(np.abs(level[tails] + 1 - level[heads])))
 
 
 def check_irreducible(name: str, P: np.ndarray) -> None:

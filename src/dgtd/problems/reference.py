@@ -37,15 +37,13 @@ class MomentSums:
     n_agents: int
     n_features: int
     count: int = 0
-    M: np.ndarray = field(default=None)
-    A: np.ndarray = field(default=None)
-    b: np.ndarray = field(default=None)
+    M: np.ndarray = field(init=False)
+    A: np.ndarray = field(init=False)
+    b: np.ndarray = field(init=False)
 
     def __post_init__(self):
         q, N = self.n_features, self.n_agents
-        self.M = np.zeros((q, q)) if self.M is None else self.M
-        self.A = np.zeros((q, q)) if self.A is None else self.A
-        self.b = np.zeros((N, q)) if self.b is None else self.b
+        self.M, self.A, self.b = np.zeros((q, q)), np.zeros((q, q)), np.zeros((N, q))
 
     def add(
         self,
@@ -68,14 +66,9 @@ class MomentSums:
         self.count += len(phi)
 
     def merged(self, other: MomentSums) -> MomentSums:
-        return MomentSums(
-            self.n_agents,
-            self.n_features,
-            self.count + other.count,
-            self.M + other.M,
-            self.A + other.A,
-            self.b + other.b,
-        )
+        both = MomentSums(self.n_agents, self.n_features, self.count + other.count)
+        both.M, both.A, both.b = self.M + other.M, self.A + other.A, self.b + other.b
+        return both
 
 
 @dataclass
@@ -88,13 +81,12 @@ class TDCheck:
     n_features: int
     limit: int = 200_000
     k: int = 0
-    w: np.ndarray = field(default=None)
-    w_avg: np.ndarray = field(default=None)
+    w: np.ndarray = field(init=False)
+    w_avg: np.ndarray = field(init=False)
     m2: float = 0.0
 
     def __post_init__(self):
-        self.w = np.zeros(self.n_features) if self.w is None else self.w
-        self.w_avg = np.zeros(self.n_features) if self.w_avg is None else self.w_avg
+        self.w, self.w_avg = np.zeros(self.n_features), np.zeros(self.n_features)
 
     def add(self, phi, phi_next, r, discount, ratio=None) -> None:
         """K transitions: phi, phi' (K, q), the rewards to learn (K,), discounts (K,), ratios (K,)."""
@@ -228,6 +220,7 @@ class EstimatedProblem:
     @property
     def td_gap(self) -> float:
         """|Phi (w_TD - w*)|_d / |Phi w*|_d of the centralised TD(0) check (d: the reference batch's states)."""
+        assert self.td_check is not None, "no TD(0) check was run"
         M, dev = self.moments.M, self.td_check.w_avg - self.w_star
         return float(np.sqrt((dev @ M @ dev) / max(float(self.w_star @ M @ self.w_star), 1e-300)))
 

@@ -36,10 +36,8 @@ def split_rewards(
     z = rng.uniform(-1.0, 1.0, (n_agents,) + mean.shape)
     z -= z.mean(axis=0)
     z /= max(float(np.abs(z).max()), 1e-300)
-    if low is None:
-        h = max(1.0, float(np.abs(mean).max()))
-    else:
-        h = np.minimum(mean - low, high - mean)
+    # the room each mean reward leaves: a scale of its own, or up to the bounds [low, high]
+    h = max(1.0, float(np.abs(mean).max())) if low is None else np.minimum(mean - low, high - mean)
     r = mean + spread * h * z
     r -= r.mean(axis=0) - mean  # the agents' average is the task's reward to rounding
     return r if low is None else np.clip(r, low, high)

@@ -29,6 +29,6 @@ def load_quickly(*dispatchers) -> None:
     any numba whose cache lacks the internals used here."""
     for dispatcher in dispatchers:
         cache = getattr(dispatcher, "_cache", None)
-        if not all(hasattr(cache, name) for name in ("_load_overload", "_guard_against_spurious_io_errors")):
+        if cache is None or not all(hasattr(cache, n) for n in ("_load_overload", "_guard_against_spurious_io_errors")):
             continue
         cache.load_overload = partial(_load_without_refresh, cache)

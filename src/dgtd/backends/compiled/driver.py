@@ -440,7 +440,7 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     return new, counted(channel, 2 * sampler[-1], len(messages), len(messages) * q), back(sums)
 
 
-run_block.draws_samples = True  # the run loop may hand it `Draws` instead of a materialised `Block`
+run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
 
 
 def _graph(ctx, messages: bool) -> tuple:
@@ -470,7 +470,7 @@ class Layouts:
     def __init__(self, candidates: tuple[str, ...], agent_steps_per_step: int):
         self.candidates, self.per_step = candidates, max(1, agent_steps_per_step)
         self.rate: dict[str, float] = {}
-        self.since_check, self.started = 0.0, set()
+        self.since_check, self.started = 0.0, set[str]()
         self.spaces: dict = {}  # (layout, job) -> (dimensions, `_space`): made once per run, not once per block
 
     def run(self, kernels, args, buffers, alphas, blk, n_messages: int, n_work: int) -> int:
@@ -505,7 +505,7 @@ class Layouts:
         return max(self.candidates, key=lambda c: self.rate[c])
 
     def _piece(self, layout: str, left: int) -> int:
-        checking = bool(self.rate) and layout != max(self.rate, key=self.rate.get)
+        checking = bool(self.rate) and layout != max(self.rate, key=lambda c: self.rate[c])
         rate = self.rate.get(layout, min(self.rate.values(), default=2e6))
         seconds = self.CHECK_SECONDS if checking else self.PIECE_SECONDS
         return int(min(left, max(1, seconds * rate / self.per_step)))
@@ -638,6 +638,7 @@ def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
 
 def _layouts(ctx, B: int, L: int, q: int, messages: bool) -> Layouts:
     """The run's `Layouts` (kept on the run's context, so that what it measured carries from block to block)."""
+    candidates: tuple[str, ...]
     if LAYOUT != "auto":
         candidates = (LAYOUT,) if messages or LAYOUT == "seeds" else ("seeds",)
     elif messages and B < get_num_threads() and L * q >= AGENTS_MIN_WORK:

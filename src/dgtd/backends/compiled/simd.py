@@ -41,14 +41,16 @@ def _c_contiguous(*arrays) -> bool:
 
 def _index(context, builder, ty, value) -> list:
     """The int64 values of an index: an integer or a tuple of integers."""
-    if isinstance(ty, types.BaseTuple):
-        return [context.cast(builder, v, t, types.int64) for v, t in zip(cgutils.unpack_tuple(builder, value), ty)]
+    if isinstance(ty, (types.UniTuple, types.Tuple)):
+        return [
+            context.cast(builder, v, t, types.int64) for v, t in zip(cgutils.unpack_tuple(builder, value), ty.types)
+        ]
     return [context.cast(builder, value, ty, types.int64)]
 
 
 def _index_type_ok(ty) -> bool:
     return isinstance(ty, types.Integer) or (
-        isinstance(ty, types.BaseTuple) and all(isinstance(t, types.Integer) for t in ty)
+        isinstance(ty, (types.UniTuple, types.Tuple)) and all(isinstance(t, types.Integer) for t in ty.types)
     )
 
 
