@@ -192,3 +192,33 @@ def test_an_env_runs_step_size_reads_the_same_in_both_lines(run_cli, tmp_path):
     in_algorithm = re.search(r"alpha_k = ([0-9.e+-]+)/", text).group(1)
     in_description = re.search(r"lambda_max\(L\)\) = ([0-9.e+-]+)", text).group(1)
     assert in_algorithm == in_description, text
+
+
+def test_a_full_disk_keeps_every_complete_file_and_the_final_table(run_cli, tmp_path, monkeypatch):
+    """The disk fills while the results are written: the files that fit are complete, no partial file is left, the
+    final table is printed anyway, and one line says which files could not be written."""
+    import errno
+
+    import dgtd.run.results as results
+
+    real = results.atomic_write
+
+    def full_disk(path, data):
+        if Path(path).name in ("trajectory.npz", "summary.json"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, data)
+
+    monkeypatch.setattr(results, "atomic_write", full_disk)
+    out = tmp_path / "o"
+    code, text, err = run_cli(*RUN, "-T", 200, "--out", out)
+    assert code == 2
+    assert "w* = (15.9, 21.03)" in text  # the final table, from the numbers in memory
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "trajectory.npz" in lines[0] and "summary.json" in lines[0], err
+    assert "No space left" in lines[0] and "metrics.csv" in lines[0]
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".dgtd")) == [
+        "bands.csv",
+        "config.toml",
+        "metrics.csv",
+    ]
+    assert len((out / "metrics.csv").read_text().splitlines()) > 1

@@ -287,7 +287,13 @@ def _run_job(job, t_start: float) -> None:
     t_ran = time.perf_counter()
     if job.exp.output.plots:
         print("writing the results, then drawing the figures ...", file=sys.stderr, flush=True)
-    names = job.save(result)
+    from dgtd.run.results import NotWritten
+
+    try:
+        names = job.save(result)
+    except NotWritten:
+        click.echo(final_table(result))  # the numbers are in memory: the user sees them whatever the disk kept
+        raise
     t_saved = time.perf_counter()
     click.echo(final_table(result))
     from dgtd.run.results import pinned_to_boxes

@@ -126,6 +126,7 @@ def compare(
         compare as run_compare,
     )
     from dgtd.run.owner import Owner
+    from dgtd.run.results import NotWritten
     from dgtd.scenarios.user import problem_scenario
 
     spec = RunSpec(
@@ -209,7 +210,11 @@ def compare(
             ) from None
         finally:
             bar.close()
-        write_compare(out, p, network, results, used, tables, record)
+        try:
+            write_compare(out, p, network, results, used, tables, record)
+        except NotWritten:
+            click.echo(table(results, used))  # the numbers are in memory: the user sees them whatever the disk kept
+            raise
         finish_directory(out)
         if plots:
             from dgtd.plots.compare import plot_compare, plot_consensus

@@ -22,7 +22,15 @@ from dgtd.errors import DgtdInputError
 from dgtd.problems import exact
 from dgtd.problems.model import Problem
 from dgtd.run.loop import RunResult, RunSettings, run
-from dgtd.run.results import atomic_write, atomic_write_json, bands_csv, metrics_rows, reference, refuse_other_results
+from dgtd.run.results import (
+    atomic_write,
+    bands_csv,
+    json_bytes,
+    metrics_rows,
+    reference,
+    refuse_other_results,
+    write_all,
+)
 
 TUNE_SEED_OFFSET = 1_000_003
 TUNE_GRID = (0.1, 1 / 3, 1.0, 3.0, 10.0)
@@ -235,10 +243,15 @@ def agent_errors_npz(results: dict) -> bytes:
 
 def write_compare(out, problem, network, results: dict, used: dict, tables: dict, spec: dict) -> None:
     """metrics.csv (worst agent per seed), agent_errors.npz (each agent), then summary.json (last); each atomic."""
-    atomic_write(out / "metrics.csv", compare_csv(results))
-    atomic_write(out / "bands.csv", bands_csv(results))
-    atomic_write(out / "agent_errors.npz", agent_errors_npz(results))
-    atomic_write_json(out / "summary.json", summary(problem, network, results, used, tables, spec))
+    write_all(
+        out,
+        {
+            "metrics.csv": lambda: compare_csv(results),
+            "bands.csv": lambda: bands_csv(results),
+            "agent_errors.npz": lambda: agent_errors_npz(results),
+            "summary.json": lambda: json_bytes(summary(problem, network, results, used, tables, spec)),
+        },
+    )
 
 
 # A comparison's directory: these files, and while it runs `PARTS/NAME.npz` for each finished algorithm, from which

@@ -81,9 +81,14 @@ def json_ready(obj):
     return obj
 
 
+def json_bytes(obj) -> bytes:
+    """Standard JSON (no NaN), as a file holds it."""
+    return (json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n").encode()
+
+
 def atomic_write_json(path: Path, obj) -> None:
     """Standard JSON (no NaN), written atomically."""
-    atomic_write(path, (json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n").encode())
+    atomic_write(path, json_bytes(obj))
 
 
 def reference(result: RunResult) -> np.ndarray:
@@ -196,9 +201,6 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str, ex
     ``extra``: scenario-specific numbers, stored in summary.json under "scenario".
     """
     out = Path(out)
-    atomic_write(out / "metrics.csv", metrics_csv(result, algorithm))
-    atomic_write(out / "bands.csv", bands_csv({algorithm: result}))
-    buf = io.BytesIO()
     arrays = {
         "steps": result.steps,
         "agent_error_last": result.agent_error_last,
@@ -206,9 +208,44 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str, ex
     }
     if result.w_trace is not None:
         arrays["w_trace"] = result.w_trace
-    np.savez_compressed(buf, **arrays)
-    atomic_write(out / "trajectory.npz", buf.getvalue())
-    atomic_write_json(out / "summary.json", summary(result, config) | ({"scenario": extra} if extra else {}))
+
+    def trajectory() -> bytes:
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        return buf.getvalue()
+
+    files = {
+        "metrics.csv": lambda: metrics_csv(result, algorithm),
+        "bands.csv": lambda: bands_csv({algorithm: result}),
+        "trajectory.npz": trajectory,
+        "summary.json": lambda: json_bytes(summary(result, config) | ({"scenario": extra} if extra else {})),
+    }
+    write_all(out, files)
+
+
+class NotWritten(OSError):
+    """Files of a results directory that could not be written (a full disk, a lost mount): the others are complete,
+    and none is left half-written."""
+
+    def __init__(self, out: Path, failed: dict, written: list):
+        reason = next(iter(failed.values()))
+        kept = f"; {', '.join(written)} {'is' if len(written) == 1 else 'are'} complete there" if written else ""
+        super().__init__(f"could not write {', '.join(failed)} in {out} ({reason}){kept}")
+        self.failed, self.written = failed, written
+
+
+def write_all(out: Path, files: dict) -> None:
+    """Write each file of ``files`` (name -> a function returning its bytes) atomically, in order; one that cannot be
+    written does not stop the next (a smaller one may still fit); then `NotWritten` names those that failed."""
+    failed, written = {}, []
+    for name, content in files.items():
+        try:
+            atomic_write(Path(out) / name, content())
+            written.append(name)
+        except OSError as e:
+            failed[name] = e.strerror or str(e)
+    if failed:
+        raise NotWritten(Path(out), failed, written)
 
 
 def pinned_to_boxes(result: RunResult, share: float = 0.5) -> dict:
