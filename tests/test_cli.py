@@ -232,3 +232,19 @@ def test_a_notice_is_one_line_not_a_python_warning(capsys, monkeypatch, tmp_path
     notes = [line for line in err.splitlines() if "no compiled step" in line]
     assert notes == ["dgtd: note: algorithm 'td0' has no compiled step: it runs on the NumPy reference backend"], err
     assert "UserWarning" not in err and "warnings.warn" not in err
+
+
+def test_final_table_columns_line_up_however_long_the_vectors(capsys, tmp_path):
+    """paper-example-2's weights print as long vectors: every row's error columns stay under their headers."""
+    from types import SimpleNamespace
+
+    from dgtd.cli import final_table
+
+    w_star = np.array([0.0383, 0.06664, 0.1223, 0.2484, 0.547])
+    w = np.broadcast_to(w_star * (1 + 1e-5 * np.arange(3)[:, None]), (1, 3, 5)).copy()
+    result = SimpleNamespace(w_star=w_star, w_ref=w_star[None], w_last=w, w_avg=w, w_tail=w, info={}, report={})
+    lines = final_table(result).splitlines()
+    header = lines[1]
+    for row in lines[2:5]:
+        assert row.index("%") + 1 == header.index("err") + 3, (header, row)
+        assert len(row) == len(header), (header, row)

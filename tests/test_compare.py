@@ -310,3 +310,28 @@ def test_compare_tells_when_each_runs_kernels_are_ready():
         kernel_ready=ready.append,
     )
     assert len(ready) == len(names) and all(s >= 0 for s in ready)
+
+
+def test_compare_figures_say_what_they_draw(run_cli, tmp_path, monkeypatch):
+    """compare.png's legend draws each algorithm as its curves are drawn and says which iterate; no consensus.png
+    when only centralised learners are compared (it was an empty figure)."""
+    import dgtd.plots
+
+    figures = []
+    real = dgtd.plots._save
+    monkeypatch.setattr(dgtd.plots, "_save", lambda fig, path: (figures.append(fig), real(fig, path)))
+    import dgtd.plots.compare
+
+    monkeypatch.setattr(dgtd.plots.compare, "_save", dgtd.plots._save)
+    out = tmp_path / "c"
+    code, text, err = run_cli(
+        "compare", "paper-example-1", "-a", "td0,gtd2", "--seeds", 1, "-T", 300, "--out", out, "--no-progress"
+    )
+    assert code == 0, err
+    assert (out / "compare.png").exists() and not (out / "consensus.png").exists()
+    assert "consensus.png" not in text
+    fig = figures[0]
+    legend = fig.legends[0]
+    assert [t.get_text() for t in legend.get_texts()] == ["td0", "gtd2", "sends nothing: its final level (right)"]
+    assert [h.get_linestyle() for h in legend.legend_handles] == ["-", "-", ":"]
+    assert "last iterate" in fig.axes[0].get_ylabel()

@@ -107,3 +107,17 @@ def test_an_exact_zero_consensus_is_left_out_of_its_log_axis_and_said(monkeypatc
     y = np.asarray(line.get_ydata(), float)
     assert np.isnan(y[:2]).all() and np.allclose(y[2:], [4.0, 1.5])
     assert "zero at 2 checkpoints up to k = 10" in line.get_label()
+
+
+def test_errors_figure_shows_the_tail_average(monkeypatch):
+    """The output the README tells users to read, the tail average, is drawn beside the last and averaged iterates,
+    for weights and values alike."""
+    from dgtd.plots import plot_errors
+
+    result = _result([1, 10, 100], [1.0])
+    for name in ("error_tail", "value_error_last", "value_error_avg", "value_error_tail"):
+        result.metrics[name] = np.full((3, 2), 0.5)
+    result.metrics["error_tail"][0] = np.nan  # before the tail starts
+    fig = _drawn(monkeypatch, lambda: plot_errors(result, "unused"))
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "tail average, weights" in labels and "tail average, values" in labels

@@ -358,12 +358,18 @@ def final_table(result) -> str:
         if not shift
         else f"w* = {_vec(result.w_star, 8)}; with rho > 0 the errors are against each agent's w of the regularised "
         f"saddle point, {shift:.3%} of |w*|_inf away from w*",
-        f"{'agent':>5}  {'w_last (seed 0)':<34}{'err':>8}  {'w_avg (seed 0)':<34}{'err':>8}  {'w_tail err':>10}",
     ]
-    for i in range(result.w_last.shape[1]):
+    agents = range(result.w_last.shape[1])
+    last, avg = [_vec(result.w_last[0, i]) for i in agents], [_vec(result.w_avg[0, i]) for i in agents]
+    width = max(34, *(len(v) + 2 for v in last + avg))  # every row's columns line up, however long a vector
+    rows.append(
+        f"{'agent':>5}  {'w_last (seed 0)':<{width}}{'err':>8}  {'w_avg (seed 0)':<{width}}{'err':>8}  "
+        f"{'w_tail err':>10}"
+    )
+    for i in agents:
         rows.append(
-            f"{i + 1:>5}  {_vec(result.w_last[0, i]):<34}{e_last[0, i]:>8.2%}  {_vec(result.w_avg[0, i]):<34}"
-            f"{e_avg[0, i]:>8.2%}  {e_tail[0, i]:>10.2%}"
+            f"{i + 1:>5}  {last[i]:<{width}}{e_last[0, i]:>8.2%}  {avg[i]:<{width}}{e_avg[0, i]:>8.2%}  "
+            f"{e_tail[0, i]:>10.2%}"
         )
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
     moments = result.info.get("moments")

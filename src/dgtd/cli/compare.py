@@ -216,14 +216,16 @@ def compare(
             click.echo(table(results, used))  # the numbers are in memory: the user sees them whatever the disk kept
             raise
         finish_directory(out)
+        figures = ""
         if plots:
             from dgtd.plots.compare import plot_compare, plot_consensus
 
             title = f"{p.name}, N={p.n_agents}, {seeds} seeds"
             plot_compare(results, out / "compare.png", title)
-            plot_consensus(results, out / "consensus.png", title)
+            figures = ", compare.png"
+            if plot_consensus(results, out / "consensus.png", title):  # none when only centralised learners ran
+                figures += ", consensus.png"
         click.echo(table(results, used))
-        figures = ", compare.png, consensus.png" if plots else ""
         click.echo(f"wrote {out}/metrics.csv, bands.csv, agent_errors.npz, summary.json{figures}")
 
 

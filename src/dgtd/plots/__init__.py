@@ -144,18 +144,23 @@ def _log_or_zero(ax, x, Y, label):
 
 
 def plot_errors(result: RunResult, path: Path) -> None:
-    """Relative error (last and averaged, worst agent), consensus error and MSPBE against k, log scales."""
+    """Relative error (last, averaged and tail-averaged iterate, worst agent), consensus error and MSPBE against k,
+    log scales. The tail average starts at the tail's first checkpoint."""
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), gridspec_kw={"wspace": 0.32})
     x = result.steps
     m = result.metrics
+    colors = {"last": "C0", "avg": "C1", "tail": "C2"}
     for key, label, style in (
         ("error_last", "last, weights", "-"),
         ("error_avg", "averaged, weights", "-"),
+        ("error_tail", "tail average, weights", "-"),
         ("value_error_last", "last, values", "--"),
         ("value_error_avg", "averaged, values", "--"),
+        ("value_error_tail", "tail average, values", "--"),
     ):
-        if key in m:  # results saved before the value errors existed have the weight errors only
-            band(axes[0], x, m[key], label, color="C0" if "last" in key else "C1")
+        # results saved before the value and tail errors existed have the others only
+        if key in m and np.isfinite(m[key]).any():
+            band(axes[0], x, m[key], label, color=colors[key.rsplit("_", 1)[1]])
             axes[0].get_lines()[-1].set_linestyle(style)
     axes[0].set_yscale("log")
     axes[0].set_title("worst agent's relative error")

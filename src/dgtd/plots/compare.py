@@ -55,7 +55,10 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
     their final level."""
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
     for row, (metric, label) in enumerate(
-        (("error_last", "max_i |w_i - w*|_inf / |w*|_inf"), ("mspbe_last", "MSPBE of the average reward (worst agent)"))
+        (
+            ("error_last", "last iterate: max_i |w_i - w*|_inf / |w*|_inf"),
+            ("mspbe_last", "last iterate: MSPBE of the average reward\n(worst agent)"),
+        )
     ):
         floor, top = _limits(results, metric)
         for name, r in results.items():
@@ -80,9 +83,14 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.grid(alpha=0.3, which="both")
-    # One legend for the four panels, below them, where it covers no curve; the message panel names every algorithm.
-    handles, labels = axes[0, 1].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
+    # One legend for the four panels, below them, where it covers no curve: each algorithm as its curves are drawn
+    # (solid), and the dotted level that stands for an algorithm that sends nothing on the message panels.
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=color(name), lw=1.4, label=name) for name in results]
+    if any(r.info["messages"].max() == 0 for r in results.values()):
+        handles.append(Line2D([], [], color="gray", ls=":", lw=1.2, label="sends nothing: its final level (right)"))
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
     fig.subplots_adjust(bottom=0.12)
     fig.suptitle(
         title + "\nmedian over seeds, " + BAND_WORDS + "; x: the median run diverged; curves beyond 1000x the "
@@ -92,11 +100,14 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
     _save(fig, path)
 
 
-def plot_consensus(results: dict, path: Path, title: str = "") -> None:
-    """Consensus error sum_i |w_i - mean w|^2 against samples, for the algorithms with one estimate per agent."""
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+def plot_consensus(results: dict, path: Path, title: str = "") -> bool:
+    """Consensus error sum_i |w_i - mean w|^2 against samples, for the algorithms with one estimate per agent;
+    False, and no figure, when none has (only centralised learners compared)."""
     distributed = {name: r for name, r in results.items() if r.w_last.shape[1] > 1}
-    floor = _limits(distributed, "consensus")[0] if distributed else 1e-300
+    if not distributed:
+        return False
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    floor = _limits(distributed, "consensus")[0]
     for name, r in distributed.items():  # all agents start equal: no initial level to cut at
         _curve(ax, r.info["counts"]["samples"], r.metrics["consensus"], name, floor, np.inf)
     ax.set_xscale("log")
@@ -109,3 +120,4 @@ def plot_consensus(results: dict, path: Path, title: str = "") -> None:
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _save(fig, path)
+    return True
