@@ -111,6 +111,10 @@ ENV = {
         ("--env", f"{ENVS}:make_chain", "--policy", f"{ENVS}:raising_policy"),
         ("raising_policy", "KeyError", "--debug"),
     ),
+    "one-hot features of a state without a state space": (
+        ("--env", f"{ENVS}:make_without_state_space", "--features", "one-hot"),
+        ("declares no state_space", "Discrete(4)", "linear"),
+    ),
     "the features raise": (
         ("--env", f"{ENVS}:make_chain", "--features", f"{ENVS}:raising_features"),
         ("raising_features", "ZeroDivisionError", "--debug"),

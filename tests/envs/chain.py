@@ -125,3 +125,10 @@ def raising_policy(agent, observation, space, rng):
 
 def raising_features(states):
     raise ZeroDivisionError("the user's features failed")
+
+
+def make_without_state_space():
+    """A chain whose state() works but which declares no state_space."""
+    env = Chain(3)
+    del env.state_space
+    return env

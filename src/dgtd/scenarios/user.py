@@ -187,6 +187,19 @@ def _state_box(env) -> tuple[np.ndarray, np.ndarray] | None:
     )
 
 
+def _state_words(env) -> str:
+    """What the env declares of its state, and what to do for one-hot features, in words."""
+    spaces = _state_spaces(env)
+    if getattr(env, "state_space", None) is not None or len(spaces) == 1:
+        return f"its state space is {spaces[0]}; use linear, fourier, rbf or tiles features for a continuous state"
+    kinds = ", ".join(sorted({str(s) for s in spaces}))
+    return (
+        f"this env declares no state_space, and its {len(spaces)} agents' observation spaces ({kinds}) "
+        "concatenated are not one; give the env a state_space (e.g. gymnasium.spaces.Discrete(S) for what its "
+        "state() returns), or use linear, fourier, rbf or tiles features"
+    )
+
+
 def _discrete_states(env) -> int | None:
     """The number of states of a discrete state space (one Discrete space), else None."""
     spaces = _state_spaces(env)
@@ -255,10 +268,7 @@ def build_features(text: str, probe, pilot_states):
     if kind == "one-hot":
         n = _discrete_states(probe)
         if n is None:
-            raise DgtdInputError(
-                "--features one-hot needs a discrete state (a Discrete state or observation space); "
-                "use fourier, rbf or tiles for continuous states"
-            )
+            raise DgtdInputError(f"--features one-hot needs the state to be one Discrete space: {_state_words(probe)}")
         return feature_maps.one_hot(n), n, f"one-hot features of {n} states"
     if kind == "linear":
 
