@@ -7,13 +7,15 @@ import pytest
 from numpy.testing import assert_allclose
 
 from dgtd.algorithms import make_algorithm
+from dgtd.backends.compiled import STEPS
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import tasks
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 
-BASELINES = ("td0", "gtd2", "tdc", "local", "consensus-td0", "pd-td")
+# every algorithm with a compiled step but DGTD (whose own tests are in test_run.py), from the registry
+BASELINES = tuple(name for name in STEPS if name != "dgtd")
 
 # (off-policy, edge probability, sampling mode, shared trajectory)
 SETTINGS = [

@@ -9,6 +9,7 @@ import pytest
 from conftest import cli_env
 from numpy.testing import assert_allclose, assert_array_equal
 
+from dgtd.algorithms import ALGORITHMS
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
@@ -191,7 +192,7 @@ def test_settings_validation():
         dataclasses.replace(DGTD(), kappa=-1.0)
 
 
-@pytest.mark.parametrize("name", ["dgtd", "td-tracking"])
+@pytest.mark.parametrize("name", [name for name, cls in ALGORITHMS.items() if cls.messages])  # every one that talks
 @pytest.mark.parametrize("layout", ["seeds", "agents"])
 def test_numba_relabelled_rows_match_numpy(layout, name, monkeypatch):
     """Large graphs are stored in reverse Cuthill-McKee order inside the compiled driver (lowered here to 8 agents):
