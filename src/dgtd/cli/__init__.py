@@ -86,7 +86,7 @@ def spec_default(name: str):
 
 def _spec_options(f):
     """Options that set run-spec fields; `dgtd run` and `dgtd sweep` share them (a sweep's base run). Defaults and
-    choices come from `dgtd.config.RunSpec` and `dgtd.config.CHOICES` (tests/test_config_cli.py checks)."""
+    choices come from `dgtd.config.RunSpec` and `dgtd.config.CHOICES` (tests/config/test_config_cli.py checks)."""
     d = spec_default
     options = [
         click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),

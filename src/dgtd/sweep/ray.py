@@ -4,7 +4,7 @@ Ray is optional (``pip install "dgtd[ray]"``) and imported only here. Without ``
 Ray is started on 127.0.0.1, without dashboard or usage reporting, and stopped by `shutdown`; Ray 2.59 and later
 (the version the extra asks for) turn token authentication on for such a local cluster by default. Ray's
 processes still listen on every interface of the machine (measured with Ray 2.60 in a
-network namespace with a second interface; tests/test_ray_network.py): the token, which Ray generates for the
+network namespace with a second interface; tests/sweep/test_ray_network.py): the token, which Ray generates for the
 local cluster and which only the user's account can read, is what keeps others on the network from submitting
 work; with
 ``address`` the executor connects to a running cluster and `shutdown` only disconnects. A task whose

@@ -9,7 +9,7 @@
 
 Both take rows of C-contiguous arrays by index (X[*at, :]) rather than as views: numba counts references to every
 view with an atomic update, and two threads updating the same count stall each other. They are tested against
-NumPy in tests/test_simd.py. The vector width is the machine's (`LANES`): 8 doubles with AVX-512, else 4.
+NumPy in tests/backends/test_simd.py. The vector width is the machine's (`LANES`): 8 doubles with AVX-512, else 4.
 """
 
 from __future__ import annotations

@@ -4,9 +4,6 @@ backends; and the check catches a source that breaks a rule."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -17,8 +14,6 @@ from dgtd.problems.generators import random_problem
 from dgtd.samples import Block
 from dgtd.sources.check import check_source
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
-
-sys.path.insert(0, str(Path(__file__).parent))
 
 
 @pytest.mark.parametrize("sampling", [Sampling("iid", False), Sampling("markov", True)], ids=["iid", "markov-shared"])
@@ -35,7 +30,7 @@ def test_a_model_source_conforms(sampling):
 
 @pytest.mark.parametrize("edge_prob", [0.5, 1.0])
 def test_recorded_data_conforms_and_draws_its_links_from_the_network(tmp_path, edge_prob):
-    from test_data_source import record
+    from helpers import record
 
     from dgtd.problems.tasks import garnet
     from dgtd.sources.data import DataSource, TransitionFile

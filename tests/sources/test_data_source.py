@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import record
 
 from dgtd.algorithms import make_algorithm
 from dgtd.errors import DgtdInputError
@@ -13,23 +14,6 @@ from dgtd.problems import exact
 from dgtd.run.loop import RunSettings, run
 from dgtd.sources.data import DataSource, TransitionFile
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
-
-
-def record(problem, seeds: int, steps: int) -> dict:
-    """Columns of every agent's own transitions from the model (independent copies, i.i.d. s ~ d)."""
-    tables = SamplerTables.build(problem, exact.Moments(problem).d)
-    src = ModelSource(
-        problem, random_edges(topologies.ring(problem.n_agents), 1.0), Sampling(), tables, 9, range(seeds)
-    )
-    src.start()
-    blk = src.next_block(steps)
-    T, B, N = blk.r.shape
-    t, b, i = np.meshgrid(np.arange(T), np.arange(B), np.arange(N), indexing="ij")
-    cols = {"seed": b.ravel(), "step": t.ravel(), "agent": i.ravel(), "reward": blk.r.ravel()}
-    phi, nphi = problem.Phi[blk.s.ravel()], problem.Phi[blk.s_next.ravel()]
-    for j in range(problem.n_features):
-        cols[f"phi_{j}"], cols[f"next_phi_{j}"] = phi[:, j], nphi[:, j]
-    return cols
 
 
 @pytest.fixture(scope="module")

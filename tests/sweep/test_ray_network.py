@@ -33,7 +33,7 @@ def test_a_local_ray_refuses_work_from_clients_without_its_token():
     if not namespace_available():
         pytest.skip("needs root, unshare, ip (veth) and ss to make a private network namespace")
     probe = Path(__file__).with_name("ray_probe.py")
-    src = Path(__file__).resolve().parents[1] / "src"
+    src = Path(__file__).resolve().parents[2] / "src"
     cmd = f"{SETUP} && PYTHONPATH={src} {sys.executable} {probe} {ADDRESS}"
     r = subprocess.run(["unshare", "-n", "sh", "-c", cmd], capture_output=True, text=True, timeout=540)
     line = next((x for x in r.stdout.splitlines() if x.startswith("RESULT ")), None)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_new_user import one_line_error
+from helpers import one_line_error
 
 RUN = ("run", "paper-example-1", "--no-progress", "--no-plots")
 HUGE = 10**23  # an integer no 64-bit field holds
@@ -99,7 +99,7 @@ def test_files_whose_content_is_not_what_their_name_says(run_cli, tmp_path):
 
 pytest.importorskip("pettingzoo", reason="the environment extra (pip install dgtd[envs]) is not installed")
 
-ENVS = Path(__file__).resolve().parent / "envs" / "chain.py"
+ENVS = Path(__file__).resolve().parents[1] / "envs" / "chain.py"
 
 ENV = {
     "step() raises": (("--env", f"{ENVS}:make_raising"), ("make_raising", "step()", "RuntimeError", "--debug")),

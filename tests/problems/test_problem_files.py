@@ -12,8 +12,9 @@ from dgtd.problems.io import load_problem
 
 
 def chain_arrays(to_first: float = 0.32) -> dict:
-    """The two-state chain of tests/test_boxes.py as a file: joint actions of agent 0 (2 actions) and agent 1 (one),
-    target always to the second state, behaviour to the first with probability ``to_first``; w* = 105 at 0.32."""
+    """The two-state chain of tests/algorithms/test_boxes.py as a file: joint actions of agent 0 (2 actions) and
+    agent 1 (one), target always to the second state, behaviour to the first with probability ``to_first``; w* = 105
+    at 0.32."""
     P = np.zeros((2, 2, 2))
     P[:, 0, 0] = P[:, 1, 1] = 1.0
     return {

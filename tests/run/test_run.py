@@ -77,7 +77,7 @@ def test_tail_average_is_the_mean_of_the_last_window(backend):
 
 def test_numba_matches_numpy_with_the_regulariser():
     """DGTD's rho terms, off-policy on trajectories, in the compiled step (every other setting of every algorithm:
-    tests/test_compiled_steps.py)."""
+    tests/backends/test_compiled_steps.py)."""
     problem = random_mdp_problem(4, (2, 2, 1, 2), 3, np.random.default_rng(5))
     ref, fast = (
         small_run(backend, problem=problem, sampling=Sampling("markov"), rho=0.05) for backend in ("numpy", "numba")

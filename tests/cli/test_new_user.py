@@ -7,15 +7,7 @@ import os
 import stat
 
 import pytest
-
-
-def one_line_error(code, out, err, *words):
-    assert code == 2, (out, err)
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("dgtd: error:"), err
-    assert "Traceback" not in out + err
-    for w in words:
-        assert w in lines[0], lines[0]
+from helpers import one_line_error
 
 
 def test_compare_with_zero_iterations_is_refused(run_cli, tmp_path):
@@ -30,7 +22,7 @@ def test_resume_with_another_out_is_refused(run_cli, tmp_path):
 def test_sweep_with_zero_workers_is_refused(run_cli, tmp_path):
     from pathlib import Path
 
-    file = Path(__file__).resolve().parents[1] / "experiments" / "sweep-example-1.toml"
+    file = Path(__file__).resolve().parents[2] / "experiments" / "sweep-example-1.toml"
     one_line_error(*run_cli("sweep", file, "--workers", "0", "--out", tmp_path / "s"), "workers must be >= 1")
     assert not (tmp_path / "s").exists()
 

@@ -34,12 +34,12 @@ pytest.importorskip("pettingzoo", reason="the environment extra (pip install dgt
 from pathlib import Path  # noqa: E402
 
 from envs import chain  # noqa: E402
-from test_new_user import one_line_error  # noqa: E402
+from helpers import one_line_error  # noqa: E402
 
 from dgtd.problems import exact  # noqa: E402
 from dgtd.problems.model import make_problem  # noqa: E402
 
-ENVS = Path(__file__).resolve().parent / "envs" / "chain.py"
+ENVS = Path(__file__).resolve().parents[1] / "envs" / "chain.py"
 
 
 def env(name: str) -> str:
@@ -167,7 +167,7 @@ def test_run_on_a_gymnasium_env_split_among_three_agents(run_cli, tmp_path):
 def record_parquet(path, seeds=4, steps=10_000):
     import pyarrow as pa
     import pyarrow.parquet as pq
-    from test_data_source import record
+    from helpers import record
 
     from dgtd.problems.tasks import garnet
 

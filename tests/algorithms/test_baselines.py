@@ -208,7 +208,7 @@ def test_dgtd_with_one_agent_is_gtd2_on_the_same_samples():
     """With N = 1 the Laplacian terms vanish, v and mu stay 0, and Algorithm 1 is GTD2 with eta = 1 (its
     theta is GTD2's auxiliary vector): identical iterates on the same samples while the projection does
     not bind. The known difference is the projection: with a small box DGTD's update stays inside it, GTD2 does not
-    (a run refuses a box that excludes the saddle point: `tests/test_boxes.py`)."""
+    (a run refuses a box that excludes the saddle point: `tests/algorithms/test_boxes.py`)."""
     p = chain_problem(n_agents=1)
     net = random_edges(topologies.path(1), 1.0)
     st = RunSettings(iterations=5000, seeds=3, checkpoints=4, backend="numpy")

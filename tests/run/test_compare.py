@@ -178,7 +178,7 @@ def _benchmark_module():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).parents[1] / "benchmarks" / "time_to_accuracy.py"
+    path = Path(__file__).parents[2] / "benchmarks" / "time_to_accuracy.py"
     spec = importlib.util.spec_from_file_location("time_to_accuracy", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -202,7 +202,7 @@ def test_time_to_accuracy_counts_per_seed_from_when_the_error_stays_below():
 def test_time_to_accuracy_script_writes_table_json_and_plot(tmp_path):
     from pathlib import Path
 
-    script = Path(__file__).parents[1] / "benchmarks" / "time_to_accuracy.py"
+    script = Path(__file__).parents[2] / "benchmarks" / "time_to_accuracy.py"
     proc = subprocess.run(
         [
             sys.executable,

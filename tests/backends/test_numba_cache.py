@@ -101,7 +101,7 @@ def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path)
 
     src = tmp_path / "src"
     shutil.copytree(
-        Path(__file__).resolve().parents[1] / "src" / "dgtd", src / "dgtd", ignore=shutil.ignore_patterns("__pycache__")
+        Path(__file__).resolve().parents[2] / "src" / "dgtd", src / "dgtd", ignore=shutil.ignore_patterns("__pycache__")
     )
     env = {**cli_env(), "PYTHONPATH": str(src)}
 

@@ -1,5 +1,5 @@
 """The compiled backend's vector primitives against plain Python, bit for bit (every algorithm's compiled step against
-its ``update``: tests/test_compiled_steps.py)."""
+its ``update``: tests/backends/test_compiled_steps.py)."""
 
 from __future__ import annotations
 

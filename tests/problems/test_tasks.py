@@ -119,7 +119,7 @@ def test_garnet_is_ergodic_with_the_asked_branching():
         tasks.garnet(n_states=5, branching=9)
 
 
-SIMULATED = {"mpe-spread"}  # no model: its estimated reference is tested in tests/test_env_source.py
+SIMULATED = {"mpe-spread"}  # no model: its estimated reference is tested in tests/sources/test_env_source.py
 
 
 def test_every_scenario_builds_and_solves():

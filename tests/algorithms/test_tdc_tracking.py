@@ -1,5 +1,5 @@
 """Decentralised TDC with gradient tracking (`dgtd.algorithms.tdc_tracking`): its exact fixed point and its convergence
-off-policy (its tracker: tests/test_baselines.py, with TD tracking's)."""
+off-policy (its tracker: tests/algorithms/test_baselines.py, with TD tracking's)."""
 
 from __future__ import annotations
 

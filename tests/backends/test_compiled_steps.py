@@ -30,7 +30,7 @@ def model_case(problem, sampling=Sampling(), edge_prob=0.6):
 def recorded_case(tmp_path_factory):
     """Recordings of a Garnet chain's transitions (their own features, ratios and flags: a table per block), over a
     ring whose links are up with probability 0.6."""
-    from test_data_source import record
+    from helpers import record
 
     from dgtd.sources.data import DataSource, TransitionFile
 

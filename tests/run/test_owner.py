@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 
 import pytest
-from test_new_user import one_line_error
+from helpers import one_line_error
 
 from dgtd.run.owner import Owner, kind_of
 

@@ -1,0 +1,37 @@
+"""Helpers that tests in several folders share (tests/ is on pytest's python path: pyproject.toml)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dgtd.graphs import topologies
+from dgtd.graphs.random import random_edges
+from dgtd.problems import exact
+from dgtd.sources.model import ModelSource, SamplerTables, Sampling
+
+
+def one_line_error(code, out, err, *words):
+    """A refusal as the CLI gives it: exit code 2, one line `dgtd: error: ...` holding ``words``, no traceback."""
+    assert code == 2, (out, err)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("dgtd: error:"), err
+    assert "Traceback" not in out + err
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+def record(problem, seeds: int, steps: int) -> dict:
+    """Columns of every agent's own transitions from the model (independent copies, i.i.d. s ~ d)."""
+    tables = SamplerTables.build(problem, exact.Moments(problem).d)
+    src = ModelSource(
+        problem, random_edges(topologies.ring(problem.n_agents), 1.0), Sampling(), tables, 9, range(seeds)
+    )
+    src.start()
+    blk = src.next_block(steps)
+    T, B, N = blk.r.shape
+    t, b, i = np.meshgrid(np.arange(T), np.arange(B), np.arange(N), indexing="ij")
+    cols = {"seed": b.ravel(), "step": t.ravel(), "agent": i.ravel(), "reward": blk.r.ravel()}
+    phi, nphi = problem.Phi[blk.s.ravel()], problem.Phi[blk.s_next.ravel()]
+    for j in range(problem.n_features):
+        cols[f"phi_{j}"], cols[f"next_phi_{j}"] = phi[:, j], nphi[:, j]
+    return cols
