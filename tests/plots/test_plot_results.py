@@ -60,9 +60,11 @@ def test_plot_refuses_a_directory_without_results(tmp_path, run_cli):
 def _drawn(monkeypatch, draw):
     """The figure that ``draw()`` would save, kept open to be read."""
     import dgtd.plots
+    import dgtd.plots.results
 
     figures = []
-    monkeypatch.setattr(dgtd.plots, "_save", lambda fig, path: figures.append(fig))
+    for module in (dgtd.plots, dgtd.plots.results):  # each holds its own name for it
+        monkeypatch.setattr(module, "_save", lambda fig, path: figures.append(fig))
     draw()
     return figures[0]
 
@@ -121,3 +123,26 @@ def test_errors_figure_shows_the_tail_average(monkeypatch):
     fig = _drawn(monkeypatch, lambda: plot_errors(result, "unused"))
     labels = fig.axes[0].get_legend_handles_labels()[1]
     assert "tail average, weights" in labels and "tail average, values" in labels
+
+
+def test_a_sweep_of_many_jobs_draws_small_multiples(monkeypatch):
+    """48 jobs (4 x 3 x 4 grid): one panel per value of the first swept parameter, in each one line per setting of the
+    others (12, the same colours in every panel), not 48 lines tangled in one panel."""
+    from dgtd.plots.results import plot_sweep_curves
+
+    steps = np.array([1, 10, 100])
+    points, jobs = {}, {}
+    for a in (0.1, 0.3, 1.0, 3.0):
+        for kappa in (0.0, 1.0, 3.0):
+            for beta in (10.0, 100.0, 1000.0, 10000.0):
+                job = f"a{a}-k{kappa}-b{beta}"
+                points[job] = {"alpha0": a, "kappa": kappa, "beta": beta}
+                jobs[job] = (steps, {name: np.full((3, 2), 0.5) for name in ("error_avg", "consensus", "mspbe_avg")})
+    fig = _drawn(monkeypatch, lambda: plot_sweep_curves(jobs, points, "unused"))
+    panels = [ax for ax in fig.axes if ax.get_lines()]
+    assert len(panels) == 4
+    assert [ax.get_title() for ax in panels] == [f"alpha0 = {a:g}" for a in (0.1, 0.3, 1.0, 3.0)]
+    assert all(len(ax.get_lines()) == 12 for ax in panels)
+    assert len({tuple(np.ravel(line.get_color())) for line in panels[0].get_lines()}) == 12
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert len(labels) == 12 and "kappa=0, beta=10" in labels

@@ -127,13 +127,19 @@ def _label(point: dict) -> str:
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in point.items() if v is not None)
 
 
+SMALL_MULTIPLES = 12  # more jobs than this: one panel per value of the first swept parameter
+
+
 def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
-    """Each job's median curve over seeds with its 90 % band, one panel per metric."""
+    """Each job's median curve over seeds with its 90 % band, one panel per metric; a sweep of more than
+    `SMALL_MULTIPLES` jobs draws `plot_sweep_panels` instead, where its curves stay readable."""
+    keys = list(dict.fromkeys(k for j in jobs for k in points[j]))  # the grid's own order
+    if len(jobs) > SMALL_MULTIPLES and len(keys) > 1:
+        return plot_sweep_panels(jobs, points, keys, path)
     fig, axes = plt.subplots(1, len(CURVES), figsize=(14, 4.2), gridspec_kw={"wspace": 0.38})
-    # Up to 12 jobs each get a colour and a legend entry; more are coloured by the value of the first swept
-    # parameter, and the legend names those values (each colour then holds every job with that value).
-    keys = sorted({k for j in jobs for k in points[j]})
-    by = keys[0] if len(jobs) > 12 and keys else None
+    # Up to 12 jobs each get a colour and a legend entry; more (of one swept parameter) are coloured by its value,
+    # and the legend names those values.
+    by = keys[0] if len(jobs) > SMALL_MULTIPLES and keys else None
     groups = sorted({repr(points[j].get(by)) for j in jobs}) if by else list(jobs)
     palette = plt.cm.viridis(np.linspace(0, 0.95, max(len(groups), 1)))
     color_of = {g: c for g, c in zip(groups, palette)}
@@ -164,6 +170,51 @@ def plot_sweep_curves(jobs: dict, points: dict, path: Path) -> None:
         f"; colour: {by} (every job with that value)" if by else ""
     )
     fig.suptitle(note, fontsize=9)
+    _save(fig, path)
+
+
+def plot_sweep_panels(jobs: dict, points: dict, keys: list, path: Path, metric: str = "error_avg") -> None:
+    """Small multiples: one panel per value of the first swept parameter, and in each one curve (median and band over
+    seeds) per setting of the others, in the same colour in every panel; the averaged iterate's worst-agent error."""
+    first, rest = keys[0], keys[1:]
+    values = sorted({points[j].get(first) for j in jobs}, key=lambda v: (isinstance(v, str), v))
+    others = list(dict.fromkeys(_label({k: points[j].get(k) for k in rest}) for j in jobs))
+    palette = plt.cm.viridis(np.linspace(0, 0.95, max(len(others), 1)))
+    colour = dict(zip(others, palette))
+    cols = min(4, len(values))
+    rows = -(-len(values) // cols)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(3.6 * cols, 3.0 * rows + 0.8), sharex=True, sharey=True, squeeze=False
+    )
+    for ax, value in zip(axes.ravel(), values):
+        for job, (steps, ms) in jobs.items():
+            if points[job].get(first) == value and metric in ms:
+                label = _label({k: points[job].get(k) for k in rest})
+                band(ax, steps, np.where(ms[metric] > 0, ms[metric], np.nan), label, color=colour[label])
+        ax.set_title(f"{first} = {value:g}" if isinstance(value, float) else f"{first} = {value}", fontsize=9)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, which="both")
+    for ax in axes.ravel()[len(values) :]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("iteration k")
+    for ax in axes[:, 0]:
+        ax.set_ylabel(CURVE_AXES[0], fontsize=8)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    # below the panels, outside them (the saved figure's tight box takes it in): it covers no curve or label
+    fig.legend(
+        handles,
+        labels,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.0),
+        ncol=min(4, len(labels)),
+        fontsize=7,
+        frameon=False,
+    )
+    fig.suptitle(
+        f"{len(jobs)} jobs: {CURVES[0][1]}, median over seeds, {BAND_WORDS}; one panel per {first}", fontsize=9
+    )
     _save(fig, path)
 
 
@@ -289,8 +340,10 @@ def plot_directory(directory: Path) -> list[Path]:
 
         results, title = load_compare(directory)
         plot_compare(results, directory / "compare.png", title)
-        plot_consensus(results, directory / "consensus.png", title)
-        return [directory / "compare.png", directory / "consensus.png"]
+        written.append(directory / "compare.png")
+        if plot_consensus(results, directory / "consensus.png", title):
+            written.append(directory / "consensus.png")
+        return written
     run = load_run(directory)
     plot_errors(run, directory / "errors.png")
     written.append(directory / "errors.png")
