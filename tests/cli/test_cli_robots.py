@@ -53,6 +53,17 @@ def test_run_paper_example_2_writes_maps_pictures_and_summary(tmp_path, capsys):
     # the recorded config reproduces the run's settings (the scenario's own values are accepted back)
     cfg = {k: v for k, v in summary["config"].items() if k in RunSpec.__dataclass_fields__}
     assert resolve(RunSpec(**cfg))[4].iterations == 3000
+    # `dgtd plot` draws every figure the run drew again, from the saved files alone (the robots' paths and links
+    # at the recorded steps are saved beside the numbers, in scenario.npz)
+    figures = ("maps.png", "reference.png", "snapshots.png", "patrol.gif", "curves.png", "errors.png", "iterates.png")
+    drawn = {name: (out / name).read_bytes() for name in figures}
+    for name in figures:
+        (out / name).unlink()
+    main(["plot", str(out)])
+    listed = capsys.readouterr().out
+    for name in figures:
+        assert (out / name).stat().st_size > 0 and name in listed, name
+    assert (out / "maps.png").read_bytes() == drawn["maps.png"]  # the same numbers, the same picture
 
 
 @pytest.mark.parametrize(

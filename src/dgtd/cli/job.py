@@ -7,10 +7,13 @@ the results (`dgtd.run.results.write_results`) when it ends, after which the che
 
 from __future__ import annotations
 
+import io
 import json
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
+
+import numpy as np
 
 from dgtd.config import PROBLEM_FIELDS, make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
@@ -19,7 +22,7 @@ from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
 from dgtd.run.owner import Owner
 from dgtd.run.results import atomic_write, first_difference, refuse_other_results
 
-CONFIG, CHECKPOINT = "config.toml", "checkpoint.npz"
+CONFIG, CHECKPOINT, SCENARIO_ARRAYS = "config.toml", "checkpoint.npz", "scenario.npz"
 HEADER = "The fully resolved config of a dgtd run: `dgtd run THIS_FILE` reproduces it exactly."
 
 
@@ -119,6 +122,11 @@ class PreparedRun:
             extra, self.report_text = sc.report(result, self.source)
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra)
         names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz"]
+        if sc is not None and hasattr(sc.report, "arrays"):  # what the scenario's figures need, for `dgtd plot`
+            buf = io.BytesIO()
+            np.savez_compressed(buf, **sc.report.arrays(self.source))
+            atomic_write(self.out / SCENARIO_ARRAYS, buf.getvalue())
+            names.append(SCENARIO_ARRAYS)
         (self.out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
         if plots:
             try:
@@ -208,6 +216,7 @@ def _claim(run: PreparedRun, exp: Experiment, out: Path, record: dict) -> Prepar
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's
 # copies of them go before a new run writes. Nothing else in the directory is touched.
 RUN_FILES = (
+    SCENARIO_ARRAYS,
     "summary.json",
     "metrics.csv",
     "bands.csv",

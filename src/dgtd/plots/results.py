@@ -53,16 +53,47 @@ def load_run(directory: Path) -> SimpleNamespace:
     if missing:
         raise DgtdInputError(f"results file {path} lacks the metric(s) {', '.join(missing)} (cut off?); {fix}")
     summary = read_json(directory / "summary.json", "results file", fix, required=("w_star",))
-    w_trace = None
+    trajectory = {}
     if (directory / "trajectory.npz").exists():
-        w_trace = read_npz(directory / "trajectory.npz", "results file", fix).get("w_trace")
+        trajectory = read_npz(directory / "trajectory.npz", "results file", fix)
+
+    def saved(key):  # an array of summary.json, None where it is not there (older results)
+        return None if summary.get(key) is None else np.asarray(summary[key], dtype=np.float64)
+
     return SimpleNamespace(
         steps=steps,
         metrics=metrics,
-        w_trace=w_trace,
+        w_trace=trajectory.get("w_trace"),
+        agent_error_last=trajectory.get("agent_error_last"),
+        agent_error_avg=trajectory.get("agent_error_avg"),
         w_star=np.asarray(summary["w_star"]),
+        w_last=saved("w_last"),
+        w_avg=saved("w_avg"),
+        w_tail=saved("w_tail"),
+        config=summary.get("config", {}),
         algorithm=rows[0].get("algorithm") or summary.get("config", {}).get("algorithm", ""),
     )
+
+
+def scenario_figures_again(directory: Path, run: SimpleNamespace) -> list[Path]:
+    """The figures of a run's scenario (Example 2's maps, snapshots, curves and animation; an env's values), drawn
+    again from the saved files: the scenario rebuilt from config.toml, the run's numbers, and scenario.npz where the
+    figures need more of the run than its numbers (the robots' paths)."""
+    from dgtd.config import scenario_of
+    from dgtd.experiments import load
+    from dgtd.plots import scenario_figures
+
+    if not (directory / "config.toml").exists() or run.w_last is None:
+        return []
+    sc = scenario_of(load(str(directory / "config.toml")).spec)
+    if sc is None or sc.report is None:
+        return []
+    source = None
+    if hasattr(sc.report, "saved"):
+        if not (directory / "scenario.npz").exists():
+            return []  # results from before the runs saved it: the numbers alone do not draw these figures
+        source = sc.report.saved(read_npz(directory / "scenario.npz", "results file", "run it again"))
+    return [directory / name for name in scenario_figures(sc.report, run, source, directory)]
 
 
 def load_compare(directory: Path):
@@ -349,4 +380,4 @@ def plot_directory(directory: Path) -> list[Path]:
     written.append(directory / "errors.png")
     if plot_iterates(run, directory / "iterates.png", algorithm=run.algorithm):
         written.append(directory / "iterates.png")
-    return written
+    return written + scenario_figures_again(directory, run)

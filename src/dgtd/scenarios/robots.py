@@ -394,6 +394,32 @@ class PatrolReport:
             "w_td_reference": self.reference.w_td.tolist(),
         }
 
+    def arrays(self, source: PatrolSource) -> dict:
+        """What the figures need of the run beyond its numbers, for scenario.npz: the recorded steps, seed 0's
+        trails (K, record, N, 2; shorter trails padded with NaN in front) and the links up (K, E) at each."""
+        snaps = source.snapshots
+        longest = max((len(trail) for _, trail, _ in snaps), default=0)
+        trails = np.full((len(snaps), longest, self.world.n_robots, 2), np.nan)
+        for j, (_, trail, _) in enumerate(snaps):
+            trails[j, longest - len(trail) :] = trail
+        return {
+            "snapshot_steps": np.array([k for k, _, _ in snaps], dtype=np.int64),
+            "snapshot_trails": trails,
+            "snapshot_links": np.array([up for _, _, up in snaps], dtype=bool).reshape(len(snaps), -1),
+        }
+
+    @staticmethod
+    def saved(arrays: dict):
+        """A stand-in for the run's source with its ``snapshots`` as `arrays` saved them (for `dgtd plot`)."""
+        from types import SimpleNamespace
+
+        trails = arrays["snapshot_trails"]
+        snaps = [
+            (int(k), trail[~np.isnan(trail).any(axis=(1, 2))], up)
+            for k, trail, up in zip(arrays["snapshot_steps"], trails, arrays["snapshot_links"])
+        ]
+        return SimpleNamespace(snapshots=snaps)
+
     def __call__(self, result, source: PatrolSource) -> tuple[dict, str]:
         info = self.numbers(result, source)
         corr = np.asarray(info["correlation_last"])
