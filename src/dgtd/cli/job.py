@@ -158,7 +158,7 @@ class FiguresInterrupted(KeyboardInterrupt):
         super().__init__(
             f"interrupted while drawing the figures: the results (summary.json, metrics.csv, "
             f"trajectory.npz) are complete in {out}; some figures are missing, and `dgtd plot {out}` "
-            "draws the error and iterate figures again"
+            "draws them all again"
         )
 
 
