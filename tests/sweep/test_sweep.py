@@ -77,9 +77,8 @@ def assert_store_intact(out: Path, n_jobs: int) -> None:
         "rmspbe_tail",
     }
     assert set(rows["metric"]) == metrics
-    assert (
-        len(rows["value"]) == n_jobs * len(metrics) * len(np.unique(rows["step"])) * 2
-    )  # jobs x metrics x checkpoints x seeds
+    # jobs x metrics x checkpoints x seeds
+    assert len(rows["value"]) == n_jobs * len(metrics) * len(np.unique(rows["step"])) * 2
 
 
 @pytest.fixture(scope="module")

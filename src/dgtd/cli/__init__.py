@@ -425,7 +425,7 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes)."""
     from dgtd.config import RunSpec, resolve
     from dgtd.problems import exact
-    from dgtd.run.results import plain
+    from dgtd.run.results import plain, problem_fields
 
     if scenario is None and problem_file is None:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
@@ -437,12 +437,7 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
     fixed = algorithm.fixed_point(m, L, w)
     _, prepared = algorithm.prepare(m, network, fixed)
     out = {
-        "problem": problem.name,
-        "n_states": problem.n_states,
-        "n_agents": problem.n_agents,
-        "n_features": problem.n_features,
-        "gamma": problem.gamma,
-        "off_policy": problem.off_policy,
+        **problem_fields(problem),
         "w_star": w.tolist(),
         "algorithm": algorithm.name,
         "w_fixed": fixed.w.tolist(),

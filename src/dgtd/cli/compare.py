@@ -194,8 +194,8 @@ def compare(
                 source_factory=sc.source,
                 done=(results, used, tables),
                 on_finished=lambda *part: save_part(out, *part, record),
-                kernel_ready=lambda seconds: bar.unpause(),
-            )  # the compilation is not in the ETA
+                kernel_ready=lambda seconds: bar.unpause(),  # the compilation is not in the ETA
+            )
         except KeyboardInterrupt:
             bar.close()
             finished = [name for name in cs.algorithms if name in results]

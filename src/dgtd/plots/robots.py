@@ -260,9 +260,8 @@ def plot_curves(result, d: np.ndarray, path: Path) -> bool:
     axes[1].set_title("correlation of agent i's map with w*")
     axes[1].set_ylim(min(0.0, float(np.nanmin(corr))), 1.0)
     cons = result.metrics["consensus"]
-    band(
-        axes[2], x, np.where(cons > 0, cons, np.nan), "sum_i |w_i - mean w|^2"
-    )  # exact zeros (before any link) left out
+    # exact zeros (before any link) left out
+    band(axes[2], x, np.where(cons > 0, cons, np.nan), "sum_i |w_i - mean w|^2")
     axes[2].set_yscale("log")
     axes[2].set_title("consensus error")
     for ax in axes:

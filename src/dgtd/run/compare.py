@@ -27,6 +27,7 @@ from dgtd.run.results import (
     bands_csv,
     json_bytes,
     metrics_rows,
+    problem_fields,
     reference,
     refuse_other_results,
     write_all,
@@ -198,12 +199,7 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
     m = exact.Moments(problem) if isinstance(problem, Problem) else problem.moments  # a resumed part keeps none
     model = m.model
     out = {
-        "problem": problem.name,
-        "n_states": problem.n_states,
-        "n_agents": problem.n_agents,
-        "n_features": problem.n_features,
-        "gamma": problem.gamma,
-        "off_policy": problem.off_policy,
+        **problem_fields(problem),
         "network": network.describe(),
         "w_star": first.w_star.tolist(),
         "mspbe_w_star": first.info["mspbe_w_star"],

@@ -143,6 +143,18 @@ def metrics_csv(result: RunResult, algorithm: str) -> bytes:
     return buf.getvalue().encode()
 
 
+def problem_fields(problem) -> dict:
+    """What results files say of the problem: its name, sizes, discount and whether it is off-policy."""
+    return {
+        "problem": problem.name,
+        "n_states": problem.n_states,
+        "n_agents": problem.n_agents,
+        "n_features": problem.n_features,
+        "gamma": problem.gamma,
+        "off_policy": problem.off_policy,
+    }
+
+
 def summary(result: RunResult, config: dict) -> dict:
     """What summary.json holds: the exact solution, each seed's and agent's estimates and errors, the config."""
     rel = lambda W: exact.relative_error(W, reference(result)).tolist()  # noqa: E731
@@ -152,9 +164,8 @@ def summary(result: RunResult, config: dict) -> dict:
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
         "regularisation_shift": result.info.get("regularisation_shift", 0.0),
-        **plain(
-            result.report
-        ),  # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
+        # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
+        **plain(result.report),
         "mspbe_w_star": result.info["mspbe_w_star"],
         "w_last": result.w_last.tolist(),
         "w_avg": result.w_avg.tolist(),
@@ -164,9 +175,8 @@ def summary(result: RunResult, config: dict) -> dict:
         # the d-weighted value error (RMSVE relative to |Phi w*|_d; `exact.value_error`), and the error to the true
         # value function, which the features may not represent
         **per_output("value_error", verr, result),
-        **(
-            true_value_errors(moments, result) if moments.model else {"reference": moments.problem.summary()}
-        ),  # no model: the reference is estimated, and says how well
+        # no model: the reference is estimated, and says how well
+        **(true_value_errors(moments, result) if moments.model else {"reference": moments.problem.summary()}),
         "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "messages": result.info["messages"].tolist(),
