@@ -226,3 +226,15 @@ def test_a_full_disk_keeps_every_complete_file_and_the_final_table(run_cli, tmp_
         "metrics.csv",
     ]
     assert len((out / "metrics.csv").read_text().splitlines()) > 1
+
+
+def test_whole_numbers_given_as_floats_are_counts_and_fractions_are_refused():
+    """In Python or TOML, 1e4 iterations is a count (it was accepted before the bounds, and stays so); 2.5 is not."""
+    from dgtd.errors import DgtdInputError
+    from dgtd.run.loop import RunSettings
+
+    settings = RunSettings(iterations=1e4, seeds=2.0)
+    assert settings.iterations == 10_000 and isinstance(settings.iterations, int) and settings.seeds == 2
+    for bad in (dict(iterations=2.5), dict(seeds=float("nan")), dict(seed=1e30), dict(block_size=True)):
+        with pytest.raises(DgtdInputError, match="whole number"):
+            RunSettings(**bad)

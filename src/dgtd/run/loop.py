@@ -48,8 +48,8 @@ class RunSettings:
 
     def __post_init__(self):
         for name in ("iterations", "seeds", "checkpoints", "block_size"):
-            check_count(name, getattr(self, name), 1)
-        check_count("seed", self.seed, 0)
+            object.__setattr__(self, name, check_count(name, getattr(self, name), 1))
+        object.__setattr__(self, "seed", check_count("seed", self.seed, 0))
         if not 0.0 < self.tail_fraction <= 1.0:
             raise DgtdInputError(f"tail_fraction must lie in (0, 1], got {self.tail_fraction}")
         if self.backend not in BACKENDS:
@@ -59,10 +59,14 @@ class RunSettings:
 MAX_COUNT = 2**63 - 1  # what a 64-bit integer (NumPy's, TOML's) holds
 
 
-def check_count(name: str, value, low: int) -> None:
-    """An integer setting in [low, 2^63 - 1], or a one-line error naming it."""
+def check_count(name: str, value, low: int) -> int:
+    """An integer setting in [low, 2^63 - 1] as an int (a whole float such as 1e5 too), or a one-line error naming
+    it."""
+    if isinstance(value, (float, np.floating)) and float(value).is_integer() and abs(value) < 2.0**63:
+        value = int(value)
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= MAX_COUNT:
         raise DgtdInputError(f"{name} must be >= {low} and below 2^63, a whole number; got {value!r}")
+    return int(value)
 
 
 def checkpoint_steps(T: int, n: int) -> np.ndarray:
