@@ -7,13 +7,10 @@ the results (`dgtd.run.results.write_results`) when it ends, after which the che
 
 from __future__ import annotations
 
-import io
 import json
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
-
-import numpy as np
 
 from dgtd.config import PROBLEM_FIELDS, make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
@@ -113,20 +110,18 @@ class PreparedRun:
     def save(self, result, plots: bool | None = None) -> list[str]:
         """Write the results, drop the checkpoint (nothing is left to resume), then draw the figures; returns the names
         written."""
-        from dgtd.run.results import write_results
+        from dgtd.run.results import npz_bytes, write_results
 
         plots = self.exp.output.plots if plots is None else plots
         sc = scenario_of(self.resolved)
         extra = None
         if sc is not None and sc.report is not None:  # a scenario's own numbers (e.g. the robots' map correlations)
             extra, self.report_text = sc.report(result, self.source)
-        write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra)
-        names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz"]
+        also = {}
         if sc is not None and hasattr(sc.report, "arrays"):  # what the scenario's figures need, for `dgtd plot`
-            buf = io.BytesIO()
-            np.savez_compressed(buf, **sc.report.arrays(self.source))
-            atomic_write(self.out / SCENARIO_ARRAYS, buf.getvalue())
-            names.append(SCENARIO_ARRAYS)
+            also[SCENARIO_ARRAYS] = lambda: npz_bytes(sc.report.arrays(self.source))
+        write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
+        names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz", *also]
         (self.out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
         if plots:
             try:

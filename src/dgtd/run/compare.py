@@ -27,6 +27,7 @@ from dgtd.run.results import (
     bands_csv,
     json_bytes,
     metrics_rows,
+    npz_bytes,
     problem_fields,
     reference,
     refuse_other_results,
@@ -227,14 +228,12 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
 def agent_errors_npz(results: dict) -> bytes:
     """Every agent's relative error at every checkpoint: arrays NAME/last and NAME/avg (checkpoints, seeds,
     agents or 1), and NAME/steps."""
-    buf = io.BytesIO()
     arrays = {}
     for name, r in results.items():
         arrays[f"{name}/steps"] = r.steps
         arrays[f"{name}/last"] = r.agent_error_last
         arrays[f"{name}/avg"] = r.agent_error_avg
-    np.savez_compressed(buf, **arrays)
-    return buf.getvalue()
+    return npz_bytes(arrays)
 
 
 def write_compare(out, problem, network, results: dict, used: dict, tables: dict, spec: dict) -> None:
@@ -274,9 +273,7 @@ def save_part(out: Path, name: str, result: RunResult, alg, table, record: dict)
         "tail_window": result.tail_window,
     }
     arrays["meta"] = np.asarray(json.dumps(meta))
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    atomic_write(Path(out) / PARTS / f"{name}.npz", buf.getvalue())
+    atomic_write(Path(out) / PARTS / f"{name}.npz", npz_bytes(arrays))
 
 
 def load_parts(out: Path, record: dict) -> tuple[dict, dict, dict]:

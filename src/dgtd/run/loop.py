@@ -15,7 +15,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
-from dgtd.run.memory import check_memory
+from dgtd.run.memory import SUM_TRACE_MAX, TRACE_MAX, check_memory
 from dgtd.samples import Block
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
@@ -225,13 +225,14 @@ def run(
     function of the step only, so the result equals that of an uninterrupted run bit for bit.
     """
     t_start = time.perf_counter()
+    steps = checkpoint_steps(int(settings.iterations), int(settings.checkpoints))
     check_memory(
         algorithm,
         int(settings.seeds),
         problem.n_agents,
         problem.n_features,
         2 * network.n_edges,
-        len(checkpoint_steps(int(settings.iterations), int(settings.checkpoints))),
+        len(steps),
         settings.backend,
     )
     ctx, moments, L_mean, fixed, report, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
@@ -259,7 +260,6 @@ def run(
     # block boundary), so no kernel reads or writes a second sum.
     sums = {"all": np.zeros((B, n_est, q))}
     tail_base = None
-    steps = checkpoint_steps(T, int(settings.checkpoints))
     C = len(steps)
     names = (
         "error_last",
@@ -278,11 +278,11 @@ def run(
     metrics = {m: np.zeros((C, B)) for m in names}
     counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
-    keep_trace = B * n_est * q * C <= 2_000_000
+    keep_trace = B * n_est * q * C <= TRACE_MAX
     w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
     # The running sum at every checkpoint, for the tail average at each checkpoint (`tail_at`): up to 160 MB (it is
     # not saved with the results, unlike the trace), else the tail metrics are NaN
-    sum_trace = np.zeros((C, B, n_est, q)) if B * n_est * q * C <= 20_000_000 else None
+    sum_trace = np.zeros((C, B, n_est, q)) if B * n_est * q * C <= SUM_TRACE_MAX else None
     # the channel's counts, frozen for a seed once it diverges (a stopped seed sends nothing)
     messages, bits, diverged_at = np.zeros(B), np.zeros(B), np.full(B, -1, dtype=np.int64)
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())

@@ -8,7 +8,7 @@ from pathlib import Path
 from dgtd.errors import DgtdInputError
 
 BYTES = 8  # every array of a run holds float64
-TRACE_MAX, SUM_TRACE_MAX = 2_000_000, 20_000_000  # the run loop keeps its traces only up to these sizes
+TRACE_MAX, SUM_TRACE_MAX = 2_000_000, 20_000_000  # numbers: the run loop keeps its traces only up to these sizes
 
 
 def available_bytes() -> int | None:

@@ -204,11 +204,14 @@ def true_value_errors(moments, result: RunResult) -> dict:
     return out | {"true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0])}
 
 
-def write_results(out: Path, result: RunResult, config: dict, algorithm: str, extra: dict | None = None) -> None:
+def write_results(
+    out: Path, result: RunResult, config: dict, algorithm: str, extra: dict | None = None, also: dict | None = None
+) -> None:
     """summary.json, metrics.csv (per seed), bands.csv (median and 90 % band over seeds) and trajectory.npz in
     ``out``; summary.json is written last.
 
-    ``extra``: scenario-specific numbers, stored in summary.json under "scenario".
+    ``extra``: scenario-specific numbers, stored in summary.json under "scenario"; ``also``: more files (name ->
+    a function returning its bytes), written with the others, before summary.json.
     """
     out = Path(out)
     arrays = {
@@ -218,19 +221,21 @@ def write_results(out: Path, result: RunResult, config: dict, algorithm: str, ex
     }
     if result.w_trace is not None:
         arrays["w_trace"] = result.w_trace
-
-    def trajectory() -> bytes:
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **arrays)
-        return buf.getvalue()
-
     files = {
         "metrics.csv": lambda: metrics_csv(result, algorithm),
         "bands.csv": lambda: bands_csv({algorithm: result}),
-        "trajectory.npz": trajectory,
+        "trajectory.npz": lambda: npz_bytes(arrays),
+        **(also or {}),
         "summary.json": lambda: json_bytes(summary(result, config) | ({"scenario": extra} if extra else {})),
     }
     write_all(out, files)
+
+
+def npz_bytes(arrays: dict) -> bytes:
+    """A compressed .npz of ``arrays``, as a file holds it."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
 
 
 class NotWritten(OSError):
