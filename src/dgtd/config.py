@@ -19,7 +19,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
-from dgtd.problems.model import with_reward_noise
+from dgtd.problems.model import with_restarts, with_reward_noise
 from dgtd.run.loop import RunSettings
 from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
@@ -55,6 +55,7 @@ class RunSpec:
     sampling: str | None = None
     shared: bool | None = None
     reward_noise: str | None = None
+    restarts: str | None = None
     backend: str = RunSettings.backend
     checkpoints: int = RunSettings.checkpoints
     tail_fraction: float = RunSettings.tail_fraction
@@ -72,11 +73,17 @@ ALGORITHM_FIELDS = ("alpha0", "beta", "schedule", "kappa", "rho")
 
 def _choices() -> dict:
     from dgtd.algorithms.stepsizes import SCHEDULES
-    from dgtd.problems.model import REWARD_NOISES
+    from dgtd.problems.model import RESTARTS, REWARD_NOISES
     from dgtd.run.loop import BACKENDS
     from dgtd.sources.model import SAMPLING_MODES
 
-    return {"schedule": SCHEDULES, "sampling": SAMPLING_MODES, "reward_noise": REWARD_NOISES, "backend": BACKENDS}
+    return {
+        "schedule": SCHEDULES,
+        "sampling": SAMPLING_MODES,
+        "reward_noise": REWARD_NOISES,
+        "restarts": RESTARTS,
+        "backend": BACKENDS,
+    }
 
 
 CHOICES = _choices()
@@ -189,10 +196,14 @@ def resolve(spec: RunSpec):
             network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
         if spec.reward_noise not in (None, problem.reward_noise):
             problem = with_reward_noise(problem, spec.reward_noise)
+        if spec.restarts not in (None, problem.restarts):
+            problem = with_restarts(problem, spec.restarts)
     elif spec.problem_file is not None:
         if spec.params:
             raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")
         problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
+        if spec.restarts is not None:
+            problem = with_restarts(problem, spec.restarts)
         graph, edge_prob, iterations = "ring", 1.0, 100_000
         algorithm, sampling, network = DGTD(), Sampling(), None
     else:
@@ -245,6 +256,7 @@ def resolve(spec: RunSpec):
         sampling=sampling.mode,
         shared=sampling.shared,
         reward_noise=problem.reward_noise,
+        restarts=getattr(problem, "restarts", None),  # (a model's convention; samples from a source are as recorded)
         algorithm=algorithm.name,
         params=params,
         env=_plain_env(env),
@@ -325,6 +337,7 @@ def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> N
         "--sampling": sc.sampling.mode,
         "--shared": sc.sampling.shared,
         "--reward-noise": sc.problem.reward_noise,
+        "--restarts": getattr(sc.problem, "restarts", None),
     }
     given = [
         flag
@@ -333,6 +346,7 @@ def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> N
             ("--sampling", spec.sampling),
             ("--shared", spec.shared),
             ("--reward-noise", spec.reward_noise),
+            ("--restarts", spec.restarts),
         )
         if value is not None and value != own[flag]
     ]

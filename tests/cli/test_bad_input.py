@@ -238,3 +238,33 @@ def test_whole_numbers_given_as_floats_are_counts_and_fractions_are_refused():
     for bad in (dict(iterations=2.5), dict(seeds=float("nan")), dict(seed=1e30), dict(block_size=True)):
         with pytest.raises(DgtdInputError, match="whole number"):
             RunSettings(**bad)
+
+
+CONVENTIONS = {
+    "skipped restarts of a continuing task": (("run", "paper-example-1", "--restarts", "skipped"), "episodic"),
+    "skipped restarts in solve": (("solve", "garnet", "--restarts", "skipped"), "episodic"),
+    "restarts of a simulator's samples": (("run", "paper-example-2", "--restarts", "skipped"), "--restarts"),
+    "an unknown convention": (("run", "boyan", "--restarts", "never"), "never"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CONVENTIONS))
+def test_an_episodic_convention_that_cannot_apply(run_cli, tmp_path, case):
+    args, words = CONVENTIONS[case]
+    one_line_error(*run_cli(*args, *(("--out", tmp_path / "o", "-T", 10) if args[0] == "run" else ())), words)
+
+
+def test_skipped_restarts_are_recorded_and_change_the_answer(run_cli, tmp_path):
+    """`dgtd solve` and `dgtd run` both say which convention they used; the exact w* moves with it."""
+    solved = {}
+    for conv in ("sampled", "skipped"):
+        code, out, _ = run_cli("solve", "boyan", "--restarts", conv)
+        assert code == 0
+        solved[conv] = json.loads(out)
+        assert solved[conv]["restarts"] == conv
+    assert solved["skipped"]["stationary_distribution"][-1] == 0.0 < solved["sampled"]["stationary_distribution"][-1]
+    assert abs(solved["skipped"]["w_star"][3] - solved["sampled"]["w_star"][3]) > 0.05
+    code, _, _ = run_cli("run", "boyan", "--restarts", "skipped", "-T", 100, "--no-plots", "--out", tmp_path / "r")
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert code == 0 and summary["config"]["restarts"] == "skipped"
+    np.testing.assert_allclose(summary["w_star"], solved["skipped"]["w_star"], rtol=1e-12)

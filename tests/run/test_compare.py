@@ -335,3 +335,22 @@ def test_compare_figures_say_what_they_draw(run_cli, tmp_path, monkeypatch):
     assert [t.get_text() for t in legend.get_texts()] == ["td0", "gtd2", "sends nothing: its final level (right)"]
     assert [h.get_linestyle() for h in legend.legend_handles] == ["-", "-", ":"]
     assert "last iterate" in fig.axes[0].get_ylabel()
+
+
+def test_error_area_is_the_mean_error_over_steps_and_a_diverged_seed_counts_as_not_learning():
+    """Checkpoints at steps 10, 20, 100 of a 100-step run, each error held over the steps up to it: seed 0 learns
+    (0.5 for 10 steps, 0.2 for 10, 0.1 for 80: area 0.05 + 0.02 + 0.08 = 0.15); seed 1 rises past the start's error
+    (capped at 1) and diverges at step 20 (NaN from there): 1 for every step, area 1; seed 2 diverges at step 15
+    after 0.4: 0.4 over steps 1..10, then 1 (the start's error) over the other 90: area 0.94."""
+    from types import SimpleNamespace
+
+    from dgtd.run.compare import error_area
+
+    nan = float("nan")
+    errors = np.array([[0.5, 3.0, 0.4], [0.2, nan, nan], [0.1, nan, nan]])
+    result = SimpleNamespace(
+        steps=np.array([10, 20, 100]),
+        metrics={"value_error_last": errors},
+        info={"diverged_at": np.array([-1, 20, 15])},
+    )
+    np.testing.assert_allclose(error_area(result), [0.15, 1.0, 0.94], rtol=1e-12)

@@ -141,6 +141,14 @@ def _spec_options(f):
             "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
             "r(s, a, s') where the problem gives rewards per transition (transition).",
         ),
+        click.option(
+            "--restarts",
+            type=click.Choice(CHOICES["restarts"]),
+            default=None,
+            help="An episodic task's restart transition (terminal state to the next episode's start) is a sample, "
+            "as dgtd counts it (sampled, the default), or not, as RL-Glue based suites count it (skipped; d then "
+            "weights the non-terminal states only). See README, Episodic tasks.",
+        ),
         click.option("--backend", type=click.Choice(CHOICES["backend"]), default=d("backend"), show_default=True),
         click.option(
             "--checkpoints",
@@ -420,7 +428,13 @@ def final_table(result) -> str:
 @cli.command()
 @click.argument("scenario", required=False)
 @_problem_options
-def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
+@click.option(
+    "--restarts",
+    type=click.Choice(CHOICES["restarts"]),
+    default=None,
+    help="An episodic task's restarts: samples (sampled) or not (skipped); as for dgtd run.",
+)
+def solve(scenario, problem_file, graph, edge_prob, kappa, rho, restarts):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes)."""
     from dgtd.config import RunSpec, resolve
@@ -429,7 +443,15 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho):
 
     if scenario is None and problem_file is None:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
-    spec = RunSpec(scenario=scenario, problem_file=problem_file, graph=graph, edge_prob=edge_prob, kappa=kappa, rho=rho)
+    spec = RunSpec(
+        scenario=scenario,
+        problem_file=problem_file,
+        graph=graph,
+        edge_prob=edge_prob,
+        kappa=kappa,
+        rho=rho,
+        restarts=restarts,
+    )
     problem, network, algorithm, *_ = resolve(spec)
     m = exact.Moments(problem)
     L = network.mean_laplacian()

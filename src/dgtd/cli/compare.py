@@ -46,6 +46,12 @@ def _names(text: str | None) -> tuple[str, ...]:
     help="All agents observe one state trajectory, or each its own copy (default: the scenario's).",
 )
 @click.option(
+    "--restarts",
+    type=click.Choice(CHOICES["restarts"]),
+    default=None,
+    help="An episodic task's restarts: samples (sampled, dgtd's) or not (skipped, RL-Glue suites'); as for dgtd run.",
+)
+@click.option(
     "--tune/--no-tune",
     default=False,
     show_default=True,
@@ -91,6 +97,7 @@ def compare(
     edge_prob,
     sampling,
     shared,
+    restarts,
     tune,
     tune_seeds,
     backend,
@@ -138,6 +145,7 @@ def compare(
         seed=seed,
         sampling=sampling,
         shared=shared,
+        restarts=restarts,
         backend=backend,
         checkpoints=checkpoints,
     )
@@ -231,12 +239,15 @@ def compare(
 
 def table(results: dict, used: dict) -> str:
     """Final worst-agent errors (median over seeds) and divergence, one line per algorithm: weight errors in the max
-    norm, value errors |Phi (w_i - w*)|_d / |Phi w*|_d."""
+    norm, value errors |Phi (w_i - w*)|_d / |Phi w*|_d, and the area under the value error curve (`error_area`: a
+    diverged seed counts as one that stopped learning)."""
     import numpy as np
+
+    from dgtd.run.compare import error_area
 
     rows = [
         f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'value last':>12}{'value avg':>12}"
-        f"{'MSPBE last':>12}{'messages':>12}  diverged"
+        f"{'value area':>12}{'MSPBE last':>12}{'messages':>12}  diverged"
     ]
     for name, r in results.items():
 
@@ -251,7 +262,7 @@ def table(results: dict, used: dict) -> str:
         )
         rows.append(
             f"{name:<14}{used[name].alpha0:>8.3g}{med('error_last'):>12.3g}{med('error_avg'):>12.3g}"
-            f"{med('value_error_last'):>12.3g}{med('value_error_avg'):>12.3g}"
+            f"{med('value_error_last'):>12.3g}{med('value_error_avg'):>12.3g}{np.median(error_area(r)):>12.3g}"
             f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}  {d}"
         )
     return "\n".join(rows)

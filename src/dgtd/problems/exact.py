@@ -44,7 +44,14 @@ class Moments:
 
     @cached_property
     def d(self) -> np.ndarray:
-        return stationary_distribution(self.problem.P_behaviour)
+        """The distribution of the sampled states: the behaviour chain's stationary distribution, conditioned on a
+        non-terminal state where an episodic task's restarts are not samples (`Problem.restarts`)."""
+        d = stationary_distribution(self.problem.P_behaviour)
+        terminal = self.problem.terminal
+        if self.problem.restarts == "skipped" and terminal is not None:
+            d = np.where(terminal, 0.0, d)
+            d /= d.sum()
+        return d
 
     @cached_property
     def M(self) -> np.ndarray:
@@ -327,7 +334,7 @@ def lemma_bounds(m: Moments, L, max_degree: int) -> Bounds:
     """
     p = m.problem
     S, N = p.n_states, p.n_agents
-    xi = float(m.d.min())
+    xi = float(m.d[m.d > 0].min())  # (a terminal state that is never sampled has d = 0 and no say)
     eig = np.linalg.eigvalsh(p.Phi.T @ p.Phi)
     lam = float(eig.min() if m.full_rank else eig[eig > 1e-10 * eig.max()].min())  # dependent features: row space
     J = value_function(m)

@@ -16,6 +16,7 @@ from dgtd.errors import DgtdInputError
 
 ROW_SUM_TOL = 1e-8
 REWARD_NOISES = ("none", "bernoulli", "uniform", "transition")
+RESTARTS = ("sampled", "skipped")  # what an episodic task's restart transition is: a sample, or not one
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,6 +48,11 @@ class Problem:
       state ends the return (the terminal's value is 0), and the terminal's own transition is the restart, whose
       row of P is the restart distribution and which carries nothing over into the next episode (Sutton and
       Barto 2018, section 3.4; White 2017, transition-based discounting). All False: a continuing task.
+    - ``restarts``: 'sampled' (dgtd's convention): the terminal state's restart transition is a sample like any
+      other, so d weights the terminal state too; 'skipped' (the RL-Glue suites', e.g. Regularized-GradientTD):
+      an episode's samples are its transitions out of non-terminal states, the next sample after a transition
+      into a terminal state starts at the restart's state, and d is the chain's stationary distribution
+      conditioned on a non-terminal state (`with_restarts`).
     """
 
     P: np.ndarray
@@ -63,6 +69,7 @@ class Problem:
     w0: np.ndarray | None = None
     terminal: np.ndarray | None = None
     R_transition: np.ndarray | None = None
+    restarts: str = "sampled"
 
     @property
     def reward_table(self) -> np.ndarray:
@@ -223,6 +230,25 @@ def with_reward_noise(problem: Problem, reward_noise: str) -> Problem:
     """The same problem with another way of drawing rewards, checked as `make_problem` checks it."""
     check_reward_noise(reward_noise, problem.R_transition)
     return replace(problem, reward_noise=reward_noise)
+
+
+def with_restarts(problem: Problem, restarts: str) -> Problem:
+    """The same episodic task under the other convention of what a sample is (`Problem.restarts`)."""
+    if restarts not in RESTARTS:
+        raise DgtdInputError(f"restarts must be one of {', '.join(RESTARTS)}, got {restarts!r}")
+    if restarts == "skipped":
+        if problem.terminal is None:
+            raise DgtdInputError(
+                f"restarts = skipped applies to an episodic task (one with terminal states); {problem.name} is "
+                "continuing"
+            )
+        restart = problem.P_behaviour[problem.terminal]
+        if (restart[:, problem.terminal] > 0).any():
+            raise DgtdInputError(
+                "restarts = skipped needs every restart to start at a non-terminal state; this task's terminal "
+                "states restart into terminal ones"
+            )
+    return replace(problem, restarts=restarts)
 
 
 def make_problem(

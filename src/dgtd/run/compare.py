@@ -90,6 +90,19 @@ def tune_score(result: RunResult) -> float:
     return float(np.median(np.log10(err).mean(axis=0)))
 
 
+def error_area(result: RunResult, metric: str = "value_error_last") -> np.ndarray:
+    """The area under each seed's error curve, per step: the mean of the worst agent's ``metric`` over the run's
+    steps, each checkpoint's value held over the steps since the one before (the checkpoints are not evenly
+    spaced). Every value is capped at 1, the relative value error of the start w0 (predicting nothing), and a
+    diverged seed counts 1 from its divergence on: a diverged run scores as one that stopped learning, so the area
+    is a number in [0, 1] for every run, and medians and ranks over runs are defined (RL-Glue suites report the
+    same mean error; they drop or flag diverged runs instead)."""
+    err = np.asarray(result.metrics[metric], dtype=np.float64)
+    err = np.where(np.isfinite(err), np.minimum(err, 1.0), 1.0)
+    held = np.diff(np.concatenate([[0], result.steps])).astype(np.float64)
+    return held @ err / float(result.steps[-1])
+
+
 def _source(source_factory, settings: RunSettings):
     """A fresh simulator source for ``settings`` (so that every run replays the same streams), or None."""
     return None if source_factory is None else source_factory(settings.seed, range(settings.seeds))
@@ -217,6 +230,7 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
             "tuning": [{"alpha0": a, "score": (s if np.isfinite(s) else None)} for a, s in tables.get(name, [])],
             "final": final,
             "error_tail_averaged": _stats(exact.relative_error(r.w_tail, reference(r)).max(-1)),
+            "value_error_area": _stats(error_area(r)),
             "diverged_seeds": [int(b) for b in np.flatnonzero(div >= 0)],
             "diverged_at_step": [int(k) for k in div[div >= 0]],
             "samples_per_step": int(r.info["samples_per_step"]),

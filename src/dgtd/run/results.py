@@ -144,8 +144,9 @@ def metrics_csv(result: RunResult, algorithm: str) -> bytes:
 
 
 def problem_fields(problem) -> dict:
-    """What results files say of the problem: its name, sizes, discount and whether it is off-policy."""
-    return {
+    """What results files say of the problem: its name, sizes, discount, whether it is off-policy, and for an
+    episodic model whether its restarts are samples (`dgtd.problems.model.Problem.restarts`)."""
+    fields = {
         "problem": problem.name,
         "n_states": problem.n_states,
         "n_agents": problem.n_agents,
@@ -153,6 +154,9 @@ def problem_fields(problem) -> dict:
         "gamma": problem.gamma,
         "off_policy": problem.off_policy,
     }
+    if getattr(problem, "terminal", None) is not None and hasattr(problem, "restarts"):
+        fields["restarts"] = problem.restarts
+    return fields
 
 
 def summary(result: RunResult, config: dict) -> dict:

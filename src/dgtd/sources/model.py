@@ -116,8 +116,10 @@ class Streams:
         mode: str,
         reward_noise: bool,
         random_edges: bool,
+        restart_uniform: bool = False,
     ):
         self.seed = int(seed)
+        self.width = 2 if mode == "iid" or restart_uniform else 1  # state uniforms per observation and step
         self.seed_ids = np.asarray(seed_ids, dtype=np.int64)
         self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, n_edges
         self.mode, self.reward_noise, self.random_edges = mode, reward_noise, random_edges
@@ -131,9 +133,9 @@ class Streams:
         return np.stack([g[0].random(self.n_obs) for g in self.gens])
 
     def draw(self, T: int) -> dict[str, np.ndarray]:
-        """Next T steps: 'state' (T, B, n_obs, 2 or 1), 'reward' (T, B, N) and 'edge' (T, B, E) when used."""
-        width = 2 if self.mode == "iid" else 1
-        out = {"state": np.stack([g[0].random((T, self.n_obs, width)) for g in self.gens], axis=1)}
+        """Next T steps: 'state' (T, B, n_obs, 2 or 1: s ~ d or a skipped restart's state, then (a, s')), 'reward'
+        (T, B, N) and 'edge' (T, B, E) when used."""
+        out = {"state": np.stack([g[0].random((T, self.n_obs, self.width)) for g in self.gens], axis=1)}
         if self.reward_noise:
             out["reward"] = np.stack([g[1].random((T, self.n_agents)) for g in self.gens], axis=1)
         if self.random_edges:
@@ -179,6 +181,15 @@ def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.
     return s, idx // S, idx % S
 
 
+def next_current(tables: SamplerTables, S: int, terminal, sn: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Where a Markovian trajectory goes on after (s, a, s'): from s', or, where restarts are not samples
+    (``terminal`` given, `Problem.restarts`) and s' is terminal, from the restart's state drawn from u."""
+    if terminal is None:
+        return sn
+    restart = alias_pick(tables.sa_prob[sn], tables.sa_alias[sn], u) % S
+    return np.where(terminal[sn], restart, sn)
+
+
 def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, sn: np.ndarray, u_reward) -> np.ndarray:
     """r (..., N): agent i's reward at its observation (s_i, a_i, s'_i); shared observations broadcast."""
     N = problem.n_agents
@@ -191,6 +202,11 @@ def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, sn: np.ndarray, u_re
     return reward_from_uniform(mean, problem.sigma, problem.reward_noise, u_reward)
 
 
+def skipped_restarts(problem: Problem):
+    """The terminal flags where an episodic task's restarts are not samples (`Problem.restarts`), else None."""
+    return problem.terminal if getattr(problem, "restarts", "sampled") == "skipped" else None
+
+
 def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dict, current):
     """NumPy reference: turn a block of uniforms into a `Block`; returns (block, current state or None)."""
     S = problem.n_states
@@ -201,7 +217,7 @@ def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dic
         s, a, sn = (np.empty(U["state"].shape[:-1], np.int64) for _ in range(3))
         for t in range(T):
             s[t], a[t], sn[t] = pick_states(tables, S, U["state"][t], current)
-            current = sn[t]
+            current = next_current(tables, S, skipped_restarts(problem), sn[t], U["state"][t][..., 0])
     r = rewards(problem, s, a, sn, U.get("reward"))
     up = network.masks_from_uniforms(U["edge"]) if "edge" in U else None
     return Block(s, a, sn, np.ascontiguousarray(r, dtype=np.float64), up), current
@@ -236,6 +252,7 @@ class ModelSource:
             mode=sampling.mode,
             reward_noise=problem.reward_noise not in ("none", "transition"),
             random_edges=not network.fixed,
+            restart_uniform=sampling.mode == "markov" and skipped_restarts(problem) is not None,
         )
         self.markov = sampling.mode == "markov"
         self.backend = backend

@@ -67,6 +67,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
         d_alias,
         sa_prob,
         sa_alias,
+        terminal,
         R_sample,
         sigma,
         noise,
@@ -97,6 +98,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
                 d_alias,
                 sa_prob,
                 sa_alias,
+                terminal,
                 R_sample,
                 sigma,
                 noise,
@@ -140,6 +142,7 @@ def _chunk(
     d_alias,
     sa_prob,
     sa_alias,
+    terminal,
     R_sample,
     sigma,
     noise,
@@ -203,6 +206,7 @@ def _chunk(
                         d_alias,
                         sa_prob,
                         sa_alias,
+                        terminal,
                         R_sample,
                         sigma,
                         noise,
@@ -236,6 +240,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
         d_alias,
         sa_prob,
         sa_alias,
+        terminal,
         R_sample,
         sigma,
         noise,
@@ -267,6 +272,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
             d_alias,
             sa_prob,
             sa_alias,
+            terminal,
             R_sample,
             sigma,
             noise,
@@ -305,6 +311,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 d_alias,
                 sa_prob,
                 sa_alias,
+                terminal,
                 R_sample,
                 sigma,
                 noise,
@@ -632,8 +639,8 @@ def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
     streams of `Draws` simply go on)."""
     if isinstance(blk, Draws) or t0 == 0:
         return sampler
-    s, a, sn, r, up = sampler[12:17]
-    return (*sampler[:12], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[17])
+    s, a, sn, r, up = sampler[13:18]
+    return (*sampler[:13], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[18])
 
 
 def _layouts(ctx, B: int, L: int, q: int, messages: bool) -> Layouts:

@@ -46,14 +46,17 @@ def _divmod(j, S, inv_S):
 
 
 @njit(cache=True, inline="always")
-def _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, S):
+def _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, terminal, S):
     """(s, a, s') of observation o of seed b from its two uniforms: s ~ d from u_s (i.i.d.) or the trajectory's
-    current state (Markovian, which then moves to s'; u_s is unused), and (a, s') from u_sa: the table's flat
-    index a * S + s'."""
+    current state (Markovian, which then moves to s'), and (a, s') from u_sa: the table's flat index a * S + s'.
+    Where restarts are not samples (``terminal`` holds the S flags, else nothing), a trajectory that reaches a
+    terminal s' goes on from the restart's state, drawn from u_s (`dgtd.sources.model.next_current`)."""
     s = current[b, o] if markov else _alias(d_prob, d_alias, u_s)
     a, sn = _divmod(_alias_row(sa_prob, sa_alias, s, u_sa), S, 1.0 / S)
     if markov:
         current[b, o] = sn
+        if terminal.shape[0] > 0 and terminal[sn]:
+            current[b, o] = _divmod(_alias_row(sa_prob, sa_alias, sn, u_s), S, 1.0 / S)[1]
     return s, a, sn
 
 
@@ -78,6 +81,7 @@ def _sample_kernel(
     d_alias,
     sa_prob,
     sa_alias,
+    terminal,
     R_sample,
     sigma,
     noise,
@@ -107,6 +111,7 @@ def _sample_kernel(
                 d_alias,
                 sa_prob,
                 sa_alias,
+                terminal,
                 S,
             )
             s_out[t, b, o] = s
@@ -148,6 +153,7 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
         tables.d_alias,
         tables.sa_prob,
         tables.sa_alias,
+        restart_flags(problem, markov),
         np.ascontiguousarray(problem.reward_table),
         float(problem.sigma),
         NOISE_CODES[problem.reward_noise],
@@ -174,6 +180,7 @@ def _step_samples(
     d_alias,
     sa_prob,
     sa_alias,
+    terminal,
     R_sample,
     sigma,
     noise,
@@ -209,6 +216,7 @@ def _step_samples(
         d_alias,
         sa_prob,
         sa_alias,
+        terminal,
         R_sample,
         sigma,
         noise,
@@ -237,6 +245,7 @@ def _step_observations(
     d_alias,
     sa_prob,
     sa_alias,
+    terminal,
     R_sample,
     sigma,
     noise,
@@ -262,11 +271,11 @@ def _step_observations(
     hi, lo, inc_hi, inc_lo = rng[b, 0, 0], rng[b, 0, 1], rng[b, 0, 2], rng[b, 0, 3]  # in registers (`pcg_step`)
     for o in range(n_obs):
         u_s = 0.0
-        if not markov:  # drawn first, as `Streams.draw` lays them out
+        if not markov or terminal.shape[0] > 0:  # drawn first, as `Streams.draw` lays them out
             hi, lo, u_s = pcg_step(hi, lo, inc_hi, inc_lo)
         hi, lo, u_sa = pcg_step(hi, lo, inc_hi, inc_lo)
         s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(
-            u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, S
+            u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, terminal, S
         )
     rng[b, 0, 0], rng[b, 0, 1] = hi, lo
     hi, lo, inc_hi, inc_lo = rng[b, 1, 0], rng[b, 1, 1], rng[b, 1, 2], rng[b, 1, 3]
@@ -339,28 +348,38 @@ def sample_args(ctx, blk, B: int):
         fused, rng = False, np.zeros((B, 3, 4), np.uint64)
     if tables is None:  # no model (a simulator's or a data file's samples): the drawing arguments go unread
         empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
-        model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros((1, 1, 1, 1)), 1.0, 0)
+        model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros(0, np.bool_), np.zeros((1, 1, 1, 1)), 1.0, 0)
     else:
         model = (
             tables.d_prob,
             tables.d_alias,
             tables.sa_prob,
             tables.sa_alias,
+            restart_flags(problem, markov),
             problem.reward_table,
             float(problem.sigma),
             NOISE_CODES[problem.reward_noise],
         )
-    d_prob, d_alias, sa_prob, sa_alias, R, sigma, noise = model
+    d_prob, d_alias, sa_prob, sa_alias, terminal, R, sigma, noise = model
     model = (
         frozen(d_prob, np.float64),
         frozen(d_alias, np.int64),
         frozen(sa_prob, np.float64),
         frozen(sa_alias, np.int64),
+        frozen(terminal, np.bool_),
         frozen(R, np.float64),
         sigma,
         noise,
     )
     return (fused, rng, markov, current, *model, frozen(p_edge, np.float64), *samples, np.zeros(B, np.int64))
+
+
+def restart_flags(problem, markov: bool) -> np.ndarray:
+    """The terminal flags (S,) a Markovian sampler reads where an episodic task's restarts are not samples
+    (`Problem.restarts`), else none (an i.i.d. sampler skips them through d's tables alone)."""
+    if markov and problem.restarts == "skipped":
+        return np.ascontiguousarray(problem.terminal, np.bool_)
+    return np.zeros(0, np.bool_)
 
 
 def frozen(x, dtype) -> np.ndarray:
