@@ -27,19 +27,19 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.cli.bench import machine
-from dgtd.config import RunSpec, resolve, scenario_of
+from dgtd.config import ProblemConfig, RunConfig, resolve, scenario_of
 from dgtd.run.loop import RunSettings, run
 
 ROOT = Path(__file__).resolve().parents[1]
 BEGIN, END = "<!-- env-throughput: begin -->", "<!-- env-throughput: end -->"
 CHAIN = f"{ROOT / 'tests' / 'envs' / 'chain.py'}:make_chain"
-ENVS = {  # name -> the run's spec
-    "chain (PettingZoo, 3 agents, one-hot)": RunSpec(env={"make": CHAIN, "features": "one-hot"}),
-    "CartPole-v1 split among 3 (Gymnasium, fourier:2)": RunSpec(
-        env={"make": "gymnasium:CartPole-v1", "agents": 3, "features": "fourier:2"}
+ENVS = {  # name -> the run's config
+    "chain (PettingZoo, 3 agents, one-hot)": RunConfig(ProblemConfig(env={"make": CHAIN, "features": "one-hot"})),
+    "CartPole-v1 split among 3 (Gymnasium, fourier:2)": RunConfig(
+        ProblemConfig(env={"make": "gymnasium:CartPole-v1", "agents": 3, "features": "fourier:2"})
     ),
-    "mpe-spread, 3 agents (MPE2)": RunSpec(scenario="mpe-spread", params={"agents": 3}),
-    "mpe-spread, 6 agents (MPE2)": RunSpec(scenario="mpe-spread", params={"agents": 6}),
+    "mpe-spread, 3 agents (MPE2)": RunConfig(ProblemConfig(scenario="mpe-spread", params={"agents": 3})),
+    "mpe-spread, 6 agents (MPE2)": RunConfig(ProblemConfig(scenario="mpe-spread", params={"agents": 6})),
 }
 SEEDS, STEPS, BLOCK = 4, 20_000, 1024
 

@@ -8,6 +8,9 @@ The names a user needs, each documented where it is defined::
     result = dgtd.evaluate(sc.problem, sc.network, dgtd.DGTD(alpha0=1.0), iterations=100_000, seeds=4)
     result.metrics["error_avg"][-1]                           # max_i |w_i - w*| / |w*| per seed, averaged iterate
 
+- one run configuration: `RunConfig` and its sections `ProblemConfig`, `NetworkConfig`, `AlgorithmConfig`,
+  `SamplingConfig`, `RunLength`, `Output` (what an experiment file holds), and `execute`, which runs one as
+  ``dgtd run`` does;
 - runs: `evaluate` (`dgtd.run.loop.run` is the loop itself, with checkpoints and resume), `RunSettings`,
   `Sampling`, `RunResult`;
 - scenarios: `scenario`, `SCENARIOS`;
@@ -36,6 +39,14 @@ __version__ = "0.1.0"
 
 _EXPORTS = {
     "evaluate": "dgtd.run.loop",
+    "execute": "dgtd.cli.job",
+    "RunConfig": "dgtd.config",
+    "ProblemConfig": "dgtd.config",
+    "NetworkConfig": "dgtd.config",
+    "AlgorithmConfig": "dgtd.config",
+    "SamplingConfig": "dgtd.config",
+    "RunLength": "dgtd.config",
+    "Output": "dgtd.config",
     "RunSettings": "dgtd.run.loop",
     "RunResult": "dgtd.run.loop",
     "Sampling": "dgtd.sources.model",

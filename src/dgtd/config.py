@@ -1,8 +1,11 @@
-"""A run described as plain data (`RunSpec`) and its resolution into library objects.
+"""One run configuration, `RunConfig`: what the agents evaluate, over which network, with which algorithm, how they
+sample, for how long, and where the results go. It is at once the experiment file (TOML, one table per section:
+`dgtd.experiments`), the Python API's argument (`dgtd.execute`) and what the command line's options set (each
+option is a field, named as in `FLAT`; tests/config/test_config_cli.py checks their defaults and choices).
 
-Every field may be left None to take the scenario's value; `resolve` returns the objects and the fully
-resolved spec, which is what results directories record so that a run can be reproduced exactly.
-Experiment files (`dgtd.experiments`) are TOML serialisations of a `RunSpec`.
+Every field may be left None to take the scenario's value (or the library's default); `resolve` returns the library
+objects and the fully resolved config, which is what results directories record, so that a run can be reproduced
+exactly. The run loop's own working state (`dgtd.run.loop.Context`, `dgtd.cli.job.PreparedRun`) stays separate.
 """
 
 from __future__ import annotations
@@ -11,8 +14,9 @@ import difflib
 import inspect
 import types
 import typing
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, make_dataclass, replace
 from functools import lru_cache
+from types import SimpleNamespace
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
@@ -20,55 +24,187 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
 from dgtd.problems.model import with_restarts, with_reward_noise
-from dgtd.run.loop import RunSettings
+from dgtd.run.loop import RunSettings, check_count
 from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
 
 
 @dataclass(frozen=True)
-class RunSpec:
-    """One run, as data. ``scenario``, ``problem_file``, ``env`` (the fields of `dgtd.scenarios.user.EnvSpec`: a
-    user's simulator) or ``data`` (a transitions file) names the problem; ``gamma`` is the discount of the last two.
-
-    ``algorithm`` names an entry of `dgtd.algorithms.ALGORITHMS` (default: the scenario's); ``alpha0`` ..
-    ``rho`` set the fields of that name of its config and ``algorithm_params`` any other field (e.g.
-    ``box_scale``). ``params`` are the scenario's own keyword arguments (``edge_prob`` stays a field of its own).
-    Defaults of the run's length and seeds are `RunSettings`'; None takes the scenario's value. The command-line
-    options of ``dgtd run`` take their defaults and choices from here (`dgtd.cli.spec_default`, `CHOICES`).
-    """
+class ProblemConfig:
+    """What the agents evaluate: exactly one of ``scenario`` (a name `dgtd scenarios` lists), ``problem_file`` (an
+    .npz model), ``env`` (a user's simulator: the fields of `dgtd.scenarios.user.EnvSpec`) or ``data`` (recorded
+    transitions): a tagged choice, checked by `resolve`. ``gamma`` is the discount of an env or data run; ``params``
+    the scenario's own keyword arguments; ``reward_noise`` and ``restarts`` (an episodic task's convention,
+    `dgtd.problems.model.Problem`) change how a model's samples are drawn."""
 
     scenario: str | None = None
     problem_file: str | None = None
     env: dict | None = None
     data: str | None = None
     gamma: float | None = None
-    graph: str | None = None
-    edge_prob: float | None = None
-    iterations: int | None = None
-    seeds: int = RunSettings.seeds
-    seed: int = RunSettings.seed
-    alpha0: float | None = None
-    beta: float | None = None
-    schedule: str | None = None
-    kappa: float | None = None
-    rho: float | None = None
-    sampling: str | None = None
-    shared: bool | None = None
+    params: dict | None = None
     reward_noise: str | None = None
     restarts: str | None = None
-    backend: str = RunSettings.backend
-    checkpoints: int = RunSettings.checkpoints
-    tail_fraction: float = RunSettings.tail_fraction
-    block_size: int = RunSettings.block_size
-    algorithm: str | None = None
-    params: dict | None = None
-    algorithm_params: dict | None = None
 
-    def to_dict(self) -> dict:
-        return asdict(self)
 
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Who hears whom: ``graph`` (a topology of `dgtd.graphs.topologies` or a file of 'i j' edge lines; default the
+    scenario's, else ring), each of whose edges is up with probability ``edge_prob`` at each step."""
+
+    graph: str | None = None
+    edge_prob: float | None = None
+
+
+@dataclass(frozen=True)
+class AlgorithmConfig:
+    """``name``, a key of `dgtd.algorithms.ALGORITHMS` (default: the scenario's), and ``fields`` to set on its
+    config: any field of that dataclass (alpha0, beta, schedule, kappa, rho, box_scale, ...), checked against it by
+    `resolve`; the others keep the scenario's values. In an experiment file they sit beside ``name`` in
+    [algorithm]; on the command line --alpha0, --beta, --schedule, --kappa and --rho set the five common ones."""
+
+    name: str | None = None
+    fields: dict = field(default_factory=dict)
+
+
+def _optional(cls, name: str, doc: str):
+    """A frozen dataclass with ``cls``'s fields, each optional with default None ('the scenario's value, else
+    ``cls``'s default'): the configuration's section for ``cls`` without declaring its fields a second time."""
+    hints = typing.get_type_hints(cls)
+    section = make_dataclass(
+        name, [(f.name, hints[f.name] | None, field(default=None)) for f in fields(cls)], frozen=True
+    )
+    section.__module__, section.__doc__ = __name__, doc
+    return section
+
+
+SamplingConfig = _optional(
+    Sampling,
+    "SamplingConfig",
+    "How the agents see the chain: the fields of `dgtd.sources.model.Sampling`; None takes the scenario's.",
+)
+RunLength = _optional(
+    RunSettings,
+    "RunLength",
+    "How long and how many: the fields of `dgtd.run.loop.RunSettings` (iterations, seeds, seed, checkpoints, "
+    "tail_fraction, block_size, backend); None takes the scenario's iterations and RunSettings' other defaults.",
+)
+
+
+@dataclass(frozen=True)
+class Output:
+    """How a run reports and saves; none of these changes the numbers.
+
+    - ``out``: results directory (default: runs/NAME of the problem).
+    - ``progress``, ``plots``: progress bar on stderr; figures in the results directory.
+    - ``checkpoint_every``: save the whole run state every K iterations (0: never), for ``resume``.
+    - ``resume``: continue the run saved in ``out`` from its last checkpoint.
+    - ``overwrite``: replace the results of another run (another configuration) in ``out``; without it that is
+      refused. Rerunning the same configuration into its own directory needs no flag. Either way the previous
+      run's files go first, so a directory never mixes two runs.
+    """
+
+    out: str | None = None
+    progress: bool = True
+    plots: bool = True
+    checkpoint_every: int = 0
+    resume: bool = False
+    overwrite: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "checkpoint_every", check_count("checkpoint_every", self.checkpoint_every, 0))
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """One run, as data: its sections are the tables of an experiment file.
+
+    ``dgtd.execute(RunConfig(ProblemConfig(scenario="paper-example-1"), run=RunLength(seeds=4)))`` runs it as
+    ``dgtd run paper-example-1 --seeds 4`` does."""
+
+    problem: ProblemConfig = ProblemConfig()
+    network: NetworkConfig = NetworkConfig()
+    algorithm: AlgorithmConfig = AlgorithmConfig()
+    sampling: SamplingConfig = SamplingConfig()  # type: ignore[valid-type]
+    run: RunLength = RunLength()  # type: ignore[valid-type]
+    output: Output = Output()
+
+
+SECTIONS = {
+    "problem": ProblemConfig,
+    "network": NetworkConfig,
+    "algorithm": AlgorithmConfig,
+    "sampling": SamplingConfig,
+    "run": RunLength,
+    "output": Output,
+}
+"""Section name -> its dataclass: the tables of an experiment file."""
 
 ALGORITHM_FIELDS = ("alpha0", "beta", "schedule", "kappa", "rho")
+"""The algorithm fields that have options of their own (--alpha0 ...) and flat names of their own."""
+FLAT_ALIASES = {"algorithm": ("algorithm", "name"), "sampling": ("sampling", "mode")}
+
+
+def _flat_names() -> dict:
+    """Flat name -> (section, field): the command line's options (dashes as underscores), a [grid]'s keys and the
+    top-level keys of an experiment file in the older flat layout, which is still read."""
+    out = {}
+    for section, cls in SECTIONS.items():
+        for f in fields(cls):
+            if section != "algorithm" and (section, f.name) not in FLAT_ALIASES.values():
+                out[f.name] = (section, f.name)
+    out.update(FLAT_ALIASES)
+    out.update({k: ("algorithm", k) for k in ALGORITHM_FIELDS})
+    out["algorithm_params"] = ("algorithm", "params")  # every other field of the algorithm, as one table
+    return out
+
+
+FLAT = _flat_names()
+
+
+def flat(config: RunConfig) -> dict:
+    """The run's fields (all but the output's) by their flat names: what results files record (summary.json's
+    config, a checkpoint's), and the keys a sweep's grid and the command line's options set."""
+    d = {}
+    for name, (section, key) in FLAT.items():
+        if section == "output":
+            continue
+        if section == "algorithm" and key != "name":
+            fields_ = config.algorithm.fields
+            d[name] = (
+                fields_.get(key)
+                if key != "params"
+                else {k: v for k, v in fields_.items() if k not in ALGORITHM_FIELDS} or None
+            )
+        else:
+            d[name] = getattr(getattr(config, section), key)
+    return d
+
+
+def unflat(values: dict, output: Output | None = None) -> RunConfig:
+    """The `RunConfig` of flat ``values`` (`flat`'s, or output fields too); names not in `FLAT` are an error."""
+    parts: dict = {section: {} for section in SECTIONS}
+    algorithm_fields: dict = {}
+    for name, value in values.items():
+        if name not in FLAT:
+            raise DgtdInputError(f"unknown field {name!r}{closest(name, FLAT)}")
+        section, key = FLAT[name]
+        if section == "algorithm" and key == "params":
+            algorithm_fields.update(value or {})
+        elif section == "algorithm" and key != "name":
+            if value is not None:
+                algorithm_fields[key] = value
+        else:
+            parts[section][key] = value
+    parts["algorithm"]["fields"] = algorithm_fields
+    sections = {name: SECTIONS[name](**kw) for name, kw in parts.items() if name != "output"}
+    out = replace(output or Output(), **parts["output"])
+    return RunConfig(**sections, output=out)
+
+
+def with_flat(config: RunConfig, **values) -> RunConfig:
+    """``config`` with fields replaced by their flat names (None clears one: the scenario's value again)."""
+    return unflat({**flat(config), **values}, config.output)
 
 
 def _choices() -> dict:
@@ -87,7 +223,7 @@ def _choices() -> dict:
 
 
 CHOICES = _choices()
-"""RunSpec field -> its valid values, from the modules that check them."""
+"""Flat field name -> its valid values, from the modules that check them."""
 STEP_SIZE_FIELDS = ("alpha0", "beta", "schedule")
 
 
@@ -157,8 +293,10 @@ def _network(graph: str, n_agents: int, edge_prob: float):
 PROBLEM_FIELDS = ("scenario", "problem_file", "env", "data")
 
 
-def resolve(spec: RunSpec):
-    """(problem, network, algorithm, sampling, settings, resolved spec) for a spec."""
+def resolve(config: RunConfig):
+    """(problem, network, algorithm, sampling, settings, resolved config) for a config: every field checked, each
+    None given the scenario's value, the library's objects built."""
+    spec = view(config)
     if spec.env is not None and not spec.env.get("make"):
         raise DgtdInputError(
             f"{', '.join(sorted(spec.env))} set the fields of an env run; name the env too: --env "
@@ -196,7 +334,7 @@ def resolve(spec: RunSpec):
             network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
         if spec.reward_noise not in (None, problem.reward_noise):
             problem = with_reward_noise(problem, spec.reward_noise)
-        if spec.restarts not in (None, problem.restarts):
+        if spec.restarts not in (None, getattr(problem, "restarts", None)):
             problem = with_restarts(problem, spec.restarts)
     elif spec.problem_file is not None:
         if spec.params:
@@ -210,7 +348,9 @@ def resolve(spec: RunSpec):
         if spec.params:
             raise DgtdInputError("params are a scenario's parameters; an --env run takes its settings in [env]")
         env = None if spec.env is None else asdict(env_spec(spec.env))
-        spec = replace(spec, env=env, gamma=DEFAULT_GAMMA if spec.gamma is None else spec.gamma)
+        spec = SimpleNamespace(
+            **{**vars(spec), "env": env, "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma}
+        )
         sc = scenario_of(spec)
         _refuse_model_overrides(spec, sc, graph_applies=True)
         problem, network, algorithm, sampling, iterations = (
@@ -237,21 +377,20 @@ def resolve(spec: RunSpec):
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
     )
-    settings = RunSettings(
-        iterations=int(iterations if spec.iterations is None else spec.iterations),
-        seeds=spec.seeds,
-        seed=spec.seed,
-        checkpoints=spec.checkpoints,
-        tail_fraction=spec.tail_fraction,
-        block_size=spec.block_size,
-        backend=spec.backend,
-    )
+    given = {k: v for k, v in asdict(config.run).items() if v is not None}
+    settings = RunSettings(**{"iterations": iterations, **given})
     own = field_types(type(algorithm))
-    resolved = replace(
-        spec,
+    resolved = dict(
+        vars(spec),
+        iterations=settings.iterations,
+        seeds=settings.seeds,
+        seed=settings.seed,
+        checkpoints=settings.checkpoints,
+        tail_fraction=settings.tail_fraction,
+        block_size=settings.block_size,
+        backend=settings.backend,
         graph=graph,
         edge_prob=edge_prob,
-        iterations=settings.iterations,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
         sampling=sampling.mode,
         shared=sampling.shared,
@@ -267,13 +406,18 @@ def resolve(spec: RunSpec):
         }
         or None,
     )
-    return problem, network, algorithm, sampling, settings, resolved
+    return problem, network, algorithm, sampling, settings, unflat(resolved, config.output)
+
+
+def view(config) -> SimpleNamespace:
+    """A config's fields by their flat names, to read (`flat`); a view passes through."""
+    return config if isinstance(config, SimpleNamespace) else SimpleNamespace(**flat(config))
 
 
 DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given
 
 
-def _edge_prob(spec: RunSpec) -> float:
+def _edge_prob(spec) -> float:
     return 1.0 if spec.edge_prob is None else spec.edge_prob
 
 
@@ -311,9 +455,11 @@ def _plain_env(env: dict | None) -> dict | None:
     return out
 
 
-def _check_recordings(spec: RunSpec, sc) -> None:
+def _check_recordings(spec, sc) -> None:
     """A run on recordings takes one recording per seed and at most as many steps as they hold."""
     data = sc.data
+    seeds = RunSettings.seeds if spec.seeds is None else spec.seeds
+    spec = SimpleNamespace(**{**vars(spec), "seeds": seeds})
     if data.recordings is not None and spec.seeds > data.recordings:
         raise DgtdInputError(
             f"{spec.data} holds {data.recordings} recordings, one per seed: run at most --seeds {data.recordings}"
@@ -328,7 +474,7 @@ def _check_recordings(spec: RunSpec, sc) -> None:
         raise DgtdInputError(f"{held}: run at most --iterations {steps}")
 
 
-def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> None:
+def _refuse_model_overrides(spec, sc, graph_applies: bool = False) -> None:
     """A scenario with its own sample source sets the links, states and rewards itself: flags that would change
     them could not apply, so they are refused (values equal to the scenario's own, as recorded, are accepted).
     The graph of a user's env or recordings is the run's (``graph_applies``)."""
@@ -358,9 +504,11 @@ def _refuse_model_overrides(spec: RunSpec, sc, graph_applies: bool = False) -> N
         )
 
 
-def scenario_of(spec: RunSpec):
-    """The `Scenario` of a spec (built once per process for the same parameters), or None for a problem file."""
+def scenario_of(config):
+    """The `Scenario` of a config (built once per process for the same parameters), or None for a problem file."""
     import json
+
+    spec = view(config)
 
     if spec.scenario is not None:
         kwargs = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)[0]
@@ -401,14 +549,14 @@ def _scenario(key: str):
     return data_scenario(d["data"], d["gamma"], network_for)
 
 
-def make_source(spec: RunSpec, settings: RunSettings):
+def make_source(config: RunConfig, settings: RunSettings):
     """A fresh sample source for a run of ``spec``, or None when samples come from the model (`ModelSource`).
 
     Scenarios that simulate a world (e.g. paper-example-2's robots and their proximity links) supply their own;
     pass it as ``run(..., source=make_source(spec, settings))``. Each call starts the same streams again, so
     two algorithms given fresh sources with one seed see identical samples and links.
     """
-    sc = scenario_of(spec)
+    sc = scenario_of(config)
     if sc is None or sc.source is None:
         return None
     return sc.source(settings.seed, range(settings.seeds))
@@ -421,7 +569,7 @@ def _plain(x):
 def scenario_arguments(name: str, params: dict, edge_prob: float | None):
     """(keyword arguments for the scenario's factory, its full parameters less edge_prob, edge_prob used).
 
-    Parameters not given take the factory's defaults, and the resolved spec records them all, so that a
+    Parameters not given take the factory's defaults, and the resolved config records them all, so that a
     later change of a default does not change what a saved config means.
     """
     from dgtd.scenarios import SCENARIOS
@@ -449,8 +597,9 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
     return kwargs, rest or None, kwargs.get("edge_prob")
 
 
-def build_algorithm(spec: RunSpec, default):
-    """The config of ``spec.algorithm`` (default: the scenario's own), with the spec's fields set on it.
+def build_algorithm(spec, default):
+    """The config of the algorithm named in ``spec`` (a `view` of a `RunConfig`; default: the scenario's own), with
+    the config's fields set on it.
 
     Another algorithm than the scenario's starts from its own defaults and the scenario's step sizes
     (alpha0, beta, schedule) where it has those fields. A field the algorithm lacks is an error.
@@ -473,21 +622,20 @@ def build_algorithm(spec: RunSpec, default):
                 raise DgtdInputError(
                     f"algorithm {name!r} has no parameter {k!r} (its parameters: {', '.join(own)}); remove it"
                 )
-            over[k] = getattr(spec, k)
+            over[k] = check_type(f"algorithm.{k}", getattr(spec, k), own[k])
     for k, v in (spec.algorithm_params or {}).items():
-        if k in ALGORITHM_FIELDS:
-            raise DgtdInputError(f"{k} is a field of its own: write it at the top level, not under algorithm_params")
         if k not in own:
             raise DgtdInputError(
                 f"algorithm {name!r} has no parameter {k!r}{closest(k, own)} (its parameters: {', '.join(own)})"
             )
-        over[k] = check_type(f"algorithm_params.{k}", v, own[k])
+        over[k] = check_type(f"algorithm.{k}", v, own[k])
     return replace(algorithm, **over)
 
 
-def spec_record(spec: RunSpec) -> dict:
-    """The resolved spec as JSON-ready data, with the problem file's SHA-256 when there is one."""
-    d = spec.to_dict()
-    if spec.problem_file is not None:
-        d["problem_sha256"] = file_digest(spec.problem_file)
+def spec_record(config: RunConfig) -> dict:
+    """The resolved config as JSON-ready data (`flat`: what summary.json and a checkpoint record), with the problem
+    file's SHA-256 when there is one."""
+    d = flat(config)
+    if config.problem.problem_file is not None:
+        d["problem_sha256"] = file_digest(config.problem.problem_file)
     return d

@@ -1,25 +1,28 @@
 """Experiment files: a run or a sweep written down once as TOML, and read back exactly.
 
-An experiment file is a TOML serialisation of a `dgtd.config.RunSpec` plus the output options of
-``dgtd run``, and for ``dgtd sweep`` a ``[grid]`` table and a ``[sweep]`` table::
+An experiment file is a `dgtd.config.RunConfig`, one table per section, and for ``dgtd sweep`` a ``[grid]`` table
+and a ``[sweep]`` table::
 
-    scenario = "paper-example-1"        # or problem_file = "chain.npz", data = "transitions.parquet", or [env]
-    algorithm = "dgtd"
+    [problem]                           # exactly one of scenario, problem_file, data or an [problem.env] table
+    scenario = "paper-example-1"
+    [network]
+    edge_prob = 0.5
+    [algorithm]                         # its name, and any field of its config
+    name = "dgtd"
+    alpha0 = 10.0
+    box_scale = 2.0
+    [run]
     iterations = 20000
     seeds = 4
-    alpha0 = 10.0
-    out = "runs/example"                # output options: out, progress, plots, checkpoint_every, resume
+    [output]                            # out, progress, plots, checkpoint_every, resume, overwrite
+    out = "runs/example"
 
-    [env]                               # a user's simulator: dgtd.scenarios.user.EnvSpec's fields
-    make = "mypackage.envs:make_env"    # (with gamma = 0.9 at the top level, as for data)
+    [problem.env]                       # a user's simulator: dgtd.scenarios.user.EnvSpec's fields
+    make = "mypackage.envs:make_env"    # (with gamma = 0.9 in [problem], as for data)
     features = "fourier:3"
 
-    [params]                            # the scenario's own parameters, if it has any
-    [algorithm_params]                  # algorithm fields beyond alpha0, beta, schedule, kappa, rho
-    box_scale = 2.0
-
-    [grid]                              # dgtd sweep: the runs are the product of these lists
-    alpha0 = [1.0, 10.0]
+    [grid]                              # dgtd sweep: the runs are the product of these lists, keyed by the
+    alpha0 = [1.0, 10.0]                # fields' flat names (the command line's options, `dgtd.config.FLAT`)
     edge_prob = [0.5, 0.8]
     [grid.env]                          # (also grid.params, grid.algorithm_params)
     features = ["fourier:2", "fourier:3"]
@@ -27,46 +30,35 @@ An experiment file is a TOML serialisation of a `dgtd.config.RunSpec` plus the o
     [sweep]                             # dgtd sweep: executor = "process" or "ray", address, workers, ...
     executor = "process"
 
-Every command-line option of ``dgtd run`` and ``dgtd sweep`` is a field of the same name (dashes become
-underscores) and a flag given on the command line overrides the file. Relative paths are taken from the
-current directory, as on the command line; a resolved config records them as absolute paths. A field that
-is not known, or has the wrong type, is an error naming it and the closest known field.
+Every command-line option of ``dgtd run`` and ``dgtd sweep`` is a field (its flat name: dashes become underscores)
+and a flag given on the command line overrides the file. The older flat layout, every field at the top level by its
+flat name (``scenario = ...``, ``alpha0 = ...``, ``[params]``, ``[algorithm_params]``), is still read. Relative
+paths are taken from the current directory, as on the command line; a resolved config records them as absolute
+paths. A field that is not known, or has the wrong type, is an error naming it and the closest known field.
 """
 
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-from dgtd.config import RunSpec, check_type, closest, field_types
+from dgtd.algorithms.dgtd import DGTD
+from dgtd.config import (
+    FLAT,
+    SECTIONS,
+    RunConfig,
+    check_type,
+    closest,
+    field_types,
+    flat,
+    unflat,
+)
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.topologies import TOPOLOGIES
-from dgtd.run.loop import check_count
 
 EXECUTORS = ("process", "ray")
 TABLE_FORMATS = ("auto", "parquet", "csv")
-
-
-@dataclass(frozen=True)
-class Output:
-    """How ``dgtd run`` reports and saves; none of these changes the numbers.
-
-    - ``out``: results directory (default: runs/NAME of the problem).
-    - ``progress``, ``plots``: progress bar on stderr; figures in the results directory.
-    - ``checkpoint_every``: save the whole run state every K iterations (0: never), for ``resume``.
-    - ``resume``: continue the run saved in ``out`` from its last checkpoint.
-    - ``overwrite``: replace the results of another run (another configuration) in ``out``; without it that is
-      refused. Rerunning the same configuration into its own directory needs no flag. Either way the previous
-      run's files go first, so a directory never mixes two runs.
-    """
-
-    out: str | None = None
-    progress: bool = True
-    plots: bool = True
-    checkpoint_every: int = 0
-    resume: bool = False
-    overwrite: bool = False
 
 
 @dataclass(frozen=True)
@@ -89,20 +81,26 @@ class SweepOptions:
 
 @dataclass(frozen=True)
 class Experiment:
-    """A run spec, its output options, and for a sweep its grid ({field: [values]}, with nested tables for
-    ``params`` and ``algorithm_params``) and executor options."""
+    """A run's config, and for a sweep its grid ({flat field name: [values]}, with nested tables for ``params``,
+    ``algorithm_params`` and ``env``) and executor options."""
 
-    spec: RunSpec = RunSpec()
-    output: Output = Output()
+    config: RunConfig = RunConfig()
     grid: dict = field(default_factory=dict)
     sweep: SweepOptions = SweepOptions()
 
 
-SPEC_TYPES = field_types(RunSpec)
-OUTPUT_TYPES = field_types(Output)
 SWEEP_TYPES = field_types(SweepOptions)
 TABLES = ("params", "algorithm_params", "env")
-TOP_LEVEL = [*SPEC_TYPES, *OUTPUT_TYPES, "grid", "sweep"]
+SECTION_TYPES = {name: field_types(cls) for name, cls in SECTIONS.items()}
+
+
+def flat_type(name: str):
+    """The type of the field of flat name ``name`` (alpha0 ... rho: DGTD's, which has all five; an algorithm's other
+    fields are checked against its class by `dgtd.config.resolve`)."""
+    section, key = FLAT[name]
+    if section == "algorithm" and key != "name":
+        return dict | None if key == "params" else field_types(DGTD)[key] | None
+    return SECTION_TYPES[section][key]
 
 
 def _unknown(key: str, valid, where: str) -> DgtdInputError:
@@ -110,7 +108,7 @@ def _unknown(key: str, valid, where: str) -> DgtdInputError:
 
 
 def _grid(data: dict, where: str) -> dict:
-    """Check a [grid] table: run fields mapped to non-empty lists of values of the field's type."""
+    """Check a [grid] table: flat field names mapped to non-empty lists of values of the field's type."""
     grid = {}
     for key, values in data.items():
         if key in TABLES:
@@ -122,22 +120,43 @@ def _grid(data: dict, where: str) -> dict:
                     raise DgtdInputError(f"grid.{key}.{sub} in {where} must be a non-empty list of values")
                 grid[key][sub] = list(vals)
             continue
-        if key not in SPEC_TYPES:
-            raise _unknown(key, [*SPEC_TYPES], f"[grid] of {where}")
+        if key not in FLAT or FLAT[key][0] == "output":
+            raise _unknown(key, [k for k in FLAT if FLAT[k][0] != "output"], f"[grid] of {where}")
         if not isinstance(values, list) or not values:
             raise DgtdInputError(f"grid.{key} in {where} must be a non-empty list of values, e.g. {key} = [..]")
-        grid[key] = [check_type(f"grid.{key} in {where}: each value", v, SPEC_TYPES[key]) for v in values]
+        grid[key] = [check_type(f"grid.{key} in {where}: each value", v, flat_type(key)) for v in values]
     return grid
 
 
+def _section(name: str, table: dict, where: str) -> dict:
+    """The flat fields of one section's table ([algorithm]: its name and any field of the algorithm)."""
+    out = {}
+    for key, value in table.items():
+        if name == "algorithm":
+            if key == "name":
+                out["algorithm"] = check_type(f"algorithm.name in {where}", value, str)
+            elif key in FLAT and FLAT[key] == ("algorithm", key):
+                out[key] = check_type(f"algorithm.{key} in {where}", value, flat_type(key))
+            else:
+                out.setdefault("algorithm_params", {})[key] = value
+            continue
+        types = SECTION_TYPES[name]
+        if key not in types:
+            raise _unknown(key, types, f"[{name}] of {where}")
+        flat_name = next(k for k, loc in FLAT.items() if loc == (name, key))
+        out[flat_name] = check_type(f"{name}.{key} in {where}", value, types[key])
+    return out
+
+
 def parse(data: dict, where: str = "the experiment") -> Experiment:
-    """An `Experiment` from the data of a TOML file (or any dict of the same shape)."""
-    spec, output, sweep, grid = {}, {}, {}, {}
+    """An `Experiment` from the data of a TOML file (or any dict of the same shape): one table per section of
+    `RunConfig`, or the older flat layout."""
+    values, sweep, grid = {}, {}, {}
     for key, value in data.items():
-        if key in SPEC_TYPES:
-            spec[key] = check_type(f"field {key!r} in {where}", value, SPEC_TYPES[key])
-        elif key in OUTPUT_TYPES:
-            output[key] = check_type(f"field {key!r} in {where}", value, OUTPUT_TYPES[key])
+        if key in SECTIONS and isinstance(value, dict):
+            values.update(_section(key, value, where))
+        elif key in FLAT:
+            values[key] = check_type(f"field {key!r} in {where}", value, flat_type(key))
         elif key == "grid":
             grid = _grid(check_type(f"[grid] in {where}", value, dict), where)
         elif key == "sweep":
@@ -146,8 +165,8 @@ def parse(data: dict, where: str = "the experiment") -> Experiment:
                     raise _unknown(k, SWEEP_TYPES, f"[sweep] of {where}")
                 sweep[k] = check_type(f"sweep.{k} in {where}", v, SWEEP_TYPES[k])
         else:
-            raise _unknown(key, TOP_LEVEL, where)
-    exp = Experiment(RunSpec(**spec), Output(**output), grid, SweepOptions(**sweep))
+            raise _unknown(key, [*SECTIONS, *FLAT, "grid", "sweep"], where)
+    exp = Experiment(unflat(values), grid, SweepOptions(**sweep))
     check_choices(exp)
     return exp
 
@@ -159,7 +178,6 @@ def check_choices(exp: Experiment) -> None:
         raise DgtdInputError(f"format must be one of {', '.join(TABLE_FORMATS)}, got {exp.sweep.format!r}")
     if exp.sweep.workers is not None and exp.sweep.workers < 1:
         raise DgtdInputError(f"workers must be >= 1 (leave it out to use every core), got {exp.sweep.workers}")
-    check_count("checkpoint_every", exp.output.checkpoint_every, 0)  # 0: no checkpoints
 
 
 def load(path: str | Path) -> Experiment:
@@ -184,52 +202,50 @@ SCENARIO_FLAGS = ("agents", "policy")
 
 
 def override(exp: Experiment, values: dict) -> Experiment:
-    """``exp`` with the given fields replaced (command-line flags), each routed to the spec, output or sweep
-    options; 'sweep.NAME' names a sweep option whose name a run option also has (resume). The --env flags
-    (`ENV_FLAGS`) set fields of the [env] table, and ``agents`` and ``policy`` set those of an env run, else the
-    scenario's parameters of those names."""
-    parts = {"spec": {}, "output": {}, "sweep": {}}
+    """``exp`` with the given fields replaced (command-line flags, by flat name), or the sweep's options;
+    'sweep.NAME' names a sweep option whose name a run option also has (resume). The --env flags (`ENV_FLAGS`) set
+    fields of the [env] table, and ``agents`` and ``policy`` set those of an env run, else the scenario's parameters
+    of those names."""
+    config = exp.config
+    run, sweep = {}, {}
     env = {ENV_FLAGS[k]: v for k, v in values.items() if k in ENV_FLAGS}
     shared = {k: values[k] for k in SCENARIO_FLAGS if values.get(k) is not None}
-    if (env and "make" in env) or exp.spec.env is not None:
-        parts["spec"]["env"] = {**(exp.spec.env or {}), **env, **shared}
+    if (env and "make" in env) or config.problem.env is not None:
+        run["env"] = {**(config.problem.env or {}), **env, **shared}
     elif env:
-        parts["spec"]["env"] = env  # flags of an env run without its env: `resolve` says so
+        run["env"] = env  # flags of an env run without its env: `resolve` says so
     elif shared:
-        parts["spec"]["params"] = {**(exp.spec.params or {}), **shared}
+        run["params"] = {**(config.problem.params or {}), **shared}
     for key, value in values.items():
         if key in ENV_FLAGS or key in SCENARIO_FLAGS:
             continue
         if key.startswith("sweep.") and key[6:] in SWEEP_TYPES:  # e.g. sweep.resume, not the run's resume
-            parts["sweep"][key[6:]] = value
-        elif key in SPEC_TYPES:
-            parts["spec"][key] = value
-        elif key in OUTPUT_TYPES:
-            parts["output"][key] = value
+            sweep[key[6:]] = value
+        elif key in FLAT:
+            run[key] = value
         elif key in SWEEP_TYPES:
-            parts["sweep"][key] = value
+            sweep[key] = value
         else:
-            raise _unknown(key, TOP_LEVEL, "the command-line options")
+            raise _unknown(key, [*FLAT, *SWEEP_TYPES], "the command-line options")
     exp = replace(
-        exp,
-        spec=replace(exp.spec, **parts["spec"]),
-        output=replace(exp.output, **parts["output"]),
-        sweep=replace(exp.sweep, **parts["sweep"]),
+        exp, config=unflat({**flat(config), **asdict(config.output), **run}), sweep=replace(exp.sweep, **sweep)
     )
     check_choices(exp)
     return exp
 
 
-def absolute_paths(spec: RunSpec) -> RunSpec:
+def absolute_paths(config: RunConfig) -> RunConfig:
     """Problem and edge-list files as absolute paths, so that a saved config works from any directory."""
     over = {}
-    if spec.problem_file is not None:
-        over["problem_file"] = str(Path(spec.problem_file).resolve())
-    if spec.data is not None:
-        over["data"] = str(Path(spec.data).resolve())
-    if spec.graph is not None and spec.graph not in TOPOLOGIES:
-        over["graph"] = str(Path(spec.graph).resolve())
-    return replace(spec, **over)
+    p = config.problem
+    if p.problem_file is not None:
+        over["problem_file"] = str(Path(p.problem_file).resolve())
+    if p.data is not None:
+        over["data"] = str(Path(p.data).resolve())
+    graph = config.network.graph
+    if graph is not None and graph not in TOPOLOGIES:
+        over["graph"] = str(Path(graph).resolve())
+    return unflat({**flat(config), **asdict(config.output), **over})
 
 
 def _drop_none(d: dict) -> dict:
@@ -237,12 +253,20 @@ def _drop_none(d: dict) -> dict:
 
 
 def to_data(exp: Experiment, *, output: bool = True, sweep: bool = True) -> dict:
-    """The experiment as TOML-ready data (None fields left out: TOML has no null)."""
-    first = ["scenario", "problem_file", "data", "gamma", "algorithm"]  # what is run, then how
-    names = first + [f.name for f in fields(RunSpec) if f.name not in first]
-    data = _drop_none({name: getattr(exp.spec, name) for name in names})
-    if output:
-        data.update(_drop_none({k: v for k, v in vars(exp.output).items() if k != "resume" or v}))
+    """The experiment as TOML-ready data, one table per section (None fields left out: TOML has no null)."""
+    config = exp.config
+    data = {}
+    for name in SECTIONS:
+        if name == "output" and not output:
+            continue
+        if name == "algorithm":
+            table = _drop_none({"name": config.algorithm.name, **config.algorithm.fields})
+        elif name == "output":
+            table = _drop_none({k: v for k, v in asdict(config.output).items() if k != "resume" or v})
+        else:
+            table = _drop_none(asdict(getattr(config, name)))
+        if table:
+            data[name] = table
     if exp.grid:
         data["grid"] = exp.grid
     if sweep and exp.grid:

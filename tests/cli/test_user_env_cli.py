@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from dgtd.config import RunSpec, make_source, resolve
+from dgtd.config import make_source, resolve, unflat, view
 
 
 def test_a_scenarios_source_is_built_with_the_runs_parameters(monkeypatch):
@@ -25,7 +25,7 @@ def test_a_scenarios_source_is_built_with_the_runs_parameters(monkeypatch):
         return replace(sc, source=lambda seed, ids: ("source of size", size))
 
     monkeypatch.setitem(scenarios.SCENARIOS, "toy", toy)
-    *_, settings, resolved = resolve(RunSpec(scenario="toy", params={"size": 7}, iterations=10))
+    *_, settings, resolved = resolve(unflat(dict(scenario="toy", params={"size": 7}, iterations=10)))
     assert make_source(resolved, settings) == ("source of size", 7)
 
 
@@ -84,7 +84,7 @@ def test_run_on_a_users_parallel_env_reaches_its_exact_w_star(run_cli, tmp_path)
     assert ref["td_check_transitions"] == 40_000 and ref["td_check_value_gap"] < 0.01
     assert np.max(s["value_error_tail"]) < 0.03
     config = (out / "config.toml").read_text()
-    assert "[env]" in config and 'features = "one-hot"' in config and "agents = 4" in config
+    assert "[problem.env]" in config and 'features = "one-hot"' in config and "agents = 4" in config
     code, _, err = run_cli("run", out / "config.toml", "--out", tmp_path / "again", "--no-plots", "--no-progress")
     assert code == 0, err
     assert (tmp_path / "again" / "metrics.csv").read_bytes() == (out / "metrics.csv").read_bytes()
@@ -318,7 +318,7 @@ def test_a_sweep_job_on_an_env_runs_on_the_envs_samples():
 
     spec = {"env": {"make": env("make_chain"), "features": "one-hot"}, "gamma": chain.GAMMA, "iterations": 2000}
     job = run_job(spec)
-    problem, network, algorithm, sampling, settings, resolved = resolve(RunSpec(**spec))
+    problem, network, algorithm, sampling, settings, resolved = resolve(unflat(dict(**spec)))
     direct = run(problem, network, algorithm, sampling, settings, source=make_source(resolved, settings))
     np.testing.assert_array_equal(job["metrics"]["value_error_tail"], direct.metrics["value_error_tail"])
 
@@ -337,7 +337,7 @@ def test_a_sweep_grid_can_vary_the_env_table():
     )
     jobs = expand(exp)
     assert len(jobs) == 4
-    assert {job.spec.env["features"] for job in jobs} == {"one-hot", "linear"}
+    assert {view(job.config).env["features"] for job in jobs} == {"one-hot", "linear"}
     assert {job.point["env.features"] for job in jobs} == {"one-hot", "linear"}
 
 
@@ -445,7 +445,7 @@ def test_a_policy_per_agent_in_the_env_table(run_cli, tmp_path):
     file.write_text(table + f'agent_0 = "random"\nagent_1 = "{env("stay")}"\nagent_2 = "{env("stay")}"\n')
     code, text, err = run_cli("run", file, "--out", tmp_path / "p", "--no-plots", "--no-progress")
     assert code == 0, err
-    assert "policy one per agent" in text and "[env.policy]" in (tmp_path / "p" / "config.toml").read_text()
+    assert "policy one per agent" in text and "[problem.env.policy]" in (tmp_path / "p" / "config.toml").read_text()
     file.write_text(table + 'agent_0 = "random"\nagent_7 = "random"\n')
     one_line_error(
         *run_cli("run", file, "--out", tmp_path / "q"),
@@ -462,7 +462,7 @@ def test_the_trajectory_report_measures_each_result_not_the_first():
 
     from dgtd.config import scenario_of
 
-    *_, resolved = resolve(RunSpec(env={"make": env("make_chain"), "features": "one-hot"}, gamma=0.8))
+    *_, resolved = resolve(unflat(dict(env={"make": env("make_chain"), "features": "one-hot"}, gamma=0.8)))
     report = scenario_of(resolved).report
     w_star = scenario_of(resolved).problem.w_star
     exact_run = SimpleNamespace(w_star=w_star, w_tail=np.tile(w_star, (1, 3, 1)))

@@ -10,17 +10,20 @@ import pytest
 
 from dgtd.algorithms import ALGORITHMS
 from dgtd.cli import cli
-from dgtd.config import CHOICES, RunSpec
-from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
+from dgtd.config import CHOICES, FLAT, SECTIONS, RunConfig, flat
+from dgtd.experiments import EXECUTORS, TABLE_FORMATS, SweepOptions
 from dgtd.run.loop import RunSettings
 
 
-def defaults(*classes) -> dict:
-    return {f.name: f.default for cls in classes for f in dataclasses.fields(cls)}
+def config_default(name: str):
+    """The default of the config field of flat name ``name``."""
+    section, key = FLAT[name]
+    if section == "algorithm" and key != "name":
+        return None  # an algorithm's field left out: the scenario's
+    return getattr(getattr(RunConfig(), section), key)
 
 
-FIELDS = defaults(RunSpec, Output)
-COMMAND_FIELDS = {"run": FIELDS, "sweep": defaults(RunSpec, Output, SweepOptions)}  # a sweep's own resume wins
+SWEEP_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SweepOptions)}
 
 
 def options(command: str) -> dict:
@@ -28,30 +31,62 @@ def options(command: str) -> dict:
 
 
 @pytest.mark.parametrize("command", ["run", "sweep"])
-def test_run_options_take_the_configuration_defaults_and_choices(command):
+def test_run_options_are_the_configuration_s_fields_with_its_defaults_and_choices(command):
     opts = options(command)
     checked = 0
     for name, option in opts.items():
-        fields = COMMAND_FIELDS[command]
-        if name in fields and name != "out":
-            assert option.default == fields[name], name
+        if command == "sweep" and name in SWEEP_DEFAULTS:  # a sweep's own resume wins
+            assert option.default == SWEEP_DEFAULTS[name], name
+        elif name in FLAT and name != "out":
+            assert option.default == config_default(name), name
             checked += 1
         if isinstance(option.type, click.Choice):
             valid = CHOICES.get(name) or {"executor": EXECUTORS, "format": TABLE_FORMATS}[name]
             assert tuple(option.type.choices) == tuple(valid), name
-    assert checked >= 8
+    assert checked >= 20
 
 
-def test_the_run_configuration_defaults_are_the_run_settings():
+def test_the_run_length_options_show_the_run_settings_defaults_that_apply():
+    """--seeds and the like leave the config's None (an experiment file's value stays) and say RunSettings' default."""
+    opts = options("run")
     for name in ("seeds", "seed", "checkpoints", "tail_fraction", "block_size", "backend"):
-        assert FIELDS[name] == getattr(RunSettings(), name)
+        assert FLAT[name] == ("run", name)
+        assert opts[name].default is None and f"[default: {getattr(RunSettings, name)}]" in opts[name].help
     sweep = options("sweep")
     assert sweep["executor"].default == SweepOptions.executor and sweep["format"].default == SweepOptions.format
 
 
-def test_compare_options_take_the_run_settings_defaults_and_the_algorithm_names():
-    opts = options("compare")
-    assert opts["checkpoints"].default == RunSettings.checkpoints
-    assert opts["backend"].default == RunSettings.backend
-    assert tuple(opts["backend"].type.choices) == CHOICES["backend"]
-    assert all(name in opts["algorithms"].help for name in ALGORITHMS)
+def test_every_section_field_has_one_flat_name_and_they_round_trip():
+    located = [loc for loc in FLAT.values()]
+    assert len(set(located)) == len(located)
+    for section, cls in SECTIONS.items():
+        for f in dataclasses.fields(cls):
+            if section == "algorithm" and f.name == "fields":
+                continue
+            assert (section, f.name) in located, (section, f.name)
+    from dgtd.config import unflat
+
+    values = {name: f"v-{name}" for name in flat(RunConfig())} | {"env": {"make": "m:f"}, "params": {"a": 1}}
+    values["algorithm_params"] = {"box_scale": 2.0}
+    assert flat(unflat(values)) == values
+
+
+def test_every_command_takes_its_run_options_from_the_one_table():
+    """An option that sets a run field is the same option in run, sweep, solve and compare (help, type, default)."""
+    from dgtd.cli.options import RUN_OPTIONS
+
+    run = options("run")
+    shared = 0
+    for command in ("sweep", "solve", "compare"):
+        for name, option in options(command).items():
+            if name in RUN_OPTIONS and not (command == "compare" and name == "seeds"):  # compare's own: 5 seeds
+                assert (option.help, option.default, str(option.type)) == (
+                    run[name].help,
+                    run[name].default,
+                    str(run[name].type),
+                ), f"dgtd {command} --{name}"
+                shared += 1
+    assert shared >= 40
+    compare = options("compare")
+    assert {"iterations", "seed", "backend", "checkpoints", "restarts", "problem_file", "env_make"} <= set(compare)
+    assert all(name in compare["algorithms"].help for name in ALGORITHMS)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import tomllib
+from dataclasses import replace
 
 import pytest
 
-from dgtd.config import RunSpec, resolve
+from dgtd.config import Output, resolve, unflat, view
 from dgtd.errors import DgtdInputError
-from dgtd.experiments import Experiment, Output, load, override, parse, to_toml
+from dgtd.experiments import Experiment, load, override, parse, to_toml
 
 SMALL = 'scenario = "paper-example-1"\niterations = 3000\nseeds = 2\ncheckpoints = 10\nbackend = "numpy"\n'
 
@@ -33,29 +34,37 @@ def test_fields_go_to_spec_output_grid_and_sweep():
             "sweep": {"executor": "ray", "workers": 4},
         }
     )
-    assert exp.spec.alpha0 == 2.0 and isinstance(exp.spec.alpha0, float)  # an integer is accepted for a float
-    assert exp.spec.algorithm_params == {"box_scale": 3}
-    assert exp.output == Output(out="x", checkpoint_every=5)
+    assert view(exp.config).alpha0 == 2.0 and isinstance(
+        view(exp.config).alpha0, float
+    )  # an integer is accepted for a float
+    assert view(exp.config).algorithm_params == {"box_scale": 3}
+    assert exp.config.output == Output(out="x", checkpoint_every=5)
     assert exp.grid == {"kappa": [0.0, 1.0], "params": {"n": [1, 2]}}
     assert exp.sweep.executor == "ray" and exp.sweep.workers == 4
 
 
 def test_toml_round_trip_is_exact(tmp_path):
-    spec = RunSpec(
-        scenario="paper-example-1", alpha0=0.1 + 0.2, iterations=123, params=None, algorithm_params={"box_scale": 2.5}
+    spec = unflat(
+        dict(
+            scenario="paper-example-1",
+            alpha0=0.1 + 0.2,
+            iterations=123,
+            params=None,
+            algorithm_params={"box_scale": 2.5},
+        )
     )
-    exp = Experiment(spec=spec, output=Output(out="o", plots=False), grid={"kappa": [0.0, 1.5]})
+    exp = Experiment(replace(spec, output=Output(out="o", plots=False)), grid={"kappa": [0.0, 1.5]})
     path = write(tmp_path, to_toml(exp, "a comment"))
     back = load(path)
     assert back == exp
-    assert back.spec.alpha0 == 0.1 + 0.2  # floats survive to the last bit
+    assert view(back.config).alpha0 == 0.1 + 0.2  # floats survive to the last bit
 
 
 def test_flags_override_the_file(tmp_path):
     exp = load(write(tmp_path, SMALL + "kappa = 0.5\n"))
     exp = override(exp, {"kappa": 2.0, "out": "elsewhere", "sweep.resume": False})
-    assert exp.spec.kappa == 2.0 and exp.spec.iterations == 3000
-    assert exp.output.out == "elsewhere" and exp.sweep.resume is False
+    assert view(exp.config).kappa == 2.0 and view(exp.config).iterations == 3000
+    assert exp.config.output.out == "elsewhere" and exp.sweep.resume is False
 
 
 @pytest.mark.parametrize(
@@ -86,14 +95,17 @@ def test_bad_files_name_the_field(tmp_path, text, message):
 @pytest.mark.parametrize(
     "spec, message",
     [
-        (RunSpec(scenario="paper-exmple-1"), "unknown scenario 'paper-exmple-1'.*did you mean 'paper-example-1'"),
-        (RunSpec(scenario="paper-example-1", algorithm="dgdt"), "unknown algorithm 'dgdt'; did you mean 'dgtd'"),
-        (RunSpec(scenario="paper-example-1", params={"size": 3}), "scenario 'paper-example-1' has no parameter 'size'"),
+        (unflat(dict(scenario="paper-exmple-1")), "unknown scenario 'paper-exmple-1'.*did you mean 'paper-example-1'"),
+        (unflat(dict(scenario="paper-example-1", algorithm="dgdt")), "unknown algorithm 'dgdt'; did you mean 'dgtd'"),
         (
-            RunSpec(scenario="paper-example-1", algorithm_params={"box_scal": 3.0}),
+            unflat(dict(scenario="paper-example-1", params={"size": 3})),
+            "scenario 'paper-example-1' has no parameter 'size'",
+        ),
+        (
+            unflat(dict(scenario="paper-example-1", algorithm_params={"box_scal": 3.0})),
             "no parameter 'box_scal'; did you mean 'box_scale'",
         ),
-        (RunSpec(scenario="paper-example-1", algorithm_params={"box_scale": "x"}), "box_scale must be a number"),
+        (unflat(dict(scenario="paper-example-1", algorithm_params={"box_scale": "x"})), "box_scale must be a number"),
     ],
 )
 def test_bad_specs_fail_with_a_useful_message(spec, message):
@@ -102,10 +114,16 @@ def test_bad_specs_fail_with_a_useful_message(spec, message):
 
 
 def test_resolved_spec_records_everything():
-    *_, resolved = resolve(RunSpec(scenario="paper-example-1", iterations=10))
-    assert resolved.algorithm == "dgtd" and resolved.edge_prob == 0.8  # the scenario's defaults, written down
-    assert resolved.alpha0 == 10.0 and resolved.beta == 100.0 and resolved.kappa == 1.0
-    assert resolved.algorithm_params == {"box_scale": 2.0}
+    *_, resolved = resolve(unflat(dict(scenario="paper-example-1", iterations=10)))
+    assert resolved.algorithm.name == "dgtd" and resolved.network.edge_prob == 0.8  # the scenario's, written down
+    assert resolved.algorithm.fields == {
+        "alpha0": 10.0,
+        "beta": 100.0,
+        "schedule": "sqrt",
+        "kappa": 1.0,
+        "rho": 0.0,
+        "box_scale": 2.0,
+    }
     # resolving a resolved spec changes nothing: a saved config means the same run later
     assert resolve(resolved)[-1] == resolved
 
@@ -135,8 +153,8 @@ def test_config_toml_reproduces_the_run(tmp_path, run_cli):
     code, out, err = run_cli("run", exp, "--out", tmp_path / "a", "--kappa", "0.5")
     assert code == 0, err
     saved = tomllib.loads((tmp_path / "a" / "config.toml").read_text())
-    assert saved["kappa"] == 0.5 and saved["edge_prob"] == 0.6 and saved["reward_noise"] == "bernoulli"
-    assert saved["out"] == str(tmp_path / "a")
+    assert saved["algorithm"]["kappa"] == 0.5 and saved["network"]["edge_prob"] == 0.6
+    assert saved["problem"]["reward_noise"] == "bernoulli" and saved["output"]["out"] == str(tmp_path / "a")
     code, out, err = run_cli("run", tmp_path / "a" / "config.toml", "--out", tmp_path / "b")
     assert code == 0, err
     assert (tmp_path / "a" / "metrics.csv").read_bytes() == (tmp_path / "b" / "metrics.csv").read_bytes()
@@ -173,8 +191,8 @@ def test_config_toml_reproduces_the_run(tmp_path, run_cli):
 def test_every_command_line_option_is_a_field():
     """So that an experiment file can say anything the command line can (the --env flags: fields of its [env] table)."""
     from dgtd.cli import cli
-    from dgtd.config import field_types
-    from dgtd.experiments import ENV_FLAGS, OUTPUT_TYPES, SCENARIO_FLAGS, SPEC_TYPES, SWEEP_TYPES
+    from dgtd.config import FLAT, field_types
+    from dgtd.experiments import ENV_FLAGS, SCENARIO_FLAGS, SWEEP_TYPES
     from dgtd.scenarios.user import EnvSpec
 
     env_fields = field_types(EnvSpec)
@@ -188,7 +206,7 @@ def test_every_command_line_option_is_a_field():
             name = renamed.get(name, name)
             if name in ENV_FLAGS or name in SCENARIO_FLAGS:
                 continue
-            assert name in SPEC_TYPES or name in OUTPUT_TYPES or name in SWEEP_TYPES, f"dgtd {command} --{name}"
+            assert name in FLAT or name in SWEEP_TYPES, f"dgtd {command} --{name}"
 
 
 def test_problem_files_are_recorded_with_absolute_paths(tmp_path, monkeypatch, run_cli):
@@ -206,7 +224,8 @@ def test_problem_files_are_recorded_with_absolute_paths(tmp_path, monkeypatch, r
     code, out, err = run_cli("run", "exp.toml")
     assert code == 0, err
     saved = tomllib.loads((tmp_path / "o" / "config.toml").read_text())
-    assert saved["problem_file"] == str(tmp_path / "chain.npz") and saved["graph"] == str(tmp_path / "edges.txt")
+    assert saved["problem"]["problem_file"] == str(tmp_path / "chain.npz")
+    assert saved["network"]["graph"] == str(tmp_path / "edges.txt")
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert len(summary["config"]["problem_sha256"]) == 64
     write(tmp_path, 'problem_file = "chain.npz"\n[params]\nsize = 3\n', "bad.toml")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dgtd.config import RunSpec, resolve
+from dgtd.config import flat, resolve, unflat
 from dgtd.experiments import parse
 from dgtd.plots.results import load_run
 from dgtd.run.loop import run
@@ -18,10 +18,10 @@ def _png(path) -> bool:
 
 def test_a_run_directory_reads_back_exactly(tmp_path, run_cli):
     problem, network, algorithm, samp, settings, resolved = resolve(
-        RunSpec(scenario="paper-example-1", iterations=2000, seeds=3, checkpoints=12, backend="numpy")
+        unflat(dict(scenario="paper-example-1", iterations=2000, seeds=3, checkpoints=12, backend="numpy"))
     )
     result = run(problem, network, algorithm, samp, settings)
-    write_results(tmp_path, result, resolved.to_dict(), resolved.algorithm)
+    write_results(tmp_path, result, flat(resolved), resolved.algorithm.name)
     saved = load_run(tmp_path)
     np.testing.assert_array_equal(saved.steps, result.steps)
     for name, values in result.metrics.items():

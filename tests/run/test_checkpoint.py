@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import cli_env, dgtd_cmd
 
-from dgtd.config import RunSpec, resolve
+from dgtd.config import resolve, unflat
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
 from dgtd.run.loop import run
 
@@ -35,16 +35,18 @@ def assert_same_run(a, b):
 @pytest.mark.parametrize("sampling", ["iid", "markov"])
 def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling):
     # random edges, reward noise and Markov states: every stream and the trajectories' current states matter
-    spec = RunSpec(
-        scenario="paper-example-1",
-        iterations=2500,
-        seeds=3,
-        backend=backend,
-        sampling=sampling,
-        reward_noise="bernoulli",
-        edge_prob=0.7,
-        checkpoints=15,
-        block_size=300,
+    spec = unflat(
+        dict(
+            scenario="paper-example-1",
+            iterations=2500,
+            seeds=3,
+            backend=backend,
+            sampling=sampling,
+            reward_noise="bernoulli",
+            edge_prob=0.7,
+            checkpoints=15,
+            block_size=300,
+        )
     )
     problem, network, algorithm, samp, settings, _ = resolve(spec)
     whole = run(problem, network, algorithm, samp, settings)
@@ -122,7 +124,7 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     assert code == 0, err
     # leave a checkpoint behind as a killed run would
     problem, network, algorithm, samp, settings, resolved = resolve(
-        RunSpec(scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5)
+        unflat(dict(scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5))
     )
     snaps = []
     run(problem, network, algorithm, samp, settings, checkpoint_every=500, on_checkpoint=snaps.append)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from conftest import cli_env, dgtd_cmd
 
+from dgtd.config import view
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import load, parse
 from dgtd.run.store import SweepStore, read_table
@@ -95,8 +96,12 @@ def test_grid_is_the_product_in_file_order(tmp_path):
     jobs = expand(load(sweep_file(tmp_path)))
     assert len(jobs) == 12 and len({j.id for j in jobs}) == 12
     assert [j.point for j in jobs[:3]] == [{"alpha0": 2.0, "kappa": 0.0, "edge_prob": e} for e in (0.5, 0.8, 1.0)]
-    assert jobs[4].spec.kappa == 1.0 and jobs[4].spec.edge_prob == 0.8 and jobs[4].spec.alpha0 == 2.0
-    assert all(j.spec.algorithm == "dgtd" for j in jobs)  # resolved: every field written down
+    assert (
+        view(jobs[4].config).kappa == 1.0
+        and view(jobs[4].config).edge_prob == 0.8
+        and view(jobs[4].config).alpha0 == 2.0
+    )
+    assert all(view(j.config).algorithm == "dgtd" for j in jobs)  # resolved: every field written down
 
 
 def test_fields_an_algorithm_lacks_are_dropped_and_jobs_merged(monkeypatch):
@@ -118,7 +123,9 @@ def test_fields_an_algorithm_lacks_are_dropped_and_jobs_merged(monkeypatch):
         {"algorithm": "dgtd", "kappa": 1.0},
         {"algorithm": "plain", "kappa": None},
     ]
-    assert jobs[2].spec.kappa is None and jobs[2].spec.alpha0 == 10.0  # the scenario's step sizes carry over
+    assert (
+        view(jobs[2].config).kappa is None and view(jobs[2].config).alpha0 == 10.0
+    )  # the scenario's step sizes carry over
 
 
 def test_a_bad_grid_point_is_one_clear_error(tmp_path):

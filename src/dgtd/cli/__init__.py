@@ -10,42 +10,10 @@ from pathlib import Path
 import click
 import numpy as np
 
-from dgtd.cli.options import with_env_options
-from dgtd.config import CHOICES, RunSpec
+from dgtd.cli.options import run_options
+from dgtd.config import CHOICES, Output
 from dgtd.errors import DgtdInputError, UserCodeError
-from dgtd.experiments import EXECUTORS, TABLE_FORMATS, Output, SweepOptions
-
-
-def _problem_options(f):
-    f = click.option(
-        "--problem",
-        "problem_file",
-        type=str,
-        default=None,
-        help="An .npz with arrays P (S,S), R (N,S), Phi (S,q) and scalar gamma, instead of a scenario.",
-    )(f)
-    f = click.option(
-        "--graph",
-        type=str,
-        default=None,
-        help="ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the scenario's, "
-        "else ring).",
-    )(f)
-    f = click.option(
-        "--edge-prob",
-        type=float,
-        default=None,
-        help="Probability that each edge of the graph is up at each step (1 = fixed graph).",
-    )(f)
-    f = click.option(
-        "--kappa",
-        type=float,
-        default=None,
-        help="Weight of the consensus term of the Lagrangian (section 5; default: the scenario's, DGTD's own is 3).",
-    )(f)
-    f = click.option("--rho", type=float, default=None, help="Regulariser (rho/2)|mu|^2 - (rho/2)|w|^2 (0 = none).")(f)
-    return f
-
+from dgtd.experiments import EXECUTORS, TABLE_FORMATS, SweepOptions
 
 DEBUG = {"on": False}  # set by `dgtd --debug`: the traceback of an error raised in a user's own code is printed
 
@@ -79,108 +47,9 @@ def _is_experiment_file(arg: str | None) -> bool:
     return arg is not None and arg.endswith(".toml")
 
 
-def spec_default(name: str):
-    """The default of `RunSpec` field ``name``: the command line's, so that it has no defaults of its own."""
-    return RunSpec.__dataclass_fields__[name].default
-
-
-def _spec_options(f):
-    """Options that set run-spec fields; `dgtd run` and `dgtd sweep` share them (a sweep's base run). Defaults and
-    choices come from `dgtd.config.RunSpec` and `dgtd.config.CHOICES` (tests/config/test_config_cli.py checks)."""
-    d = spec_default
-    options = [
-        click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
-        click.option(
-            "--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."
-        ),
-        click.option(
-            "--seeds", type=int, default=d("seeds"), show_default=True, help="Independent runs, side by side."
-        ),
-        click.option(
-            "--seed",
-            type=int,
-            default=d("seed"),
-            show_default=True,
-            help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).",
-        ),
-        click.option(
-            "--alpha0",
-            type=float,
-            default=None,
-            help="Step-size scale alpha0 (default: the scenario's; DGTD's own is 10, for features of unit "
-            "scale: lower it in proportion to |phi(s)|^2).",
-        ),
-        click.option(
-            "--beta",
-            type=float,
-            default=None,
-            help="Step-size offset beta in alpha0/sqrt(k+beta) (default: the scenario's; DGTD's own is 1000).",
-        ),
-        click.option(
-            "--schedule",
-            type=click.Choice(CHOICES["schedule"]),
-            default=None,
-            help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.",
-        ),
-        click.option(
-            "--sampling",
-            type=click.Choice(CHOICES["sampling"]),
-            default=None,
-            help="i.i.d. s ~ d or Markovian trajectories.",
-        ),
-        click.option(
-            "--shared/--independent",
-            default=None,
-            help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).",
-        ),
-        click.option(
-            "--reward-noise",
-            type=click.Choice(CHOICES["reward_noise"]),
-            default=None,
-            help="How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in "
-            "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
-            "r(s, a, s') where the problem gives rewards per transition (transition).",
-        ),
-        click.option(
-            "--restarts",
-            type=click.Choice(CHOICES["restarts"]),
-            default=None,
-            help="An episodic task's restart transition (terminal state to the next episode's start) is a sample, "
-            "as dgtd counts it (sampled, the default), or not, as RL-Glue based suites count it (skipped; d then "
-            "weights the non-terminal states only). See README, Episodic tasks.",
-        ),
-        click.option("--backend", type=click.Choice(CHOICES["backend"]), default=d("backend"), show_default=True),
-        click.option(
-            "--checkpoints",
-            type=int,
-            default=d("checkpoints"),
-            show_default=True,
-            help="How many times to record metrics (at most once per iteration).",
-        ),
-        click.option(
-            "--tail-fraction",
-            type=float,
-            default=d("tail_fraction"),
-            show_default=True,
-            help="Final fraction of the run averaged for w_tail.",
-        ),
-        click.option(
-            "--block-size",
-            type=int,
-            default=d("block_size"),
-            show_default=True,
-            help="Steps drawn and advanced per block (no effect on results).",
-        ),
-    ]
-    f = with_env_options(f)
-    for option in reversed(options):
-        f = option(f)
-    return _problem_options(f)
-
-
 @cli.command()
 @click.argument("scenario", required=False, metavar="SCENARIO|EXPERIMENT.toml")
-@_spec_options
+@run_options()
 @click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
 @click.option("--progress/--no-progress", default=Output.progress, show_default=True)
 @click.option("--plots/--no-plots", default=Output.plots, show_default=True)
@@ -280,20 +149,20 @@ def _run_job(job, t_start: float) -> None:
         return
     problem, network, algorithm, samp, settings = job.problem, job.network, job.algorithm, job.sampling, job.settings
     links = network.describe()
-    if job.resolved.scenario is not None and scenario_of(job.resolved).source is not None:
+    if job.resolved.problem.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
     click.echo(problem_line(problem, links))
     click.echo(
         f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
         f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend"
     )
-    if job.resolved.env is not None or job.resolved.data is not None:
+    if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
         click.echo(scenario_of(job.resolved).description)
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
     t_ran = time.perf_counter()
-    if job.exp.output.plots:
+    if job.config.output.plots:
         print("writing the results, then drawing the figures ...", file=sys.stderr, flush=True)
     from dgtd.run.results import NotWritten
 
@@ -427,32 +296,28 @@ def final_table(result) -> str:
 
 @cli.command()
 @click.argument("scenario", required=False)
-@_problem_options
-@click.option(
-    "--restarts",
-    type=click.Choice(CHOICES["restarts"]),
-    default=None,
-    help="An episodic task's restarts: samples (sampled) or not (skipped); as for dgtd run.",
-)
+@run_options("problem_file", "graph", "edge_prob", "kappa", "rho", "restarts")
 def solve(scenario, problem_file, graph, edge_prob, kappa, rho, restarts):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes)."""
-    from dgtd.config import RunSpec, resolve
+    from dgtd.config import resolve, unflat
     from dgtd.problems import exact
     from dgtd.run.results import plain, problem_fields
 
     if scenario is None and problem_file is None:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
-    spec = RunSpec(
-        scenario=scenario,
-        problem_file=problem_file,
-        graph=graph,
-        edge_prob=edge_prob,
-        kappa=kappa,
-        rho=rho,
-        restarts=restarts,
+    config = unflat(
+        {
+            "scenario": scenario,
+            "problem_file": problem_file,
+            "graph": graph,
+            "edge_prob": edge_prob,
+            "kappa": kappa,
+            "rho": rho,
+            "restarts": restarts,
+        }
     )
-    problem, network, algorithm, *_ = resolve(spec)
+    problem, network, algorithm, *_ = resolve(config)
     m = exact.Moments(problem)
     L = network.mean_laplacian()
     w = exact.w_star(m)
@@ -529,7 +394,7 @@ def bench(cases, algorithms, backends, repeats, scaling, out):
 
 @cli.command()
 @click.argument("experiment", type=click.Path(dir_okay=False))
-@_spec_options
+@run_options()
 @click.option(
     "--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file)."
 )
@@ -581,8 +446,9 @@ def sweep(ctx, experiment, **_):
     if "resume" in flags:
         flags["sweep.resume"] = flags.pop("resume")
     exp = experiment_from(experiment, flags)
-    out = Path(exp.output.out) if exp.output.out else default_out(experiment)
-    report = run_sweep(exp, out, echo=click.echo, progress=exp.output.progress)
+    output = exp.config.output
+    out = Path(output.out) if output.out else default_out(experiment)
+    report = run_sweep(exp, out, echo=click.echo, progress=output.progress)
     click.echo(
         f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed "
         f"in {report['seconds']:.1f} s" + (f"; table: {report['table']}" if report["table"] else "")

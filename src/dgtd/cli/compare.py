@@ -9,9 +9,7 @@ from pathlib import Path
 import click
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.cli.options import with_env_options
-from dgtd.config import CHOICES
-from dgtd.run.loop import RunSettings
+from dgtd.cli.options import ENV_OPTIONS, run_options
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -29,43 +27,12 @@ def _names(text: str | None) -> tuple[str, ...]:
     "--seeds", type=int, default=5, show_default=True, help="Independent runs per algorithm, the same for all."
 )
 @click.option(
-    "--seed",
-    type=int,
-    default=RunSettings.seed,
-    show_default=True,
-    help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,)).",
-)
-@click.option("--iterations", "-T", type=int, default=None, help="Iterations T (default: the scenario's).")
-@click.option("--edge-prob", type=float, default=None, help="Probability that each link is up at each step.")
-@click.option(
-    "--sampling", type=click.Choice(CHOICES["sampling"]), default=None, help="i.i.d. s ~ d or Markovian trajectories."
-)
-@click.option(
-    "--shared/--independent",
-    default=None,
-    help="All agents observe one state trajectory, or each its own copy (default: the scenario's).",
-)
-@click.option(
-    "--restarts",
-    type=click.Choice(CHOICES["restarts"]),
-    default=None,
-    help="An episodic task's restarts: samples (sampled, dgtd's) or not (skipped, RL-Glue suites'); as for dgtd run.",
-)
-@click.option(
     "--tune/--no-tune",
     default=False,
     show_default=True,
     help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.",
 )
 @click.option("--tune-seeds", type=int, default=2, show_default=True, help="Seeds per tuning run.")
-@click.option("--backend", type=click.Choice(CHOICES["backend"]), default=RunSettings.backend, show_default=True)
-@click.option(
-    "--checkpoints",
-    type=int,
-    default=RunSettings.checkpoints,
-    show_default=True,
-    help="How many times to record metrics.",
-)
 @click.option(
     "--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO)."
 )
@@ -77,17 +44,19 @@ def _names(text: str | None) -> tuple[str, ...]:
     default=False,
     help="Replace another comparison's results in --out (otherwise refused).",
 )
-@click.option(
-    "--problem",
+@run_options(
+    "iterations",
+    "seed",
+    "edge_prob",
+    "sampling",
+    "shared",
+    "restarts",
+    "backend",
+    "checkpoints",
     "problem_file",
-    type=str,
-    default=None,
-    help="Your own problem, an .npz as `dgtd run --problem` takes, instead of a scenario.",
+    "graph",
+    *ENV_OPTIONS,
 )
-@click.option(
-    "--graph", type=str, default=None, help="The network of a --problem, --env or --data run (default: ring)."
-)
-@with_env_options
 def compare(
     scenario,
     algorithms,
@@ -112,13 +81,13 @@ def compare(
     """Run several algorithms on SCENARIO (or --problem FILE.npz, --env, --data, as `dgtd run`) with the same
     samples; write metrics.csv, summary.json and plots.
 
-    The run is described, checked and recorded as the `RunSpec` of `dgtd run` (the same fields, defaults and
+    The run is described, checked and recorded as the `RunConfig` of `dgtd run` (the same fields, defaults and
     checks), plus the algorithms compared and the tuning. Each algorithm's numbers are saved as it finishes: after
     an interrupt, the same command again runs only the algorithms that had not finished."""
     from tqdm import tqdm
 
     from dgtd.cli import problem_line
-    from dgtd.config import PROBLEM_FIELDS, RunSpec, resolve, scenario_of, spec_record
+    from dgtd.config import PROBLEM_FIELDS, resolve, scenario_of, spec_record, unflat
     from dgtd.errors import DgtdInputError
     from dgtd.experiments import Experiment, absolute_paths, override
     from dgtd.run.compare import (
@@ -136,25 +105,27 @@ def compare(
     from dgtd.run.results import NotWritten
     from dgtd.scenarios.user import problem_scenario
 
-    spec = RunSpec(
-        scenario=scenario,
-        problem_file=problem_file,
-        edge_prob=edge_prob,
-        iterations=iterations,
-        seeds=seeds,
-        seed=seed,
-        sampling=sampling,
-        shared=shared,
-        restarts=restarts,
-        backend=backend,
-        checkpoints=checkpoints,
+    config = unflat(
+        {
+            "scenario": scenario,
+            "problem_file": problem_file,
+            "edge_prob": edge_prob,
+            "iterations": iterations,
+            "seeds": seeds,
+            "seed": seed,
+            "sampling": sampling,
+            "shared": shared,
+            "restarts": restarts,
+            "backend": backend,
+            "checkpoints": checkpoints,
+        }
     )
-    spec = override(Experiment(spec=spec), {k: v for k, v in user.items() if v is not None}).spec
-    if all(getattr(spec, name) is None for name in PROBLEM_FIELDS):
+    config = override(Experiment(config), {k: v for k, v in user.items() if v is not None}).config
+    if all(getattr(config.problem, name) is None for name in PROBLEM_FIELDS):
         raise DgtdInputError(
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
         )
-    p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(spec))
+    p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(config))
     sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)

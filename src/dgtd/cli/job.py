@@ -12,7 +12,7 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from dgtd.config import PROBLEM_FIELDS, make_source, resolve, scenario_of, spec_record
+from dgtd.config import PROBLEM_FIELDS, RunConfig, make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
@@ -25,9 +25,9 @@ HEADER = "The fully resolved config of a dgtd run: `dgtd run THIS_FILE` reproduc
 
 @dataclass
 class PreparedRun:
-    """A resolved run and where it goes: the library objects, the resolved spec and, when resuming, the snapshot."""
+    """A resolved run and where it goes: the library objects, the resolved config and, when resuming, the snapshot."""
 
-    exp: Experiment
+    config: RunConfig
     problem: object
     network: object
     algorithm: object
@@ -49,8 +49,8 @@ class PreparedRun:
 
     @property
     def config_toml(self) -> str:
-        output = replace(self.exp.output, out=str(self.out), resume=False)
-        return to_toml(Experiment(spec=self.resolved, output=output), HEADER)
+        output = replace(self.config.output, out=str(self.out), resume=False)
+        return to_toml(Experiment(replace(self.resolved, output=output)), HEADER)
 
     def run(self, progress: bool | None = None):
         """Run (or continue) the loop, saving a checkpoint every ``checkpoint_every`` iterations."""
@@ -58,7 +58,7 @@ class PreparedRun:
 
         from dgtd.run.loop import run as run_loop
 
-        show = self.exp.output.progress if progress is None else progress
+        show = self.config.output.progress if progress is None else progress
         done = 0 if self.snapshot is None else int(self.snapshot["k"])
         bars = []
 
@@ -86,7 +86,7 @@ class PreparedRun:
         def advance(n: int) -> None:
             bars[0].update(n)
 
-        every = self.exp.output.checkpoint_every
+        every = self.config.output.checkpoint_every
         ckpt = self.out / CHECKPOINT
         self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
         try:
@@ -112,7 +112,7 @@ class PreparedRun:
         written."""
         from dgtd.run.results import npz_bytes, write_results
 
-        plots = self.exp.output.plots if plots is None else plots
+        plots = self.config.output.plots if plots is None else plots
         sc = scenario_of(self.resolved)
         extra = None
         if sc is not None and sc.report is not None:  # a scenario's own numbers (e.g. the robots' map correlations)
@@ -157,21 +157,41 @@ class FiguresInterrupted(KeyboardInterrupt):
         )
 
 
-def prepare(exp: Experiment) -> PreparedRun:
-    """Resolve an experiment, check a resume against its checkpoint, and write config.toml."""
-    if exp.grid:
-        raise DgtdInputError("this experiment has a [grid]: run it with `dgtd sweep FILE`")
-    if all(getattr(exp.spec, name) is None for name in PROBLEM_FIELDS):
+def execute(config: RunConfig):
+    """Run ``config`` as ``dgtd run`` does, into its output directory (config.toml, the results, and figures if
+    ``config.output.plots``), and return the `dgtd.run.loop.RunResult`. With ``output.resume`` it continues the run
+    saved there; a finished one is read back (`dgtd.run.results.read_results`)."""
+    job = prepare(config)
+    try:
+        if job.finished:
+            from dgtd.run.results import read_results
+
+            return read_results(job.out)
+        result = job.run()
+        job.save(result)
+        return result
+    finally:
+        job.release()
+
+
+def prepare(exp: Experiment | RunConfig) -> PreparedRun:
+    """Resolve a run's config, check a resume against its checkpoint, and write config.toml."""
+    if isinstance(exp, Experiment):
+        if exp.grid:
+            raise DgtdInputError("this experiment has a [grid]: run it with `dgtd sweep FILE`")
+        exp = exp.config
+    config = exp
+    if all(getattr(config.problem, name) is None for name in PROBLEM_FIELDS):
         raise DgtdInputError(
             "name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
             "module:make_env, --data FILE, or an experiment file"
         )
-    problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(exp.spec))
-    out = Path(exp.output.out) if exp.output.out else Path("runs") / problem.name
+    problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(config))
+    out = Path(config.output.out) if config.output.out else Path("runs") / problem.name
     out = out.resolve()
     record = json.loads(json.dumps(spec_record(resolved)))
     run = PreparedRun(
-        exp,
+        config,
         problem,
         network,
         algorithm,
@@ -180,19 +200,19 @@ def prepare(exp: Experiment) -> PreparedRun:
         resolved,
         out,
         record,
-        owner=Owner(out, "run", exp.output.overwrite),
+        owner=Owner(out, "run", config.output.overwrite),
     )
     try:
-        return _claim(run, exp, out, record)
+        return _claim(run, config.output, out, record)
     except BaseException:
         run.release()
         raise
 
 
-def _claim(run: PreparedRun, exp: Experiment, out: Path, record: dict) -> PreparedRun:
+def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
     """Check a resume against its checkpoint, or clear the previous run and write config.toml."""
     ckpt = out / CHECKPOINT
-    if exp.output.resume:
+    if output.resume:
         if not ckpt.exists():
             if (out / "summary.json").exists():
                 run.finished = True
@@ -203,7 +223,7 @@ def _claim(run: PreparedRun, exp: Experiment, out: Path, record: dict) -> Prepar
         if diff:
             raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
     else:
-        clear_previous_run(out, record, exp.output.overwrite)
+        clear_previous_run(out, record, output.overwrite)
         atomic_write(out / CONFIG, run.config_toml.encode())
     return run
 

@@ -1,10 +1,167 @@
-"""Command-line options shared by `dgtd run`, `dgtd sweep` and `dgtd compare`: a user's simulator or recordings."""
+"""Command-line options that set fields of the run's configuration (`dgtd.config.RunConfig`), by their flat names
+(`dgtd.config.FLAT`): one table, `RUN_OPTIONS`, from which `dgtd run`, `dgtd sweep`, `dgtd solve` and `dgtd compare`
+each take theirs, so that an option means the same everywhere. Defaults are the config's (None: the scenario's value,
+else the library's default, shown in the help) and choices `dgtd.config.CHOICES`; tests/config/test_config_cli.py
+checks both."""
 
 from __future__ import annotations
 
 import click
 
-from dgtd.config import DEFAULT_GAMMA
+from dgtd.config import CHOICES, DEFAULT_GAMMA
+
+
+def shown(name: str) -> str:
+    """The default an option of the run's length (`dgtd.config.RunLength`) stands for. The option's own default is
+    None, the config's ('not given': an experiment file's value stays); `dgtd.run.loop.RunSettings`' applies."""
+    from dgtd.run.loop import RunSettings
+
+    return f"  [default: {getattr(RunSettings, name)}]"
+
+
+def _named(option_list) -> dict:
+    """{flat name: option decorator}: the name is the parameter's, as click derives it."""
+    out = {}
+    for option in option_list:
+
+        @option
+        def probe():  # a throw-away command, to read the parameter's name from
+            pass
+
+        out[probe.__click_params__[0].name] = option
+    return out
+
+
+def _run_options() -> dict:
+    return _named(
+        [
+            click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
+            click.option(
+                "--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."
+            ),
+            click.option("--seeds", type=int, default=None, help="Independent runs, side by side." + shown("seeds")),
+            click.option(
+                "--seed",
+                type=int,
+                default=None,
+                help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))." + shown("seed"),
+            ),
+            click.option(
+                "--alpha0",
+                type=float,
+                default=None,
+                help="Step-size scale alpha0 (default: the scenario's; DGTD's own is 10, for features of unit "
+                "scale: lower it in proportion to |phi(s)|^2).",
+            ),
+            click.option(
+                "--beta",
+                type=float,
+                default=None,
+                help="Step-size offset beta in alpha0/sqrt(k+beta) (default: the scenario's; DGTD's own is 1000).",
+            ),
+            click.option(
+                "--schedule",
+                type=click.Choice(CHOICES["schedule"]),
+                default=None,
+                help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.",
+            ),
+            click.option(
+                "--sampling",
+                type=click.Choice(CHOICES["sampling"]),
+                default=None,
+                help="i.i.d. s ~ d or Markovian trajectories.",
+            ),
+            click.option(
+                "--shared/--independent",
+                default=None,
+                help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).",
+            ),
+            click.option(
+                "--reward-noise",
+                type=click.Choice(CHOICES["reward_noise"]),
+                default=None,
+                help="How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in "
+                "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
+                "r(s, a, s') where the problem gives rewards per transition (transition).",
+            ),
+            click.option(
+                "--restarts",
+                type=click.Choice(CHOICES["restarts"]),
+                default=None,
+                help="An episodic task's restart transition (terminal state to the next episode's start) is a sample, "
+                "as dgtd counts it (sampled, the default), or not, as RL-Glue based suites count it (skipped; d then "
+                "weights the non-terminal states only). See README, Episodic tasks.",
+            ),
+            click.option(
+                "--backend",
+                type=click.Choice(CHOICES["backend"]),
+                default=None,
+                help="The compiled kernels or the NumPy reference (the same numbers)." + shown("backend"),
+            ),
+            click.option(
+                "--checkpoints",
+                type=int,
+                default=None,
+                help="How many times to record metrics (at most once per iteration)." + shown("checkpoints"),
+            ),
+            click.option(
+                "--tail-fraction",
+                type=float,
+                default=None,
+                help="Final fraction of the run averaged for w_tail." + shown("tail_fraction"),
+            ),
+            click.option(
+                "--block-size",
+                type=int,
+                default=None,
+                help="Steps drawn and advanced per block (no effect on results)." + shown("block_size"),
+            ),
+            click.option(
+                "--problem",
+                "problem_file",
+                type=str,
+                default=None,
+                help="An .npz with arrays P (S,S), R (N,S), Phi (S,q) and scalar gamma, instead of a scenario.",
+            ),
+            click.option(
+                "--graph",
+                type=str,
+                default=None,
+                help="ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the "
+                "scenario's, else ring).",
+            ),
+            click.option(
+                "--edge-prob",
+                type=float,
+                default=None,
+                help="Probability that each edge of the graph is up at each step (1 = fixed graph).",
+            ),
+            click.option(
+                "--kappa",
+                type=float,
+                default=None,
+                help="Weight of the consensus term of the Lagrangian (section 5; default: the scenario's, DGTD's own "
+                "is 3).",
+            ),
+            click.option(
+                "--rho", type=float, default=None, help="Regulariser (rho/2)|mu|^2 - (rho/2)|w|^2 (0 = none)."
+            ),
+            *env_options(),
+        ]
+    )
+
+
+def run_options(*names: str):
+    """Decorate a command with the options of ``names`` from `RUN_OPTIONS` (all of them when none are named), in
+    the table's order."""
+
+    def decorate(f):
+        chosen = [option for name, option in RUN_OPTIONS.items() if not names or name in names]
+        for option in reversed(chosen):
+            f = option(f)
+        return f
+
+    return decorate
 
 
 def _split(ctx, param, value):
@@ -17,13 +174,6 @@ def _split(ctx, param, value):
         raise click.BadParameter(
             f"give 'random' or the agents' shares separated by commas, e.g. 0.5,0.3,0.2; got {value!r}"
         ) from None
-
-
-def with_env_options(f):
-    """Decorate a command with `env_options`."""
-    for option in reversed(env_options()):
-        f = option(f)
-    return f
 
 
 def env_options() -> list:
@@ -85,3 +235,9 @@ def env_options() -> list:
             help=f"Discount factor of an --env or --data run (default {DEFAULT_GAMMA}).",
         ),
     ]
+
+
+RUN_OPTIONS = _run_options()
+"""Flat field name (or [env] flag) -> its option: the one definition of every run option."""
+ENV_OPTIONS = tuple(_named(env_options()))
+"""The options of a user's simulator or recordings (--env, --features, ..., --data, --gamma)."""

@@ -85,7 +85,7 @@ def scenario_figures_again(directory: Path, run: SimpleNamespace) -> list[Path]:
 
     if not (directory / "config.toml").exists() or run.w_last is None:
         return []
-    sc = scenario_of(load(str(directory / "config.toml")).spec)
+    sc = scenario_of(load(str(directory / "config.toml")).config)
     if sc is None or sc.report is None:
         return []
     source = None

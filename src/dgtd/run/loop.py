@@ -28,7 +28,7 @@ COUNTS = ("samples", "messages", "bits", "diverged")
 
 @dataclass(frozen=True)
 class RunSettings:
-    """How long and how many: the only defaults of these fields in dgtd (`dgtd.config.RunSpec`, the CLI and
+    """How long and how many: the only defaults of these fields in dgtd (`dgtd.config.RunLength`, the CLI and
     `dgtd compare` take theirs from here).
 
     - ``iterations`` T, ``seeds`` B run side by side, base ``seed`` (seed k uses SeedSequence(seed, spawn_key=(k,)));

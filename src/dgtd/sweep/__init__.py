@@ -1,6 +1,6 @@
 """Sweeps: the runs of a [grid] of run fields, handed as jobs to a `concurrent.futures` executor.
 
-Each grid point is one job: a `RunSpec` run with all its seeds side by side. Jobs go to a local process
+Each grid point is one job: a `RunConfig` run with all its seeds side by side. Jobs go to a local process
 pool by default, or to Ray (`dgtd.sweep.ray`); the driver alone writes files (`dgtd.run.store`), so workers
 on other machines need no shared disk. A job whose worker dies is run again: Ray retries it itself, and a
 broken process pool is replaced and the unfinished jobs resubmitted.
@@ -15,12 +15,22 @@ import os
 import sys
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from dgtd.config import ALGORITHM_FIELDS, RunSpec, field_types, make_source, resolve, spec_record
+from dgtd.config import (
+    ALGORITHM_FIELDS,
+    Output,
+    RunConfig,
+    field_types,
+    flat,
+    make_source,
+    resolve,
+    spec_record,
+    unflat,
+)
 from dgtd.errors import DgtdInputError
-from dgtd.experiments import TABLES, Experiment, Output, absolute_paths, to_toml
+from dgtd.experiments import TABLES, Experiment, absolute_paths, to_toml
 from dgtd.run.owner import Owner
 from dgtd.run.store import SweepStore
 
@@ -30,11 +40,11 @@ MAX_ATTEMPTS = 3
 @dataclass(frozen=True)
 class Job:
     """One grid point: ``point`` maps grid keys ('alpha0', 'params.n_states') to values, None where the job's
-    algorithm has no such field; ``spec`` is the fully resolved spec; ``id`` a digest of it."""
+    algorithm has no such field; ``config`` is the fully resolved config; ``id`` a digest of it."""
 
     id: str
     point: dict
-    spec: RunSpec
+    config: RunConfig
 
 
 def grid_keys(grid: dict) -> list[tuple[str, list]]:
@@ -48,32 +58,32 @@ def grid_keys(grid: dict) -> list[tuple[str, list]]:
     return out
 
 
-def apply_point(spec: RunSpec, point: dict) -> RunSpec:
-    """``spec`` with a grid point's values set, then the fields its algorithm lacks cleared (kappa for td0)."""
-    over, tables = {}, {t: dict(getattr(spec, t) or {}) for t in TABLES}
+def apply_point(config: RunConfig, point: dict) -> RunConfig:
+    """``config`` with a grid point's values set (by flat name), then the fields its algorithm lacks cleared (kappa
+    for td0)."""
+    spec = flat(config)
+    over, tables = {}, {t: dict(spec[t] or {}) for t in TABLES}
     for key, value in point.items():
         table, _, sub = key.partition(".")
         if sub:
             tables[table][sub] = value
         else:
             over[key] = value
-    spec = replace(spec, **over, **{t: d or None for t, d in tables.items()})
-    if spec.algorithm is not None:
+    spec.update(over, **{t: d or None for t, d in tables.items()})
+    if spec["algorithm"] is not None:
         from dgtd.algorithms import ALGORITHMS
 
-        if spec.algorithm in ALGORITHMS:
-            own = field_types(ALGORITHMS[spec.algorithm])
-            spec = replace(
-                spec,
-                **{k: None for k in ALGORITHM_FIELDS if k not in own},
-                algorithm_params={k: v for k, v in (spec.algorithm_params or {}).items() if k in own} or None,
-            )
-    return spec
+        if spec["algorithm"] in ALGORITHMS:
+            own = field_types(ALGORITHMS[spec["algorithm"]])
+            spec.update({k: None for k in ALGORITHM_FIELDS if k not in own})
+            spec["algorithm_params"] = {k: v for k, v in (spec["algorithm_params"] or {}).items() if k in own} or None
+    return unflat(spec, config.output)
 
 
-def _applied(spec: RunSpec, key: str):
+def _applied(config: RunConfig, key: str):
+    spec = flat(config)
     table, _, sub = key.partition(".")
-    return (getattr(spec, table) or {}).get(sub) if sub else getattr(spec, key)
+    return (spec[table] or {}).get(sub) if sub else spec[key]
 
 
 def expand(exp: Experiment) -> list[Job]:
@@ -85,9 +95,9 @@ def expand(exp: Experiment) -> list[Job]:
     jobs, seen = [], set()
     for values in itertools.product(*(v for _, v in keys)):
         point = dict(zip((k for k, _ in keys), values, strict=True))
-        spec = absolute_paths(apply_point(exp.spec, point))
+        config = absolute_paths(apply_point(exp.config, point))
         try:
-            *_, resolved = resolve(spec)
+            *_, resolved = resolve(config)
         except DgtdInputError as e:
             where = ", ".join(f"{k} = {v!r}" for k, v in point.items())
             raise DgtdInputError(f"grid point {where}: {e}") from None
@@ -95,7 +105,7 @@ def expand(exp: Experiment) -> list[Job]:
         job_id = "j" + hashlib.sha256(record.encode()).hexdigest()[:12]
         if job_id not in seen:
             seen.add(job_id)
-            jobs.append(Job(job_id, {k: _applied(spec, k) for k in point}, resolved))
+            jobs.append(Job(job_id, {k: _applied(config, k) for k in point}, resolved))
     return jobs
 
 
@@ -107,7 +117,7 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
     from dgtd.run.loop import run as run_loop
     from dgtd.run.results import summary
 
-    problem, network, algorithm, sampling, settings, resolved = resolve(RunSpec(**spec))
+    problem, network, algorithm, sampling, settings, resolved = resolve(unflat(spec))
     if threads and settings.backend == "numba":
         import numba
 
@@ -156,7 +166,7 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
     jobs = expand(exp)
     out = Path(out).resolve()
     resume = exp.sweep.resume if exp.sweep.resume is not None else out.exists()
-    with Owner(out, "sweep", exp.output.overwrite):  # the directory is this sweep's until it ends
+    with Owner(out, "sweep", exp.config.output.overwrite):  # the directory is this sweep's until it ends
         return _sweep_into(exp, jobs, out, resume, echo, progress, t_start)
 
 
@@ -167,7 +177,8 @@ def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, prog
     from tqdm import tqdm
 
     store = SweepStore(out, exp.sweep.format)
-    saved = replace(exp, spec=absolute_paths(exp.spec), output=Output(out=str(out), progress=exp.output.progress))
+    output = Output(out=str(out), progress=exp.config.output.progress)
+    saved = replace(exp, config=replace(absolute_paths(exp.config), output=output))
     store.begin(to_toml(saved, "A dgtd sweep: `dgtd sweep THIS_FILE` runs it again, skipping finished jobs."))
     todo = [j for j in jobs if not (resume and store.done(j.id))]
     where = exp.sweep.address or ("a local Ray on 127.0.0.1" if exp.sweep.executor == "ray" else "a local process pool")
@@ -211,7 +222,7 @@ def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict,
         executor = make_executor(exp, len(pending))
         broken = False
         try:
-            futures = {executor.submit(run_job, asdict(j.spec), 1): j for j in pending.values()}
+            futures = {executor.submit(run_job, flat(j.config), 1): j for j in pending.values()}
             for future in as_completed(futures):
                 job = futures[future]
                 try:
@@ -226,7 +237,7 @@ def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict,
                     message = f"{type(e).__name__}: {e}"
                 else:
                     config = to_toml(
-                        Experiment(spec=job.spec), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone."
+                        Experiment(job.config), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone."
                     )
                     store.write_job(job.id, job.point, config, result)
                     del pending[job.id]
