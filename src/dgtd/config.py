@@ -50,10 +50,13 @@ class ProblemConfig:
 @dataclass(frozen=True)
 class NetworkConfig:
     """Who hears whom: ``graph`` (a topology of `dgtd.graphs.topologies` or a file of 'i j' edge lines; default the
-    scenario's, else ring), each of whose edges is up with probability ``edge_prob`` at each step."""
+    scenario's, else ring), each of whose edges is up with probability ``edge_prob`` at each step; ``loss``, the
+    probability that a message is lost (`dgtd.channels.lossy.loss_per_arc`: one for all, one per receiving agent,
+    or a file of 'i j p' lines), none by default."""
 
     graph: str | None = None
     edge_prob: float | None = None
+    loss: float | list | str | None = None
 
 
 @dataclass(frozen=True)
@@ -373,6 +376,8 @@ def resolve(config: RunConfig):
         graph = spec.graph or graph
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph, problem.n_agents, edge_prob)
+    loss = _loss(spec.loss)
+    channel_for(loss, network)  # checked here, with the network it applies to
     algorithm = build_algorithm(spec, algorithm)
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
@@ -391,6 +396,7 @@ def resolve(config: RunConfig):
         backend=settings.backend,
         graph=graph,
         edge_prob=edge_prob,
+        loss=loss,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
         sampling=sampling.mode,
         shared=sampling.shared,
@@ -412,6 +418,34 @@ def resolve(config: RunConfig):
 def view(config) -> SimpleNamespace:
     """A config's fields by their flat names, to read (`flat`); a view passes through."""
     return config if isinstance(config, SimpleNamespace) else SimpleNamespace(**flat(config))
+
+
+def _loss(loss):
+    """A loss as recorded: a probability, a list of them (one per agent), or a link file's absolute path."""
+    from pathlib import Path
+
+    if loss is None or isinstance(loss, (int, float, list)):
+        return float(loss) if isinstance(loss, int) else loss
+    try:
+        values = [float(x) for x in loss.split(",")]
+    except ValueError:
+        return str(Path(loss).resolve()) if Path(loss).is_file() else loss  # (`loss_per_arc` says what is wrong)
+    return values[0] if len(values) == 1 else values
+
+
+def channel_for(loss, network):
+    """The channel of a run: `dgtd.channels.Perfect`, or `dgtd.channels.Lossy` with each arc's loss probability."""
+    from dgtd.channels import Arcs, Lossy, Perfect
+    from dgtd.channels.lossy import loss_per_arc
+
+    if loss is None:
+        return Perfect()
+    return Lossy(loss_per_arc(loss, Arcs.of(network.base.edges, network.n_nodes)))
+
+
+def make_channel(config: RunConfig, network):
+    """The channel a resolved config's run uses, over its ``network`` (`resolve`'s)."""
+    return channel_for(config.network.loss, network)
 
 
 DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given

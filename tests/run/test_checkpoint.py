@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import signal
 import subprocess
@@ -11,9 +12,10 @@ import numpy as np
 import pytest
 from conftest import cli_env, dgtd_cmd
 
-from dgtd.config import resolve, unflat
+from dgtd.config import make_channel, resolve, unflat
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
 from dgtd.run.loop import run
+from dgtd.run.loop import run as run_loop
 
 ARRAYS = ("w_last", "w_avg", "w_tail", "agent_error_last", "agent_error_avg", "w_trace", "steps")
 
@@ -33,8 +35,9 @@ def assert_same_run(a, b):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("sampling", ["iid", "markov"])
-def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling):
-    # random edges, reward noise and Markov states: every stream and the trajectories' current states matter
+@pytest.mark.parametrize("loss", [None, 0.3])
+def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, loss):
+    # random edges, reward noise, Markov states and lost messages: every stream and the trajectories' current states
     spec = unflat(
         dict(
             scenario="paper-example-1",
@@ -44,11 +47,14 @@ def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling):
             sampling=sampling,
             reward_noise="bernoulli",
             edge_prob=0.7,
+            loss=loss,
             checkpoints=15,
             block_size=300,
         )
     )
-    problem, network, algorithm, samp, settings, _ = resolve(spec)
+    problem, network, algorithm, samp, settings, resolved = resolve(spec)
+    channel = make_channel(resolved, network)
+    run = functools.partial(run_loop, channel=channel)
     whole = run(problem, network, algorithm, samp, settings)
     snaps = []
     saving = run(problem, network, algorithm, samp, settings, checkpoint_every=600, on_checkpoint=snaps.append)

@@ -81,6 +81,9 @@ class StepSizes:
 
     name: ClassVar[str]  # each algorithm's own
     messages: ClassVar[tuple[str, ...]] = ()
+    # how it mixes what it hears: (L(k) x)_i ("laplacian") or Metropolis weights ("metropolis"); the mean of that
+    # mixing sets its fixed point when a channel loses messages (`dgtd.channels.lossy`)
+    mixing: ClassVar[str] = "laplacian"
 
     def __post_init__(self):
         check_schedule(self.schedule, self.alpha0, self.beta)
@@ -95,8 +98,12 @@ class StepSizes:
 
     def fixed_point(self, moments, mean_laplacian, w_star: np.ndarray) -> FixedPoint:
         """w* = A^-1 b_mean for every agent: the fixed point of every method here that solves the average reward's
-        projected Bellman equation (Proposition 1)."""
-        return FixedPoint(w_star[None, :])
+        projected Bellman equation (Proposition 1), when it mixes with a symmetric mean Laplacian (its ``mixing``'s,
+        `dgtd.run.loop.prepare`); with an asymmetric one (messages lost more one way than the other), the w* of the
+        rewards weighted by its left null vector (`dgtd.problems.exact.weighted_w_star`)."""
+        from dgtd.problems import exact
+
+        return FixedPoint(exact.weighted_w_star(moments, mean_laplacian, w_star)[None, :])
 
     def prepare(self, moments, network, fixed: FixedPoint) -> tuple:
         return self, {}

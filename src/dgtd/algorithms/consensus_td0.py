@@ -36,6 +36,7 @@ class ConsensusTD0(StepSizes):
     description: ClassVar[str] = "distributed TD(0) with Metropolis consensus (Doan, Maguluri, Romberg 2019)"
     color: ClassVar[str] = "#2ca02c"
     messages: ClassVar[tuple[str, ...]] = ("w",)
+    mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
 
     def init(self, seeds: int, agents: int, features: int) -> ConsensusState:
         return ConsensusState(*zeros(seeds, agents, features, 1))

@@ -108,7 +108,16 @@ class DGTD(StepSizes):
         rho = self.rho
         if moments.b.shape[0] * w_star.shape[0] > exact.REGULARISED_MAX:
             rho = 0.0  # too large to solve densely: report the unregularised saddle point, the problem's own
-        saddle = exact.saddle_point(moments, mean_laplacian, self.kappa, rho)
+        if not exact.is_symmetric(mean_laplacian):  # messages lost more one way than the other
+            if rho > 0:
+                raise DgtdInputError(
+                    "DGTD with rho > 0 over links that lose messages is not supported: its fixed point is not "
+                    "computed; use rho = 0"
+                )
+            saddle = exact.directed_saddle_point(moments, mean_laplacian)
+            w_star = saddle.w[0]
+        else:
+            saddle = exact.saddle_point(moments, mean_laplacian, self.kappa, rho)
         return FixedPoint(
             saddle.w if rho > 0 else w_star[None, :],
             {

@@ -40,6 +40,7 @@ class TDTracking(StepSizes):
     description: ClassVar[str] = "distributed TD(0) with gradient tracking (Wang et al. 2020)"
     color: ClassVar[str] = "#8c564b"
     messages: ClassVar[tuple[str, ...]] = ("w", "z")
+    mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
 
     def init(self, seeds: int, agents: int, features: int) -> TrackingState:
         return TrackingState(*zeros(seeds, agents, features, 3))

@@ -53,6 +53,7 @@ class TDCTracking(TwoTimescale):
     description: ClassVar[str] = "distributed off-policy TDC with gradient tracking (Wang et al. 2020's tracking)"
     color: ClassVar[str] = "#e377c2"
     messages: ClassVar[tuple[str, ...]] = ("w", "z")
+    mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
 
     def init(self, seeds: int, agents: int, features: int) -> TDCTrackingState:
         return TDCTrackingState(*zeros(seeds, agents, features, 4))

@@ -14,10 +14,12 @@ BITS_PER_NUMBER = 64  # a message's coordinates are float64
 
 
 class ChannelState(NamedTuple):
-    """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,)."""
+    """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,), and
+    the PCG64 words (B, 4) of the seed's channel stream where the channel draws events (B, 0 where it draws none)."""
 
     messages: np.ndarray
     bits: np.ndarray
+    words: np.ndarray = np.zeros((0, 0), np.uint64)
 
 
 @dataclass(frozen=True)
@@ -27,8 +29,8 @@ class Perfect:
 
     name: ClassVar[str] = "perfect"
 
-    def init(self, seeds: int, arcs: Arcs) -> ChannelState:
-        return ChannelState(np.zeros(seeds), np.zeros(seeds))
+    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
+        return ChannelState(np.zeros(seeds), np.zeros(seeds), np.zeros((seeds, 0), np.uint64))
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up (B, E)
@@ -37,8 +39,11 @@ class Perfect:
         arrived = inbox.heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())  # coordinates per arc, all messages together
         return inbox, ChannelState(
-            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER
+            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, state.words
         )
+
+    def describe(self) -> str:
+        return "every message delivered"
 
     def inbox(self, arcs: Arcs, sent: dict, up: np.ndarray | None = None) -> Inbox:
         """What every agent hears of ``sent`` (name -> (B, N, q)) over the edges up (B, E) (None: every edge)."""

@@ -141,7 +141,7 @@ def _run_job(job, t_start: float) -> None:
     import time
 
     from dgtd.cli.job import CONFIG
-    from dgtd.config import scenario_of
+    from dgtd.config import make_channel, scenario_of
 
     t_prepared = time.perf_counter()
     if job.finished:
@@ -151,6 +151,8 @@ def _run_job(job, t_start: float) -> None:
     links = network.describe()
     if job.resolved.problem.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
+    if job.resolved.network.loss is not None:
+        links += f"; {make_channel(job.resolved, network).describe()}"
     click.echo(problem_line(problem, links))
     click.echo(
         f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
@@ -230,12 +232,18 @@ def final_table(result) -> str:
     e_tail = exact.relative_error(result.w_tail, ref)
     cons = exact.consensus_error(result.w_last)
     shift = result.info.get("regularisation_shift", 0.0)
+    moved = not shift and not np.array_equal(ref[0], result.w_star)  # lost messages move the fixed point
     rows = [
         f"w* = {_vec(result.w_star, 8)}   (relative errors are |w_i - w*|_inf / |w*|_inf)"
         if not shift
         else f"w* = {_vec(result.w_star, 8)}; with rho > 0 the errors are against each agent's w of the regularised "
         f"saddle point, {shift:.3%} of |w*|_inf away from w*",
     ]
+    if moved:
+        rows[0] = (
+            f"w* = {_vec(result.w_star, 8)}; with the messages lost, the run converges to w_fixed = {_vec(ref[0], 8)} "
+            f"(each agent's reward weighted as its links let it be heard: docs/links.md), and the errors are against it"
+        )
     agents = range(result.w_last.shape[1])
     last, avg = [_vec(result.w_last[0, i]) for i in agents], [_vec(result.w_avg[0, i]) for i in agents]
     width = max(34, *(len(v) + 2 for v in last + avg))  # every row's columns line up, however long a vector
@@ -296,12 +304,15 @@ def final_table(result) -> str:
 
 @cli.command()
 @click.argument("scenario", required=False)
-@run_options("problem_file", "graph", "edge_prob", "kappa", "rho", "restarts")
-def solve(scenario, problem_file, graph, edge_prob, kappa, rho, restarts):
+@run_options("algorithm", "problem_file", "graph", "edge_prob", "loss", "kappa", "rho", "restarts")
+def solve(scenario, algorithm, problem_file, graph, edge_prob, loss, kappa, rho, restarts):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
-    the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes)."""
-    from dgtd.config import resolve, unflat
+    the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes), over the network and its links
+    (--loss: where each method converges when messages are lost)."""
+    from dgtd.channels import Arcs
+    from dgtd.config import make_channel, resolve, unflat
     from dgtd.problems import exact
+    from dgtd.run.loop import mean_mixing
     from dgtd.run.results import plain, problem_fields
 
     if scenario is None and problem_file is None:
@@ -309,17 +320,20 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho, restarts):
     config = unflat(
         {
             "scenario": scenario,
+            "algorithm": algorithm,
             "problem_file": problem_file,
             "graph": graph,
             "edge_prob": edge_prob,
+            "loss": loss,
             "kappa": kappa,
             "rho": rho,
             "restarts": restarts,
         }
     )
-    problem, network, algorithm, *_ = resolve(config)
+    problem, network, algorithm, *_, resolved = resolve(config)
     m = exact.Moments(problem)
-    L = network.mean_laplacian()
+    channel = make_channel(resolved, network)
+    L = mean_mixing(network, channel, Arcs.of(network.base.edges, network.n_nodes), algorithm)
     w = exact.w_star(m)
     fixed = algorithm.fixed_point(m, L, w)
     _, prepared = algorithm.prepare(m, network, fixed)
@@ -328,6 +342,11 @@ def solve(scenario, problem_file, graph, edge_prob, kappa, rho, restarts):
         "w_star": w.tolist(),
         "algorithm": algorithm.name,
         "w_fixed": fixed.w.tolist(),
+        # how far its fixed point is from w* (d-weighted value error), and with a channel that loses messages more
+        # one way than the other, the weight of each agent's reward in it (`exact.weighted_w_star`)
+        "w_fixed_value_distance": float(exact.value_error(m, fixed.w, w).max()),
+        "channel": channel.describe(),
+        **({} if exact.is_symmetric(L) else {"agent_weights": exact.agent_weights(L).tolist()}),
         **plain(fixed.report),
         **plain(prepared),
         "w_star_per_agent_reward": exact.fixed_point(m, m.b).tolist(),

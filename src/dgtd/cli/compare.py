@@ -55,6 +55,7 @@ def _names(text: str | None) -> tuple[str, ...]:
     "checkpoints",
     "problem_file",
     "graph",
+    "loss",
     *ENV_OPTIONS,
 )
 def compare(
@@ -87,7 +88,7 @@ def compare(
     from tqdm import tqdm
 
     from dgtd.cli import problem_line
-    from dgtd.config import PROBLEM_FIELDS, resolve, scenario_of, spec_record, unflat
+    from dgtd.config import PROBLEM_FIELDS, make_channel, resolve, scenario_of, spec_record, unflat
     from dgtd.errors import DgtdInputError
     from dgtd.experiments import Experiment, absolute_paths, override
     from dgtd.run.compare import (
@@ -174,6 +175,7 @@ def compare(
                 done=(results, used, tables),
                 on_finished=lambda *part: save_part(out, *part, record),
                 kernel_ready=lambda seconds: bar.unpause(),  # the compilation is not in the ETA
+                channel=make_channel(resolved, network),
             )
         except KeyboardInterrupt:
             bar.close()

@@ -12,7 +12,7 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from dgtd.config import PROBLEM_FIELDS, RunConfig, make_source, resolve, scenario_of, spec_record
+from dgtd.config import PROBLEM_FIELDS, RunConfig, make_channel, make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
@@ -102,6 +102,7 @@ class PreparedRun:
                 on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record),
                 resume=self.snapshot,
                 kernel_ready=start_bar,
+                channel=make_channel(self.resolved, self.network),
             )
         finally:
             for bar in bars:

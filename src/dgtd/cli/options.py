@@ -137,6 +137,15 @@ def _run_options() -> dict:
                 help="Probability that each edge of the graph is up at each step (1 = fixed graph).",
             ),
             click.option(
+                "--loss",
+                type=str,
+                default=None,
+                metavar="P|P1,...,PN|FILE",
+                help="Each message is lost with probability P; or agent i misses each message sent to it with "
+                "probability Pi (one per agent); or a file of 'i j p' lines (agent i misses j's messages with "
+                "probability p). Default: none lost. See docs/links.md.",
+            ),
+            click.option(
                 "--kappa",
                 type=float,
                 default=None,

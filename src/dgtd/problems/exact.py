@@ -131,6 +131,43 @@ def fixed_point(m: Moments, b: np.ndarray) -> np.ndarray:
         ) from None
 
 
+def is_symmetric(L) -> bool:
+    """Whether a mean mixing Laplacian is exactly symmetric (every link as likely heard both ways)."""
+    diff = L - L.T
+    return bool(abs(diff).max() == 0) if issparse(L) else bool(np.array_equal(L, L.T))
+
+
+def agent_weights(L) -> np.ndarray:
+    """pi (N,), sum 1: the left null vector of a mean mixing Laplacian (pi^T L = 0, L's rows summing to 0)."""
+    L = L.toarray() if issparse(L) else np.asarray(L)
+    N = L.shape[0]
+    lhs = np.vstack([L.T, np.ones((1, N))])
+    rhs = np.concatenate([np.zeros(N), [1.0]])
+    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+
+
+def weighted_w_star(m: Moments, L, w: np.ndarray) -> np.ndarray:
+    """Where a method that mixes with mean Laplacian L converges: with L symmetric, w* itself (``w``, returned as
+    given); else the solution of A w = sum_i pi_i b_i, each agent's reward weighted by the left null vector pi of
+    L (`agent_weights`). A mean update that is zero has L w_i summing to consensus and sum_i pi_i (b_i - A w) = 0:
+    pi^T L = 0 removes every term the neighbours add (docs/links.md)."""
+    if L is None or is_symmetric(L):
+        return w
+    return fixed_point(m, agent_weights(L) @ m.b)
+
+
+def directed_saddle_point(m: Moments, L) -> SaddlePoint:
+    """The point where DGTD's mean update vanishes when the mean Laplacian L of what is heard is not symmetric (a
+    lossy channel): w = `weighted_w_star` for every agent, theta_i = M^-1 (b_i - A w) (the theta equation), v = 0,
+    and mu solving L mu = theta A (the w equation), which has a solution because pi^T theta A = 0. Not a saddle
+    point of a Lagrangian any more (no Lagrangian has an asymmetric L), but the same four equations at zero."""
+    w = weighted_w_star(m, L, w_star(m))
+    theta = _solve(m, m.M, (m.b - w @ m.A.T).T).T
+    Ld = L.toarray() if issparse(L) else np.asarray(L)
+    mu = np.linalg.lstsq(Ld, theta @ m.A, rcond=None)[0]
+    return SaddlePoint(theta, np.zeros_like(theta), mu, np.tile(w, (m.b.shape[0], 1)))
+
+
 def theta_star(m: Moments) -> np.ndarray:
     """theta*_i = M^-1 Phi^T D (r_i - r_mean), shape (N, q).
 

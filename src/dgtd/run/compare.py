@@ -109,14 +109,23 @@ def _source(source_factory, settings: RunSettings):
 
 
 def tune(
-    problem, network, sampling, algorithm, settings: RunSettings, grid=TUNE_GRID, seeds: int = 2, source_factory=None
+    problem,
+    network,
+    sampling,
+    algorithm,
+    settings: RunSettings,
+    grid=TUNE_GRID,
+    seeds: int = 2,
+    source_factory=None,
+    channel=None,
 ):
     """(best config, table of (alpha0, score)) over ``algorithm.alpha0 x grid`` on the tuning seeds."""
     tune_settings = replace(settings, seeds=int(seeds), seed=settings.seed + TUNE_SEED_OFFSET)
     table = []
     for factor in grid:
         cand = replace(algorithm, alpha0=float(algorithm.alpha0 * factor))
-        r = run(problem, network, cand, sampling, tune_settings, source=_source(source_factory, tune_settings))
+        source = _source(source_factory, tune_settings)
+        r = run(problem, network, cand, sampling, tune_settings, source=source, channel=channel)
         table.append((cand.alpha0, tune_score(r)))
     best = min(range(len(table)), key=lambda i: (table[i][1], -table[i][0]))
     return replace(algorithm, alpha0=table[best][0]), table
@@ -134,8 +143,10 @@ def compare(
     done=None,
     on_finished=None,
     kernel_ready=None,
+    channel=None,
 ):
-    """Run every config on the same streams; returns ({name: RunResult}, {name: config}, {name: tuning table}).
+    """Run every config on the same streams (and the same ``channel``); returns ({name: RunResult}, {name: config},
+    {name: tuning table}).
 
     ``source_factory(seed, seed_ids)``: a scenario's simulator (`dgtd.scenarios.Scenario.source`);
     each run gets a fresh one, so every algorithm sees the same samples and links. ``done``: the three dicts to
@@ -152,7 +163,7 @@ def compare(
         alg = configs[name]
         if cs.tune:
             alg, tables[name] = tune(
-                problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds, source_factory
+                problem, network, sampling, alg, cs.settings, cs.tune_grid, cs.tune_seeds, source_factory, channel
             )
             if log is not None:
                 log(
@@ -170,6 +181,7 @@ def compare(
             progress=None if progress is None else (lambda n, name=name: progress(name, n)),
             source=_source(source_factory, cs.settings),
             kernel_ready=kernel_ready,
+            channel=channel,
         )
         if on_finished is not None:
             on_finished(name, results[name], used[name], tables.get(name, []))

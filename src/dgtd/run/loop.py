@@ -166,8 +166,8 @@ def interruptible(compute):
     return box["value"]
 
 
-def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling, settings: RunSettings):
-    """Check that the pieces fit and compute the exact reference quantities."""
+def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Sampling, settings: RunSettings, channel=None):
+    """Check that the pieces fit and compute the exact reference quantities (``channel``: `Perfect` by default)."""
     if network.n_nodes != problem.n_agents:
         raise DgtdInputError(
             f"the network has {network.n_nodes} agents but the problem has {problem.n_agents} (rows of R); make them "
@@ -184,16 +184,36 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
             "(--sampling iid)"
         )
     moments, tables = _model_tables(problem)
-    L_mean = network.mean_laplacian(sparse=network.n_nodes > exact.DENSE_N)  # O(N + |E|) memory for many agents
+    arcs = Arcs.of(network.base.edges, network.n_nodes)
+    channel = Perfect() if channel is None else channel
+    L_mean = mean_mixing(network, channel, arcs, algorithm)
     w_star = exact.w_star(moments)
     fixed = algorithm.fixed_point(moments, L_mean, w_star)  # what the errors are measured against
     algorithm, report = algorithm.prepare(moments, network, fixed)  # the algorithm as it runs here (DGTD's boxes)
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
-    ctx = Context(
-        problem, network, algorithm, sampling, tables, Arcs.of(network.base.edges, network.n_nodes), T - tail_window
-    )
+    ctx = Context(problem, network, algorithm, sampling, tables, arcs, T - tail_window, channel)
     return ctx, moments, L_mean, fixed, report, w_star, tail_window
+
+
+def mean_mixing(network, channel, arcs: Arcs, algorithm):
+    """E of the mixing Laplacian ``algorithm`` applies to what it hears over ``channel``: the network's mean
+    Laplacian (symmetric: each link up both ways at once), or where messages are lost (`dgtd.channels.lossy`) the
+    mean of what is heard, by its ``mixing`` (asymmetric where a link loses more one way than the other). Its
+    fixed point follows from it (`dgtd.problems.exact.weighted_w_star`)."""
+    sparse = network.n_nodes > exact.DENSE_N  # O(N + |E|) memory for many agents
+    loss = getattr(channel, "loss", None)
+    if loss is None or not algorithm.messages or not hasattr(network, "p"):
+        return network.mean_laplacian(sparse=sparse)
+    if sparse:
+        raise DgtdInputError(
+            f"the fixed point under lost messages is computed densely, for at most {exact.DENSE_N} agents; this "
+            f"network has {network.n_nodes}"
+        )
+    from dgtd.channels import lossy
+
+    mean = lossy.mean_metropolis if algorithm.mixing == "metropolis" else lossy.mean_laplacian
+    return mean(network, loss, arcs)
 
 
 def run(
@@ -209,11 +229,13 @@ def run(
     on_checkpoint=None,
     resume: dict | None = None,
     kernel_ready=None,
+    channel=None,
 ) -> RunResult:
     """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
 
     ``source`` supplies the samples (default: a `ModelSource` drawing from the problem's model); a simulator
-    with hidden state or position-dependent networks passes its own.
+    with hidden state or position-dependent networks passes its own. ``channel`` delivers what the agents send
+    (default `dgtd.channels.Perfect`; `dgtd.channels.Lossy` loses messages).
 
     ``kernel_ready(seconds)`` is called once the block kernel is loaded, or compiled the first time on a machine
     (an empty block runs first, which changes nothing), with the seconds that took, before the first iteration:
@@ -235,7 +257,9 @@ def run(
         len(steps),
         settings.backend,
     )
-    ctx, moments, L_mean, fixed, report, w_star, tail_window = prepare(problem, network, algorithm, sampling, settings)
+    ctx, moments, L_mean, fixed, report, w_star, tail_window = prepare(
+        problem, network, algorithm, sampling, settings, channel
+    )
     w_ref = fixed.w
     T, B, N, q = int(settings.iterations), int(settings.seeds), problem.n_agents, problem.n_features
     if source is None:
@@ -252,7 +276,7 @@ def run(
     kernel = kernel_for(settings.backend, algorithm.name)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N, q)
-    channel = ctx.channel.init(B, ctx.arcs)
+    channel = ctx.channel.init(B, ctx.arcs, settings.seed)
     if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
         state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
     n_est = algorithm.estimate(state).shape[1]  # N agents' estimates, or 1 for a centralised learner
@@ -300,7 +324,8 @@ def run(
         w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
         sum_trace = None if resume.get("sum_trace") is None else np.array(resume["sum_trace"])
         messages, bits = np.array(resume["messages"], dtype=np.float64), np.array(resume["bits"], dtype=np.float64)
-        channel = ChannelState(*(np.array(resume["channel"][name]) for name in ChannelState._fields))
+        saved = resume["channel"]  # (a checkpoint of a run without channel events holds no stream words)
+        channel = ChannelState(*(np.array(saved[name]) for name in ChannelState._fields if name in saved))
         diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
         source.set_state(resume["source"])
@@ -432,7 +457,11 @@ def run(
             "messages": messages,
             "bits": bits,
             "counts": counts,
-            "regularisation_shift": float(exact.relative_error(w_ref, w_star).max()),
+            # how far the fixed point is from w* (|.|_inf relative): DGTD's with rho > 0, or any under lost messages
+            "regularisation_shift": float(exact.relative_error(w_ref, w_star).max())
+            if getattr(algorithm, "rho", 0.0)
+            else 0.0,
+            "fixed_point_shift": float(exact.relative_error(w_ref, w_star).max()),
             "loop_seconds": time.perf_counter() - t_loop,
             "kernel_seconds": kernel_seconds,
         },
@@ -524,9 +553,11 @@ def evaluate(
     seeds: int = RunSettings.seeds,
     seed: int = RunSettings.seed,
     backend: str = RunSettings.backend,
+    channel=None,
     **settings,
 ) -> RunResult:
-    """Run ``algorithm`` on ``problem`` over ``network``: `run` with its `RunSettings` given as keywords.
+    """Run ``algorithm`` on ``problem`` over ``network``: `run` with its `RunSettings` given as keywords, and its
+    ``channel`` (default `dgtd.channels.Perfect`).
 
     Example::
 
@@ -543,4 +574,5 @@ def evaluate(
         algorithm,
         sampling,
         RunSettings(iterations=iterations, seeds=seeds, seed=seed, backend=backend, **settings),
+        channel=channel,
     )

@@ -167,6 +167,12 @@ def summary(result: RunResult, config: dict) -> dict:
     return {
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
+        # where the run converges (its channel and its mixing: `dgtd.problems.exact.weighted_w_star`), and how far
+        # that is from w* in the d-weighted value error
+        "w_fixed": result.fixed.w.tolist(),
+        "w_fixed_value_distance": float(exact.value_error(moments, result.fixed.w, result.w_star).max())
+        if moments.model
+        else None,
         "regularisation_shift": result.info.get("regularisation_shift", 0.0),
         # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
         **plain(result.report),

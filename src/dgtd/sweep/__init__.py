@@ -24,6 +24,7 @@ from dgtd.config import (
     RunConfig,
     field_types,
     flat,
+    make_channel,
     make_source,
     resolve,
     spec_record,
@@ -122,7 +123,8 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
         import numba
 
         numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
-    result = run_loop(problem, network, algorithm, sampling, settings, source=make_source(resolved, settings))
+    source, channel = make_source(resolved, settings), make_channel(resolved, network)
+    result = run_loop(problem, network, algorithm, sampling, settings, source=source, channel=channel)
     return {
         "steps": result.steps,
         "metrics": result.metrics,

@@ -28,8 +28,15 @@ from numba import get_num_threads, njit, prange
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear, metropolis_weights
 from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
-from dgtd.backends.compiled.sampling import _step_edges, _step_observations, _step_samples, sample_args
+from dgtd.backends.compiled.sampling import (
+    _step_edges,
+    _step_observations,
+    _step_samples,
+    channel_draws,
+    sample_args,
+)
 from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
+from dgtd.channels.lossy import CHANNEL_STREAM
 from dgtd.samples import Block, Draws, SampleTable
 
 # The kernels below are templates: `driver` compiles a copy of each per algorithm, with the algorithm's step in
@@ -72,6 +79,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
         sigma,
         noise,
         p_edge,
+        loss,
         s_blk,
         a_blk,
         sn_blk,
@@ -84,9 +92,9 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     L, T = sums.shape[1], alphas.shape[0]
     x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
     for b in range(b0, b1):
-        edges_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
+        arcs_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
         for t in range(T):
-            edges_up += _step_samples(
+            arcs_up += _step_samples(
                 b,
                 0,
                 t,
@@ -103,6 +111,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
                 sigma,
                 noise,
                 p_edge,
+                loss,
                 s_blk,
                 a_blk,
                 sn_blk,
@@ -120,7 +129,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
             inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0)
             for i in range(L):
                 _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
-        n_up[b] += edges_up
+        n_up[b] += arcs_up
 
 
 def _chunk(
@@ -147,6 +156,7 @@ def _chunk(
     sigma,
     noise,
     p_edge,
+    loss,
     s_blk,
     a_blk,
     sn_blk,
@@ -220,7 +230,7 @@ def _chunk(
                         r_t,
                     )
                 else:
-                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, up_blk, up_t)
+                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, loss, up_blk, up_t)
                     if NEEDS_DEGREES:
                         count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
 
@@ -245,6 +255,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
         sigma,
         noise,
         p_edge,
+        loss,
         s_blk,
         a_blk,
         sn_blk,
@@ -277,6 +288,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
             sigma,
             noise,
             p_edge,
+            loss,
             s_blk,
             a_blk,
             sn_blk,
@@ -316,6 +328,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 sigma,
                 noise,
                 p_edge,
+                loss,
                 s_blk,
                 a_blk,
                 sn_blk,
@@ -420,7 +433,7 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     for m, name in enumerate(messages):
         buffers[0, m] = rows(sent[name])
     sums = copy(w_sum)
-    sampler = sample_args(ctx, blk, B)
+    sampler = sample_args(ctx, blk, B, channel)
     Phi, ratio = rows_of(ctx, blk)
     args = (
         compiled.params(algorithm, ctx),
@@ -438,24 +451,33 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     newest = _layouts(ctx, B, L, q, bool(messages)).run(
         driver(algorithm.name), args, buffers, np.ascontiguousarray(alphas), blk, len(messages), compiled.work
     )
+    rng = sampler[1]
     if isinstance(blk, Draws):
-        _, rng, markov, current = sampler[:4]
-        blk.settle(rng, current if markov else None)
+        _, _, markov, current = sampler[:4]
+        blk.settle(rng[:, :3], current if markov else None)
+    if channel_draws(ctx):
+        channel = channel._replace(words=np.ascontiguousarray(rng[:, CHANNEL_STREAM]))
     final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest]))
     new = state._make(back(final[f]) for f in state._fields)
-    # the perfect channel delivers both arcs of every edge up, each carrying every message
-    return new, counted(channel, 2 * sampler[-1], len(messages), len(messages) * q), back(sums)
+    # every arc that delivers carries every message (`_step_edges` counted them)
+    return new, counted(channel, sampler[-1], len(messages), len(messages) * q), back(sums)
 
 
 run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
 
 
 def _graph(ctx, messages: bool) -> tuple:
-    """(CSR indptr, neighbours, edge ids, the agent of each row): in storage rows for an algorithm that sends, else the
-    agents' own numbering (it reads no neighbours)."""
-    if messages:
-        return storage_graph(ctx)
-    return (*graph_arrays(ctx), np.arange(ctx.network.n_nodes, dtype=np.int64))
+    """(CSR indptr, neighbours, link ids, the agent of each row): in storage rows for an algorithm that sends, else the
+    agents' own numbering (it reads no neighbours). A link id is the edge's id, or on a channel that draws events
+    per arc the id of the arc into the row's agent (`dgtd.channels.Arcs`: 2e + 1 when that agent is the larger end
+    of edge e), which is what the step's mask of links up (`_step_edges`) holds then."""
+    indptr, nbr, eid, agent_of = (
+        storage_graph(ctx) if messages else (*graph_arrays(ctx), np.arange(ctx.network.n_nodes, dtype=np.int64))
+    )
+    if not channel_draws(ctx):
+        return indptr, nbr, eid, agent_of
+    agent = np.repeat(agent_of, np.diff(indptr))  # the receiving agent of every CSR entry
+    return indptr, nbr, 2 * eid + (agent == ctx.arcs.dst[2 * eid + 1]), agent_of
 
 
 class Layouts:
@@ -526,7 +548,9 @@ class Layouts:
         p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
         _seeds, _agents = kernels
         sampler = _piece_of(sampler, blk, t0, t1)
-        B, n_obs, E, degree = sums.shape[0], sampler[3].shape[1], graph[2].shape[0] // 2, _max_degree(graph[0])
+        # up_t holds a step's edges up, or on a lossy channel its arcs that deliver (2E: `_step_edges`)
+        B, n_obs, degree = sums.shape[0], sampler[3].shape[1], _max_degree(graph[0])
+        E = graph[2].shape[0] if sampler[13].shape[0] else graph[2].shape[0] // 2
         if layout == "agents":
             chunks = 4 * get_num_threads()
             space = self._space("agents", 2 * B, chunks, n_obs, N, E, degree, q, n_messages, n_work)
@@ -558,7 +582,7 @@ class Layouts:
         # seeds in small groups taken by whichever thread is free: a thread slowed by another process takes fewer.
         # Each seed's stream words and trajectory states, written at every step, get cache lines of their own.
         rng, current = sampler[1], sampler[3]
-        words, states = _private((B, 3, 8), np.uint64), _private(current.shape, np.int64)
+        words, states = _private((B, rng.shape[1], 8), np.uint64), _private(current.shape, np.int64)
         words[:, :, :4], states[...] = rng, current
         sampler = (sampler[0], words, sampler[2], states, *sampler[4:])
         if not _POOL or _POOL[0]._max_workers != threads:
@@ -639,8 +663,8 @@ def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
     streams of `Draws` simply go on)."""
     if isinstance(blk, Draws) or t0 == 0:
         return sampler
-    s, a, sn, r, up = sampler[13:18]
-    return (*sampler[:13], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[18])
+    s, a, sn, r, up = sampler[14:19]
+    return (*sampler[:14], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[19])
 
 
 def _layouts(ctx, B: int, L: int, q: int, messages: bool) -> Layouts:

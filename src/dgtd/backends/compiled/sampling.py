@@ -185,6 +185,7 @@ def _step_samples(
     sigma,
     noise,
     p_edge,
+    loss,
     s_blk,
     a_blk,
     sn_blk,
@@ -197,7 +198,7 @@ def _step_samples(
     up_t,
 ):
     """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
-    and up_t (edges); returns how many edges are up.
+    and up_t (edges, or arcs on a lossy channel); returns how many arcs deliver.
 
     Fused: drawn here from seed b's streams in rng, in the order `dgtd.sources.model.Streams.draw` draws them
     (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
@@ -229,7 +230,7 @@ def _step_samples(
         sn_t,
         r_t,
     )
-    return _step_edges(b, row, t, fused, rng, p_edge, up_blk, up_t)
+    return _step_edges(b, row, t, fused, rng, p_edge, loss, up_blk, up_t)
 
 
 @njit(cache=True, inline="always")
@@ -292,8 +293,40 @@ def _step_observations(
 
 
 @njit(cache=True, inline="always")
-def _step_edges(b, row, t, fused, rng, p_edge, up_blk, up_t):
-    """Which edges are up, for `_step_samples` (seed b's edge stream); returns how many."""
+def _step_edges(b, row, t, fused, rng, p_edge, loss, up_blk, up_t):
+    """Which links deliver at step t, for `_step_samples` (seed b's edge stream): into row ``row`` of up_t, each
+    edge up (E), or where the channel loses messages (``loss``, one probability per arc, else empty) each arc that
+    delivers (2E: its edge up and, from the seed's channel stream rng[b, 3], one uniform per arc and step, its
+    message kept, as `dgtd.channels.Lossy` draws them). Returns how many arcs deliver (two per edge up, without
+    loss)."""
+    if loss.shape[0] == 0:
+        return 2 * _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t)
+    E = loss.shape[0] // 2
+    drawn = fused and p_edge.shape[0] == E  # random edges drawn here; a fixed graph draws nothing
+    hi, lo, inc_hi, inc_lo = rng[b, 2, 0], rng[b, 2, 1], rng[b, 2, 2], rng[b, 2, 3]
+    chi, clo, cinc_hi, cinc_lo = rng[b, 3, 0], rng[b, 3, 1], rng[b, 3, 2], rng[b, 3, 3]
+    n = 0
+    for e in range(E):
+        up = True
+        if drawn:
+            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
+            up = u < p_edge[e]
+        elif not fused and up_blk.shape[0] > 0:
+            up = up_blk[t, b, e]
+        for a in range(2 * e, 2 * e + 2):
+            chi, clo, u = pcg_step(chi, clo, cinc_hi, cinc_lo)
+            kept = up and u >= loss[a]
+            up_t[row, a] = kept
+            n += kept
+    if drawn:
+        rng[b, 2, 0], rng[b, 2, 1] = hi, lo
+    rng[b, 3, 0], rng[b, 3, 1] = chi, clo
+    return n
+
+
+@njit(cache=True, inline="always")
+def _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t):
+    """Each edge up at step t into row ``row`` of up_t (a perfect channel's `_step_edges`); returns how many."""
     E = up_t.shape[1]
     n_up = 0
     if not fused:
@@ -321,7 +354,12 @@ def up_mask(blk: Block):
     return np.empty((0, 0, 0), np.bool_) if blk.up is None else np.ascontiguousarray(blk.up)
 
 
-def sample_args(ctx, blk, B: int):
+def channel_draws(ctx) -> bool:
+    """Whether the run's channel draws events per arc (a lossy one), which the kernels then draw in `_step_edges`."""
+    return getattr(ctx.channel, "loss", None) is not None
+
+
+def sample_args(ctx, blk, B: int, channel=None):
     """The sampling arguments of the compiled driver: draw in the kernel from a `Draws`' streams, or copy a `Block`.
     The tables a kernel only reads are handed over read-only and the samples it copies writable, whichever source
     they come from: numba compiles a kernel once per array type, and a read-only array is another type."""
@@ -371,7 +409,21 @@ def sample_args(ctx, blk, B: int):
         sigma,
         noise,
     )
-    return (fused, rng, markov, current, *model, frozen(p_edge, np.float64), *samples, np.zeros(B, np.int64))
+    loss = np.zeros(0)
+    if channel_draws(ctx):  # the seed's channel stream beside its sampler's three
+        loss = ctx.channel.loss
+        rng = np.ascontiguousarray(np.concatenate([rng, channel.words[:, None, :]], axis=1))
+    return (
+        fused,
+        rng,
+        markov,
+        current,
+        *model,
+        frozen(p_edge, np.float64),
+        frozen(loss, np.float64),
+        *samples,
+        np.zeros(B, np.int64),
+    )
 
 
 def restart_flags(problem, markov: bool) -> np.ndarray:

@@ -1,0 +1,204 @@
+"""Lost messages: each message on arc j -> i is lost with its own probability, independently of everything else.
+
+The loss of arc a at step k is drawn from the seed's own channel stream (`channel_stream`: child 3 of the seed's
+SeedSequence, beside the sampler's three), one uniform per arc and step whether or not its link is up, so that a
+seed's draws do not depend on the other seeds, on the block size or on the backend, and the sampler's streams are
+those of a run without loss: a loss of 0 delivers exactly what `Perfect` delivers.
+
+A lost message leaves agent i with the neighbours it did hear: i may hear j while j misses i, so the mean Laplacian
+of what is heard, E[L(k)]_ij = -P(i hears j), is no longer symmetric (`mean_laplacian`), nor is the mean Metropolis
+mixing (`mean_metropolis`). Every communicating method here then weights agent i's reward by the left null vector
+of its mean mixing Laplacian (`agent_weights`; docs/links.md derives it), and converges to the w* of those weights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from dgtd.channels.arcs import Arcs
+from dgtd.channels.inbox import Inbox
+from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
+from dgtd.errors import DgtdInputError
+
+CHANNEL_STREAM = 3  # the seed's SeedSequence child that draws the channel's events (the sampler uses 0, 1, 2)
+
+
+_MASK64 = (1 << 64) - 1
+
+
+def channel_stream(seed: int, seed_ids) -> np.ndarray:
+    """The PCG64 state words (B, 4: state high, state low, increment high, increment low, as the compiled kernels
+    hold a stream) of each seed's channel stream."""
+    words = np.empty((len(seed_ids), 4), np.uint64)
+    for n, k in enumerate(seed_ids):
+        st = np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(k), CHANNEL_STREAM))).state["state"]
+        words[n] = (st["state"] >> 64, st["state"] & _MASK64, st["inc"] >> 64, st["inc"] & _MASK64)
+    return words
+
+
+def uniforms(words: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n uniforms per seed (B, n), the advanced words) from the streams whose PCG64 words are ``words`` (B, 4):
+    ``Generator.random``'s doubles, which the kernels draw alike."""
+    out, new = np.empty((words.shape[0], n)), words.copy()
+    for b, w in enumerate(words):
+        bits = np.random.PCG64()
+        state = bits.state
+        state["state"] = {"state": (int(w[0]) << 64) | int(w[1]), "inc": (int(w[2]) << 64) | int(w[3])}
+        bits.state = state
+        out[b] = np.random.Generator(bits).random(n)
+        s = bits.state["state"]["state"]
+        new[b, 0], new[b, 1] = s >> 64, s & _MASK64
+    return out, new
+
+
+@dataclass(frozen=True, eq=False)
+class Lossy:
+    """Arc a (`Arcs`: 2e from v to u, 2e + 1 from u to v of edge e = {u, v}) loses each message it carries with
+    probability ``loss[a]``; every message of a step travels together, so they are lost together."""
+
+    loss: np.ndarray  # (2E,) in [0, 1)
+    name: ClassVar[str] = "lossy"
+
+    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
+        """Counts at zero, and seed k's channel stream (k = 0 .. seeds - 1 of base seed ``seed``)."""
+        return ChannelState(np.zeros(seeds), np.zeros(seeds), channel_stream(seed, range(seeds)))
+
+    def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
+        """(the step's `Inbox`, the new state): arcs of the edges up (B, E) (None: every edge) that keep the message."""
+        B = next(iter(sent.values())).shape[0] if sent else state.messages.shape[0]
+        u, words = uniforms(state.words, arcs.n_arcs)
+        links = np.ones((B, arcs.n_arcs), bool) if up is None else Arcs.both_ways(up)
+        heard = (links & (u >= self.loss)).astype(np.float64)
+        arrived = heard.sum(axis=1)
+        numbers = sum(x.shape[-1] for x in sent.values())
+        return Inbox(arcs, sent, heard), ChannelState(
+            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words
+        )
+
+    def describe(self) -> str:
+        lo, hi = float(self.loss.min()), float(self.loss.max())
+        return f"each message lost with probability {lo:g}" if lo == hi else f"messages lost with p in [{lo:g}, {hi:g}]"
+
+
+def loss_per_arc(loss, arcs: Arcs) -> np.ndarray:
+    """The loss probability of every arc (2E,) from one probability (every arc), one per agent (the probability
+    that agent i misses each message sent to it: a list of N), or a file of 'i j p' lines (agent i misses each
+    message from its neighbour j with probability p; arcs not named lose nothing). Checked: each p in [0, 1)."""
+    N = arcs.n_agents
+    if isinstance(loss, str) and not _is_number(loss):
+        per_arc = _loss_file(loss, arcs)
+    else:
+        values = [float(x) for x in loss.split(",")] if isinstance(loss, str) else loss
+        values = np.atleast_1d(np.asarray(values, dtype=np.float64))
+        if values.size == 1:
+            per_arc = np.full(arcs.n_arcs, values[0])
+        elif values.size == N:
+            per_arc = values[arcs.dst]
+        else:
+            raise DgtdInputError(
+                f"loss: give one probability, or one per agent ({N} here: the probability that agent i misses each "
+                f"message sent to it), or a file of 'i j p' lines; got {values.size} values"
+            )
+        _check_probabilities(values, "loss")
+    return per_arc
+
+
+def _is_number(text: str) -> bool:
+    try:
+        [float(x) for x in text.split(",")]
+    except ValueError:
+        return False
+    return True
+
+
+def _check_probabilities(p: np.ndarray, where: str) -> None:
+    bad = ~np.isfinite(p) | (p < 0) | (p >= 1)
+    if bad.any():
+        raise DgtdInputError(
+            f"{where}: a loss probability must lie in [0, 1) (1 would cut the link for good), got {p[bad][0]:g}"
+        )
+
+
+def _loss_file(path: str, arcs: Arcs) -> np.ndarray:
+    file = Path(path)
+    if not file.is_file():
+        raise DgtdInputError(f"loss {path!r} is neither a probability, a list of them, nor a file of 'i j p' lines")
+    arc_of = {(int(d), int(s)): a for a, (d, s) in enumerate(zip(arcs.dst, arcs.src))}
+    per_arc = np.zeros(arcs.n_arcs)
+    for n, line in enumerate(file.read_text().splitlines(), 1):
+        words = line.split("#")[0].split()
+        if not words:
+            continue
+        try:
+            i, j, p = int(words[0]), int(words[1]), float(words[2])
+            if len(words) != 3:
+                raise ValueError
+        except (ValueError, IndexError):
+            raise DgtdInputError(f"{path}, line {n}: expected 'i j p' (agent i misses j's messages w.p. p)") from None
+        if (i, j) not in arc_of:
+            raise DgtdInputError(f"{path}, line {n}: agents {i} and {j} are not linked in the network's graph")
+        _check_probabilities(np.array([p]), f"{path}, line {n}")
+        per_arc[arc_of[(i, j)]] = p
+    return per_arc
+
+
+def delivery(network, loss: np.ndarray, arcs: Arcs) -> np.ndarray:
+    """P(arc a delivers at a step) (2E,): its edge up and its message kept."""
+    return np.repeat(np.asarray(network.p, dtype=np.float64), 2) * (1.0 - loss)
+
+
+def mean_laplacian(network, loss: np.ndarray, arcs: Arcs) -> np.ndarray:
+    """E[L(k)] of what is heard, (N, N): row i sums P(i hears j) (x_i - x_j) over its neighbours j; asymmetric when
+    i and j lose each other's messages with different probabilities."""
+    N = arcs.n_agents
+    q = delivery(network, loss, arcs)
+    L = np.zeros((N, N))
+    np.add.at(L, (arcs.dst, arcs.src), -q)
+    np.add.at(L, (arcs.dst, arcs.dst), q)
+    return L
+
+
+def _poisson_binomial(p: np.ndarray) -> np.ndarray:
+    """pmf (len(p) + 1,) of a sum of independent Bernoulli(p_k)."""
+    pmf = np.array([1.0])
+    for pk in p:
+        pmf = np.concatenate([pmf * (1 - pk), [0.0]]) + np.concatenate([[0.0], pmf * pk])
+    return pmf
+
+
+def mean_metropolis(network, loss: np.ndarray, arcs: Arcs) -> np.ndarray:
+    """E[L_W(k)], (N, N), of the Metropolis mixing of what is heard, I - W(k) with W_ij = 1 / (1 + max(d_i, d_j)) over
+    the messages i heard from j (`dgtd.channels.Inbox.metropolis`), d_i the number i heard. Exact: given that arc
+    j -> i delivers, d_i - 1 and d_j are sums of independent arc events over disjoint edges (d_j's includes i -> j,
+    given the edge up), so E[W_ij] = P(j -> i delivers) E[1 / (1 + max(1 + X_i, B + X_j))] over their
+    Poisson-binomial laws."""
+    N = arcs.n_agents
+    q = delivery(network, loss, arcs)
+    keep = 1.0 - loss
+    into = [np.flatnonzero(arcs.dst == i) for i in range(N)]
+    W = np.zeros((N, N))
+    for a in range(arcs.n_arcs):
+        i, j = int(arcs.dst[a]), int(arcs.src[a])
+        back = a ^ 1  # the other arc of the same edge: i -> j
+        x_i = _poisson_binomial(q[into[i][into[i] != a]])
+        y = _poisson_binomial(q[into[j][into[j] != back]])
+        y = np.concatenate([y * (1 - keep[back]), [0.0]]) + np.concatenate([[0.0], y * keep[back]])  # + B
+        d_i = 1 + np.arange(x_i.size)
+        d_j = np.arange(y.size)
+        inv = 1.0 / (1.0 + np.maximum(d_i[:, None], d_j[None, :]))
+        W[i, j] += q[a] * float(x_i @ inv @ y)
+    return np.diag(W.sum(axis=1)) - W
+
+
+def agent_weights(mean_mixing: np.ndarray) -> np.ndarray:
+    """pi (N,), sum 1: the left null vector of a mean mixing Laplacian (pi^T L = 0), the weight each agent's reward
+    gets in the point a method that mixes with it converges to (uniform for a symmetric one)."""
+    N = mean_mixing.shape[0]
+    lhs = np.vstack([mean_mixing.T, np.ones((1, N))])
+    rhs = np.concatenate([np.zeros(N), [1.0]])
+    pi, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
+    return pi
