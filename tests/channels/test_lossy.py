@@ -101,15 +101,20 @@ def test_a_loss_of_zero_is_the_perfect_channel_bit_for_bit(name):
         assert_array_equal(a.info["counts"]["messages"], b.info["counts"]["messages"])
 
 
+@pytest.mark.parametrize("layout", ["seeds", "agents"])
 @pytest.mark.parametrize("name", COMMUNICATING)
-def test_the_compiled_kernels_lose_what_the_reference_loses(name):
+def test_the_compiled_kernels_lose_what_the_reference_loses(name, layout, monkeypatch):
+    """In both layouts of the compiled driver (seeds side by side, or each seed's agents over the cores), in blocks
+    of an odd length."""
+    from dgtd.backends.compiled import driver
+
+    monkeypatch.setattr(driver, "LAYOUT", layout)
     sc = dgtd.scenario("paper-example-1")
     net, arcs = ring5()
     alg = make_algorithm(name, alpha0=0.5, beta=100.0)
+    channel = Lossy(loss_per_arc(PER_AGENT, arcs))
     runs = [
-        dgtd.evaluate(
-            sc.problem, net, alg, iterations=700, seeds=3, backend=b, channel=Lossy(loss_per_arc(PER_AGENT, arcs))
-        )
+        dgtd.evaluate(sc.problem, net, alg, iterations=700, seeds=3, backend=b, channel=channel, block_size=97)
         for b in ("numpy", "numba")
     ]
     assert_allclose(runs[0].w_last, runs[1].w_last, rtol=1e-12, atol=1e-12)

@@ -130,9 +130,12 @@ def bench_algorithm(name: str, case_algorithm: DGTD):
     return case_algorithm if name == case_algorithm.name else make_algorithm(name, alpha0=0.05, beta=10.0)
 
 
-def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: str, repeats: int) -> list[float]:
+def time_run(
+    problem, network, algorithm, seeds: int, iterations: int, backend: str, repeats: int, channel=None
+) -> list[float]:
     """Wall seconds of `run`'s iterations (sampling, updates, the final metric checkpoint), after a warm-up run;
-    the one-off setup (exact solution, tables) is timed apart by `setup_seconds`."""
+    the one-off setup (exact solution, tables) is timed apart by `setup_seconds`. ``channel``: the run's
+    (`dgtd.channels`; default the perfect one)."""
     settings = RunSettings(iterations=iterations, seeds=seeds, checkpoints=1, backend=backend)
     run(
         problem,
@@ -140,10 +143,11 @@ def time_run(problem, network, algorithm, seeds: int, iterations: int, backend: 
         algorithm,
         Sampling(),
         RunSettings(iterations=min(iterations, 50), seeds=seeds, checkpoints=1, backend=backend),
+        channel=channel,
     )
     out = []
     for _ in range(repeats):
-        result = run(problem, network, algorithm, Sampling(), settings)
+        result = run(problem, network, algorithm, Sampling(), settings, channel=channel)
         if (result.info["diverged_at"] >= 0).any():
             raise RuntimeError(f"{algorithm.name} diverged on the bench case: its time would not be a full run's")
         out.append(result.info["loop_seconds"])

@@ -190,10 +190,25 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     w_star = exact.w_star(moments)
     fixed = algorithm.fixed_point(moments, L_mean, w_star)  # what the errors are measured against
     algorithm, report = algorithm.prepare(moments, network, fixed)  # the algorithm as it runs here (DGTD's boxes)
+    if fixed_point_unknown(network, channel, algorithm):
+        report = {**report, "fixed_point": FIXED_POINT_UNKNOWN.format(n=exact.DENSE_N)}
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
     ctx = Context(problem, network, algorithm, sampling, tables, arcs, T - tail_window, channel)
     return ctx, moments, L_mean, fixed, report, w_star, tail_window
+
+
+FIXED_POINT_UNKNOWN = (
+    "not computed: where messages are lost, the fixed point is solved densely, for at most {n} agents; the errors "
+    "are against w*, which the run may not reach"
+)
+
+
+def fixed_point_unknown(network, channel, algorithm) -> bool:
+    """Whether a lossy run's fixed point is beyond what `mean_mixing` computes (more than DENSE_N agents, or a
+    network without edge probabilities, such as a simulator's proximity links)."""
+    lossy = getattr(channel, "loss", None) is not None and bool(algorithm.messages)
+    return lossy and (network.n_nodes > exact.DENSE_N or not hasattr(network, "p"))
 
 
 def mean_mixing(network, channel, arcs: Arcs, algorithm):
@@ -203,13 +218,8 @@ def mean_mixing(network, channel, arcs: Arcs, algorithm):
     fixed point follows from it (`dgtd.problems.exact.weighted_w_star`)."""
     sparse = network.n_nodes > exact.DENSE_N  # O(N + |E|) memory for many agents
     loss = getattr(channel, "loss", None)
-    if loss is None or not algorithm.messages or not hasattr(network, "p"):
-        return network.mean_laplacian(sparse=sparse)
-    if sparse:
-        raise DgtdInputError(
-            f"the fixed point under lost messages is computed densely, for at most {exact.DENSE_N} agents; this "
-            f"network has {network.n_nodes}"
-        )
+    if loss is None or not algorithm.messages or not hasattr(network, "p") or sparse:
+        return network.mean_laplacian(sparse=sparse)  # (under loss beyond DENSE_N agents: `fixed_point_unknown`)
     from dgtd.channels import lossy
 
     mean = lossy.mean_metropolis if algorithm.mixing == "metropolis" else lossy.mean_laplacian

@@ -268,7 +268,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     B, T = sums.shape[0], alphas.shape[0]
     # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
-    words = np.zeros((B, 3, 16), np.uint64)
+    words = np.zeros((B, rng.shape[1], 16), np.uint64)
     words[:, :, :4] = rng
     for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
         n_up[b] += _step_samples(
@@ -361,7 +361,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
             )
     # element by element: in a parallel function, numba loses a slice assignment to an array unpacked from a tuple
     for b in range(B):
-        for k in range(3):
+        for k in range(rng.shape[1]):
             for x in range(4):
                 rng[b, k, x] = words[b, k, x]
 
