@@ -52,11 +52,13 @@ class NetworkConfig:
     """Who hears whom: ``graph`` (a topology of `dgtd.graphs.topologies` or a file of 'i j' edge lines; default the
     scenario's, else ring), each of whose edges is up with probability ``edge_prob`` at each step; ``loss``, the
     probability that a message is lost (`dgtd.channels.lossy.loss_per_arc`: one for all, one per receiving agent,
-    or a file of 'i j p' lines), none by default."""
+    or a file of 'i j p' lines), none by default; ``burst``, the mean length of a burst of losses (per arc, with the
+    same long-run loss: `dgtd.channels.Lossy`), none by default (each message lost independently)."""
 
     graph: str | None = None
     edge_prob: float | None = None
     loss: float | list | str | None = None
+    burst: float | None = None
 
 
 @dataclass(frozen=True)
@@ -377,7 +379,7 @@ def resolve(config: RunConfig):
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph, problem.n_agents, edge_prob)
     loss = _loss(spec.loss)
-    channel_for(loss, network)  # checked here, with the network it applies to
+    channel_for(loss, spec.burst, network)  # checked here, with the network it applies to
     algorithm = build_algorithm(spec, algorithm)
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
@@ -397,6 +399,7 @@ def resolve(config: RunConfig):
         graph=graph,
         edge_prob=edge_prob,
         loss=loss,
+        burst=spec.burst,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
         sampling=sampling.mode,
         shared=sampling.shared,
@@ -433,19 +436,22 @@ def _loss(loss):
     return values[0] if len(values) == 1 else values
 
 
-def channel_for(loss, network):
-    """The channel of a run: `dgtd.channels.Perfect`, or `dgtd.channels.Lossy` with each arc's loss probability."""
+def channel_for(loss, burst, network):
+    """The channel of a run: `dgtd.channels.Perfect`, or `dgtd.channels.Lossy` with each arc's loss probability and
+    its bursts."""
     from dgtd.channels import Arcs, Lossy, Perfect
     from dgtd.channels.lossy import loss_per_arc
 
     if loss is None:
+        if burst is not None:
+            raise DgtdInputError("burst sets how lost messages bunch up; give the loss too (--loss P --burst L)")
         return Perfect()
-    return Lossy(loss_per_arc(loss, Arcs.of(network.base.edges, network.n_nodes)))
+    return Lossy(loss_per_arc(loss, Arcs.of(network.base.edges, network.n_nodes)), burst)
 
 
 def make_channel(config: RunConfig, network):
     """The channel a resolved config's run uses, over its ``network`` (`resolve`'s)."""
-    return channel_for(config.network.loss, network)
+    return channel_for(config.network.loss, config.network.burst, network)
 
 
 DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given

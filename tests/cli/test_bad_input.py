@@ -275,6 +275,10 @@ LINKS = {
     "a negative loss": (("--loss", "-0.2"), "in [0, 1)"),
     "a loss list of the wrong length": (("--loss", "0.1,0.2"), "one per agent (5 here"),
     "a loss that is neither": (("--loss", "lossy"), "neither a probability"),
+    "a burst shorter than one step": (("--loss", "0.2", "--burst", "0.5"), "at least 1"),
+    "a burst too short for the loss": (("--loss", "0.9", "--burst", "2"), "loss / (1 - loss)"),
+    "a burst without a loss": (("--burst", "5"), "give the loss too"),
+    "a burst that is not a number": (("--loss", "0.2", "--burst", "long"), "burst"),
 }
 
 

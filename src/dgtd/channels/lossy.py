@@ -58,30 +58,66 @@ def uniforms(words: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True, eq=False)
 class Lossy:
     """Arc a (`Arcs`: 2e from v to u, 2e + 1 from u to v of edge e = {u, v}) loses each message it carries with
-    probability ``loss[a]``; every message of a step travels together, so they are lost together."""
+    probability ``loss[a]``; every message of a step travels together, so they are lost together.
+
+    With ``burst`` = L, losses come in bursts (the Gilbert-Elliott model with a losing and a delivering state): each
+    arc is a two-state Markov chain that leaves its losing state with probability 1 / L at each step (bursts of mean
+    length L) and enters it with probability loss / (L (1 - loss)), so that it loses a fraction ``loss`` of the
+    steps in the long run, as without bursts; the chain starts in its stationary law. Each step draws one uniform per
+    arc either way (`uniforms`): the move of its chain, or whether its message is lost."""
 
     loss: np.ndarray  # (2E,) in [0, 1)
+    burst: float | None = None
     name: ClassVar[str] = "lossy"
 
+    def __post_init__(self):
+        if self.burst is None:
+            return
+        L = float(self.burst)
+        worst = float(np.max(self.loss / (1.0 - self.loss))) if self.loss.size else 0.0
+        if not np.isfinite(L) or L < max(1.0, worst * (1 - 1e-12)):
+            raise DgtdInputError(
+                f"burst: the mean burst length must be at least 1 and at least loss / (1 - loss) ({worst:.4g} here), "
+                f"so that the long-run loss stays the one asked; got {self.burst}"
+            )
+
+    @property
+    def enter(self) -> np.ndarray:
+        """P(an arc's chain enters its losing state at a step), (2E,)."""
+        return np.minimum(self.loss / (float(self.burst) * (1.0 - self.loss)), 1.0)
+
     def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
-        """Counts at zero, and seed k's channel stream (k = 0 .. seeds - 1 of base seed ``seed``)."""
-        return ChannelState(np.zeros(seeds), np.zeros(seeds), channel_stream(seed, range(seeds)))
+        """Counts at zero, seed k's channel stream (k = 0 .. seeds - 1 of base seed ``seed``), and with bursts each
+        arc's chain drawn from its stationary law (the stream's first uniforms)."""
+        words = channel_stream(seed, range(seeds))
+        links = np.zeros((seeds, 0), np.uint8)
+        if self.burst is not None:
+            u, words = uniforms(words, arcs.n_arcs)
+            links = (u < self.loss).astype(np.uint8)
+        return ChannelState(np.zeros(seeds), np.zeros(seeds), words, links)
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state): arcs of the edges up (B, E) (None: every edge) that keep the message."""
         B = next(iter(sent.values())).shape[0] if sent else state.messages.shape[0]
         u, words = uniforms(state.words, arcs.n_arcs)
-        links = np.ones((B, arcs.n_arcs), bool) if up is None else Arcs.both_ways(up)
-        heard = (links & (u >= self.loss)).astype(np.float64)
+        links = state.links
+        if self.burst is None:
+            kept = u >= self.loss
+        else:
+            losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < self.enter)
+            links, kept = losing.astype(np.uint8), ~losing
+        edges = np.ones((B, arcs.n_arcs), bool) if up is None else Arcs.both_ways(up)
+        heard = (edges & kept).astype(np.float64)
         arrived = heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())
         return Inbox(arcs, sent, heard), ChannelState(
-            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words
+            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words, links
         )
 
     def describe(self) -> str:
         lo, hi = float(self.loss.min()), float(self.loss.max())
-        return f"each message lost with probability {lo:g}" if lo == hi else f"messages lost with p in [{lo:g}, {hi:g}]"
+        what = f"each message lost with probability {lo:g}" if lo == hi else f"messages lost with p in [{lo:g}, {hi:g}]"
+        return what + ("" if self.burst is None else f", in bursts of mean length {float(self.burst):g}")
 
 
 def loss_per_arc(loss, arcs: Arcs) -> np.ndarray:

@@ -14,12 +14,14 @@ BITS_PER_NUMBER = 64  # a message's coordinates are float64
 
 
 class ChannelState(NamedTuple):
-    """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,), and
-    the PCG64 words (B, 4) of the seed's channel stream where the channel draws events (B, 0 where it draws none)."""
+    """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,), the
+    PCG64 words (B, 4) of the seed's channel stream where the channel draws events (B, 0 where it draws none), and
+    each arc's state where links have one (B, 2E: 1 while a bursty link is in its losing state; else B, 0)."""
 
     messages: np.ndarray
     bits: np.ndarray
     words: np.ndarray = np.zeros((0, 0), np.uint64)
+    links: np.ndarray = np.zeros((0, 0), np.uint8)
 
 
 @dataclass(frozen=True)
@@ -30,7 +32,9 @@ class Perfect:
     name: ClassVar[str] = "perfect"
 
     def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
-        return ChannelState(np.zeros(seeds), np.zeros(seeds), np.zeros((seeds, 0), np.uint64))
+        return ChannelState(
+            np.zeros(seeds), np.zeros(seeds), np.zeros((seeds, 0), np.uint64), np.zeros((seeds, 0), np.uint8)
+        )
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up (B, E)
@@ -39,7 +43,10 @@ class Perfect:
         arrived = inbox.heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())  # coordinates per arc, all messages together
         return inbox, ChannelState(
-            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, state.words
+            state.messages + arrived * len(sent),
+            state.bits + arrived * numbers * BITS_PER_NUMBER,
+            state.words,
+            state.links,
         )
 
     def describe(self) -> str:

@@ -56,6 +56,7 @@ def _names(text: str | None) -> tuple[str, ...]:
     "problem_file",
     "graph",
     "loss",
+    "burst",
     *ENV_OPTIONS,
 )
 def compare(

@@ -146,6 +146,14 @@ def _run_options() -> dict:
                 "probability p). Default: none lost. See docs/links.md.",
             ),
             click.option(
+                "--burst",
+                type=float,
+                default=None,
+                metavar="L",
+                help="Lost messages come in bursts of mean length L on each link (Gilbert-Elliott), with the same "
+                "long-run loss as --loss. Default: each message lost independently.",
+            ),
+            click.option(
                 "--kappa",
                 type=float,
                 default=None,

@@ -99,4 +99,4 @@ def counted(state: ChannelState, arcs: np.ndarray, messages: int, numbers: int) 
     """The channel's counts after ``arcs`` (B,) arcs delivered ``messages`` messages of ``numbers`` numbers in all
     (what `dgtd.channels.Perfect.deliver` adds step by step: the same integers, so the same floats)."""
     arcs = arcs.astype(np.float64)
-    return ChannelState(state.messages + arcs * messages, state.bits + arcs * numbers * BITS_PER_NUMBER, state.words)
+    return state._replace(messages=state.messages + arcs * messages, bits=state.bits + arcs * numbers * BITS_PER_NUMBER)

@@ -80,6 +80,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
         noise,
         p_edge,
         loss,
+        links,
         s_blk,
         a_blk,
         sn_blk,
@@ -112,6 +113,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
                 noise,
                 p_edge,
                 loss,
+                links,
                 s_blk,
                 a_blk,
                 sn_blk,
@@ -157,6 +159,7 @@ def _chunk(
     noise,
     p_edge,
     loss,
+    links,
     s_blk,
     a_blk,
     sn_blk,
@@ -230,7 +233,7 @@ def _chunk(
                         r_t,
                     )
                 else:
-                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, loss, up_blk, up_t)
+                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, loss, links, up_blk, up_t)
                     if NEEDS_DEGREES:
                         count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
 
@@ -256,6 +259,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
         noise,
         p_edge,
         loss,
+        links,
         s_blk,
         a_blk,
         sn_blk,
@@ -289,6 +293,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
             noise,
             p_edge,
             loss,
+            links,
             s_blk,
             a_blk,
             sn_blk,
@@ -329,6 +334,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 noise,
                 p_edge,
                 loss,
+                links,
                 s_blk,
                 a_blk,
                 sn_blk,
@@ -455,8 +461,8 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     if isinstance(blk, Draws):
         _, _, markov, current = sampler[:4]
         blk.settle(rng[:, :3], current if markov else None)
-    if channel_draws(ctx):
-        channel = channel._replace(words=np.ascontiguousarray(rng[:, CHANNEL_STREAM]))
+    if channel_draws(ctx):  # the channel's stream and its links' states, as the kernel left them
+        channel = channel._replace(words=np.ascontiguousarray(rng[:, CHANNEL_STREAM]), links=sampler[14].copy())
     final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest]))
     new = state._make(back(final[f]) for f in state._fields)
     # every arc that delivers carries every message (`_step_edges` counted them)
@@ -663,8 +669,8 @@ def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
     streams of `Draws` simply go on)."""
     if isinstance(blk, Draws) or t0 == 0:
         return sampler
-    s, a, sn, r, up = sampler[14:19]
-    return (*sampler[:14], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[19])
+    s, a, sn, r, up = sampler[15:20]
+    return (*sampler[:15], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[20])
 
 
 def _layouts(ctx, B: int, L: int, q: int, messages: bool) -> Layouts:

@@ -186,6 +186,7 @@ def _step_samples(
     noise,
     p_edge,
     loss,
+    links,
     s_blk,
     a_blk,
     sn_blk,
@@ -230,7 +231,7 @@ def _step_samples(
         sn_t,
         r_t,
     )
-    return _step_edges(b, row, t, fused, rng, p_edge, loss, up_blk, up_t)
+    return _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t)
 
 
 @njit(cache=True, inline="always")
@@ -293,15 +294,17 @@ def _step_observations(
 
 
 @njit(cache=True, inline="always")
-def _step_edges(b, row, t, fused, rng, p_edge, loss, up_blk, up_t):
+def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t):
     """Which links deliver at step t, for `_step_samples` (seed b's edge stream): into row ``row`` of up_t, each
-    edge up (E), or where the channel loses messages (``loss``, one probability per arc, else empty) each arc that
-    delivers (2E: its edge up and, from the seed's channel stream rng[b, 3], one uniform per arc and step, its
-    message kept, as `dgtd.channels.Lossy` draws them). Returns how many arcs deliver (two per edge up, without
-    loss)."""
+    edge up (E), or where the channel loses messages each arc that delivers (2E: its edge up and its message kept,
+    from one uniform per arc and step of the seed's channel stream rng[b, 3], as `dgtd.channels.Lossy` draws them).
+    ``loss`` is empty on a perfect channel, else row 0 holds each arc's loss probability (i.i.d. losses) or, with
+    bursts, the probability that its chain enters its losing state, and row 1 that it leaves it; ``links`` [b, a]
+    is 1 while arc a's chain is losing. Returns how many arcs deliver (two per edge up, without loss)."""
     if loss.shape[0] == 0:
         return 2 * _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t)
-    E = loss.shape[0] // 2
+    E = loss.shape[1] // 2
+    bursty = loss.shape[0] == 2
     drawn = fused and p_edge.shape[0] == E  # random edges drawn here; a fixed graph draws nothing
     hi, lo, inc_hi, inc_lo = rng[b, 2, 0], rng[b, 2, 1], rng[b, 2, 2], rng[b, 2, 3]
     chi, clo, cinc_hi, cinc_lo = rng[b, 3, 0], rng[b, 3, 1], rng[b, 3, 2], rng[b, 3, 3]
@@ -315,7 +318,12 @@ def _step_edges(b, row, t, fused, rng, p_edge, loss, up_blk, up_t):
             up = up_blk[t, b, e]
         for a in range(2 * e, 2 * e + 2):
             chi, clo, u = pcg_step(chi, clo, cinc_hi, cinc_lo)
-            kept = up and u >= loss[a]
+            if bursty:
+                losing = u >= loss[1, a] if links[b, a] == 1 else u < loss[0, a]
+                links[b, a] = 1 if losing else 0
+                kept = up and not losing
+            else:
+                kept = up and u >= loss[0, a]
             up_t[row, a] = kept
             n += kept
     if drawn:
@@ -409,9 +417,14 @@ def sample_args(ctx, blk, B: int, channel=None):
         sigma,
         noise,
     )
-    loss = np.zeros(0)
+    loss, links = np.zeros((0, 0)), np.zeros((B, 0), np.uint8)
     if channel_draws(ctx):  # the seed's channel stream beside its sampler's three
-        loss = ctx.channel.loss
+        lossy = ctx.channel
+        if lossy.burst is None:
+            loss = lossy.loss[None, :]
+        else:
+            loss = np.stack([lossy.enter, np.full(lossy.loss.shape, 1.0 / float(lossy.burst))])
+            links = np.array(channel.links, dtype=np.uint8, order="C")
         rng = np.ascontiguousarray(np.concatenate([rng, channel.words[:, None, :]], axis=1))
     return (
         fused,
@@ -421,6 +434,7 @@ def sample_args(ctx, blk, B: int, channel=None):
         *model,
         frozen(p_edge, np.float64),
         frozen(loss, np.float64),
+        links,
         *samples,
         np.zeros(B, np.int64),
     )
