@@ -35,8 +35,8 @@ def assert_same_run(a, b):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("sampling", ["iid", "markov"])
-@pytest.mark.parametrize("loss", [None, 0.3])
-def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, loss):
+@pytest.mark.parametrize("loss, burst", [(None, None), (0.3, None), (0.3, 5.0)])
+def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, loss, burst):
     # random edges, reward noise, Markov states and lost messages: every stream and the trajectories' current states
     spec = unflat(
         dict(
@@ -48,6 +48,7 @@ def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, 
             reward_noise="bernoulli",
             edge_prob=0.7,
             loss=loss,
+            burst=burst,
             checkpoints=15,
             block_size=300,
         )
