@@ -7,8 +7,8 @@ For paper-example-1 and garnet, every method that communicates runs at its tuned
 i misses each message sent to it with probability s * c_i, c_i spread evenly over [0, 1], at strength s from 0 to
 0.9), and bursts of mean length 1 to 50 at a loss of 0.3. For each run: the tail-averaged d-weighted value error to
 w* and to the computed fixed point (`w_fixed`, docs/links.md), and the samples (agent-samples) after which the tail
-average's value error to the fixed point stays below 10 %; median and 5-95 % band over seeds. A diverged seed counts an error of 1
-(the start's) and never reaches 10 %.
+average's value error to the fixed point stays below 10 %; median and 5-95 % band over seeds. A diverged seed counts
+an error of 1 (the start's) and never reaches 10 %.
 """
 
 from __future__ import annotations
