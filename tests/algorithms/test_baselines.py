@@ -290,7 +290,7 @@ def test_td_tracking_has_consensus_on_w_star_as_its_exact_fixed_point():
     assert np.abs(moved.w - (w + 0.1)).max() > 1e-3
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("numpy", marks=pytest.mark.slow), "numba"])  # the reference: slow
 def test_td_tracking_reaches_w_star_on_random_links(backend):
     """On the 4-state chain with 3 agents on a ring whose links are up with probability 0.7, the tail-averaged
     iterates of 4 seeds lie within 2 % of w* (max-norm), every agent.

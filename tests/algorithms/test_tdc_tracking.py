@@ -41,7 +41,7 @@ def test_consensus_on_w_star_is_its_exact_fixed_point(off_policy):
     assert np.abs(moved.w - (w + 0.1)).max() > 1e-3
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("numpy", marks=pytest.mark.slow), "numba"])  # the reference: slow
 def test_it_reaches_w_star_off_policy_on_random_links(backend):
     """A 5-state off-policy MDP, 3 agents on a ring whose links are up with probability 0.7, alpha_k = 3 / sqrt(k +
     10) over 100,000 steps: the tail averages of 4 seeds within 2 % of w* (max-norm), every agent.

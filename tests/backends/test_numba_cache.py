@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from conftest import cli_env
 from numba.core.runtime import rtsys
 
@@ -92,6 +93,7 @@ print(repr(float(res.w_last.sum())))
 """
 
 
+@pytest.mark.slow  # compiles a kernel twice in a copy of the package: 8 s
 def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path):
     """numba keys a cached kernel by its own file; editing `step.phi_axpy`, which the TD(0) step and so the driver
     inline, must still change what a fresh process computes (the package clears its cache when any module of it
