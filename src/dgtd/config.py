@@ -53,12 +53,14 @@ class NetworkConfig:
     scenario's, else ring), each of whose edges is up with probability ``edge_prob`` at each step; ``loss``, the
     probability that a message is lost (`dgtd.channels.lossy.loss_per_arc`: one for all, one per receiving agent,
     or a file of 'i j p' lines), none by default; ``burst``, the mean length of a burst of losses (per arc, with the
-    same long-run loss: `dgtd.channels.Lossy`), none by default (each message lost independently)."""
+    same long-run loss: `dgtd.channels.Lossy`), none by default (each message lost independently); ``reweight``,
+    whether each agent weighs what it hears by 1 / (1 - loss), which gives the Laplacian methods back w*."""
 
     graph: str | None = None
     edge_prob: float | None = None
     loss: float | list | str | None = None
     burst: float | None = None
+    reweight: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -379,7 +381,7 @@ def resolve(config: RunConfig):
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph, problem.n_agents, edge_prob)
     loss = _loss(spec.loss)
-    channel_for(loss, spec.burst, network)  # checked here, with the network it applies to
+    channel_for(loss, spec.burst, network, spec.reweight)  # checked here, with the network it applies to
     algorithm = build_algorithm(spec, algorithm)
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
@@ -400,6 +402,7 @@ def resolve(config: RunConfig):
         edge_prob=edge_prob,
         loss=loss,
         burst=spec.burst,
+        reweight=spec.reweight,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
         sampling=sampling.mode,
         shared=sampling.shared,
@@ -436,7 +439,7 @@ def _loss(loss):
     return values[0] if len(values) == 1 else values
 
 
-def channel_for(loss, burst, network):
+def channel_for(loss, burst, network, reweight=None):
     """The channel of a run: `dgtd.channels.Perfect`, or `dgtd.channels.Lossy` with each arc's loss probability and
     its bursts."""
     from dgtd.channels import Arcs, Lossy, Perfect
@@ -445,13 +448,16 @@ def channel_for(loss, burst, network):
     if loss is None:
         if burst is not None:
             raise DgtdInputError("burst sets how lost messages bunch up; give the loss too (--loss P --burst L)")
+        if reweight:
+            raise DgtdInputError("reweight corrects for lost messages; give the loss too (--loss P --reweight)")
         return Perfect()
-    return Lossy(loss_per_arc(loss, Arcs.of(network.base.edges, network.n_nodes)), burst)
+    return Lossy(loss_per_arc(loss, Arcs.of(network.base.edges, network.n_nodes)), burst, bool(reweight))
 
 
 def make_channel(config: RunConfig, network):
     """The channel a resolved config's run uses, over its ``network`` (`resolve`'s)."""
-    return channel_for(config.network.loss, config.network.burst, network)
+    n = config.network
+    return channel_for(n.loss, n.burst, network, n.reweight)
 
 
 DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given

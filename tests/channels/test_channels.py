@@ -70,7 +70,7 @@ def compiled_aggregates(X, up, indptr, nbr, eid, kind):
     for b in range(B):
         count_heard(up, b, indptr, eid, degree, 0)
         for i in range(N):
-            inbox = CompiledInbox(sent, heard, n_heard, weights, degree, 0, sums, 0)
+            inbox = CompiledInbox(sent, heard, n_heard, weights, degree, 0, sums, 0, np.zeros(0))
             hear(inbox, up, b, indptr, nbr, eid, i)
             metropolis_weights(inbox, i)
             if kind == 0:

@@ -250,3 +250,52 @@ def test_bursts_keep_the_fixed_point_of_their_loss_rate():
     assert_array_equal(bursty.fixed.w, iid.fixed.w)
     m = exact.Moments(sc.problem)
     assert exact.value_error(m, bursty.w_tail, bursty.fixed.w[0]).max() < 0.03
+
+
+LAPLACIAN_METHODS = [n for n in COMMUNICATING if ALGORITHMS[n].mixing == "laplacian"]
+
+
+@pytest.mark.parametrize("layout", ["seeds", "agents"])
+@pytest.mark.parametrize("name", LAPLACIAN_METHODS)
+def test_reweighted_hearing_is_the_same_on_both_backends(name, layout, monkeypatch):
+    from dgtd.backends.compiled import driver
+
+    monkeypatch.setattr(driver, "LAYOUT", layout)
+    sc = dgtd.scenario("paper-example-1")
+    net, arcs = ring5()
+    channel = Lossy(loss_per_arc(PER_AGENT, arcs), reweight=True)
+    alg = make_algorithm(name, alpha0=0.3, beta=100.0)
+    runs = [
+        dgtd.evaluate(sc.problem, net, alg, iterations=700, seeds=3, backend=b, channel=channel, block_size=97)
+        for b in ("numpy", "numba")
+    ]
+    assert_allclose(runs[0].w_last, runs[1].w_last, rtol=1e-12, atol=1e-12)
+
+
+def test_reweighting_gives_the_laplacian_methods_w_star_back():
+    """1 / (1 - loss) on each arc makes the mean Laplacian of what is heard the network's own: the fixed point is
+    w* again; the Metropolis methods do not use the weights, and keep theirs."""
+    from dgtd.run.loop import RunSettings, Sampling, prepare
+
+    sc = dgtd.scenario("paper-example-1")
+    net, arcs = ring5()
+    w_star = exact.w_star(exact.Moments(sc.problem))
+    channel = Lossy(loss_per_arc(PER_AGENT, arcs), reweight=True)
+    for name in COMMUNICATING:
+        fixed = prepare(sc.problem, net, make_algorithm(name), Sampling(), RunSettings(), channel)[3]
+        same = np.array_equal(fixed.w[0], w_star)
+        assert same == (name in LAPLACIAN_METHODS), name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", LAPLACIAN_METHODS)
+def test_reweighting_removes_the_bias_in_long_runs(name):
+    """The run of `test_long_runs_follow_the_fixed_point_not_w_star`, with reweighting: the tail average ends within
+    3 % of w* (measured: under 1 %), where without it the run ends 47 % from w*."""
+    sc = dgtd.scenario("paper-example-1")
+    net, arcs = ring5()
+    alg = make_algorithm(name, alpha0=0.5, beta=1000.0)
+    channel = Lossy(loss_per_arc(PER_AGENT, arcs), reweight=True)
+    run = dgtd.evaluate(sc.problem, net, alg, iterations=300_000, seeds=2, channel=channel)
+    m = exact.Moments(sc.problem)
+    assert exact.value_error(m, run.w_tail, exact.w_star(m)).max() < 0.03

@@ -279,6 +279,7 @@ LINKS = {
     "a burst too short for the loss": (("--loss", "0.9", "--burst", "2"), "loss / (1 - loss)"),
     "a burst without a loss": (("--burst", "5"), "give the loss too"),
     "a burst that is not a number": (("--loss", "0.2", "--burst", "long"), "burst"),
+    "reweighting without a loss": (("--reweight",), "give the loss too"),
 }
 
 

@@ -15,7 +15,8 @@ class Inbox:
     name to the value each arc delivered, (B, 2E, q); by default an arc delivers what its sender sent. For agent i and
     a message x, with j -> i the arcs that delivered to i:
 
-    - ``laplacian(x)``: sum_j (x_i - x_j), the neighbour sums of Algorithm 1 (section 7 of the paper), (L(k) x)_i;
+    - ``laplacian(x)``: sum_j (x_i - x_j), the neighbour sums of Algorithm 1 (section 7 of the paper), (L(k) x)_i
+      (each term weighted by its arc's ``weights`` where the channel gives them);
     - ``metropolis(x)``: sum_j W_ij (x_i - x_j) with W_ij = 1 / (1 + max(d_i, d_j)), d_i the number of messages i
       heard: sum_j W_ij(k) x_j = x_i - metropolis(x)_i, a doubly stochastic mix when every link works both ways;
     - ``total(x)``: sum_j x_j, and ``count()``: d_i.
@@ -23,9 +24,10 @@ class Inbox:
     x_i is what agent i itself sent at step k (its own current value).
     """
 
-    def __init__(self, arcs: Arcs, sent: dict, heard: np.ndarray, received: dict | None = None):
+    def __init__(self, arcs: Arcs, sent: dict, heard: np.ndarray, received: dict | None = None, weights=None):
         self.arcs, self.sent, self.received = arcs, sent, received or {}
         self.heard = np.asarray(heard, dtype=np.float64)
+        self.weights = weights  # (2E,) what ``laplacian`` weighs each arc's term by, where a channel reweighs
 
     def _arrived(self, name: str) -> np.ndarray:
         """What each arc delivered of message ``name`` (B, 2E, q), whether or not it was heard."""
@@ -43,8 +45,9 @@ class Inbox:
         return self.arcs.into(self.heard[:, :, None])[:, :, 0]
 
     def laplacian(self, name: str) -> np.ndarray:
-        """(L(k) x)_i = sum_j (x_i - x_j) over the messages i heard, (B, N, q)."""
-        return self._differences(name, self.heard)
+        """(L(k) x)_i = sum_j (x_i - x_j) over the messages i heard, (B, N, q); sum_j c_ij (x_i - x_j) where the
+        channel weighs what each arc delivers (``weights``: `dgtd.channels.Lossy` with ``reweight``)."""
+        return self._differences(name, self.heard if self.weights is None else self.heard * self.weights)
 
     def metropolis(self, name: str) -> np.ndarray:
         """sum_j W_ij (x_i - x_j), W_ij = 1 / (1 + max(d_i, d_j)) (Metropolis weights of the links heard), (B, N, q)."""

@@ -68,6 +68,7 @@ class Lossy:
 
     loss: np.ndarray  # (2E,) in [0, 1)
     burst: float | None = None
+    reweight: bool = False
     name: ClassVar[str] = "lossy"
 
     def __post_init__(self):
@@ -80,6 +81,14 @@ class Lossy:
                 f"burst: the mean burst length must be at least 1 and at least loss / (1 - loss) ({worst:.4g} here), "
                 f"so that the long-run loss stays the one asked; got {self.burst}"
             )
+
+    @property
+    def arc_weights(self) -> np.ndarray:
+        """1 / (1 - loss_a): with ``reweight``, agent i weighs what it hears from j by the inverse of its probability
+        of hearing it, so that the mean Laplacian of what is heard is the network's own, symmetric one again and the
+        methods that mix with it converge to w* (inverse-probability weighting; docs/links.md). An agent needs its
+        in-links' loss rates, which it can count."""
+        return 1.0 / (1.0 - self.loss)
 
     @property
     def enter(self) -> np.ndarray:
@@ -110,14 +119,16 @@ class Lossy:
         heard = (edges & kept).astype(np.float64)
         arrived = heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())
-        return Inbox(arcs, sent, heard), ChannelState(
+        weights = self.arc_weights if self.reweight else None
+        return Inbox(arcs, sent, heard, weights=weights), ChannelState(
             state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words, links
         )
 
     def describe(self) -> str:
         lo, hi = float(self.loss.min()), float(self.loss.max())
         what = f"each message lost with probability {lo:g}" if lo == hi else f"messages lost with p in [{lo:g}, {hi:g}]"
-        return what + ("" if self.burst is None else f", in bursts of mean length {float(self.burst):g}")
+        what += "" if self.burst is None else f", in bursts of mean length {float(self.burst):g}"
+        return what + ("; what is heard weighted by 1 / (1 - loss)" if self.reweight else "")
 
 
 def loss_per_arc(loss, arcs: Arcs) -> np.ndarray:

@@ -304,8 +304,8 @@ def final_table(result) -> str:
 
 @cli.command()
 @click.argument("scenario", required=False)
-@run_options("algorithm", "problem_file", "graph", "edge_prob", "loss", "burst", "kappa", "rho", "restarts")
-def solve(scenario, algorithm, problem_file, graph, edge_prob, loss, burst, kappa, rho, restarts):
+@run_options("algorithm", "problem_file", "graph", "edge_prob", "loss", "burst", "reweight", "kappa", "rho", "restarts")
+def solve(scenario, algorithm, problem_file, graph, edge_prob, loss, burst, reweight, kappa, rho, restarts):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes), over the network and its links
     (--loss: where each method converges when messages are lost)."""
@@ -326,6 +326,7 @@ def solve(scenario, algorithm, problem_file, graph, edge_prob, loss, burst, kapp
             "edge_prob": edge_prob,
             "loss": loss,
             "burst": burst,
+            "reweight": reweight,
             "kappa": kappa,
             "rho": rho,
             "restarts": restarts,

@@ -57,6 +57,7 @@ def _names(text: str | None) -> tuple[str, ...]:
     "graph",
     "loss",
     "burst",
+    "reweight",
     *ENV_OPTIONS,
 )
 def compare(

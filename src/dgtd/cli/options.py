@@ -154,6 +154,12 @@ def _run_options() -> dict:
                 "long-run loss as --loss. Default: each message lost independently.",
             ),
             click.option(
+                "--reweight/--no-reweight",
+                default=None,
+                help="Each agent weighs what it hears from j by 1 / (1 - loss of j's messages to it): the Laplacian "
+                "methods (dgtd, pd-td) then converge to w* under any --loss. Default: no.",
+            ),
+            click.option(
                 "--kappa",
                 type=float,
                 default=None,

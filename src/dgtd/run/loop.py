@@ -222,8 +222,11 @@ def mean_mixing(network, channel, arcs: Arcs, algorithm):
         return network.mean_laplacian(sparse=sparse)  # (under loss beyond DENSE_N agents: `fixed_point_unknown`)
     from dgtd.channels import lossy
 
-    mean = lossy.mean_metropolis if algorithm.mixing == "metropolis" else lossy.mean_laplacian
-    return mean(network, loss, arcs)
+    if algorithm.mixing == "metropolis":
+        return lossy.mean_metropolis(network, loss, arcs)
+    if channel.reweight:  # E[c_ij heard_ij] = p_e: the network's own mean Laplacian, symmetric
+        return network.mean_laplacian()
+    return lossy.mean_laplacian(network, loss, arcs)
 
 
 def run(

@@ -31,16 +31,19 @@ class Inbox(NamedTuple):
     degree_row: int
     sums: np.ndarray  # (M, rows, q) scratch: the aggregate of message m lands in row [m, at]
     at: int
+    arc_weights: np.ndarray  # (2E,) the weight of what each arc delivers, where the channel reweighs it; else empty
 
 
 @njit(cache=True, inline="always")
 def hear(inbox, up, row, indptr, nbr, eid, i):
     """The storage rows of agent i's neighbours whose links are up (row ``row`` of the step's edge mask) into the
     inbox, and how many. Without a branch: links are up at random, and a branch would be mispredicted."""
-    heard, at = inbox.heard, inbox.at
+    heard, at, reweighs = inbox.heard, inbox.at, inbox.arc_weights.shape[0] > 0
     n = 0
     for k in range(indptr[i], indptr[i + 1]):
         heard[at, n] = nbr[k]
+        if reweighs:  # (then eid holds arc ids: `dgtd.backends.compiled.driver._graph`)
+            inbox.weights[at, n] = inbox.arc_weights[eid[k]]
         n += up[row, eid[k]]
     inbox.n_heard[at, 0] = n
 
@@ -61,6 +64,9 @@ def laplacian(inbox, m, b, i):
     """sum_j (x_i - x_j) of message m over the neighbours heard, into inbox.sums[m, inbox.at]: (L(k) x)_i. Summed as
     d_i x_i - x_j1 - x_j2 - ... (`neighbour_sums`), which streams the neighbours' rows past registers once."""
     at = inbox.at
+    if inbox.arc_weights.shape[0] > 0:  # sum_j c_ij (x_i - x_j), c_ij the arc's weight (`dgtd.channels.Lossy`)
+        weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
+        return
     neighbour_sums(inbox.sent, (m, b), i, inbox.heard, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
 
 

@@ -53,7 +53,7 @@ NEEDS_DEGREES = False  # whether the step's inbox needs every agent's count of m
 
 def _learner(p, own, sums, inbox, out, work, x, feat, graph, up, up_row, b, i, alpha, q):
     """Learner i of seed b at one step: the neighbours it heard, then its step."""
-    indptr, nbr, eid, agent_of = graph
+    indptr, nbr, eid, agent_of, arc_weights = graph
     if inbox.sent.shape[0] > 0:
         hear(inbox, up, up_row, indptr, nbr, eid, i)
         if NEEDS_DEGREES:
@@ -128,7 +128,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
             if NEEDS_DEGREES:
                 count_heard(up_t, 0, indptr, eid, degree, 0)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
-            inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0)
+            inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0, graph[4])
             for i in range(L):
                 _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
         n_up[b] += arcs_up
@@ -178,6 +178,7 @@ def _chunk(
     nbr,
     eid,
     agent_of,
+    arc_weights,
     s_t,
     a_t,
     sn_t,
@@ -194,12 +195,12 @@ def _chunk(
     sampling of step t + 1 (`_agents`)."""
     B, L, T = sums.shape[0], sums.shape[1], alphas.shape[0]
     sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
-    feat, graph = Features(Phi, sparse, ptr, idx, val), (indptr, nbr, eid, agent_of)
+    feat, graph = Features(Phi, sparse, ptr, idx, val), (indptr, nbr, eid, agent_of, arc_weights)
     now, nxt = (t % 2) * B, ((t + 1) % 2) * B  # rows of this step's samples and the next step's
     total = B * L
     for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
         b, i = flat // L, flat % L
-        inbox = Inbox(sent, heard, n_heard, weights, degree, now + b, scratch, c)
+        inbox = Inbox(sent, heard, n_heard, weights, degree, now + b, scratch, c, arc_weights)
         x = Samples(s_t, a_t, sn_t, r_t, now + b, ratio, cont, gamma)
         _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, now + b, b, i, alphas[t], q)
     if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over the chunks
@@ -268,7 +269,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
         n_up,
     ) = sampler
     Phi, sparse, ptr, idx, val = feat
-    indptr, nbr, eid, agent_of = graph
+    indptr, nbr, eid, agent_of, arc_weights = graph
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     B, T = sums.shape[0], alphas.shape[0]
     # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
@@ -353,6 +354,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 nbr,
                 eid,
                 agent_of,
+                arc_weights,
                 s_t,
                 a_t,
                 sn_t,
@@ -472,8 +474,16 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
 run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
 
 
+def arc_weights_of(channel) -> np.ndarray:
+    """1 / (1 - loss_a) per arc where a lossy channel reweighs what is heard (`dgtd.channels.Lossy`), else nothing."""
+    if not getattr(channel, "reweight", False):
+        return np.zeros(0)
+    return np.ascontiguousarray(channel.arc_weights, dtype=np.float64)
+
+
 def _graph(ctx, messages: bool) -> tuple:
-    """(CSR indptr, neighbours, link ids, the agent of each row): in storage rows for an algorithm that sends, else the
+    """(CSR indptr, neighbours, link ids, the agent of each row, each arc's weight where the channel weighs what is
+    heard (`dgtd.channels.Lossy.reweight`), else nothing): in storage rows for an algorithm that sends, else the
     agents' own numbering (it reads no neighbours). A link id is the edge's id, or on a channel that draws events
     per arc the id of the arc into the row's agent (`dgtd.channels.Arcs`: 2e + 1 when that agent is the larger end
     of edge e), which is what the step's mask of links up (`_step_edges`) holds then."""
@@ -481,9 +491,9 @@ def _graph(ctx, messages: bool) -> tuple:
         storage_graph(ctx) if messages else (*graph_arrays(ctx), np.arange(ctx.network.n_nodes, dtype=np.int64))
     )
     if not channel_draws(ctx):
-        return indptr, nbr, eid, agent_of
+        return indptr, nbr, eid, agent_of, np.zeros(0)
     agent = np.repeat(agent_of, np.diff(indptr))  # the receiving agent of every CSR entry
-    return indptr, nbr, 2 * eid + (agent == ctx.arcs.dst[2 * eid + 1]), agent_of
+    return indptr, nbr, 2 * eid + (agent == ctx.arcs.dst[2 * eid + 1]), agent_of, arc_weights_of(ctx.channel)
 
 
 class Layouts:
