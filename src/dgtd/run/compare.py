@@ -241,6 +241,9 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
             "config": config_dict(used[name]),
             "tuning": [{"alpha0": a, "score": (s if np.isfinite(s) else None)} for a, s in tables.get(name, [])],
             "final": final,
+            # where it converges (over lossy links each method has its own point: docs/links.md), and how far from w*
+            "w_fixed": reference(r).tolist(),
+            "w_fixed_value_distance": float(exact.value_error(m, reference(r), first.w_star).max()) if model else None,
             "error_tail_averaged": _stats(exact.relative_error(r.w_tail, reference(r)).max(-1)),
             "value_error_area": _stats(error_area(r)),
             "diverged_seeds": [int(b) for b in np.flatnonzero(div >= 0)],
