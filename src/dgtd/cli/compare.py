@@ -222,7 +222,7 @@ def table(results: dict, used: dict) -> str:
 
     rows = [
         f"{'algorithm':<14}{'alpha0':>8}{'error last':>12}{'error avg':>12}{'value last':>12}{'value avg':>12}"
-        f"{'value area':>12}{'MSPBE last':>12}{'messages':>12}  diverged"
+        f"{'value area':>12}{'MSPBE last':>12}{'messages':>12}{'bits':>12}  diverged"
     ]
     for name, r in results.items():
 
@@ -238,6 +238,7 @@ def table(results: dict, used: dict) -> str:
         rows.append(
             f"{name:<14}{used[name].alpha0:>8.3g}{med('error_last'):>12.3g}{med('error_avg'):>12.3g}"
             f"{med('value_error_last'):>12.3g}{med('value_error_avg'):>12.3g}{np.median(error_area(r)):>12.3g}"
-            f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}  {d}"
+            f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}"
+            f"{float(np.max(r.info['bits'])):>12.3g}  {d}"
         )
     return "\n".join(rows)

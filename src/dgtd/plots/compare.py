@@ -1,4 +1,4 @@
-"""Figures of `dgtd compare`: error and MSPBE against samples and against messages, median and band over seeds."""
+"""Figures of `dgtd compare`: error and MSPBE against samples and against bits sent, median and band over seeds."""
 
 from __future__ import annotations
 
@@ -50,9 +50,9 @@ def _limits(results: dict, metric: str) -> tuple[float, float]:
 
 
 def plot_compare(results: dict, path: Path, title: str = "") -> None:
-    """2 x 2 panels: worst-agent relative error and MSPBE (last iterates), against agent-samples and against
-    parameter vectors sent. Algorithms that send nothing appear on the message panels as a dotted line at
-    their final level."""
+    """2 x 2 panels: worst-agent relative error and MSPBE (last iterates), against agent-samples and against the
+    bits the links delivered (the channel's count: 64 per number, or what a compressing channel really sends).
+    Algorithms that send nothing appear on the bits panels as a dotted line at their final level."""
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
     for row, (metric, label) in enumerate(
         (
@@ -65,7 +65,7 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
             Y = r.metrics[metric]
             _curve(axes[row, 0], r.info["counts"]["samples"], Y, name, floor, top)
             if r.info["messages"].max() > 0:
-                _curve(axes[row, 1], r.info["counts"]["messages"], Y, name, floor, top)
+                _curve(axes[row, 1], r.info["counts"]["bits"], Y, name, floor, top)
             elif np.isfinite(median_band(Y)[0][-1]):
                 axes[row, 1].axhline(
                     max(median_band(Y)[0][-1], floor),
@@ -78,7 +78,7 @@ def plot_compare(results: dict, path: Path, title: str = "") -> None:
                 axes[row, 1].plot([], [], "x", color=color(name), label=f"{name} (no messages; diverged)")
         axes[row, 0].set_ylabel(label)
         axes[row, 0].set_xlabel("agent-samples consumed (N per step)")
-        axes[row, 1].set_xlabel("parameter vectors sent over links")
+        axes[row, 1].set_xlabel("bits delivered over links (a vector of q numbers: 64 q bits)")
     for ax in axes.ravel():
         ax.set_xscale("log")
         ax.set_yscale("log")

@@ -124,7 +124,9 @@ def load_compare(directory: Path):
             for k, b, x in entries:
                 Y[np.searchsorted(steps, k), b] = x
             arrays[metric] = Y
-        counts = {m: arrays[m] for m in ("samples", "messages", "diverged") if m in arrays}
+        counts = {m: arrays[m] for m in ("samples", "messages", "bits", "diverged") if m in arrays}
+        if "bits" not in counts:  # (a comparison written before bits were counted: 64 bits per number sent)
+            counts["bits"] = arrays["messages"] * 64 * summary.get("n_features", 1)
         one_estimate = not np.any(np.nan_to_num(arrays["consensus"]) > 0)  # a centralised learner
         results[name] = SimpleNamespace(
             metrics=arrays,
