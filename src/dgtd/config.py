@@ -407,7 +407,8 @@ def resolve(config: RunConfig):
         sampling=sampling.mode,
         shared=sampling.shared,
         reward_noise=problem.reward_noise,
-        restarts=getattr(problem, "restarts", None),  # (a model's convention; samples from a source are as recorded)
+        # an episodic model's convention where it is not the default (records from before it existed stay equal)
+        restarts=None if getattr(problem, "restarts", "sampled") == "sampled" else problem.restarts,
         algorithm=algorithm.name,
         params=params,
         env=_plain_env(env),

@@ -106,3 +106,20 @@ def test_execute_runs_a_config_as_dgtd_run_does(tmp_path, run_cli, monkeypatch):
     assert (tmp_path / "api" / "config.toml").read_text().replace("/api", "/cli").replace("progress = false", "") == (
         tmp_path / "cli" / "config.toml"
     ).read_text().replace("progress = false", "")
+
+
+def test_results_written_before_the_episodic_convention_existed_are_still_this_run(tmp_path, run_cli):
+    """A directory whose summary.json predates `restarts` (no such key) holds the same run: rerunning it into its
+    own directory needs no --overwrite, as before."""
+    import json
+
+    args = ("run", "paper-example-1", "-T", 100, "--no-plots", "--no-progress", "--out", tmp_path / "o")
+    code, _, err = run_cli(*args)
+    assert code == 0, err
+    summary = tmp_path / "o" / "summary.json"
+    data = json.loads(summary.read_text())
+    for key in ("restarts", "loss", "burst", "reweight"):
+        data["config"].pop(key, None)
+    summary.write_text(json.dumps(data))
+    code, _, err = run_cli(*args)
+    assert code == 0, err
