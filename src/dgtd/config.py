@@ -210,7 +210,8 @@ def unflat(values: dict, output: Output | None = None) -> RunConfig:
 
 
 def with_flat(config: RunConfig, **values) -> RunConfig:
-    """``config`` with fields replaced by their flat names (None clears one: the scenario's value again)."""
+    """``config`` with fields replaced by their flat names, its output's too (None clears a run field: the scenario's
+    value again)."""
     return unflat({**flat(config), **values}, config.output)
 
 
@@ -391,13 +392,7 @@ def resolve(config: RunConfig):
     own = field_types(type(algorithm))
     resolved = dict(
         vars(spec),
-        iterations=settings.iterations,
-        seeds=settings.seeds,
-        seed=settings.seed,
-        checkpoints=settings.checkpoints,
-        tail_fraction=settings.tail_fraction,
-        block_size=settings.block_size,
-        backend=settings.backend,
+        **asdict(settings),
         graph=graph,
         edge_prob=edge_prob,
         loss=loss,

@@ -51,8 +51,8 @@ from dgtd.config import (
     check_type,
     closest,
     field_types,
-    flat,
     unflat,
+    with_flat,
 )
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.topologies import TOPOLOGIES
@@ -227,9 +227,7 @@ def override(exp: Experiment, values: dict) -> Experiment:
             sweep[key] = value
         else:
             raise _unknown(key, [*FLAT, *SWEEP_TYPES], "the command-line options")
-    exp = replace(
-        exp, config=unflat({**flat(config), **asdict(config.output), **run}), sweep=replace(exp.sweep, **sweep)
-    )
+    exp = replace(exp, config=with_flat(config, **run), sweep=replace(exp.sweep, **sweep))
     check_choices(exp)
     return exp
 
@@ -245,7 +243,7 @@ def absolute_paths(config: RunConfig) -> RunConfig:
     graph = config.network.graph
     if graph is not None and graph not in TOPOLOGIES:
         over["graph"] = str(Path(graph).resolve())
-    return unflat({**flat(config), **asdict(config.output), **over})
+    return with_flat(config, **over)
 
 
 def _drop_none(d: dict) -> dict:

@@ -8,7 +8,8 @@ those of a run without loss: a loss of 0 delivers exactly what `Perfect` deliver
 A lost message leaves agent i with the neighbours it did hear: i may hear j while j misses i, so the mean Laplacian
 of what is heard, E[L(k)]_ij = -P(i hears j), is no longer symmetric (`mean_laplacian`), nor is the mean Metropolis
 mixing (`mean_metropolis`). Every communicating method here then weights agent i's reward by the left null vector
-of its mean mixing Laplacian (`agent_weights`; docs/links.md derives it), and converges to the w* of those weights.
+of its mean mixing Laplacian (`dgtd.problems.exact.agent_weights`; docs/links.md derives it), and converges to the
+w* of those weights.
 """
 
 from __future__ import annotations
@@ -239,13 +240,3 @@ def mean_metropolis(network, loss: np.ndarray, arcs: Arcs) -> np.ndarray:
         inv = 1.0 / (1.0 + np.maximum(d_i[:, None], d_j[None, :]))
         W[i, j] += q[a] * float(x_i @ inv @ y)
     return np.diag(W.sum(axis=1)) - W
-
-
-def agent_weights(mean_mixing: np.ndarray) -> np.ndarray:
-    """pi (N,), sum 1: the left null vector of a mean mixing Laplacian (pi^T L = 0), the weight each agent's reward
-    gets in the point a method that mixes with it converges to (uniform for a symmetric one)."""
-    N = mean_mixing.shape[0]
-    lhs = np.vstack([mean_mixing.T, np.ones((1, N))])
-    rhs = np.concatenate([np.zeros(N), [1.0]])
-    pi, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
-    return pi

@@ -81,6 +81,12 @@ class Problem:
         return self.R_sample[..., None]
 
     @property
+    def skipped_terminals(self) -> np.ndarray | None:
+        """The terminal flags a Markovian sampler reads where restarts are not samples (``restarts`` 'skipped'): a
+        trajectory reaching one goes on from the restart's state; else None."""
+        return self.terminal if self.restarts == "skipped" else None
+
+    @property
     def continuing(self) -> np.ndarray:
         """c (S,): 0 at a terminal state, 1 elsewhere; gamma(s, s') = gamma c(s) c(s')."""
         return np.ones(self.P.shape[0]) if self.terminal is None else 1.0 - self.terminal

@@ -202,11 +202,6 @@ def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, sn: np.ndarray, u_re
     return reward_from_uniform(mean, problem.sigma, problem.reward_noise, u_reward)
 
 
-def skipped_restarts(problem: Problem):
-    """The terminal flags where an episodic task's restarts are not samples (`Problem.restarts`), else None."""
-    return problem.terminal if getattr(problem, "restarts", "sampled") == "skipped" else None
-
-
 def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dict, current):
     """NumPy reference: turn a block of uniforms into a `Block`; returns (block, current state or None)."""
     S = problem.n_states
@@ -217,7 +212,7 @@ def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dic
         s, a, sn = (np.empty(U["state"].shape[:-1], np.int64) for _ in range(3))
         for t in range(T):
             s[t], a[t], sn[t] = pick_states(tables, S, U["state"][t], current)
-            current = next_current(tables, S, skipped_restarts(problem), sn[t], U["state"][t][..., 0])
+            current = next_current(tables, S, problem.skipped_terminals, sn[t], U["state"][t][..., 0])
     r = rewards(problem, s, a, sn, U.get("reward"))
     up = network.masks_from_uniforms(U["edge"]) if "edge" in U else None
     return Block(s, a, sn, np.ascontiguousarray(r, dtype=np.float64), up), current
@@ -252,7 +247,7 @@ class ModelSource:
             mode=sampling.mode,
             reward_noise=problem.reward_noise not in ("none", "transition"),
             random_edges=not network.fixed,
-            restart_uniform=sampling.mode == "markov" and skipped_restarts(problem) is not None,
+            restart_uniform=sampling.mode == "markov" and problem.skipped_terminals is not None,
         )
         self.markov = sampling.mode == "markov"
         self.backend = backend

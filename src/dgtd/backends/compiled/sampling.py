@@ -443,9 +443,8 @@ def sample_args(ctx, blk, B: int, channel=None):
 def restart_flags(problem, markov: bool) -> np.ndarray:
     """The terminal flags (S,) a Markovian sampler reads where an episodic task's restarts are not samples
     (`Problem.restarts`), else none (an i.i.d. sampler skips them through d's tables alone)."""
-    if markov and problem.restarts == "skipped":
-        return np.ascontiguousarray(problem.terminal, np.bool_)
-    return np.zeros(0, np.bool_)
+    flags = problem.skipped_terminals
+    return np.ascontiguousarray(flags, np.bool_) if markov and flags is not None else np.zeros(0, np.bool_)
 
 
 def frozen(x, dtype) -> np.ndarray:
