@@ -54,13 +54,22 @@ class NetworkConfig:
     probability that a message is lost (`dgtd.channels.lossy.loss_per_arc`: one for all, one per receiving agent,
     or a file of 'i j p' lines), none by default; ``burst``, the mean length of a burst of losses (per arc, with the
     same long-run loss: `dgtd.channels.Lossy`), none by default (each message lost independently); ``reweight``,
-    whether each agent weighs what it hears by 1 / (1 - loss), which gives the Laplacian methods back w*."""
+    whether each agent weighs what it hears by 1 / (1 - loss), which gives the Laplacian methods back w*; and
+    `dgtd.channels.Imperfect`'s late, asleep and compressed messages: ``delay`` (the most steps a message is late,
+    0 by default), ``wake`` (each agent's probability of being awake at a step: one for all or one per agent, 1 by
+    default), ``bits`` (per number sent, 64 by default: exact), ``top_k`` (the coordinates a message keeps, all by
+    default) and ``error_feedback`` (CHOCO's public copies, off by default)."""
 
     graph: str | None = None
     edge_prob: float | None = None
     loss: float | list | str | None = None
     burst: float | None = None
     reweight: bool | None = None
+    delay: int | None = None
+    wake: float | list | str | None = None
+    bits: int | None = None
+    top_k: int | None = None
+    error_feedback: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -382,7 +391,8 @@ def resolve(config: RunConfig):
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph, problem.n_agents, edge_prob)
     loss = _loss(spec.loss)
-    channel_for(loss, spec.burst, network, spec.reweight)  # checked here, with the network it applies to
+    wake = _loss(spec.wake)  # a probability or a list, as a loss is written
+    channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # checked here, with its network
     algorithm = build_algorithm(spec, algorithm)
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
@@ -398,6 +408,7 @@ def resolve(config: RunConfig):
         loss=loss,
         burst=spec.burst,
         reweight=spec.reweight,
+        wake=wake,
         **{k: getattr(algorithm, k) if k in own else None for k in ALGORITHM_FIELDS},
         sampling=sampling.mode,
         shared=sampling.shared,
@@ -435,25 +446,44 @@ def _loss(loss):
     return values[0] if len(values) == 1 else values
 
 
-def channel_for(loss, burst, network, reweight=None):
-    """The channel of a run: `dgtd.channels.Perfect`, or `dgtd.channels.Lossy` with each arc's loss probability and
-    its bursts."""
-    from dgtd.channels import Arcs, Lossy, Perfect
+def channel_for(loss, burst, network, reweight=None, links: dict | None = None):
+    """The channel of a run: `dgtd.channels.Perfect`, `dgtd.channels.Lossy` with each arc's loss probability and its
+    bursts, or with any of `dgtd.channels.Imperfect`'s ``links`` (delay, wake, bits, top_k, error_feedback) set,
+    an `Imperfect` over those links."""
+    from dgtd.channels import Arcs, Imperfect, Lossy, Perfect
+    from dgtd.channels.imperfect import check_links, wake_per_agent
     from dgtd.channels.lossy import loss_per_arc
 
+    links = {k: v for k, v in (links or {}).items() if v is not None}
+    wake = wake_per_agent(links.pop("wake", None), network.n_nodes)
+    check_links(links.get("delay", 0), wake, links.get("bits", 64), links.get("top_k"), links.get("error_feedback"))
+    imperfect = wake is not None or any(links.get(k) for k in ("delay", "top_k", "error_feedback"))
+    imperfect = imperfect or links.get("bits", 64) < 64
+    arcs = Arcs.of(network.base.edges, network.n_nodes)
     if loss is None:
         if burst is not None:
             raise DgtdInputError("burst sets how lost messages bunch up; give the loss too (--loss P --burst L)")
         if reweight:
             raise DgtdInputError("reweight corrects for lost messages; give the loss too (--loss P --reweight)")
-        return Perfect()
-    return Lossy(loss_per_arc(loss, Arcs.of(network.base.edges, network.n_nodes)), burst, bool(reweight))
+        if not imperfect:
+            return Perfect()
+    lossy = Lossy(loss_per_arc(0.0 if loss is None else loss, arcs), burst, bool(reweight))
+    if not imperfect:
+        return lossy
+    return Imperfect(lossy, wake=wake, **{k: v for k, v in links.items() if k != "error_feedback" or v})
+
+
+LINK_FIELDS = ("delay", "wake", "bits", "top_k", "error_feedback")  # `Imperfect`'s, in [network]
+
+
+def _links(spec, wake) -> dict:
+    return {k: wake if k == "wake" else getattr(spec, k) for k in LINK_FIELDS}
 
 
 def make_channel(config: RunConfig, network):
     """The channel a resolved config's run uses, over its ``network`` (`resolve`'s)."""
     n = config.network
-    return channel_for(n.loss, n.burst, network, n.reweight)
+    return channel_for(n.loss, n.burst, network, n.reweight, {k: getattr(n, k) for k in LINK_FIELDS})
 
 
 DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given

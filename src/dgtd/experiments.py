@@ -6,7 +6,7 @@ and a ``[sweep]`` table::
     [problem]                           # exactly one of scenario, problem_file, data or an [problem.env] table
     scenario = "paper-example-1"
     [network]
-    edge_prob = 0.5                     # and the links: loss, burst, reweight (docs/links.md)
+    edge_prob = 0.5                     # and the links: loss, burst, delay, wake, bits, ... (docs/links.md)
     [algorithm]                         # its name, and any field of its config
     name = "dgtd"
     alpha0 = 10.0

@@ -280,6 +280,13 @@ LINKS = {
     "a burst without a loss": (("--burst", "5"), "give the loss too"),
     "a burst that is not a number": (("--loss", "0.2", "--burst", "long"), "burst"),
     "reweighting without a loss": (("--reweight",), "give the loss too"),
+    "a negative delay": (("--delay", "-1"), "delay: the most steps"),
+    "zero bits": (("--bits", "0"), "bits: the bits a number"),
+    "a wake probability of 0": (("--wake", "0"), "wake: the probability"),
+    "a wake list of the wrong length": (("--wake", "0.5,0.5"), "one per agent (5 here"),
+    "top-k of 0": (("--top-k", "0"), "top_k"),
+    "error feedback without compression": (("--error-feedback",), "give --bits B"),
+    "error feedback with delay": (("--bits", "4", "--error-feedback", "--delay", "2"), "not supported"),
 }
 
 

@@ -31,12 +31,23 @@ def assert_same_run(a, b):
         np.testing.assert_array_equal(a.info["counts"][name], b.info["counts"][name], err_msg=name)
     np.testing.assert_array_equal(a.info["messages"], b.info["messages"])
     np.testing.assert_array_equal(a.info["bits"], b.info["bits"])
+    for name in a.info.get("per_agent", {}):
+        np.testing.assert_array_equal(a.info["per_agent"][name], b.info["per_agent"][name])
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("sampling", ["iid", "markov"])
-@pytest.mark.parametrize("loss, burst", [(None, None), (0.3, None), (0.3, 5.0)])
-def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, loss, burst):
+@pytest.mark.parametrize(
+    "loss, burst, links",
+    [
+        (None, None, {}),
+        (0.3, None, {}),
+        (0.3, 5.0, {}),
+        (0.3, None, dict(delay=3, wake=0.7, bits=3)),  # copies, messages in flight and the step carried
+        (None, None, dict(bits=2, error_feedback=True, top_k=1)),
+    ],
+)
+def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, loss, burst, links):
     # random edges, reward noise, Markov states and lost messages: every stream and the trajectories' current states
     spec = unflat(
         dict(
@@ -49,6 +60,7 @@ def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, 
             edge_prob=0.7,
             loss=loss,
             burst=burst,
+            **links,
             checkpoints=15,
             block_size=300,
         )

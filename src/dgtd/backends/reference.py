@@ -23,5 +23,8 @@ def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, 
         w_sum += algorithm.estimate(state)
         up = None if blk.up is None else blk.up[t]
         inbox, channel_state = channel.deliver(channel_state, ctx.arcs, algorithm.sends(state), up)
-        state = algorithm.update(state, blk.sample(t, Phi, ratio, ctx.gamma, continuing), inbox, alphas[t])
+        new = algorithm.update(state, blk.sample(t, Phi, ratio, ctx.gamma, continuing), inbox, alphas[t])
+        if inbox.awake is not None:  # an asleep agent keeps its state (`dgtd.channels.Imperfect`)
+            new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, state))
+        state = new
     return state, channel_state, w_sum

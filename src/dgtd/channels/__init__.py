@@ -9,15 +9,17 @@ one and not the other.
 - `Perfect` (the default, and the paper's network, section 2.3): every link up at step k carries every message both
   ways, at once and exactly.
 - `Lossy`: each message on arc j -> i is lost with the arc's own probability (`dgtd.channels.lossy`).
+- `Imperfect`: `Lossy`'s links with late, asleep and compressed messages (`dgtd.channels.imperfect`).
 
 Each channel has this plain NumPy definition and a compiled twin in `dgtd.backends.compiled.channel`, tested equal.
 """
 
 from dgtd.channels.arcs import Arcs
+from dgtd.channels.imperfect import Imperfect
 from dgtd.channels.inbox import Inbox
 from dgtd.channels.lossy import Lossy
 from dgtd.channels.perfect import ChannelState, Perfect
 
-CHANNELS = {cls.name: cls for cls in (Perfect, Lossy)}
+CHANNELS = {cls.name: cls for cls in (Perfect, Lossy, Imperfect)}
 
-__all__ = ["Arcs", "CHANNELS", "ChannelState", "Inbox", "Lossy", "Perfect"]
+__all__ = ["Arcs", "CHANNELS", "ChannelState", "Imperfect", "Inbox", "Lossy", "Perfect"]

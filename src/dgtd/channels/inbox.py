@@ -21,13 +21,25 @@ class Inbox:
       heard: sum_j W_ij(k) x_j = x_i - metropolis(x)_i, a doubly stochastic mix when every link works both ways;
     - ``total(x)``: sum_j x_j, and ``count()``: d_i.
 
-    x_i is what agent i itself sent at step k (its own current value).
+    x_i is what agent i itself sent at step k (its own current value). Where a channel puts agents to sleep,
+    ``awake`` (B, N) says who is awake: an asleep agent does not update (the backends keep its state as it was).
     """
 
-    def __init__(self, arcs: Arcs, sent: dict, heard: np.ndarray, received: dict | None = None, weights=None):
+    def __init__(
+        self,
+        arcs: Arcs,
+        sent: dict,
+        heard: np.ndarray,
+        received: dict | None = None,
+        weights=None,
+        awake=None,
+        degrees=None,
+    ):
         self.arcs, self.sent, self.received = arcs, sent, received or {}
         self.heard = np.asarray(heard, dtype=np.float64)
         self.weights = weights  # (2E,) what ``laplacian`` weighs each arc's term by, where a channel reweighs
+        self.awake = awake
+        self.degrees = degrees  # (B, N) d_i, where the inbox holds only some agents' arcs (an MPI rank's)
 
     def _arrived(self, name: str) -> np.ndarray:
         """What each arc delivered of message ``name`` (B, 2E, q), whether or not it was heard."""
@@ -42,6 +54,8 @@ class Inbox:
 
     def count(self) -> np.ndarray:
         """d_i, (B, N): how many messages of each name agent i heard."""
+        if self.degrees is not None:
+            return self.degrees
         return self.arcs.into(self.heard[:, :, None])[:, :, 0]
 
     def laplacian(self, name: str) -> np.ndarray:

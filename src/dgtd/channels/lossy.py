@@ -109,6 +109,18 @@ class Lossy:
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state): arcs of the edges up (B, E) (None: every edge) that keep the message."""
         B = next(iter(sent.values())).shape[0] if sent else state.messages.shape[0]
+        kept, words, links = self.arcs_up(state, arcs, up, B)
+        heard = kept.astype(np.float64)
+        arrived = heard.sum(axis=1)
+        numbers = sum(x.shape[-1] for x in sent.values())
+        weights = self.arc_weights if self.reweight else None
+        return Inbox(arcs, sent, heard, weights=weights), ChannelState(
+            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words, links
+        )
+
+    def arcs_up(self, state: ChannelState, arcs: Arcs, up: np.ndarray | None, B: int):
+        """(the arcs that carry a message at this step (B, 2E): their edge up (B, E; None: every edge) and their
+        message kept; the channel stream's advanced words; the links' new states), from one uniform per arc."""
         u, words = uniforms(state.words, arcs.n_arcs)
         links = state.links
         if self.burst is None:
@@ -117,13 +129,7 @@ class Lossy:
             losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < self.enter)
             links, kept = losing.astype(np.uint8), ~losing
         edges = np.ones((B, arcs.n_arcs), bool) if up is None else Arcs.both_ways(up)
-        heard = (edges & kept).astype(np.float64)
-        arrived = heard.sum(axis=1)
-        numbers = sum(x.shape[-1] for x in sent.values())
-        weights = self.arc_weights if self.reweight else None
-        return Inbox(arcs, sent, heard, weights=weights), ChannelState(
-            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words, links
-        )
+        return edges & kept, words, links
 
     def describe(self) -> str:
         lo, hi = float(self.loss.min()), float(self.loss.max())

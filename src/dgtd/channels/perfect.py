@@ -16,12 +16,26 @@ BITS_PER_NUMBER = 64  # a message's coordinates are float64
 class ChannelState(NamedTuple):
     """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,), the
     PCG64 words (B, 4) of the seed's channel stream where the channel draws events (B, 0 where it draws none), and
-    each arc's state where links have one (B, 2E: 1 while a bursty link is in its losing state; else B, 0)."""
+    each arc's state where links have one (B, 2E: 1 while a bursty link is in its losing state; else B, 0).
+
+    A channel whose receivers keep copies of what they heard (`dgtd.channels.Imperfect`: late, asleep or compressed
+    messages) also carries, else holds empty arrays: ``copies`` (B, 2E, Q), what each arc's receiver holds of its
+    sender's messages (the Q numbers of all its messages side by side); ``since`` (B, 2E), the step that copy was
+    sent at (-1: nothing heard yet); the messages in flight, ``pending`` (B, 2E, D + 1, Q), each in slot (step sent)
+    mod (D + 1) with the step it arrives at, ``due``, and was sent at, ``posted`` (B, 2E, D + 1; -1: none); the step
+    ``step`` (B,); and ``per_arc`` (B, 2E), how many times each arc delivered."""
 
     messages: np.ndarray
     bits: np.ndarray
     words: np.ndarray = np.zeros((0, 0), np.uint64)
     links: np.ndarray = np.zeros((0, 0), np.uint8)
+    copies: np.ndarray = np.zeros((0, 0, 0))
+    since: np.ndarray = np.zeros((0, 0), np.int64)
+    pending: np.ndarray = np.zeros((0, 0, 0, 0))
+    due: np.ndarray = np.zeros((0, 0, 0), np.int64)
+    posted: np.ndarray = np.zeros((0, 0, 0), np.int64)
+    step: np.ndarray = np.zeros(0, np.int64)
+    per_arc: np.ndarray = np.zeros((0, 0))
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from dgtd.cli.options import run_options
+from dgtd.cli.options import LINK_OPTIONS, run_options
 from dgtd.config import CHOICES, Output
 from dgtd.errors import DgtdInputError, UserCodeError
 from dgtd.experiments import EXECUTORS, TABLE_FORMATS, SweepOptions
@@ -163,6 +163,10 @@ def _run_job(job, t_start: float) -> None:
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
+    from dgtd.backends import mpi
+
+    if mpi.rank() != 0:  # rank 0 writes the results and reports them
+        return
     t_ran = time.perf_counter()
     if job.config.output.plots:
         print("writing the results, then drawing the figures ...", file=sys.stderr, flush=True)
@@ -304,8 +308,8 @@ def final_table(result) -> str:
 
 @cli.command()
 @click.argument("scenario", required=False)
-@run_options("algorithm", "problem_file", "graph", "edge_prob", "loss", "burst", "reweight", "kappa", "rho", "restarts")
-def solve(scenario, algorithm, problem_file, graph, edge_prob, loss, burst, reweight, kappa, rho, restarts):
+@run_options("algorithm", "problem_file", "graph", "edge_prob", *LINK_OPTIONS, "kappa", "rho", "restarts")
+def solve(scenario, algorithm, problem_file, graph, edge_prob, kappa, rho, restarts, **links):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes), over the network and its links
     (--loss: where each method converges when messages are lost)."""
@@ -324,9 +328,7 @@ def solve(scenario, algorithm, problem_file, graph, edge_prob, loss, burst, rewe
             "problem_file": problem_file,
             "graph": graph,
             "edge_prob": edge_prob,
-            "loss": loss,
-            "burst": burst,
-            "reweight": reweight,
+            **links,
             "kappa": kappa,
             "rho": rho,
             "restarts": restarts,
@@ -520,11 +522,23 @@ def _note(message, category, filename, lineno, file=None, line=None) -> None:
         click.echo(warnings.formatwarning(message, category, filename, lineno, line).rstrip(), err=True)
 
 
+def _quiet_ranks() -> None:
+    """In an mpiexec job, every rank but 0 prints nothing: the job says each thing once, from rank 0 (a rank's
+    watchdog writes its own line directly: `dgtd.backends.mpi.Watchdog`)."""
+    from dgtd.backends import mpi
+
+    if mpi.launched() and mpi.rank() != 0:
+        import os
+
+        sys.stdout = sys.stderr = open(os.devnull, "w")  # noqa: SIM115  (for the life of the process)
+
+
 def main(argv=None) -> None:
     """Entry point: one line and exit code 2 for bad input, never a traceback."""
     import warnings
 
     DEBUG["on"] = False
+    _quiet_ranks()
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _note

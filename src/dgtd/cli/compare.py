@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.cli.options import ENV_OPTIONS, run_options
+from dgtd.cli.options import ENV_OPTIONS, LINK_OPTIONS, run_options
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -55,9 +55,7 @@ def _names(text: str | None) -> tuple[str, ...]:
     "checkpoints",
     "problem_file",
     "graph",
-    "loss",
-    "burst",
-    "reweight",
+    *LINK_OPTIONS,
     *ENV_OPTIONS,
 )
 def compare(

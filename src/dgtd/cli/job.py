@@ -8,6 +8,7 @@ the results (`dgtd.run.results.write_results`) when it ends, after which the che
 from __future__ import annotations
 
 import json
+import os
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -86,9 +87,15 @@ class PreparedRun:
         def advance(n: int) -> None:
             bars[0].update(n)
 
+        from dgtd.backends import mpi
+
         every = self.config.output.checkpoint_every
         ckpt = self.out / CHECKPOINT
         self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
+        if mpi.spread():  # a rank that waits too long for the others ends with one line (`mpi.Watchdog`)
+            again = f"rerun with --resume {self.out}" if every else "rerun"
+            mpi.WATCHDOG.start(float(os.environ.get("DGTD_MPI_TIMEOUT", mpi.TIMEOUT)), again)
+        saving = mpi.rank() == 0  # one copy of the run's files: rank 0's (every rank holds the same state)
         try:
             return run_loop(
                 self.problem,
@@ -99,7 +106,7 @@ class PreparedRun:
                 progress=advance,
                 source=self.source,
                 checkpoint_every=every,
-                on_checkpoint=lambda snap: save_checkpoint(ckpt, snap, self.record),
+                on_checkpoint=(lambda snap: save_checkpoint(ckpt, snap, self.record)) if saving else None,
                 resume=self.snapshot,
                 kernel_ready=start_bar,
                 channel=make_channel(self.resolved, self.network),
@@ -162,6 +169,8 @@ def execute(config: RunConfig):
     """Run ``config`` as ``dgtd run`` does, into its output directory (config.toml, the results, and figures if
     ``config.output.plots``), and return the `dgtd.run.loop.RunResult`. With ``output.resume`` it continues the run
     saved there; a finished one is read back (`dgtd.run.results.read_results`)."""
+    from dgtd.backends import mpi
+
     job = prepare(config)
     try:
         if job.finished:
@@ -169,7 +178,8 @@ def execute(config: RunConfig):
 
             return read_results(job.out)
         result = job.run()
-        job.save(result)
+        if mpi.rank() == 0:
+            job.save(result)
         return result
     finally:
         job.release()
@@ -187,27 +197,50 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
             "name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
             "module:make_env, --data FILE, or an experiment file"
         )
+    from dgtd.backends import mpi
+
+    if mpi.launched() and config.run.backend is None:  # the ranks run the reference's arithmetic
+        config = replace(config, run=replace(config.run, backend="numpy"))
     problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(config))
     out = Path(config.output.out) if config.output.out else Path("runs") / problem.name
     out = out.resolve()
     record = json.loads(json.dumps(spec_record(resolved)))
-    run = PreparedRun(
-        config,
-        problem,
-        network,
-        algorithm,
-        sampling,
-        settings,
-        resolved,
-        out,
-        record,
-        owner=Owner(out, "run", config.output.overwrite),
-    )
+    if mpi.spread():  # what the ranks cannot run, said before anything starts
+        mpi.check_supported(algorithm, make_channel(resolved, network), problem.n_agents, settings.backend)
+    if mpi.rank() != 0:  # rank 0 claims the directory and writes; the others read what they resume from
+        run = PreparedRun(config, problem, network, algorithm, sampling, settings, resolved, out, record)
+        said = mpi.world().bcast(None, root=0)
+        if said is not None:
+            raise DgtdInputError(said)
+        if config.output.resume and (out / CHECKPOINT).exists():
+            run.snapshot = load_checkpoint(out / CHECKPOINT)[0]
+        run.finished = config.output.resume and run.snapshot is None
+        return run
     try:
-        return _claim(run, config.output, out, record)
-    except BaseException:
-        run.release()
+        run = PreparedRun(
+            config,
+            problem,
+            network,
+            algorithm,
+            sampling,
+            settings,
+            resolved,
+            out,
+            record,
+            owner=Owner(out, "run", config.output.overwrite),
+        )
+        try:
+            run = _claim(run, config.output, out, record)
+        except BaseException:
+            run.release()
+            raise
+    except DgtdInputError as e:
+        if mpi.launched():
+            mpi.world().bcast(str(e), root=0)
         raise
+    if mpi.launched():
+        mpi.world().bcast(None, root=0)
+    return run
 
 
 def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:

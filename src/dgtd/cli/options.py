@@ -160,6 +160,43 @@ def _run_options() -> dict:
                 "methods (dgtd, pd-td) then converge to w* under any --loss. Default: no.",
             ),
             click.option(
+                "--delay",
+                type=int,
+                default=None,
+                metavar="D",
+                help="Each message arrives d steps late, d uniform in 0..D; a receiver uses the newest it holds from "
+                "each neighbour. Default: 0.",
+            ),
+            click.option(
+                "--wake",
+                type=str,
+                default=None,
+                metavar="Q|Q1,...,QN",
+                help="Each agent is awake at a step with probability Q (or Qi, one per agent); asleep, it neither "
+                "updates nor sends, and its neighbours use the last they heard. Default: 1.",
+            ),
+            click.option(
+                "--bits",
+                type=int,
+                default=None,
+                metavar="B",
+                help="Each number sent is rounded stochastically to B bits, the message's scale sent alongside. "
+                "Default: 64 (exact).",
+            ),
+            click.option(
+                "--top-k",
+                type=int,
+                default=None,
+                metavar="K",
+                help="Each message keeps its K largest coordinates (with their indices). Default: all.",
+            ),
+            click.option(
+                "--error-feedback/--no-error-feedback",
+                default=None,
+                help="Send the compressed difference from a copy both ends keep (CHOCO-gossip), so that what is "
+                "not sent now is sent later. Default: no.",
+            ),
+            click.option(
                 "--kappa",
                 type=float,
                 default=None,
@@ -262,5 +299,7 @@ def env_options() -> list:
 
 RUN_OPTIONS = _run_options()
 """Flat field name (or [env] flag) -> its option: the one definition of every run option."""
+LINK_OPTIONS = ("loss", "burst", "reweight", "delay", "wake", "bits", "top_k", "error_feedback")
+"""The links' options (`dgtd.config.NetworkConfig`), which run, sweep, solve and compare all take."""
 ENV_OPTIONS = tuple(_named(env_options()))
 """The options of a user's simulator or recordings (--env, --features, ..., --data, --gamma)."""

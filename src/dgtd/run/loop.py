@@ -193,6 +193,8 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
     algorithm, report = algorithm.prepare(moments, network, fixed)  # the algorithm as it runs here (DGTD's boxes)
     if fixed_point_unknown(network, channel, algorithm):
         report = {**report, "fixed_point": FIXED_POINT_UNKNOWN.format(n=exact.DENSE_N)}
+    elif not getattr(channel, "linear", True) and algorithm.messages:
+        report = {**report, "fixed_point": FIXED_POINT_NONLINEAR}
     T = int(settings.iterations)
     tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
     ctx = Context(problem, network, algorithm, sampling, tables, arcs, T - tail_window, channel)
@@ -202,6 +204,12 @@ def prepare(problem: Problem, network: RandomEdges, algorithm, sampling: Samplin
 FIXED_POINT_UNKNOWN = (
     "not computed: where messages are lost, the fixed point is solved densely, for at most {n} agents; the errors "
     "are against w*, which the run may not reach"
+)
+
+
+FIXED_POINT_NONLINEAR = (
+    "not computed: top-k without error feedback drops the smaller coordinates, a choice that depends on the values, "
+    "so the mean dynamics are not linear; the errors are against the fixed point of the links without it"
 )
 
 
@@ -287,7 +295,11 @@ def run(
             "this run's samples come from a simulator whose state cannot be saved, so it cannot be "
             "resumed from a checkpoint: leave out --checkpoint-every (checkpoint_every)"
         )
-    kernel = kernel_for(settings.backend, algorithm.name)
+    from dgtd.backends import mpi
+
+    if mpi.spread():  # ranks of an mpiexec job: the agents spread over them (`dgtd.backends.mpi`)
+        mpi.check_supported(algorithm, ctx.channel, N, settings.backend)
+    kernel = mpi.run_block if mpi.spread() else kernel_for(settings.backend, algorithm.name)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N, q)
     channel = ctx.channel.init(B, ctx.arcs, settings.seed)
@@ -323,6 +335,7 @@ def run(
     sum_trace = np.zeros((C, B, n_est, q)) if B * n_est * q * C <= SUM_TRACE_MAX else None
     # the channel's counts, frozen for a seed once it diverges (a stopped seed sends nothing)
     messages, bits, diverged_at = np.zeros(B), np.zeros(B), np.full(B, -1, dtype=np.int64)
+    per_arc = np.zeros((B, 0))  # how often each arc delivered, where the channel counts it (`Imperfect`)
     w0_norm = 0.0 if problem.w0 is None else float(np.abs(problem.w0).max())
     limit = DIVERGENCE_FACTOR * max(1.0, float(np.abs(w_star).max()), w0_norm)
     k, c, seconds_before = 0, 0, 0.0
@@ -340,6 +353,7 @@ def run(
         messages, bits = np.array(resume["messages"], dtype=np.float64), np.array(resume["bits"], dtype=np.float64)
         saved = resume["channel"]  # (a checkpoint of a run without channel events holds no stream words)
         channel = ChannelState(*(np.array(saved[name]) for name in ChannelState._fields if name in saved))
+        per_arc = np.array(resume.get("per_arc", per_arc), dtype=np.float64)
         diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
         source.set_state(resume["source"])
@@ -378,6 +392,8 @@ def run(
         sums = {"all": w_sum}
         live = diverged_at < 0
         messages, bits = np.where(live, channel.messages, messages), np.where(live, channel.bits, bits)
+        if channel.per_arc.size:
+            per_arc = np.where(live[:, None], channel.per_arc, per_arc if per_arc.size else channel.per_arc)
         if progress is not None:
             progress(k1 - k)
         k = k1
@@ -439,6 +455,7 @@ def run(
                         "messages": messages,
                         "bits": bits,
                         "channel": channel._asdict(),
+                        "per_arc": per_arc,
                         "diverged_at": diverged_at,
                         "counts": counts,
                         **({} if tail_base is None else {"tail_base": tail_base}),
@@ -471,6 +488,7 @@ def run(
             "messages": messages,
             "bits": bits,
             "counts": counts,
+            **per_agent_counts(ctx, per_arc),
             # how far DGTD's regularised saddle point (rho > 0) is from w* (|.|_inf relative); lost messages move the
             # fixed point too, which the results report as w_fixed
             "regularisation_shift": float(exact.relative_error(w_ref, w_star).max())
@@ -480,6 +498,17 @@ def run(
             "kernel_seconds": kernel_seconds,
         },
     )
+
+
+def per_agent_counts(ctx, per_arc: np.ndarray) -> dict:
+    """{"per_agent": {"messages", "bits"}}: what each agent sent that arrived (B, N), where the channel counts each
+    arc's deliveries (`dgtd.channels.Imperfect`), else nothing."""
+    if per_arc.size == 0:
+        return {}
+    M, q = len(ctx.algorithm.messages), ctx.problem.n_features
+    sent = np.zeros((per_arc.shape[0], ctx.arcs.n_agents))
+    np.add.at(sent, (slice(None), ctx.arcs.src), per_arc)
+    return {"per_agent": {"messages": sent * M, "bits": sent * M * ctx.channel.vector_bits(q)}}
 
 
 def stop_diverged(state, sums, w: np.ndarray, limit: float, diverged_at: np.ndarray, k: int):

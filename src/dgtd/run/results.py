@@ -191,6 +191,12 @@ def summary(result: RunResult, config: dict) -> dict:
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "messages": result.info["messages"].tolist(),
         "bits": result.info["bits"].tolist(),
+        # what each agent sent that arrived, mean over seeds, where the channel counts it per link
+        **(
+            {f"{k}_per_agent": v.mean(axis=0).tolist() for k, v in result.info["per_agent"].items()}
+            if "per_agent" in result.info
+            else {}
+        ),
         "stationary_distribution": None if result.info["d"] is None else result.info["d"].tolist(),
         "seconds": result.seconds,
         "config": config,

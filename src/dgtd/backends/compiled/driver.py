@@ -28,6 +28,7 @@ from numba import get_num_threads, njit, prange
 from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear, metropolis_weights
 from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
+from dgtd.backends.compiled.held import carry
 from dgtd.backends.compiled.sampling import (
     _step_edges,
     _step_observations,
@@ -132,6 +133,94 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
             for i in range(L):
                 _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
         n_up[b] += arcs_up
+
+
+def _seeds_held(
+    p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, links, held, b0, b1
+):
+    """`_seeds` over a channel whose receivers hold copies (`dgtd.backends.compiled.held`): at each step the channel
+    first carries the messages (`carry`), then each awake learner steps, reading its neighbours' copies in rows
+    N + a; an asleep one keeps its state and reports its estimate (message 0, w, for every algorithm that sends)."""
+    (
+        fused,
+        rng,
+        markov,
+        current,
+        d_prob,
+        d_alias,
+        sa_prob,
+        sa_alias,
+        terminal,
+        R_sample,
+        sigma,
+        noise,
+        p_edge,
+        loss,
+        links_state,
+        s_blk,
+        a_blk,
+        sn_blk,
+        r_blk,
+        up_blk,
+        n_up,
+    ) = sampler
+    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work, awake, late, rounding, value, chosen = (
+        space
+    )
+    indptr, eid, agent_of = graph[0], graph[2], graph[3]
+    L, T, M = sums.shape[1], alphas.shape[0], buffers.shape[1]
+    N = r_t.shape[1]
+    x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
+    for b in range(b0, b1):
+        for t in range(T):
+            n_up[b] += _step_samples(
+                b,
+                0,
+                t,
+                fused,
+                rng,
+                markov,
+                current,
+                d_prob,
+                d_alias,
+                sa_prob,
+                sa_alias,
+                terminal,
+                R_sample,
+                sigma,
+                noise,
+                p_edge,
+                loss,
+                links_state,
+                s_blk,
+                a_blk,
+                sn_blk,
+                r_blk,
+                up_blk,
+                s_t,
+                a_t,
+                sn_t,
+                r_t,
+                up_t,
+            )
+            sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
+            step = held.step[b] + t
+            held.delivered[b] += carry(links, held, b, step, rng, up_t, sent, N, (awake, late, rounding, value, chosen))
+            if NEEDS_DEGREES:
+                count_heard(up_t, 0, indptr, eid, degree, 0)
+                for a in range(links.src_row.shape[0]):  # a copy's row counts as its sender
+                    degree[0, N + a] = degree[0, links.src_row[a]]
+            inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0, graph[4])
+            for i in range(L):
+                if awake[agent_of[i]]:
+                    _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
+                else:
+                    for f in range(q):
+                        sums[b, i, f] += sent[0, b, i, f]
+                    for m in range(M):
+                        for f in range(q):
+                            out[m, b, i, f] = sent[m, b, i, f]
+        held.step[b] += T
 
 
 def _chunk(
@@ -428,6 +517,8 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     messages = tuple(algorithm.messages)
     B, L, q = w_sum.shape
     N = ctx.network.n_nodes
+    holds = messages and getattr(ctx.channel, "name", "") == "imperfect"
+    A = ctx.arcs.n_arcs if holds else 0  # rows N + a of the buffers hold arc a's copies (`_seeds_held`)
     order = storage_order(ctx) if messages else None  # agents in rows near their neighbours: `storage_order`
     rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
     back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
@@ -437,9 +528,9 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
         raise TypeError(f"{algorithm.name}'s compiled step keeps {compiled.own}, its state {tuple(own_names)}")
     own = np.stack([copy(getattr(state, f)) for f in own_names]) if own_names else np.zeros((0, B, L, q))
     sent = algorithm.sends(state)
-    buffers = np.zeros((2, len(messages), B, N, q))  # step k's messages in buffers[k % 2], k counted in the block
+    buffers = np.zeros((2, len(messages), B, N + A, q))  # step k's messages in buffers[k % 2], k counted in the block
     for m, name in enumerate(messages):
-        buffers[0, m] = rows(sent[name])
+        buffers[0, m, :, :N] = rows(sent[name])
     sums = copy(w_sum)
     sampler = sample_args(ctx, blk, B, channel)
     Phi, ratio = rows_of(ctx, blk)
@@ -456,22 +547,116 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
         float(ctx.gamma),
         _graph(ctx, bool(messages)),
     )
-    newest = _layouts(ctx, B, L, q, bool(messages)).run(
-        driver(algorithm.name), args, buffers, np.ascontiguousarray(alphas), blk, len(messages), compiled.work
-    )
+    if holds:
+        newest, channel = _run_held(ctx, compiled, args, buffers, np.ascontiguousarray(alphas), blk, channel)
+    else:
+        newest = _layouts(ctx, B, L, q, bool(messages)).run(
+            driver(algorithm.name), args, buffers, np.ascontiguousarray(alphas), blk, len(messages), compiled.work
+        )
     rng = sampler[1]
     if isinstance(blk, Draws):
         _, _, markov, current = sampler[:4]
         blk.settle(rng[:, :3], current if markov else None)
     if channel_draws(ctx):  # the channel's stream and its links' states, as the kernel left them
         channel = channel._replace(words=np.ascontiguousarray(rng[:, CHANNEL_STREAM]), links=sampler[14].copy())
-    final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest]))
+    final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest][:, :, :N]))
     new = state._make(back(final[f]) for f in state._fields)
+    if holds:  # counted as they were carried (`_run_held`)
+        return new, channel, back(sums)
     # every arc that delivers carries every message (`_step_edges` counted them)
     return new, counted(channel, sampler[-1], len(messages), len(messages) * q), back(sums)
 
 
 run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
+
+
+def _run_held(ctx, compiled, args, buffers, alphas, blk, channel):
+    """Every step of the block over a channel whose receivers hold copies (`_seeds_held`), the seeds in as many
+    threads as there are cores; returns (which buffer holds the newest messages, the channel's new state)."""
+    from dgtd.backends.compiled.held import Held, Links
+    from dgtd.channels.imperfect import held
+
+    p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
+    link = ctx.channel
+    M, B, A, T = buffers.shape[1], sums.shape[0], ctx.arcs.n_arcs, alphas.shape[0]
+    Q = M * q
+    channel = held(channel, A, Q, link.delay)
+    order = storage_order(ctx)
+    src_row = ctx.arcs.src if order is None else order[1][ctx.arcs.src]
+    links = Links(
+        np.zeros(0) if link.wake is None else np.ascontiguousarray(link.wake, np.float64),
+        int(link.delay),
+        int(link.bits),
+        0 if link.top_k is None else int(link.top_k),
+        int(link.error_feedback),
+        q,
+        np.ascontiguousarray(ctx.arcs.src, np.int64),
+        np.ascontiguousarray(src_row, np.int64),
+    )
+    state = Held(
+        channel.copies.copy(),
+        channel.since.copy(),
+        channel.pending.copy(),
+        channel.due.copy(),
+        channel.posted.copy(),
+        channel.step.copy(),
+        channel.per_arc.copy(),
+        np.zeros(B, np.int64),
+    )
+    indptr, nbr, eid, agent_of, arc_weights = graph
+    graph = (indptr, N + eid, eid, agent_of, arc_weights)  # a neighbour's messages: its arc's copy, row N + a
+    kernel = _held_driver(ctx.algorithm.name, compiled)
+    n_obs, degree = sampler[3].shape[1], _max_degree(indptr)
+    threads = max(1, min(get_num_threads(), B)) if T * B * N >= THREADED_WORK else 1
+    groups = np.linspace(0, B, threads + 1).astype(int)
+
+    def run(b0, b1):
+        space = _space(1, 1, n_obs, N, A, degree, q, M, compiled.work)
+        space = (*space[:8], _private((1, N + A), np.int64), *space[9:])
+        space += (_private((N,), np.bool_), _private((A,), np.int64), _private((A, Q), np.float64))
+        space += (_private((Q,), np.float64), _private((Q,), np.bool_))
+        kernel(
+            p, own, sums, buffers, 0, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, links, state, b0, b1
+        )
+
+    if threads == 1:
+        run(0, B)
+    else:
+        if not _POOL or _POOL[0]._max_workers != get_num_threads():
+            _POOL[:] = [ThreadPoolExecutor(get_num_threads(), thread_name_prefix="dgtd-seeds")]
+        for job in [_POOL[0].submit(run, int(b0), int(b1)) for b0, b1 in zip(groups[:-1], groups[1:])]:
+            job.result()
+    bits = M * link.vector_bits(q)
+    delivered = state.delivered.astype(np.float64)
+    channel = channel._replace(
+        messages=channel.messages + delivered * M,
+        bits=channel.bits + delivered * bits,
+        copies=state.copies,
+        since=state.since,
+        pending=state.pending,
+        due=state.due,
+        posted=state.posted,
+        step=state.step,
+        per_arc=state.per_arc,
+    )
+    return T % 2, channel
+
+
+def _held_driver(name: str, compiled: CompiledStep):
+    """`_seeds_held` compiled for algorithm ``name`` (once, cached on disk), as `driver` compiles the others."""
+    key = ("held", name)
+    if key not in _DRIVERS:
+        import types
+
+        space = dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
+        suffix = name.replace("-", "_")
+        for fn, options in ((_learner, {"inline": "always"}), (_seeds_held, {"nogil": True})):
+            clone = types.FunctionType(fn.__code__, space, f"{fn.__name__}_held_{suffix}", None, fn.__closure__)
+            clone.__qualname__, clone.__doc__ = clone.__name__, fn.__doc__
+            space[fn.__name__] = njit(cache=True, **options)(clone)
+        load_quickly(space["_seeds_held"])
+        _DRIVERS[key] = space["_seeds_held"]
+    return _DRIVERS[key]
 
 
 def arc_weights_of(channel) -> np.ndarray:

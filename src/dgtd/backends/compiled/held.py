@@ -1,0 +1,149 @@
+"""The compiled twin of `dgtd.channels.Imperfect`: late, asleep and compressed messages, line for line.
+
+The driver's kernel for such a channel (`dgtd.backends.compiled.driver._seeds_held`) keeps each arc's copy of its
+sender's messages in rows N + a of the step's message buffer, and reads a neighbour's messages there: the graph's
+neighbour of arc a is row N + a (`held_graph`). So the inbox's aggregates (`dgtd.backends.compiled.channel`) read the
+copies as they read the messages themselves on a perfect channel, and every algorithm's step runs unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from dgtd.backends.compiled.rng import pcg_step
+
+
+class Links(NamedTuple):
+    """What `carry` reads of the channel: ``wake`` (N,) each agent's probability of being awake (empty: always),
+    ``delay`` D, ``bits`` B, ``top_k`` K (0: none), ``feedback`` (1 with error feedback), ``width`` q (the numbers
+    of each message), and each arc's sender as an agent (``src``) and as a storage row (``src_row``)."""
+
+    wake: np.ndarray
+    delay: int
+    bits: int
+    top_k: int
+    feedback: int
+    width: int
+    src: np.ndarray
+    src_row: np.ndarray
+
+
+class Held(NamedTuple):
+    """The channel's state per seed (`dgtd.channels.ChannelState`'s fields of the same names) and scratch."""
+
+    copies: np.ndarray  # (B, 2E, Q)
+    since: np.ndarray  # (B, 2E)
+    pending: np.ndarray  # (B, 2E, D + 1, Q)
+    due: np.ndarray  # (B, 2E, D + 1)
+    posted: np.ndarray  # (B, 2E, D + 1)
+    step: np.ndarray  # (B,)
+    per_arc: np.ndarray  # (B, 2E)
+    delivered: np.ndarray  # (B,): how many arcs carried a message in the block
+
+
+@njit(cache=True, inline="always")
+def carry(links, held, b, t, rng, up_t, sent, N, scratch):
+    """Step t of seed b (`dgtd.channels.Imperfect.deliver`): who is awake (into ``awake`` (N,)), what each arc carries
+    and each receiver holds, written into the buffer rows N + a of ``sent``, and in up_t[0] the arcs heard (carried,
+    and a copy held); returns how many arcs carried a message. ``scratch``: (awake (N,), late (2E,), rounding
+    (2E, Q), value (Q,), chosen (Q,)), ``awake`` read by the driver after."""
+    awake, late, rounding, value, chosen = scratch
+    A, Q, D = up_t.shape[1], held.copies.shape[2], links.delay
+    M, q = sent.shape[0], links.width
+    hi, lo, inc_hi, inc_lo = rng[b, 3, 0], rng[b, 3, 1], rng[b, 3, 2], rng[b, 3, 3]
+    for k in range(N):
+        awake[k] = True
+        if links.wake.shape[0] > 0:
+            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
+            awake[k] = u < links.wake[k]
+    if D > 0:
+        for a in range(A):
+            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
+            late[a] = min(np.int64(np.floor(u * (D + 1))), D)
+    if links.bits < 64:
+        for a in range(A):
+            for f in range(Q):
+                hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
+                rounding[a, f] = u
+    rng[b, 3, 0], rng[b, 3, 1] = hi, lo
+    slot = t % (D + 1)
+    n = 0
+    for a in range(A):
+        sends = up_t[0, a] and awake[links.src[a]]
+        if sends:
+            n += 1
+            held.per_arc[b, a] += 1.0
+            j = links.src_row[a]
+            for m in range(M):
+                for f in range(q):
+                    value[m * q + f] = sent[m, b, j, f]
+            if links.bits < 64 or links.top_k > 0:
+                for m in range(M):
+                    compress(links, held, b, a, m * q, value, rounding, chosen)
+            if D == 0:
+                for f in range(Q):
+                    held.copies[b, a, f] = value[f]
+                held.since[b, a] = t
+            else:
+                for f in range(Q):
+                    held.pending[b, a, slot, f] = value[f]
+                held.due[b, a, slot] = t + late[a]
+                held.posted[b, a, slot] = t
+        elif D > 0:
+            held.due[b, a, slot] = -1
+            held.posted[b, a, slot] = -1
+        for s in range(D + 1 if D > 0 else 0):  # the newest arrived
+            arrived = held.due[b, a, s] >= 0 and held.due[b, a, s] <= t
+            if arrived and held.posted[b, a, s] > held.since[b, a]:
+                for f in range(Q):
+                    held.copies[b, a, f] = held.pending[b, a, s, f]
+                held.since[b, a] = held.posted[b, a, s]
+            if arrived:
+                held.due[b, a, s] = -1
+        up_t[0, a] = up_t[0, a] and held.since[b, a] >= 0
+        for m in range(M):
+            for f in range(q):
+                sent[m, b, N + a, f] = held.copies[b, a, m * q + f]
+    return n
+
+
+@njit(cache=True, inline="always")
+def compress(links, held, b, a, start, value, rounding, chosen):
+    """value[start : start + q] as its arc carries it (`dgtd.channels.imperfect.compress_vector`): with error
+    feedback, the copy plus the compressed difference from it."""
+    q = links.width
+    if links.feedback:
+        for f in range(q):
+            value[start + f] -= held.copies[b, a, start + f]
+    for f in range(q):
+        chosen[f] = True
+    if 0 < links.top_k < q:  # the K largest magnitudes, the lower index first among equals; the rest zeroed
+        for f in range(q):
+            chosen[f] = False
+        for _ in range(links.top_k):
+            best, at = -1.0, 0
+            for f in range(q):
+                if not chosen[f] and abs(value[start + f]) > best:
+                    best, at = abs(value[start + f]), f
+            chosen[at] = True
+        for f in range(q):
+            if not chosen[f]:
+                value[start + f] = 0.0
+    if links.bits < 64:
+        levels = 2.0**links.bits - 1.0
+        s = 0.0
+        for f in range(q):
+            s = max(s, abs(value[start + f]))
+        safe = s if s > 0 else 1.0
+        for f in range(q):
+            pos = (value[start + f] + safe) / (2.0 * safe) * levels
+            k = np.floor(pos)
+            k = k + (1.0 if rounding[a, start + f] < pos - k else 0.0)
+            rounded = k * (2.0 * safe / levels) - safe
+            value[start + f] = rounded if chosen[f] and s > 0 else 0.0
+    if links.feedback:
+        for f in range(q):
+            value[start + f] += held.copies[b, a, start + f]

@@ -1,0 +1,256 @@
+"""The agents of a run spread over the ranks of an MPI job (``mpiexec -n R dgtd run ...``), synchronously.
+
+Rank r holds a contiguous block of the agents (`Partition`: agent order, split as evenly as it goes) and updates only
+those, with the NumPy reference's arithmetic (`dgtd.backends.reference`), so that a run on R ranks gives the numbers
+of a one-process ``--backend numpy`` run bit for bit. At every step each rank sends the messages of its agents that
+another rank's agents hear (the links that cross ranks) and receives those of its ghosts (the other ranks' agents its
+own hear), through one neighbourhood collective on a distributed-graph communicator of the ranks whose agents are
+linked; links inside a rank cost nothing. The samples and the channel's draws (edges up, losses) are drawn on every
+rank from the seed's own streams (each rank draws what every rank draws, a cost of O(N + |E|) numbers a step), which
+is what keeps a seed's numbers independent of the number of ranks; each rank then reads its own agents' rows.
+
+At the end of every block the ranks gather the agents' state and running sums (one collective per block, thousands
+of steps), so that every rank holds the whole run state there: the run loop's metrics, divergence checks and
+checkpoints (`dgtd.run.loop.run`) are then those of a one-process run, and rank 0 writes them.
+
+A rank that stops answering (killed, or its machine gone) would leave its neighbours waiting in the collective:
+`Watchdog` ends a rank that has waited longer than ``timeout`` seconds with one line, and mpiexec then ends the job.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgtd.channels import Arcs, Inbox
+from dgtd.errors import DgtdInputError
+
+MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_RANK")  # what mpiexec (MPICH's, Open MPI's) sets in its ranks
+TIMEOUT = 300.0  # seconds a rank waits for its neighbours before it gives up (DGTD_MPI_TIMEOUT)
+_WORLD: dict = {}
+# Seconds this rank spent, summed over the run's blocks: in the step's exchange of messages (waiting for the others
+# included), in the gathers at block ends, drawing what every rank draws (samples and the channel's events), and
+# updating its own agents (benchmarks/distributed.py reads them)
+SECONDS = {"exchange": 0.0, "gather": 0.0, "replicated": 0.0, "own": 0.0}
+
+
+def launched() -> bool:
+    """Whether this process is a rank of an mpiexec job (of any size, 1 included)."""
+    return any(name in os.environ for name in MPI_ENV)
+
+
+def world():
+    """MPI's COMM_WORLD of this job (initialising MPI on first use), or None outside mpiexec."""
+    if not launched():
+        return None
+    if "comm" not in _WORLD:
+        try:
+            from mpi4py import MPI
+        except ImportError:
+            raise DgtdInputError(
+                "this is a rank of an mpiexec job but mpi4py is not installed: pip install 'dgtd[mpi]'"
+            ) from None
+        _WORLD["comm"] = MPI.COMM_WORLD
+    return _WORLD["comm"]
+
+
+def rank() -> int:
+    comm = world()
+    return 0 if comm is None else comm.Get_rank()
+
+
+def size() -> int:
+    comm = world()
+    return 1 if comm is None else comm.Get_size()
+
+
+def spread() -> bool:
+    """Whether a run's agents are spread over more than one rank."""
+    return size() > 1
+
+
+def check_supported(algorithm, channel, n_agents: int, backend: str) -> None:
+    """One line for what the runtime does not run (yet), the same on every rank."""
+    R = size()
+    if R > n_agents:
+        raise DgtdInputError(f"{R} ranks for {n_agents} agents: run with at most {n_agents} ranks (mpiexec -n)")
+    if backend != "numpy":
+        raise DgtdInputError(
+            "under mpiexec every rank runs the NumPy reference arithmetic (the numbers of --backend numpy, bit for "
+            f"bit): leave out --backend {backend} or give --backend numpy"
+        )
+    if not algorithm.messages and algorithm.name != "local":
+        raise DgtdInputError(
+            f"{algorithm.name} is a centralised learner (one estimate from every agent's samples): it cannot be spread "
+            "over ranks; run it in one process, or choose an algorithm whose agents communicate"
+        )
+    if getattr(channel, "name", "perfect") not in ("perfect", "lossy"):
+        raise DgtdInputError(
+            "late, asleep or compressed messages (--delay, --wake, --bits, --top-k) are not supported across ranks "
+            "yet: run them in one process"
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Partition:
+    """Rank ``rank``'s share of the agents: ``own`` (a contiguous range of agent ids), ``local`` (own, then its
+    ghosts: the other ranks' agents its own hear, in increasing order), the arcs into its own agents (``arcs``, in
+    local numbering; ``arc_ids``, their global ids, in the global order, so that each agent's sums add in the order
+    of a one-process run), and per neighbouring rank (``neighbours``) the local rows it sends (``send``) and
+    receives into (``recv``)."""
+
+    comm: object  # the distributed-graph communicator of the linked ranks
+    rank: int
+    bounds: np.ndarray  # (R + 1,) rank r owns agents bounds[r] .. bounds[r + 1] - 1
+    own: np.ndarray
+    local: np.ndarray
+    arcs: Arcs
+    arc_ids: np.ndarray
+    neighbours: list
+    send: list
+    recv: list
+
+    @classmethod
+    def of(cls, arcs: Arcs, comm) -> Partition:
+        R, r = comm.Get_size(), comm.Get_rank()
+        N = arcs.n_agents
+        bounds = np.linspace(0, N, R + 1).astype(np.int64)
+        owner = np.searchsorted(bounds, np.arange(N), side="right") - 1
+        own = np.arange(bounds[r], bounds[r + 1])
+        into = np.flatnonzero(owner[arcs.dst] == r)  # arcs into my agents, in global order
+        ghosts = np.unique(arcs.src[into][owner[arcs.src[into]] != r])
+        local = np.concatenate([own, ghosts])
+        row = {int(g): k for k, g in enumerate(local)}
+        sub = Arcs(len(local), np.array([row[int(s)] for s in arcs.src[into]], np.int64), arcs.dst[into] - bounds[r])
+        out_arcs = np.flatnonzero((owner[arcs.src] == r) & (owner[arcs.dst] != r))  # my agents heard elsewhere
+        neighbours = sorted(set(owner[ghosts].tolist()) | set(owner[arcs.dst[out_arcs]].tolist()))
+        send = [np.unique(arcs.src[out_arcs][owner[arcs.dst[out_arcs]] == k]) - bounds[r] for k in neighbours]
+        recv = [np.array([row[int(g)] for g in ghosts[owner[ghosts] == k]], np.int64) for k in neighbours]
+        graph = comm.Create_dist_graph_adjacent(neighbours, neighbours, reorder=False)
+        return cls(graph, r, bounds, own, local, sub, into, neighbours, send, recv)
+
+    def exchange(self, sent: dict) -> None:
+        """Each ghost row of the messages ``sent`` (name -> (B, local, q)) <- its owner's value, in place."""
+        if not self.neighbours:
+            return
+        from mpi4py import MPI
+
+        values = list(sent.values())
+        per = [sum(x.shape[0] * x.shape[2] for x in values) * len(rows) for rows in self.send]
+        out = np.concatenate([x[:, rows].ravel() for rows in self.send for x in values]) if sum(per) else np.zeros(0)
+        got = [sum(x.shape[0] * x.shape[2] for x in values) * len(rows) for rows in self.recv]
+        into = np.empty(sum(got))
+        self.comm.Neighbor_alltoallv(
+            [out, per, np.concatenate([[0], np.cumsum(per)[:-1]]), MPI.DOUBLE],
+            [into, got, np.concatenate([[0], np.cumsum(got)[:-1]]), MPI.DOUBLE],
+        )
+        at = 0
+        for rows in self.recv:
+            for x in values:
+                n = x.shape[0] * len(rows) * x.shape[2]
+                x[:, rows] = into[at : at + n].reshape(x.shape[0], len(rows), x.shape[2])
+                at += n
+
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        """Every rank's own rows of x (B, local, q) side by side: the whole (B, N, q), on every rank."""
+        from mpi4py import MPI
+
+        B, q = x.shape[0], x.shape[2]
+        mine = np.ascontiguousarray(x[:, : len(self.own)].transpose(1, 0, 2))  # agents first: blocks line up
+        counts = np.diff(self.bounds) * B * q
+        whole = np.empty((int(self.bounds[-1]), B, q))
+        self.comm_world.Allgatherv(mine, [whole, counts, self.bounds[:-1] * B * q, MPI.DOUBLE])
+        return np.ascontiguousarray(whole.transpose(1, 0, 2))
+
+    @property
+    def comm_world(self):
+        return world()
+
+
+def partition(ctx) -> Partition:
+    """The run's `Partition` (built once per run and kept on its context)."""
+    cache = ctx.__dict__.setdefault("_mpi", {})
+    if "partition" not in cache:
+        cache["partition"] = Partition.of(ctx.arcs, world())
+    return cache["partition"]
+
+
+def local_sample(sample, local: np.ndarray):
+    """The rows of a step's `Sample` of the agents ``local`` (a shared observation, one row, stays as it is)."""
+
+    def rows(x):
+        return x[:, local] if np.ndim(x) >= 2 and x.shape[1] > 1 else x
+
+    return type(sample)(*(rows(x) for x in sample))
+
+
+def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, blk):
+    """`dgtd.backends.reference.run_block`'s contract, this rank's agents only; returns the whole state, gathered."""
+    P = partition(ctx)
+    algorithm, channel = ctx.algorithm, ctx.channel
+    local = state._make(np.ascontiguousarray(x[:, P.local]) for x in state)
+    sums = np.ascontiguousarray(w_sum[:, P.local])
+    Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
+    metropolis = algorithm.mixing == "metropolis"
+    clock = time.perf_counter
+    for t in range(len(alphas)):
+        t0 = clock()
+        sums += algorithm.estimate(local)
+        sent = {name: np.array(x) for name, x in algorithm.sends(local).items()}
+        t1 = clock()
+        P.exchange(sent)
+        WATCHDOG.beat()
+        t2 = clock()
+        up = None if blk.up is None else blk.up[t]
+        whole, channel_state = channel.deliver(channel_state, ctx.arcs, sent, up)  # every arc's draws, every rank
+        degrees = ctx.arcs.into(whole.heard[:, :, None])[:, P.local, 0] if metropolis else None
+        weights = None if whole.weights is None else whole.weights[P.arc_ids]
+        inbox = Inbox(P.arcs, sent, whole.heard[:, P.arc_ids], weights=weights, degrees=degrees)
+        sample = local_sample(blk.sample(t, Phi, ratio, ctx.gamma, continuing), P.local)
+        t3 = clock()
+        local = algorithm.update(local, sample, inbox, alphas[t])
+        t4 = clock()
+        SECONDS["own"] += (t1 - t0) + (t4 - t3)
+        SECONDS["exchange"] += t2 - t1
+        SECONDS["replicated"] += t3 - t2
+    t5 = clock()
+    new = state._make(P.gather(x) for x in local), channel_state, P.gather(sums)
+    SECONDS["gather"] += clock() - t5
+    return new
+
+
+class Watchdog:
+    """Ends this rank with one line when a step has waited more than ``timeout`` seconds for its neighbours (a rank
+    killed, or a machine gone): mpiexec then ends the others. Off until `start`."""
+
+    def __init__(self):
+        self.last, self.timeout, self.thread = time.monotonic(), TIMEOUT, None
+        self.where = ""
+
+    def beat(self) -> None:
+        self.last = time.monotonic()
+
+    def start(self, timeout: float, where: str) -> None:
+        self.timeout, self.where, self.last = float(timeout), where, time.monotonic()
+        if self.thread is None:
+            self.thread = threading.Thread(target=self._watch, daemon=True, name="dgtd-mpi-watchdog")
+            self.thread.start()
+
+    def _watch(self) -> None:
+        while True:
+            time.sleep(min(1.0, self.timeout / 4))
+            if time.monotonic() - self.last > self.timeout:
+                line = (
+                    f"dgtd: error: rank {rank()} waited more than {self.timeout:g} s for its neighbours (a rank may "
+                    f"have died); what was checkpointed is intact: {self.where}\n"
+                )
+                os.write(sys.__stderr__.fileno(), line.encode())
+                os._exit(3)
+
+
+WATCHDOG = Watchdog()

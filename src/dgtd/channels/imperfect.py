@@ -1,0 +1,248 @@
+"""Late, asleep and compressed messages, over links that may also lose them (`dgtd.channels.Lossy`).
+
+Each arc j -> i is up at a step when its edge is up and its message is not lost (`Lossy.arcs_up`: the same draws).
+Over an arc up at step k:
+
+- the sender j, if awake, sends its messages; they arrive ``delay`` >= d >= 0 steps later, d uniform per message
+  (``delay`` = D);
+- the receiver i, if awake, mixes with the newest copy of j's messages it holds (and with nothing from j before the
+  first arrives): the inbox's neighbour aggregates (`Inbox`) read that copy, i's own term its own current value.
+
+An agent is awake at a step with probability ``wake[i]``; asleep, it neither updates nor sends, and its neighbours
+keep using the last they heard from it. A message may be compressed on its arc: ``top_k`` keeps its K largest
+coordinates (by magnitude; the lower index first among equals), and ``bits`` = B < 64 quantises each coordinate by
+stochastic rounding onto the 2^B points evenly spaced on [-s, s], s the largest magnitude, sent alongside (64 bits).
+With ``error_feedback``, what the arc carries is the compressed difference between the sender's value and the copy
+both ends hold, which each end adds to it (CHOCO-gossip's public copies, Koloskova et al. 2019): what is not sent
+now is sent later.
+
+Where the links lose nothing, every agent is awake, nothing is late and nothing compressed, an arc's copy is its
+sender's current value and the inbox is `Lossy`'s. Each step draws from the seed's channel stream, in this order:
+one uniform per arc for the links (`Lossy`), then where asked one per agent (awake: u < wake_i), one per arc
+(delay: d = floor(u (D + 1))), and one per arc and number sent (stochastic rounding). docs/links.md derives where
+each leads: none of delay, sleep, stochastic rounding or error feedback moves a method's fixed point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from dgtd.channels.arcs import Arcs
+from dgtd.channels.inbox import Inbox
+from dgtd.channels.lossy import Lossy, uniforms
+from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
+from dgtd.errors import DgtdInputError
+
+
+@dataclass(frozen=True, eq=False)
+class Imperfect:
+    """The links of ``lossy`` (its loss, bursts and reweighting) with late (``delay`` D >= 0 steps at most), asleep
+    (``wake`` (N,): each agent's probability of being awake at a step; None: always) and compressed (``bits``,
+    ``top_k``, ``error_feedback``) messages."""
+
+    lossy: Lossy
+    delay: int = 0
+    wake: np.ndarray | None = None
+    bits: int = BITS_PER_NUMBER
+    top_k: int | None = None
+    error_feedback: bool = False
+    name: ClassVar[str] = "imperfect"
+
+    def __post_init__(self):
+        check_links(self.delay, self.wake, self.bits, self.top_k, self.error_feedback)
+
+    # what the run loop, the fixed points and the kernels' loss draws read of the links
+    loss = property(lambda self: self.lossy.loss)
+    burst = property(lambda self: self.lossy.burst)
+    reweight = property(lambda self: self.lossy.reweight)
+    enter = property(lambda self: self.lossy.enter)
+    arc_weights = property(lambda self: self.lossy.arc_weights)
+
+    @property
+    def compresses(self) -> bool:
+        return self.bits < BITS_PER_NUMBER or self.top_k is not None
+
+    @property
+    def linear(self) -> bool:
+        """Whether what a receiver holds is, in the mean, linear in what was sent: top-k without error feedback keeps
+        the largest coordinates, a choice that depends on the values, and its fixed point is not computed."""
+        return self.top_k is None or self.error_feedback
+
+    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
+        """`Lossy.init`'s state, the copies left empty until the first step tells how many numbers a message has."""
+        return self.lossy.init(seeds, arcs, seed)
+
+    def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
+        """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up."""
+        x = np.concatenate(list(sent.values()), axis=-1)  # (B, N, Q): every message side by side
+        B, N, Q = x.shape
+        state = held(state, arcs.n_arcs, Q, self.delay)
+        t = state.step  # (B,): the same step for every seed
+        carried, words, links = self.lossy.arcs_up(state, arcs, up, B)
+        awake = np.ones((B, N), bool)
+        if self.wake is not None:
+            u, words = uniforms(words, N)
+            awake = u < self.wake
+        if self.delay:
+            u, words = uniforms(words, arcs.n_arcs)
+            late = np.minimum(np.floor(u * (self.delay + 1)).astype(np.int64), self.delay)
+        rounding = None
+        if self.bits < BITS_PER_NUMBER:
+            u, words = uniforms(words, arcs.n_arcs * Q)
+            rounding = u.reshape(B, arcs.n_arcs, Q)
+        sends = carried & awake[:, arcs.src]
+        value = x[:, arcs.src]
+        copies, since = state.copies.copy(), state.since.copy()
+        if self.compresses:
+            base = copies if self.error_feedback else np.zeros_like(value)
+            value = base + self.compress(value - base, rounding, [m.shape[-1] for m in sent.values()])
+        pending, due, posted = state.pending, state.due, state.posted
+        if not self.delay:
+            copies[sends] = value[sends]
+            since = np.where(sends, t[:, None], since)
+        else:
+            pending, due, posted = pending.copy(), due.copy(), posted.copy()
+            slot = int(t[0]) % (self.delay + 1)
+            pending[:, :, slot][sends] = value[sends]
+            due[:, :, slot] = np.where(sends, t[:, None] + late, -1)
+            posted[:, :, slot] = np.where(sends, t[:, None], -1)
+            for s in range(self.delay + 1):  # the newest arrived: whichever order the slots are read in
+                arrived = (due[:, :, s] >= 0) & (due[:, :, s] <= t[:, None])
+                newer = arrived & (posted[:, :, s] > since)
+                copies[newer] = pending[:, :, s][newer]
+                since = np.where(newer, posted[:, :, s], since)
+                due[:, :, s] = np.where(arrived, -1, due[:, :, s])
+        heard = (carried & (since >= 0)).astype(np.float64)
+        received, start = {}, 0
+        for name, m in sent.items():
+            received[name] = copies[:, :, start : start + m.shape[-1]]
+            start += m.shape[-1]
+        delivered = sends.sum(axis=1).astype(np.float64)
+        bits = sum(self.vector_bits(m.shape[-1]) for m in sent.values())
+        weights = self.arc_weights if self.reweight else None
+        inbox = Inbox(arcs, sent, heard, received, weights, awake if self.wake is not None else None)
+        return inbox, ChannelState(
+            state.messages + delivered * len(sent),
+            state.bits + delivered * bits,
+            words,
+            links,
+            copies,
+            since,
+            pending,
+            due,
+            posted,
+            t + 1,
+            state.per_arc + sends,
+        )
+
+    def compress(self, v: np.ndarray, rounding: np.ndarray | None, widths: list[int]) -> np.ndarray:
+        """What an arc carries of v (B, 2E, Q), message by message (``widths``: each one's numbers): its top-k
+        coordinates, each rounded stochastically onto B bits with ``rounding``'s uniforms (B, 2E, Q)."""
+        out, start = np.empty_like(v), 0
+        for q in widths:
+            part = slice(start, start + q)
+            out[..., part] = compress_vector(v[..., part], None if rounding is None else rounding[..., part], self)
+            start += q
+        return out
+
+    def vector_bits(self, q: int) -> int:
+        """Bits an arc carries for one message of q numbers: each number kept (the K largest, with its index of
+        ceil(log2 q) bits, under top-k) in B bits, and the scale (64 bits) where rounded."""
+        kept = q if self.top_k is None else min(self.top_k, q)
+        index = 0 if kept == q else int(np.ceil(np.log2(q)))
+        scale = BITS_PER_NUMBER if self.bits < BITS_PER_NUMBER else 0
+        return kept * (min(self.bits, BITS_PER_NUMBER) + index) + scale
+
+    def describe(self) -> str:
+        parts = [self.lossy.describe()] if self.lossy.loss.any() or self.lossy.reweight else []
+        if self.delay:
+            parts.append(f"messages up to {self.delay} steps late")
+        if self.wake is not None:
+            lo, hi = float(self.wake.min()), float(self.wake.max())
+            parts.append(f"agents awake w.p. {lo:g}" if lo == hi else f"agents awake w.p. in [{lo:g}, {hi:g}]")
+        if self.top_k is not None:
+            parts.append(f"top-{self.top_k} coordinates")
+        if self.bits < BITS_PER_NUMBER:
+            parts.append(f"{self.bits} bits a number")
+        if self.error_feedback:
+            parts.append("with error feedback")
+        return ", ".join(parts) or "every message delivered"
+
+
+def compress_vector(v: np.ndarray, u: np.ndarray | None, channel: Imperfect) -> np.ndarray:
+    """One message (..., q) as its arc carries it: top-k, then stochastic rounding with the uniforms u (..., q)."""
+    q = v.shape[-1]
+    if channel.top_k is not None and channel.top_k < q:
+        order = np.argsort(-np.abs(v), axis=-1, kind="stable")  # the lower index first among equal magnitudes
+        keep = np.zeros(v.shape, bool)
+        np.put_along_axis(keep, order[..., : channel.top_k], True, axis=-1)
+        v = np.where(keep, v, 0.0)
+    else:
+        keep = np.ones(v.shape, bool)
+    if u is None:
+        return v
+    levels = 2.0**channel.bits - 1.0
+    s = np.abs(v).max(axis=-1, keepdims=True)
+    safe = np.where(s > 0, s, 1.0)
+    pos = (v + safe) / (2.0 * safe) * levels
+    k = np.floor(pos)
+    k = k + (u < pos - k)
+    rounded = k * (2.0 * safe / levels) - safe
+    return np.where(keep & (s > 0), rounded, 0.0)
+
+
+def held(state: ChannelState, n_arcs: int, Q: int, delay: int) -> ChannelState:
+    """``state`` with the receivers' copies made (nothing heard yet) where it has none."""
+    B = state.messages.shape[0]
+    if state.copies.shape == (B, n_arcs, Q):
+        return state
+    slots = delay + 1 if delay else 0
+    return state._replace(
+        copies=np.zeros((B, n_arcs, Q)),
+        since=np.full((B, n_arcs), -1, np.int64),
+        pending=np.zeros((B, n_arcs, slots, Q)),
+        due=np.full((B, n_arcs, slots), -1, np.int64),
+        posted=np.full((B, n_arcs, slots), -1, np.int64),
+        step=np.zeros(B, np.int64),
+        per_arc=np.zeros((B, n_arcs)),
+    )
+
+
+def check_links(delay, wake, bits, top_k, error_feedback) -> None:
+    """One line for link parameters that make no sense."""
+    if not (isinstance(delay, int | np.integer) and 0 <= delay <= 10_000):
+        raise DgtdInputError(f"delay: the most steps a message is late, a whole number in [0, 10000]; got {delay}")
+    if wake is not None:
+        w = np.asarray(wake, dtype=np.float64)
+        bad = ~np.isfinite(w) | (w <= 0) | (w > 1)
+        if bad.any():
+            raise DgtdInputError(f"wake: the probability that an agent is awake must lie in (0, 1], got {w[bad][0]:g}")
+    if not (isinstance(bits, int | np.integer) and 1 <= bits <= BITS_PER_NUMBER):
+        raise DgtdInputError(f"bits: the bits a number is sent in, a whole number in [1, 64]; got {bits}")
+    if top_k is not None and not (isinstance(top_k, int | np.integer) and top_k >= 1):
+        raise DgtdInputError(f"top_k: the coordinates a message keeps, a whole number >= 1; got {top_k}")
+    if error_feedback and bits >= BITS_PER_NUMBER and top_k is None:
+        raise DgtdInputError("error feedback corrects compressed messages; give --bits B (< 64) or --top-k K too")
+    if error_feedback and delay:
+        raise DgtdInputError(
+            "error feedback with late messages is not supported: leave out --delay or --error-feedback"
+        )
+
+
+def wake_per_agent(wake, n_agents: int) -> np.ndarray | None:
+    """Each agent's probability of being awake (N,) from one value or one per agent (a list or 'q1,q2,...')."""
+    if wake is None:
+        return None
+    try:
+        values = [float(x) for x in wake.split(",")] if isinstance(wake, str) else wake
+        w = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    except ValueError:
+        raise DgtdInputError(f"wake: give a probability or one per agent, comma-separated; got {wake!r}") from None
+    if w.size not in (1, n_agents):
+        raise DgtdInputError(f"wake: give one probability, or one per agent ({n_agents} here); got {w.size} values")
+    check_links(0, w, BITS_PER_NUMBER, None, False)
+    w = np.broadcast_to(w, (n_agents,)).copy()
+    return None if (w == 1.0).all() else w

@@ -1,0 +1,138 @@
+"""Agents spread over the ranks of an MPI job (`dgtd.backends.mpi`): the same metrics bit for bit on 1, 2 and 4 ranks
+as a one-process run, a rank killed mid-run and the run resumed to the uninterrupted numbers, and what the runtime
+does not run refused in one line with exit code 2 on every rank. Each test starts mpiexec on this machine only
+(loopback), under a timeout; they need the mpi extra (pip install 'dgtd[mpi]'), which CI installs."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        shutil.which("mpiexec", path=str(Path(sys.executable).parent)) is None
+        or subprocess.run([sys.executable, "-c", "import mpi4py"], capture_output=True).returncode != 0,
+        reason="needs the mpi extra: pip install 'dgtd[mpi]' (mpi4py and MPICH)",
+    ),
+]
+
+MPIEXEC = str(Path(sys.executable).parent / "mpiexec")
+DGTD = [sys.executable, "-m", "dgtd.cli"]
+SPREAD = ["dgtd", "pd-td", "consensus-td0", "td-tracking", "tdc-tracking", "local"]  # every algorithm that can
+
+
+def env(**extra) -> dict:
+    e = dict(os.environ, MPIEXEC_TIMEOUT="240", DGTD_MPI_TIMEOUT="120", **extra)
+    e.pop("PMI_SIZE", None)
+    return e
+
+
+def mpirun(ranks: int, *args, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
+    cmd = [MPIEXEC, "-n", str(ranks), *DGTD, *map(str, args)]
+    return subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def alone(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([*DGTD, *map(str, args)], env=env(), capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("algorithm", SPREAD)
+def test_every_algorithm_gives_the_one_process_numbers_on_1_2_and_4_ranks(tmp_path, algorithm):
+    """paper-example-1 over random edges with receiver-dependent loss: metrics.csv identical, byte for byte, to a
+    one-process --backend numpy run's (4 ranks on 5 agents: one rank holds two)."""
+    run = ["run", "paper-example-1", "--algorithm", algorithm, "-T", 1500, "--seeds", 2, "--no-plots"]
+    run += ["--loss", "0.1,0.5,0,0.8,0.3", "--edge-prob", 0.7]
+    base = alone(*run, "--backend", "numpy", "--out", tmp_path / "one")
+    assert base.returncode == 0, base.stderr
+    for ranks in (1, 2, 4):
+        done = mpirun(ranks, *run, "--out", tmp_path / f"r{ranks}")
+        assert done.returncode == 0, done.stderr
+        assert (tmp_path / f"r{ranks}" / "metrics.csv").read_bytes() == (tmp_path / "one" / "metrics.csv").read_bytes()
+        assert "numpy backend" in done.stdout and done.stdout.count("wrote ") == 1  # rank 0 alone says it
+
+
+def test_garnet_and_a_users_env_on_two_ranks(tmp_path):
+    chain = Path(__file__).resolve().parents[1] / "envs" / "chain.py"
+    for name, args in {
+        "garnet": ["garnet"],
+        "env": ["--env", f"{chain}:make_chain", "--features", "one-hot", "--agents", 4],
+    }.items():
+        run = ["run", *args, "-T", 2000, "--seeds", 2, "--no-plots"]
+        base = alone(*run, "--backend", "numpy", "--out", tmp_path / f"{name}-one")
+        done = mpirun(2, *run, "--out", tmp_path / f"{name}-two")
+        assert base.returncode == 0 and done.returncode == 0, done.stderr
+        one, two = (tmp_path / f"{name}-{k}" / "metrics.csv" for k in ("one", "two"))
+        assert one.read_bytes() == two.read_bytes()
+
+
+def _ranks_of(tag: str) -> dict[int, int]:
+    """{rank: pid} of the ranks started with DGTD_TEST_TAG=tag."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            environ = (entry / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if f"DGTD_TEST_TAG={tag}".encode() in environ:
+            for item in environ:
+                if item.startswith(b"PMI_RANK="):
+                    found[int(item.split(b"=")[1])] = int(entry.name)
+    return found
+
+
+def test_a_rank_killed_mid_run_loses_nothing_checkpointed(tmp_path):
+    """SIGKILL to rank 1 after the first checkpoint: mpiexec ends the job (no rank left waiting), and the same run
+    resumed with --resume on two ranks ends with the numbers of an uninterrupted one-process run, byte for byte."""
+    out = tmp_path / "run"
+    run = ["run", "garnet", "-T", 60_000, "--seeds", 2, "--no-plots", "--checkpoint-every", 3000]
+    tag = f"kill{os.getpid()}"
+    cmd = [MPIEXEC, "-n", "2", *DGTD, *map(str, run), "--out", str(out)]
+    job = subprocess.Popen(cmd, env=env(DGTD_TEST_TAG=tag), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint.npz").exists():
+            assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
+            time.sleep(0.1)
+        time.sleep(0.5)
+        os.kill(_ranks_of(tag)[1], signal.SIGKILL)
+        job.wait(timeout=120)
+    finally:
+        job.kill()
+    assert job.returncode != 0 and not (out / "summary.json").exists()
+    resumed = mpirun(2, "run", "--resume", out, "--no-plots")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resuming" in resumed.stdout
+    whole = alone(*run, "--backend", "numpy", "--out", tmp_path / "whole")
+    assert whole.returncode == 0
+    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["paper-example-1", "--algorithm", "td0"], "centralised learner"),
+        (["paper-example-1", "--delay", "2"], "not supported across ranks"),
+        (["paper-example-1", "--backend", "numba"], "NumPy reference"),
+    ],
+)
+def test_what_the_runtime_does_not_run_is_one_line_and_exit_2_on_every_rank(tmp_path, args, words):
+    done = mpirun(2, "run", *args, "-T", 100, "--out", tmp_path / "o")
+    assert done.returncode == 2
+    errors = [line for line in done.stderr.splitlines() if line.startswith("dgtd:")]
+    assert len(errors) == 1 and words in errors[0]  # rank 0's line only
+
+
+def test_more_ranks_than_agents_is_refused(tmp_path):
+    done = mpirun(6, "run", "paper-example-1", "-T", 100, "--out", tmp_path / "o")
+    assert done.returncode == 2
+    assert "6 ranks for 5 agents" in done.stderr
