@@ -20,10 +20,10 @@ A rank that stops answering (killed, or its machine gone) would leave its neighb
 from __future__ import annotations
 
 import os
-import sys
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -104,7 +104,7 @@ class Partition:
     of a one-process run), and per neighbouring rank (``neighbours``) the local rows it sends (``send``) and
     receives into (``recv``)."""
 
-    comm: object  # the distributed-graph communicator of the linked ranks
+    comm: Any  # the distributed-graph communicator of the linked ranks (mpi4py's Distgraphcomm)
     rank: int
     bounds: np.ndarray  # (R + 1,) rank r owns agents bounds[r] .. bounds[r + 1] - 1
     own: np.ndarray
@@ -249,7 +249,7 @@ class Watchdog:
                     f"dgtd: error: rank {rank()} waited more than {self.timeout:g} s for its neighbours (a rank may "
                     f"have died); what was checkpointed is intact: {self.where}\n"
                 )
-                os.write(sys.__stderr__.fileno(), line.encode())
+                os.write(2, line.encode())  # the process's own stderr (rank > 0 has sys.stderr silenced)
                 os._exit(3)
 
 
