@@ -92,8 +92,9 @@ def table(rows: list[dict]) -> str:
     ]
     for r in rows:
         lines.append(
-            f"| {r['agents']:,} | {r['ranks']} | {r['rounds']:,.1f} | {r['agent_steps'] / 1e6:.3f} M | {r['own']:.0%} | "
-            f"{r['replicated']:.0%} | {r['exchange']:.0%} | {r['gather']:.1%} | {r['kb_per_agent']:.1f} KB | "
+            f"| {r['agents']:,} | {r['ranks']} | {r['rounds']:,.1f} | {r['agent_steps'] / 1e6:.3f} M | "
+            f"{r['own']:.0%} | {r['replicated']:.0%} | {r['exchange']:.0%} | {r['gather']:.1%} | "
+            f"{r['kb_per_agent']:.1f} KB | "
             f"{r['setup']:.1f} |"
         )
     return "\n".join(lines)
