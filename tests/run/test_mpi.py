@@ -73,6 +73,24 @@ def test_garnet_and_a_users_env_on_two_ranks(tmp_path):
         assert one.read_bytes() == two.read_bytes()
 
 
+def test_a_graph_numbered_at_random_is_split_in_storage_order(tmp_path):
+    """300 agents on a ring numbered at random: the ranks take blocks of the reverse Cuthill-McKee order (which
+    finds the ring again), and the numbers are still the one-process run's."""
+    import numpy as np
+
+    label = np.random.default_rng(0).permutation(300)
+    (tmp_path / "ring.txt").write_text("".join(f"{label[i]} {label[(i + 1) % 300]}\n" for i in range(300)))
+    toml = tmp_path / "big.toml"
+    toml.write_text(
+        f'[problem]\nscenario = "garnet"\nparams = {{ n_agents = 300 }}\n[network]\ngraph = "{tmp_path / "ring.txt"}"\n'
+    )
+    run = ["run", toml, "-T", 300, "--seeds", 2, "--no-plots"]
+    base = alone(*run, "--backend", "numpy", "--out", tmp_path / "one")
+    done = mpirun(3, *run, "--out", tmp_path / "three")
+    assert base.returncode == 0 and done.returncode == 0, done.stderr
+    assert (tmp_path / "one" / "metrics.csv").read_bytes() == (tmp_path / "three" / "metrics.csv").read_bytes()
+
+
 def _ranks_of(tag: str) -> dict[int, int]:
     """{rank: pid} of the ranks started with DGTD_TEST_TAG=tag."""
     found = {}

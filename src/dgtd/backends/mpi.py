@@ -1,6 +1,7 @@
 """The agents of a run spread over the ranks of an MPI job (``mpiexec -n R dgtd run ...``), synchronously.
 
-Rank r holds a contiguous block of the agents (`Partition`: agent order, split as evenly as it goes) and updates only
+Rank r holds a contiguous block of the agents in their storage order (`Partition`: the compiled kernels' order,
+reverse Cuthill-McKee where it keeps more links local, split as evenly as it goes) and updates only
 those, with the NumPy reference's arithmetic (`dgtd.backends.reference`), so that a run on R ranks gives the numbers
 of a one-process ``--backend numpy`` run bit for bit. At every step each rank sends the messages of its agents that
 another rank's agents hear (the links that cross ranks) and receives those of its ghosts (the other ranks' agents its
@@ -106,7 +107,8 @@ class Partition:
 
     comm: Any  # the distributed-graph communicator of the linked ranks (mpi4py's Distgraphcomm)
     rank: int
-    bounds: np.ndarray  # (R + 1,) rank r owns agents bounds[r] .. bounds[r + 1] - 1
+    bounds: np.ndarray  # (R + 1,) rank r owns the agents order[bounds[r]] .. order[bounds[r + 1] - 1]
+    order: np.ndarray  # the agents in storage order
     own: np.ndarray
     local: np.ndarray
     arcs: Arcs
@@ -116,23 +118,29 @@ class Partition:
     recv: list
 
     @classmethod
-    def of(cls, arcs: Arcs, comm) -> Partition:
+    def of(cls, arcs: Arcs, comm, order: np.ndarray | None = None) -> Partition:
+        """Rank r's share: the agents order[bounds[r]:bounds[r + 1]] of the storage ``order`` (the compiled kernels'
+        `dgtd.backends.compiled.graph.storage_order`: reverse Cuthill-McKee where it keeps more links local than
+        the agents' own numbering; None: that numbering)."""
         R, r = comm.Get_size(), comm.Get_rank()
         N = arcs.n_agents
+        order = np.arange(N) if order is None else order
         bounds = np.linspace(0, N, R + 1).astype(np.int64)
-        owner = np.searchsorted(bounds, np.arange(N), side="right") - 1
-        own = np.arange(bounds[r], bounds[r + 1])
+        owner = np.empty(N, np.int64)
+        owner[order] = np.searchsorted(bounds, np.arange(N), side="right") - 1
+        own = order[bounds[r] : bounds[r + 1]]
         into = np.flatnonzero(owner[arcs.dst] == r)  # arcs into my agents, in global order
         ghosts = np.unique(arcs.src[into][owner[arcs.src[into]] != r])
         local = np.concatenate([own, ghosts])
-        row = {int(g): k for k, g in enumerate(local)}
-        sub = Arcs(len(local), np.array([row[int(s)] for s in arcs.src[into]], np.int64), arcs.dst[into] - bounds[r])
+        row = np.full(N, -1, np.int64)
+        row[local] = np.arange(len(local))
+        sub = Arcs(len(local), row[arcs.src[into]], row[arcs.dst[into]])
         out_arcs = np.flatnonzero((owner[arcs.src] == r) & (owner[arcs.dst] != r))  # my agents heard elsewhere
         neighbours = sorted(set(owner[ghosts].tolist()) | set(owner[arcs.dst[out_arcs]].tolist()))
-        send = [np.unique(arcs.src[out_arcs][owner[arcs.dst[out_arcs]] == k]) - bounds[r] for k in neighbours]
-        recv = [np.array([row[int(g)] for g in ghosts[owner[ghosts] == k]], np.int64) for k in neighbours]
+        send = [row[np.unique(arcs.src[out_arcs][owner[arcs.dst[out_arcs]] == k])] for k in neighbours]
+        recv = [row[ghosts[owner[ghosts] == k]] for k in neighbours]
         graph = comm.Create_dist_graph_adjacent(neighbours, neighbours, reorder=False)
-        return cls(graph, r, bounds, own, local, sub, into, neighbours, send, recv)
+        return cls(graph, r, bounds, order, own, local, sub, into, neighbours, send, recv)
 
     def exchange(self, sent: dict) -> None:
         """Each ghost row of the messages ``sent`` (name -> (B, local, q)) <- its owner's value, in place."""
@@ -163,9 +171,11 @@ class Partition:
         B, q = x.shape[0], x.shape[2]
         mine = np.ascontiguousarray(x[:, : len(self.own)].transpose(1, 0, 2))  # agents first: blocks line up
         counts = np.diff(self.bounds) * B * q
-        whole = np.empty((int(self.bounds[-1]), B, q))
-        self.comm_world.Allgatherv(mine, [whole, counts, self.bounds[:-1] * B * q, MPI.DOUBLE])
-        return np.ascontiguousarray(whole.transpose(1, 0, 2))
+        stored = np.empty((int(self.bounds[-1]), B, q))  # in storage order
+        self.comm_world.Allgatherv(mine, [stored, counts, self.bounds[:-1] * B * q, MPI.DOUBLE])
+        whole = np.empty((B, int(self.bounds[-1]), q))
+        whole[:, self.order] = stored.transpose(1, 0, 2)
+        return whole
 
     @property
     def comm_world(self):
@@ -176,7 +186,10 @@ def partition(ctx) -> Partition:
     """The run's `Partition` (built once per run and kept on its context)."""
     cache = ctx.__dict__.setdefault("_mpi", {})
     if "partition" not in cache:
-        cache["partition"] = Partition.of(ctx.arcs, world())
+        from dgtd.backends.compiled.graph import storage_order
+
+        order = storage_order(ctx)
+        cache["partition"] = Partition.of(ctx.arcs, world(), None if order is None else order[0])
     return cache["partition"]
 
 
