@@ -91,6 +91,8 @@ def table(rows: list[dict]) -> str:
         "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
+        if r["ranks"] == 1:  # one process: the plain reference kernel, nothing split or exchanged
+            r = {**r, "own": float("nan"), "replicated": float("nan"), "exchange": float("nan"), "gather": float("nan")}
         lines.append(
             f"| {r['agents']:,} | {r['ranks']} | {r['rounds']:,.1f} | {r['agent_steps'] / 1e6:.3f} M | "
             f"{r['own']:.0%} | {r['replicated']:.0%} | {r['exchange']:.0%} | {r['gather']:.1%} | "
