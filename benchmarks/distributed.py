@@ -93,11 +93,11 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         if r["ranks"] == 1:  # one process: the plain reference kernel, nothing split or exchanged
             r = {**r, "own": float("nan"), "replicated": float("nan"), "exchange": float("nan"), "gather": float("nan")}
+        pct = lambda x, digits=0: "-" if x != x else f"{x:.{digits}%}"  # noqa: E731  (NaN: one process)
         lines.append(
             f"| {r['agents']:,} | {r['ranks']} | {r['rounds']:,.1f} | {r['agent_steps'] / 1e6:.3f} M | "
-            f"{r['own']:.0%} | {r['replicated']:.0%} | {r['exchange']:.0%} | {r['gather']:.1%} | "
-            f"{r['kb_per_agent']:.1f} KB | "
-            f"{r['setup']:.1f} |"
+            f"{pct(r['own'])} | {pct(r['replicated'])} | {pct(r['exchange'])} | {pct(r['gather'], 1)} | "
+            f"{r['kb_per_agent']:.1f} KB | {r['setup']:.1f} |"
         )
     return "\n".join(lines)
 
