@@ -44,7 +44,7 @@ def assert_same_run(a, b):
         (0.3, None, {}),
         (0.3, 5.0, {}),
         (0.3, None, dict(delay=3, wake=0.7, bits=3)),  # copies, messages in flight and the step carried
-        (None, None, dict(bits=2, error_feedback=True, top_k=1)),
+        pytest.param(None, None, dict(bits=2, error_feedback=True, top_k=1), marks=pytest.mark.slow),
     ],
 )
 def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, loss, burst, links):
