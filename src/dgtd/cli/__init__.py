@@ -533,6 +533,18 @@ def _quiet_ranks() -> None:
         sys.stdout = sys.stderr = open(os.devnull, "w")  # noqa: SIM115  (for the life of the process)
 
 
+def _only_run_spreads(argv) -> None:
+    """Under mpiexec with more than one rank, `dgtd run` alone spreads its agents over the ranks; any other command
+    would run once on every rank and write the same files from each."""
+    from dgtd.backends import mpi
+
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if mpi.launched() and mpi.spread() and command not in (None, "run"):
+        raise DgtdInputError(
+            f"under mpiexec only `dgtd run` spreads a run's agents over the ranks; run `dgtd {command}` in one process"
+        )
+
+
 def main(argv=None) -> None:
     """Entry point: one line and exit code 2 for bad input, never a traceback."""
     import warnings
@@ -540,6 +552,7 @@ def main(argv=None) -> None:
     DEBUG["on"] = False
     _quiet_ranks()
     try:
+        _only_run_spreads(sys.argv[1:] if argv is None else argv)
         with warnings.catch_warnings():
             warnings.showwarning = _note
             cli.main(args=argv, prog_name="dgtd", standalone_mode=False)
