@@ -172,14 +172,10 @@ class Partition:
         mine = np.ascontiguousarray(x[:, : len(self.own)].transpose(1, 0, 2))  # agents first: blocks line up
         counts = np.diff(self.bounds) * B * q
         stored = np.empty((int(self.bounds[-1]), B, q))  # in storage order
-        self.comm_world.Allgatherv(mine, [stored, counts, self.bounds[:-1] * B * q, MPI.DOUBLE])
+        world().Allgatherv(mine, [stored, counts, self.bounds[:-1] * B * q, MPI.DOUBLE])
         whole = np.empty((B, int(self.bounds[-1]), q))
         whole[:, self.order] = stored.transpose(1, 0, 2)
         return whole
-
-    @property
-    def comm_world(self):
-        return world()
 
 
 def partition(ctx) -> Partition:

@@ -30,6 +30,7 @@ from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear, me
 from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
 from dgtd.backends.compiled.held import carry
 from dgtd.backends.compiled.sampling import (
+    _sample_step,
     _step_edges,
     _step_observations,
     _step_samples,
@@ -66,29 +67,6 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     """Seeds b0 .. b1 - 1 one after another, each its steps in order, each step its learners in order. No threads of
     its own (it releases the GIL: `Layouts` runs several calls at once over separate seeds, each with its own
     ``space``, `_space`)."""
-    (
-        fused,
-        rng,
-        markov,
-        current,
-        d_prob,
-        d_alias,
-        sa_prob,
-        sa_alias,
-        terminal,
-        R_sample,
-        sigma,
-        noise,
-        p_edge,
-        loss,
-        links,
-        s_blk,
-        a_blk,
-        sn_blk,
-        r_blk,
-        up_blk,
-        n_up,
-    ) = sampler
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     indptr, eid = graph[0], graph[2]
     L, T = sums.shape[1], alphas.shape[0]
@@ -96,43 +74,14 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     for b in range(b0, b1):
         arcs_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
         for t in range(T):
-            arcs_up += _step_samples(
-                b,
-                0,
-                t,
-                fused,
-                rng,
-                markov,
-                current,
-                d_prob,
-                d_alias,
-                sa_prob,
-                sa_alias,
-                terminal,
-                R_sample,
-                sigma,
-                noise,
-                p_edge,
-                loss,
-                links,
-                s_blk,
-                a_blk,
-                sn_blk,
-                r_blk,
-                up_blk,
-                s_t,
-                a_t,
-                sn_t,
-                r_t,
-                up_t,
-            )
+            arcs_up += _sample_step(sampler, b, t, space)
             if NEEDS_DEGREES:
                 count_heard(up_t, 0, indptr, eid, degree, 0)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
             inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0, graph[4])
             for i in range(L):
                 _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
-        n_up[b] += arcs_up
+        sampler[-1][b] += arcs_up  # n_up
 
 
 def _seeds_held(
@@ -141,29 +90,6 @@ def _seeds_held(
     """`_seeds` over a channel whose receivers hold copies (`dgtd.backends.compiled.held`): at each step the channel
     first carries the messages (`carry`), then each awake learner steps, reading its neighbours' copies in rows
     N + a; an asleep one keeps its state and reports its estimate (message 0, w, for every algorithm that sends)."""
-    (
-        fused,
-        rng,
-        markov,
-        current,
-        d_prob,
-        d_alias,
-        sa_prob,
-        sa_alias,
-        terminal,
-        R_sample,
-        sigma,
-        noise,
-        p_edge,
-        loss,
-        links_state,
-        s_blk,
-        a_blk,
-        sn_blk,
-        r_blk,
-        up_blk,
-        n_up,
-    ) = sampler
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work, awake, late, rounding, value, chosen = (
         space
     )
@@ -173,39 +99,12 @@ def _seeds_held(
     x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
     for b in range(b0, b1):
         for t in range(T):
-            n_up[b] += _step_samples(
-                b,
-                0,
-                t,
-                fused,
-                rng,
-                markov,
-                current,
-                d_prob,
-                d_alias,
-                sa_prob,
-                sa_alias,
-                terminal,
-                R_sample,
-                sigma,
-                noise,
-                p_edge,
-                loss,
-                links_state,
-                s_blk,
-                a_blk,
-                sn_blk,
-                r_blk,
-                up_blk,
-                s_t,
-                a_t,
-                sn_t,
-                r_t,
-                up_t,
-            )
+            sampler[-1][b] += _sample_step(sampler, b, t, space)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
             step = held.step[b] + t
-            held.delivered[b] += carry(links, held, b, step, rng, up_t, sent, N, (awake, late, rounding, value, chosen))
+            held.delivered[b] += carry(
+                links, held, b, step, sampler[1], up_t, sent, N, (awake, late, rounding, value, chosen)
+            )
             if NEEDS_DEGREES:
                 count_heard(up_t, 0, indptr, eid, degree, 0)
                 for a in range(links.src_row.shape[0]):  # a copy's row counts as its sender
@@ -481,21 +380,29 @@ _DRIVERS: dict = {}
 
 
 def _copies(compiled: CompiledStep, suffix: str) -> tuple:
-    import types
-
-    space = dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
-
-    def copy(fn, **options):
-        clone = types.FunctionType(fn.__code__, space, f"{fn.__name__}_{suffix}", fn.__defaults__, fn.__closure__)
-        clone.__qualname__, clone.__doc__ = clone.__name__, fn.__doc__
-        space[fn.__name__] = dispatcher = njit(cache=True, **options)(clone)
-        return dispatcher
-
-    copy(_learner, inline="always")
-    seeds, chunk = copy(_seeds, nogil=True, _nrt=False), copy(_chunk, nogil=True, _nrt=False)
-    agents = copy(_agents, parallel=True)
+    space = _template_space(compiled)
+    _copy(_learner, space, suffix, inline="always")
+    seeds = _copy(_seeds, space, suffix, nogil=True, _nrt=False)
+    chunk = _copy(_chunk, space, suffix, nogil=True, _nrt=False)
+    agents = _copy(_agents, space, suffix, parallel=True)
     load_quickly(seeds, chunk, agents)
     return seeds, agents
+
+
+def _template_space(compiled: CompiledStep) -> dict:
+    """The globals the templates' copies see: this module's, with the algorithm's step and flag in place."""
+    return dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
+
+
+def _copy(fn, space: dict, suffix: str, **options):
+    """Template ``fn`` compiled in ``space`` under the name ``{fn.__name__}_{suffix}`` (its disk cache's name), and
+    put there under its own name for the copies that call it."""
+    import types
+
+    clone = types.FunctionType(fn.__code__, space, f"{fn.__name__}_{suffix}", fn.__defaults__, fn.__closure__)
+    clone.__qualname__, clone.__doc__ = clone.__name__, fn.__doc__
+    space[fn.__name__] = dispatcher = njit(cache=True, **options)(clone)
+    return dispatcher
 
 
 # --- The Python side: arrays in, layout chosen, arrays out ----------------------------------------------------------
@@ -646,16 +553,10 @@ def _held_driver(name: str, compiled: CompiledStep):
     """`_seeds_held` compiled for algorithm ``name`` (once, cached on disk), as `driver` compiles the others."""
     key = ("held", name)
     if key not in _DRIVERS:
-        import types
-
-        space = dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
-        suffix = name.replace("-", "_")
-        for fn, options in ((_learner, {"inline": "always"}), (_seeds_held, {"nogil": True})):
-            clone = types.FunctionType(fn.__code__, space, f"{fn.__name__}_held_{suffix}", None, fn.__closure__)
-            clone.__qualname__, clone.__doc__ = clone.__name__, fn.__doc__
-            space[fn.__name__] = njit(cache=True, **options)(clone)
-        load_quickly(space["_seeds_held"])
-        _DRIVERS[key] = space["_seeds_held"]
+        space, suffix = _template_space(compiled), "held_" + name.replace("-", "_")
+        _copy(_learner, space, suffix, inline="always")
+        _DRIVERS[key] = _copy(_seeds_held, space, suffix, nogil=True)
+        load_quickly(_DRIVERS[key])
     return _DRIVERS[key]
 
 

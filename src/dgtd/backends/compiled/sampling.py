@@ -235,6 +235,66 @@ def _step_samples(
 
 
 @njit(cache=True, inline="always")
+def _sample_step(sampler, b, t, space):
+    """Seed b's samples of step t into row 0 of the step's arrays (the first five of a driver's ``space``), from the
+    sampling arguments as `sample_args` lays them out; returns how many arcs deliver (`_step_samples`)."""
+    (
+        fused,
+        rng,
+        markov,
+        current,
+        d_prob,
+        d_alias,
+        sa_prob,
+        sa_alias,
+        terminal,
+        R_sample,
+        sigma,
+        noise,
+        p_edge,
+        loss,
+        links,
+        s_blk,
+        a_blk,
+        sn_blk,
+        r_blk,
+        up_blk,
+        _,
+    ) = sampler
+    s_t, a_t, sn_t, r_t, up_t = space[0], space[1], space[2], space[3], space[4]
+    return _step_samples(
+        b,
+        0,
+        t,
+        fused,
+        rng,
+        markov,
+        current,
+        d_prob,
+        d_alias,
+        sa_prob,
+        sa_alias,
+        terminal,
+        R_sample,
+        sigma,
+        noise,
+        p_edge,
+        loss,
+        links,
+        s_blk,
+        a_blk,
+        sn_blk,
+        r_blk,
+        up_blk,
+        s_t,
+        a_t,
+        sn_t,
+        r_t,
+        up_t,
+    )
+
+
+@njit(cache=True, inline="always")
 def _step_observations(
     b,
     row,
