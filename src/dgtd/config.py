@@ -116,8 +116,9 @@ class Output:
     - ``checkpoint_every``: save the whole run state every K iterations (0: never), for ``resume``.
     - ``resume``: continue the run saved in ``out`` from its last checkpoint.
     - ``overwrite``: replace the results of another run (another configuration) in ``out``; without it that is
-      refused. Rerunning the same configuration into its own directory needs no flag. Either way the previous
-      run's files go first, so a directory never mixes two runs.
+      refused. Rerunning the same configuration into its own directory needs no flag: a run cut off after a
+      checkpoint continues from it (as ``resume`` would), a finished one runs afresh; ``overwrite`` starts afresh
+      in any case. Either way the previous run's files go first, so a directory never mixes two runs.
     """
 
     out: str | None = None

@@ -287,6 +287,9 @@ LINKS = {
     "top-k of 0": (("--top-k", "0"), "top_k"),
     "error feedback without compression": (("--error-feedback",), "give --bits B"),
     "error feedback with delay": (("--bits", "4", "--error-feedback", "--delay", "2"), "not supported"),
+    "asynchronous ranks in one process": (("--asynchronous",), "for agents spread over the ranks of an mpiexec"),
+    "a staleness without asynchronous ranks": (("--staleness", "2"), "give --asynchronous"),
+    "a negative staleness": (("--asynchronous", "--staleness", "-1"), "staleness must be >= 0"),
 }
 
 
@@ -319,3 +322,20 @@ def test_a_lossy_run_records_its_links_and_converges_elsewhere(run_cli, tmp_path
     solved = json.loads(out)
     np.testing.assert_allclose(solved["w_fixed"], lossy["w_fixed"], rtol=1e-12)
     assert abs(sum(solved["agent_weights"]) - 1) < 1e-12 and max(solved["agent_weights"]) > 0.4
+
+
+LAUNCHES = {
+    "hosts without ranks": (("--hosts", "hosts.txt"), "give --ranks too"),
+    "no ranks": (("--ranks", "0"), "at least 1"),
+    "a host file that is not there": (("--ranks", "2", "--hosts", "nowhere.txt"), "no such file"),
+    "a host file line that is not host:slots": (("--ranks", "2", "--hosts", "hosts.txt"), "line 2"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(LAUNCHES))
+def test_bad_launches_are_one_line_before_any_rank_starts(run_cli, tmp_path, monkeypatch, case):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "hosts.txt").write_text("# the machines\nnode1:two\n")
+    args, words = LAUNCHES[case]
+    one_line_error(*run_cli(*RUN, "-T", 10, *args, "--out", tmp_path / "o"), words)
+    assert not (tmp_path / "o").exists()

@@ -179,3 +179,34 @@ def test_checkpoint_of_another_format_is_refused(tmp_path, old):
     assert checkpoint.FORMAT == 3
     with pytest.raises(DgtdInputError, match=f"has format {old}, this dgtd reads 3"):
         load_checkpoint(path)
+
+
+def test_the_same_command_again_resumes_its_checkpoint(tmp_path, run_cli):
+    """A run cut off after a checkpoint continues when the same command is given again (no --resume needed), and ends
+    with the uninterrupted numbers; a checkpoint of another config is not thrown away without --overwrite."""
+    command = ("run", "paper-example-1", "-T", "2000", "--backend", "numpy", "--no-plots", "--no-progress")
+    command += ("--checkpoints", "5", "--checkpoint-every", "500")
+    code, _, err = run_cli(*command, "--out", tmp_path / "whole")
+    assert code == 0, err
+    out = tmp_path / "cut"
+    problem, network, algorithm, samp, settings, resolved = resolve(
+        unflat(dict(scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5))
+    )
+    snaps = []
+    run(problem, network, algorithm, samp, settings, checkpoint_every=500, on_checkpoint=snaps.append)
+    from dgtd.config import spec_record
+
+    code, _, err = run_cli(*command, "-T", "1", "--out", out)  # the directory and its config.toml, as a run leaves them
+    assert code == 0, err
+    (out / "summary.json").unlink()
+    save_checkpoint(out / "checkpoint.npz", snaps[1], json.loads(json.dumps(spec_record(resolved))))
+    code, _, err = run_cli(*command, "--kappa", "3", "--out", out)
+    assert code == 2 and "checkpoint of another run" in err and "kappa = 1.0 there, 3.0 here" in err, err
+    assert (out / "checkpoint.npz").exists()
+    code, said, err = run_cli(*command, "--out", out)
+    assert code == 0 and "resuming" in said and "1,000" in said, err
+    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+    save_checkpoint(out / "checkpoint.npz", snaps[1], json.loads(json.dumps(spec_record(resolved))))
+    code, said, err = run_cli(*command, "--overwrite", "--out", out)  # --overwrite starts afresh
+    assert code == 0 and "resuming" not in said, err
+    assert not (out / "checkpoint.npz").exists()

@@ -1,4 +1,6 @@
-"""The agents of a run spread over the ranks of an MPI job (``mpiexec -n R dgtd run ...``), synchronously.
+"""The agents of a run spread over the ranks of an MPI job (``mpiexec -n R dgtd run ...``): synchronously, or with
+``--asynchronous`` ranks that do not wait for each other's messages (`dgtd.backends.mailbox`; then the exchange below
+is its non-blocking messages).
 
 Rank r holds a contiguous block of the agents in their storage order (`Partition`: the compiled kernels' order,
 reverse Cuthill-McKee where it keeps more links local, split as evenly as it goes) and updates only
@@ -20,6 +22,7 @@ A rank that stops answering (killed, or its machine gone) would leave its neighb
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
@@ -28,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from dgtd.backends.mailbox import AGES, Mailbox
 from dgtd.channels import Arcs, Inbox
 from dgtd.errors import DgtdInputError
 
@@ -75,8 +79,22 @@ def spread() -> bool:
     return size() > 1
 
 
-def check_supported(algorithm, channel, n_agents: int, backend: str) -> None:
+def spreads(algorithm) -> bool:
+    """Whether a run of ``algorithm`` spreads its agents over the ranks: under mpiexec with more than one rank, for
+    every algorithm but a centralised learner (one estimate from every agent's samples: nothing to spread), which
+    every rank runs whole, giving the numbers of one process."""
+    return spread() and (bool(algorithm.messages) or algorithm.name == "local")
+
+
+def check_supported(algorithm, channel, n_agents: int, backend: str, asynchronous: bool = False) -> None:
     """One line for what the runtime does not run (yet), the same on every rank."""
+    if asynchronous and not launched():
+        raise DgtdInputError(
+            "--asynchronous is for agents spread over the ranks of an mpiexec job (mpiexec -n R dgtd run ...): "
+            "one process has no rank to wait for; leave it out, or model late messages with --delay D"
+        )
+    if not spread():
+        return
     R = size()
     if R > n_agents:
         raise DgtdInputError(f"{R} ranks for {n_agents} agents: run with at most {n_agents} ranks (mpiexec -n)")
@@ -84,11 +102,6 @@ def check_supported(algorithm, channel, n_agents: int, backend: str) -> None:
         raise DgtdInputError(
             "under mpiexec every rank runs the NumPy reference arithmetic (the numbers of --backend numpy, bit for "
             f"bit): leave out --backend {backend} or give --backend numpy"
-        )
-    if not algorithm.messages and algorithm.name != "local":
-        raise DgtdInputError(
-            f"{algorithm.name} is a centralised learner (one estimate from every agent's samples): it cannot be spread "
-            "over ranks; run it in one process, or choose an algorithm whose agents communicate"
         )
     if getattr(channel, "name", "perfect") not in ("perfect", "lossy"):
         raise DgtdInputError(
@@ -198,8 +211,10 @@ def local_sample(sample, local: np.ndarray):
     return type(sample)(*(rows(x) for x in sample))
 
 
-def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, blk):
-    """`dgtd.backends.reference.run_block`'s contract, this rank's agents only; returns the whole state, gathered."""
+def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool = False, staleness: int | None = None):
+    """`dgtd.backends.reference.run_block`'s contract, this rank's agents only; returns the whole state, gathered.
+    ``asynchronous``: the ghosts' messages are the newest received, waiting only for one at most ``staleness`` steps
+    old (None: never; `dgtd.backends.mailbox`)."""
     P = partition(ctx)
     algorithm, channel = ctx.algorithm, ctx.channel
     local = state._make(np.ascontiguousarray(x[:, P.local]) for x in state)
@@ -207,12 +222,16 @@ def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, 
     Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
     metropolis = algorithm.mixing == "metropolis"
     clock = time.perf_counter
+    mail = Mailbox(P, algorithm.sends(local), len(alphas), staleness, WATCHDOG.beat) if asynchronous else None
     for t in range(len(alphas)):
         t0 = clock()
         sums += algorithm.estimate(local)
         sent = {name: np.array(x) for name, x in algorithm.sends(local).items()}
         t1 = clock()
-        P.exchange(sent)
+        if mail is None:
+            P.exchange(sent)
+        else:
+            mail.swap(sent, t)
         WATCHDOG.beat()
         t2 = clock()
         up = None if blk.up is None else blk.up[t]
@@ -228,9 +247,39 @@ def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, 
         SECONDS["exchange"] += t2 - t1
         SECONDS["replicated"] += t3 - t2
     t5 = clock()
+    if mail is not None:
+        mail.finish()
+    t6 = clock()
     new = state._make(P.gather(x) for x in local), channel_state, P.gather(sums)
-    SECONDS["gather"] += clock() - t5
+    SECONDS["exchange"] += t6 - t5
+    SECONDS["gather"] += clock() - t6
     return new
+
+
+def asynchronous(staleness: int | None):
+    """`run_block` with ranks that wait for each other's messages only when the newest is more than ``staleness``
+    steps old (None: never)."""
+    return functools.partial(run_block, asynchronous=True, staleness=staleness)
+
+
+NO_AGES = {"counts": 0, "transit": 0.0}
+
+
+def message_ages(restore: dict | None = None) -> dict:
+    """The ages of the messages used and their seconds in transit, added up over the ranks (a collective: every rank
+    calls it, at the same step): {"counts": ghosts used per age in steps (the last bin: that age and older),
+    "transit": [messages received, their seconds in transit summed, the largest]}. ``restore``: start this run's
+    counts from a checkpoint's (rank 0 holds them; the others start from zero)."""
+    from mpi4py import MPI
+
+    if restore is not None:
+        AGES["counts"][:] = restore["counts"] if rank() == 0 else 0
+        AGES["transit"][:] = restore["transit"] if rank() == 0 else 0.0
+    counts = np.zeros_like(AGES["counts"])
+    world().Allreduce(AGES["counts"], counts, op=MPI.SUM)
+    received, seconds = world().allreduce(AGES["transit"][0], op=MPI.SUM), world().allreduce(AGES["transit"][1])
+    largest = world().allreduce(AGES["transit"][2], op=MPI.MAX)
+    return {"counts": counts, "transit": np.array([received, seconds, largest])}
 
 
 class Watchdog:

@@ -57,14 +57,16 @@ def _is_experiment_file(arg: str | None) -> bool:
     "--overwrite/--no-overwrite",
     default=Output.overwrite,
     show_default=True,
-    help="Replace the results of another run in OUT (refused without it; the same run is simply redone).",
+    help="Replace the results or checkpoint of another run in OUT (refused without it), or start this run afresh "
+    "(without it, a run cut off after a checkpoint continues; a finished one is redone).",
 )
 @click.option(
     "--checkpoint-every",
     type=int,
     default=Output.checkpoint_every,
     show_default=True,
-    help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never).",
+    help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never); the same command again "
+    "continues from it.",
 )
 @click.option(
     "--resume",
@@ -73,8 +75,20 @@ def _is_experiment_file(arg: str | None) -> bool:
     default=None,
     help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run.",
 )
+@click.option(
+    "--ranks",
+    type=int,
+    default=None,
+    help="Spread the agents over R processes: starts the mpi extra's mpiexec -n R (docs/distributed.md).",
+)
+@click.option(
+    "--hosts",
+    type=str,
+    default=None,
+    help="With --ranks: an MPICH host file (host or host:slots a line); every host is checked before any starts.",
+)
 @click.pass_context
-def run(ctx, scenario, resume_dir, **_):
+def run(ctx, scenario, resume_dir, ranks, hosts, **_):
     """Run an algorithm on a named SCENARIO (e.g. paper-example-1), on --problem FILE.npz, or as an EXPERIMENT.toml.
 
     Flags override the experiment file's fields; the results directory gets config.toml, the fully
@@ -102,7 +116,11 @@ def run(ctx, scenario, resume_dir, **_):
     from dgtd.cli.job import CONFIG, prepare
     from dgtd.experiments import experiment_from
 
-    flags = given_flags(ctx, exclude=("scenario", "resume_dir"))
+    if ranks is not None or hosts is not None:
+        from dgtd.cli.launch import launch
+
+        ctx.exit(launch(ranks, hosts, ARGV))
+    flags = given_flags(ctx, exclude=("scenario", "resume_dir", "ranks", "hosts"))
     file = scenario if _is_experiment_file(scenario) else None
     if scenario is not None and file is None:
         flags["scenario"] = scenario
@@ -512,6 +530,9 @@ from dgtd.cli.compare import compare as _compare  # noqa: E402
 cli.add_command(_compare)
 
 
+ARGV: list[str] = []  # the command line `main` was given (`dgtd.cli.launch` passes it on to the ranks)
+
+
 def _note(message, category, filename, lineno, file=None, line=None) -> None:
     """dgtd's own notices (a `warnings.warn` in dgtd) as one line of the command's; others' as Python shows them."""
     import warnings
@@ -550,6 +571,7 @@ def main(argv=None) -> None:
     import warnings
 
     DEBUG["on"] = False
+    ARGV[:] = sys.argv[1:] if argv is None else list(argv)
     _quiet_ranks()
     try:
         _only_run_spreads(sys.argv[1:] if argv is None else argv)

@@ -92,8 +92,8 @@ class PreparedRun:
         every = self.config.output.checkpoint_every
         ckpt = self.out / CHECKPOINT
         self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
-        if mpi.spread():  # a rank that waits too long for the others ends with one line (`mpi.Watchdog`)
-            again = f"rerun with --resume {self.out}" if every else "rerun"
+        if mpi.spreads(self.algorithm):  # a rank that waits too long for the others ends with one line
+            again = "run the same command again to continue from it" if every else "rerun"
             mpi.WATCHDOG.start(float(os.environ.get("DGTD_MPI_TIMEOUT", mpi.TIMEOUT)), again)
         saving = mpi.rank() == 0  # one copy of the run's files: rank 0's (every rank holds the same state)
         try:
@@ -130,6 +130,7 @@ class PreparedRun:
             also[SCENARIO_ARRAYS] = lambda: npz_bytes(sc.report.arrays(self.source))
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
         names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz", *also]
+        names += ["message_ages.csv"] if "message_ages" in result.info else []
         (self.out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
         if plots:
             try:
@@ -205,15 +206,15 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
     out = Path(config.output.out) if config.output.out else Path("runs") / problem.name
     out = out.resolve()
     record = json.loads(json.dumps(spec_record(resolved)))
-    if mpi.spread():  # what the ranks cannot run, said before anything starts
-        mpi.check_supported(algorithm, make_channel(resolved, network), problem.n_agents, settings.backend)
+    channel = make_channel(resolved, network)  # what the ranks cannot run, said before anything starts
+    mpi.check_supported(algorithm, channel, problem.n_agents, settings.backend, settings.asynchronous)
     if mpi.rank() != 0:  # rank 0 claims the directory and writes; the others read what they resume from
         run = PreparedRun(config, problem, network, algorithm, sampling, settings, resolved, out, record)
         said = mpi.world().bcast(None, root=0)
         if said is not None:
             raise DgtdInputError(said)
-        if config.output.resume and (out / CHECKPOINT).exists():
-            run.snapshot = load_checkpoint(out / CHECKPOINT)[0]
+        if (out / CHECKPOINT).exists() and (config.output.resume or not config.output.overwrite):
+            run.snapshot = load_checkpoint(out / CHECKPOINT)[0]  # as rank 0 found it (it has not cleared it)
         run.finished = config.output.resume and run.snapshot is None
         return run
     try:
@@ -256,6 +257,15 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
         diff = first_difference(saved, record)
         if diff:
             raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
+    elif ckpt.exists() and not output.overwrite:  # the same command again continues a run that was cut off
+        snapshot, saved = load_checkpoint(ckpt)
+        diff = first_difference(saved, record)
+        if diff:
+            raise DgtdInputError(
+                f"{out} holds the checkpoint of another run ({diff}); continue it with `dgtd run --resume {out}`, "
+                "choose another --out, or pass --overwrite to replace it"
+            )
+        run.snapshot = snapshot
     else:
         clear_previous_run(out, record, output.overwrite)
         atomic_write(out / CONFIG, run.config_toml.encode())
@@ -270,6 +280,7 @@ RUN_FILES = (
     "metrics.csv",
     "bands.csv",
     "trajectory.npz",
+    "message_ages.csv",
     CHECKPOINT,
     "iterates.png",
     "errors.png",

@@ -99,6 +99,19 @@ def _run_options() -> dict:
                 help="The compiled kernels or the NumPy reference (the same numbers)." + shown("backend"),
             ),
             click.option(
+                "--asynchronous/--synchronous",
+                default=None,
+                help="Under mpiexec: ranks do not wait for each other's messages, each agent using the newest "
+                "received (their ages are recorded); synchronous (the default) gives one process's numbers.",
+            ),
+            click.option(
+                "--staleness",
+                type=int,
+                default=None,
+                help="With --asynchronous: a rank waits for a neighbour's message once the newest it has is more "
+                "than S steps old (default: never waits; 0: the synchronous numbers).",
+            ),
+            click.option(
                 "--checkpoints",
                 type=int,
                 default=None,

@@ -56,7 +56,7 @@ def save_checkpoint(path: Path, snap: dict, config: dict) -> None:
 
 def load_checkpoint(path: Path) -> tuple[dict, dict]:
     """(snapshot, config) from a checkpoint file, or a `DgtdInputError` saying what is wrong with it."""
-    fix = "delete it and start the run afresh (without --resume)"
+    fix = "start the run afresh with --overwrite (or delete it)"
     arrays = read_npz(path, "checkpoint", fix, required=("__meta__",))
     try:
         meta = json.loads(str(arrays.pop("__meta__")))

@@ -35,7 +35,10 @@ class RunSettings:
     - ``checkpoints``: about how many times metrics are recorded (`checkpoint_steps`);
     - ``tail_fraction``: the final fraction of the run averaged for w_tail;
     - ``block_size``: steps drawn and advanced per block (no effect on results);
-    - ``backend``: one of `BACKENDS`, the compiled kernels or the NumPy reference.
+    - ``backend``: one of `BACKENDS`, the compiled kernels or the NumPy reference;
+    - ``asynchronous``: agents spread over the ranks of an mpiexec job use the newest messages received from the
+      other ranks, waiting only when the newest is more than ``staleness`` steps old (None: never; 0: the
+      synchronous numbers) (`dgtd.backends.mailbox`); off, the ranks give one process's numbers bit for bit.
     """
 
     iterations: int = 10_000
@@ -45,11 +48,17 @@ class RunSettings:
     tail_fraction: float = 0.5
     block_size: int = 4096
     backend: str = "numba"
+    asynchronous: bool = False
+    staleness: int | None = None
 
     def __post_init__(self):
         for name in ("iterations", "seeds", "checkpoints", "block_size"):
             object.__setattr__(self, name, check_count(name, getattr(self, name), 1))
         object.__setattr__(self, "seed", check_count("seed", self.seed, 0))
+        if self.staleness is not None:
+            object.__setattr__(self, "staleness", check_count("staleness", self.staleness, 0))
+            if not self.asynchronous:
+                raise DgtdInputError("staleness bounds the ages of an asynchronous run's messages: give --asynchronous")
         if not 0.0 < self.tail_fraction <= 1.0:
             raise DgtdInputError(f"tail_fraction must lie in (0, 1], got {self.tail_fraction}")
         if self.backend not in BACKENDS:
@@ -297,9 +306,15 @@ def run(
         )
     from dgtd.backends import mpi
 
-    if mpi.spread():  # ranks of an mpiexec job: the agents spread over them (`dgtd.backends.mpi`)
-        mpi.check_supported(algorithm, ctx.channel, N, settings.backend)
-    kernel = mpi.run_block if mpi.spread() else kernel_for(settings.backend, algorithm.name)
+    mpi.check_supported(algorithm, ctx.channel, N, settings.backend, settings.asynchronous)
+    asynchronous = settings.asynchronous and mpi.spreads(algorithm)
+    if asynchronous:
+        kernel = mpi.asynchronous(settings.staleness)
+        mpi.message_ages(restore=mpi.NO_AGES if resume is None else resume["message_ages"])
+    elif mpi.spreads(algorithm):  # ranks of an mpiexec job: the agents spread over them (`dgtd.backends.mpi`)
+        kernel = mpi.run_block
+    else:
+        kernel = kernel_for(settings.backend, algorithm.name)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N, q)
     channel = ctx.channel.init(B, ctx.arcs, settings.seed)
@@ -438,6 +453,7 @@ def run(
                 if w_trace is not None:
                     w_trace[c:] = np.nan
                 break
+        ages = mpi.message_ages() if asynchronous and every and k % every == 0 and k < T else {}  # every rank
         if every and k % every == 0 and k < T and on_checkpoint is not None:
             on_checkpoint(
                 snapshot(
@@ -460,6 +476,7 @@ def run(
                         "counts": counts,
                         **({} if tail_base is None else {"tail_base": tail_base}),
                         **({} if sum_trace is None else {"sum_trace": sum_trace}),
+                        **({"message_ages": {n: ages[n] for n in ("counts", "transit")}} if ages else {}),
                     },
                 )
             )
@@ -494,6 +511,7 @@ def run(
             "regularisation_shift": float(exact.relative_error(w_ref, w_star).max())
             if getattr(algorithm, "rho", 0.0)
             else 0.0,
+            **({"message_ages": mpi.message_ages()} if asynchronous else {}),
             "loop_seconds": time.perf_counter() - t_loop,
             "kernel_seconds": kernel_seconds,
         },

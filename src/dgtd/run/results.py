@@ -197,10 +197,41 @@ def summary(result: RunResult, config: dict) -> dict:
             if "per_agent" in result.info
             else {}
         ),
+        **({"message_ages": age_summary(result.info["message_ages"])} if "message_ages" in result.info else {}),
         "stationary_distribution": None if result.info["d"] is None else result.info["d"].tolist(),
         "seconds": result.seconds,
         "config": config,
     }
+
+
+def age_summary(ages: dict) -> dict:
+    """What an asynchronous run's ranks counted of the messages they used (`dgtd.backends.mpi.message_ages`): the
+    ages in steps (0: the step's own message, as a synchronous run uses; k: k steps old), each ghost counted once a
+    step, and the seconds a message took to arrive."""
+    counts = np.asarray(ages["counts"])
+    age = np.arange(len(counts))
+    used = int(counts.sum())
+    share = np.cumsum(counts) / max(used, 1)
+    quantile = lambda p: int(age[np.searchsorted(share, p)]) if used else None  # noqa: E731
+    seen = np.flatnonzero(counts)
+    received, seconds, largest = (float(x) for x in ages["transit"])
+    return {
+        "used": used,
+        "mean": float(counts @ age / used) if used else None,
+        "median": quantile(0.5),
+        "p95": quantile(0.95),
+        "max": int(age[seen[-1]]) if used else None,
+        "steps": {str(int(age[i])): int(counts[i]) for i in seen},
+        "messages_received": int(received),
+        "transit_seconds_mean": seconds / received if received else None,
+        "transit_seconds_max": largest,
+    }
+
+
+def ages_csv(ages: dict) -> bytes:
+    """message_ages.csv: age_steps,count (the ages that occurred; `age_summary`)."""
+    steps = age_summary(ages)["steps"]
+    return ("age_steps,count\n" + "".join(f"{a},{n}\n" for a, n in steps.items())).encode()
 
 
 def per_output(name: str, error, result: RunResult) -> dict:
@@ -237,10 +268,12 @@ def write_results(
     }
     if result.w_trace is not None:
         arrays["w_trace"] = result.w_trace
+    ages = result.info.get("message_ages")  # an asynchronous run's (`age_summary`)
     files = {
         "metrics.csv": lambda: metrics_csv(result, algorithm),
         "bands.csv": lambda: bands_csv({algorithm: result}),
         "trajectory.npz": lambda: npz_bytes(arrays),
+        **({"message_ages.csv": lambda: ages_csv(ages)} if ages is not None else {}),
         **(also or {}),
         "summary.json": lambda: json_bytes(summary(result, config) | ({"scenario": extra} if extra else {})),
     }
