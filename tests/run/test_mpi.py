@@ -243,6 +243,40 @@ def test_ranks_started_by_dgtd_run_itself(tmp_path):
         assert done.stdout.count("wrote ") == 1
 
 
+def test_ctrl_c_ends_every_rank_at_once_and_keeps_the_checkpoint(tmp_path):
+    """Ctrl-C (SIGINT to the terminal's process group) reaches a rank only where it runs Python; a rank inside a
+    collective would wait for it until the watchdog's timeout. The interrupted rank ends the job (MPI_Abort): every
+    process is gone within seconds, the launcher exits 130 as an interrupted run does, the checkpoint is whole, and
+    the same command again continues from it."""
+    out = tmp_path / "run"
+    cmd = [*DGTD, "run", "garnet", "-T", "100000", "--ranks", "2", "--checkpoint-every", "5000", "--out", str(out)]
+    job = subprocess.Popen(
+        cmd,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's shell leaves it
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint.npz").exists():
+            assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
+            time.sleep(0.1)
+        os.killpg(job.pid, signal.SIGINT)
+        _, err = job.communicate(timeout=30)
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)
+    assert job.returncode == 130 and "dgtd: interrupted" in err, err
+    assert not (out / "summary.json").exists()
+    cut = subprocess.run([*cmd[:5], "-T", "20000", *cmd[7:]], env=env(), capture_output=True, text=True, timeout=300)
+    assert cut.returncode == 2 and "checkpoint of another run" in cut.stderr  # not thrown away: another config
+    again = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and "resuming" in again.stdout, again.stderr
+
+
 @pytest.mark.skipif(shutil.which("ssh") is None, reason="mpiexec reaches other hosts over ssh, not installed here")
 def test_a_host_that_cannot_be_reached_is_one_line_and_exit_2(tmp_path):
     """127.0.0.2 is this machine's loopback, where no ssh server listens: refused before any rank starts."""

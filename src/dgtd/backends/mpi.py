@@ -74,6 +74,17 @@ def size() -> int:
     return 1 if comm is None else comm.Get_size()
 
 
+def abort(code: int, line: str) -> None:
+    """End every rank of the job at once (after Ctrl-C, which reaches the ranks inside Python only: one waiting in
+    a collective for this one would wait on); what was checkpointed is intact, written atomically. ``line``: what
+    rank 0 has said already, said by this rank if it is another (whose stderr is silenced), as it may be the only
+    one that saw the interrupt."""
+    if "comm" in _WORLD and _WORLD["comm"].Get_size() > 1:
+        if _WORLD["comm"].Get_rank() != 0:
+            os.write(2, (line + "\n").encode())
+        _WORLD["comm"].Abort(code)
+
+
 def spread() -> bool:
     """Whether a run's agents are spread over more than one rank."""
     return size() > 1

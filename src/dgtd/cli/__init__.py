@@ -577,7 +577,9 @@ def main(argv=None) -> None:
         _only_run_spreads(sys.argv[1:] if argv is None else argv)
         with warnings.catch_warnings():
             warnings.showwarning = _note
-            cli.main(args=argv, prog_name="dgtd", standalone_mode=False)
+            code = cli.main(args=argv, prog_name="dgtd", standalone_mode=False)
+        if isinstance(code, int) and not isinstance(code, bool) and code:  # ctx.exit(code) returns it here
+            sys.exit(code)
     except DgtdInputError as e:
         if isinstance(e, UserCodeError) and DEBUG["on"] and e.__cause__ is not None:
             import traceback
@@ -593,7 +595,12 @@ def main(argv=None) -> None:
     except (click.exceptions.Abort, KeyboardInterrupt) as e:
         cause = e.__cause__ if isinstance(e, click.exceptions.Abort) else e  # click wraps Ctrl-C in Abort
         said = cause.args[0] if isinstance(cause, KeyboardInterrupt) and cause.args else None
-        click.echo(f"dgtd: {said or 'interrupted; files already written are complete'}", err=True)
+        line = f"dgtd: {said or 'interrupted; files already written are complete'}"
+        click.echo(line, err=True)
+        from dgtd.backends import mpi
+
+        sys.stdout.flush(), sys.stderr.flush()
+        mpi.abort(130, line)  # the other ranks of an mpiexec job stop too, rather than wait for this one
         sys.exit(130)
     except (MemoryError, OSError) as e:
         click.echo(f"dgtd: error: {e}", err=True)

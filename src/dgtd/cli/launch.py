@@ -18,6 +18,7 @@ from dgtd.errors import DgtdInputError
 
 SSH_SECONDS = 10  # how long ssh may take to reach a host before it counts as unreachable
 LOCAL = {"localhost", "127.0.0.1", "::1"}
+INTERRUPTED_SECONDS = 60  # how long the ranks may take to end after Ctrl-C
 
 
 def mpiexec() -> str:
@@ -109,4 +110,11 @@ def launch(ranks: int | None, hosts: str | None, argv: list[str]) -> int:
         check_reachable(listed, hosts)
         command += ["-f", hosts]
     command += [sys.executable, "-m", "dgtd.cli", *without(argv, ("--ranks", "--hosts"))]
-    return subprocess.call(command)
+    job = subprocess.Popen(command)
+    try:
+        return job.wait()
+    except KeyboardInterrupt:  # mpiexec passes Ctrl-C on to the ranks, which keep what they computed: let them end
+        try:
+            return job.wait(timeout=INTERRUPTED_SECONDS) or 130  # as an interrupted run exits (MPICH's says 0)
+        finally:
+            job.kill()  # a second Ctrl-C, or ranks that did not end in time
