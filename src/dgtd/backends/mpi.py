@@ -114,10 +114,10 @@ def check_supported(algorithm, channel, n_agents: int, backend: str, asynchronou
             "under mpiexec every rank runs the NumPy reference arithmetic (the numbers of --backend numpy, bit for "
             f"bit): leave out --backend {backend} or give --backend numpy"
         )
-    if getattr(channel, "name", "perfect") not in ("perfect", "lossy"):
+    if asynchronous and getattr(channel, "name", "perfect") not in ("perfect", "lossy"):
         raise DgtdInputError(
-            "late, asleep or compressed messages (--delay, --wake, --bits, --top-k) are not supported across ranks "
-            "yet: run them in one process"
+            "late, asleep or compressed messages (--delay, --wake, --bits, --top-k) run across ranks synchronously, "
+            "not with --asynchronous (whose messages are as late as the machine makes them): leave one out"
         )
 
 
@@ -188,6 +188,17 @@ class Partition:
                 x[:, rows] = into[at : at + n].reshape(x.shape[0], len(rows), x.shape[2])
                 at += n
 
+    def gather_arcs(self, channel_state):
+        """The copies' channel's state (`dgtd.channels.ChannelState`) with each arc's copies and messages in flight
+        from the rank of its receiver, on every rank (the rest of it is drawn alike on every rank)."""
+        whole = {}
+        for name in ("copies", "pending"):
+            x = getattr(channel_state, name)
+            whole[name] = np.empty_like(x)
+            for ids, part in world().allgather((self.arc_ids, x[:, self.arc_ids])):
+                whole[name][:, ids] = part
+        return channel_state._replace(**whole)
+
     def gather(self, x: np.ndarray) -> np.ndarray:
         """Every rank's own rows of x (B, local, q) side by side: the whole (B, N, q), on every rank."""
         from mpi4py import MPI
@@ -200,6 +211,16 @@ class Partition:
         whole = np.empty((B, int(self.bounds[-1]), q))
         whole[:, self.order] = stored.transpose(1, 0, 2)
         return whole
+
+
+def everyone(sent: dict, P: Partition, n_agents: int) -> dict:
+    """The messages ``sent`` (name -> (B, local, q)) in every agent's row (B, N, q): this rank's own agents' and
+    ghosts' where they are, zeros elsewhere."""
+    out = {}
+    for name, x in sent.items():
+        out[name] = np.zeros((x.shape[0], n_agents, x.shape[2]))
+        out[name][:, P.local] = x
+    return out
 
 
 def partition(ctx) -> Partition:
@@ -234,6 +255,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
     metropolis = algorithm.mixing == "metropolis"
     clock = time.perf_counter
     mail = Mailbox(P, algorithm.sends(local), len(alphas), staleness, WATCHDOG.beat) if asynchronous else None
+    copies = channel.name == "imperfect"
     for t in range(len(alphas)):
         t0 = clock()
         sums += algorithm.estimate(local)
@@ -246,13 +268,21 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         WATCHDOG.beat()
         t2 = clock()
         up = None if blk.up is None else blk.up[t]
-        whole, channel_state = channel.deliver(channel_state, ctx.arcs, sent, up)  # every arc's draws, every rank
+        # every arc's draws, on every rank; the copies' channel holds what arcs carry, right here for those into
+        # this rank's agents (their senders are its own agents and ghosts; the other rows are zeros)
+        given = everyone(sent, P, ctx.arcs.n_agents) if copies else sent
+        whole, channel_state = channel.deliver(channel_state, ctx.arcs, given, up)
         degrees = ctx.arcs.into(whole.heard[:, :, None])[:, P.local, 0] if metropolis else None
         weights = None if whole.weights is None else whole.weights[P.arc_ids]
-        inbox = Inbox(P.arcs, sent, whole.heard[:, P.arc_ids], weights=weights, degrees=degrees)
+        received = {name: x[:, P.arc_ids] for name, x in whole.received.items()}
+        awake = None if whole.awake is None else whole.awake[:, P.local]
+        inbox = Inbox(P.arcs, sent, whole.heard[:, P.arc_ids], received, weights, awake, degrees)
         sample = local_sample(blk.sample(t, Phi, ratio, ctx.gamma, continuing), P.local)
         t3 = clock()
-        local = algorithm.update(local, sample, inbox, alphas[t])
+        new = algorithm.update(local, sample, inbox, alphas[t])
+        if awake is not None:  # an asleep agent keeps its state, as in `dgtd.backends.reference.run_block`
+            new = new._make(np.where(awake[:, :, None], x, old) for x, old in zip(new, local))
+        local = new
         t4 = clock()
         SECONDS["own"] += (t1 - t0) + (t4 - t3)
         SECONDS["exchange"] += t2 - t1
@@ -261,6 +291,8 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
     if mail is not None:
         mail.finish()
     t6 = clock()
+    if copies and len(alphas):
+        channel_state = P.gather_arcs(channel_state)
     new = state._make(P.gather(x) for x in local), channel_state, P.gather(sums)
     SECONDS["exchange"] += t6 - t5
     SECONDS["gather"] += clock() - t6
