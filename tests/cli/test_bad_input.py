@@ -339,3 +339,11 @@ def test_bad_launches_are_one_line_before_any_rank_starts(run_cli, tmp_path, mon
     args, words = LAUNCHES[case]
     one_line_error(*run_cli(*RUN, "-T", 10, *args, "--out", tmp_path / "o"), words)
     assert not (tmp_path / "o").exists()
+
+
+def test_ranks_without_the_mpi_extra_say_how_to_install_it(run_cli, tmp_path, monkeypatch):
+    from dgtd.cli import launch
+
+    monkeypatch.setattr(launch.shutil, "which", lambda *a, **k: None)  # no mpiexec anywhere
+    one_line_error(*run_cli(*RUN, "-T", 10, "--ranks", 2, "--out", tmp_path / "o"), "pip install 'dgtd[mpi]'")
+    assert not (tmp_path / "o").exists()
