@@ -181,6 +181,13 @@ def _ranks_of(tag: str) -> dict[int, int]:
     return found
 
 
+def _wait_for_a_checkpoint(job: subprocess.Popen, out: Path) -> None:
+    deadline = time.monotonic() + 120
+    while not (out / "checkpoint.npz").exists():
+        assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
+        time.sleep(0.1)
+
+
 def _killed_after_a_checkpoint(run: list, out: Path) -> list:
     """Start ``dgtd run RUN --out OUT`` on 2 ranks, SIGKILL rank 1 once a checkpoint is written, check that mpiexec
     ends the job (no rank left waiting) with nothing finished; returns the command."""
@@ -188,10 +195,7 @@ def _killed_after_a_checkpoint(run: list, out: Path) -> list:
     cmd = [MPIEXEC, "-n", "2", *DGTD, *map(str, run), "--out", str(out)]
     job = subprocess.Popen(cmd, env=env(DGTD_TEST_TAG=tag), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 120
-        while not (out / "checkpoint.npz").exists():
-            assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
-            time.sleep(0.1)
+        _wait_for_a_checkpoint(job, out)
         time.sleep(0.5)
         os.kill(_ranks_of(tag)[1], signal.SIGKILL)
         job.wait(timeout=120)
@@ -287,10 +291,7 @@ def test_ctrl_c_ends_every_rank_at_once_and_keeps_the_checkpoint(tmp_path):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's shell leaves it
     )
     try:
-        deadline = time.monotonic() + 120
-        while not (out / "checkpoint.npz").exists():
-            assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
-            time.sleep(0.1)
+        _wait_for_a_checkpoint(job, out)
         os.killpg(job.pid, signal.SIGINT)
         _, err = job.communicate(timeout=30)
     finally:

@@ -245,21 +245,19 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
 
 
 def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
-    """Check a resume against its checkpoint, or clear the previous run and write config.toml."""
+    """Check a resume against its checkpoint (asked for, or the same command again on a run that was cut off), or
+    clear the previous run and write config.toml."""
     ckpt = out / CHECKPOINT
-    if output.resume:
-        if not ckpt.exists():
-            if (out / "summary.json").exists():
-                run.finished = True
-                return run
-            raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
-        run.snapshot, saved = load_checkpoint(ckpt)
-        diff = first_difference(saved, record)
-        if diff:
-            raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
-    elif ckpt.exists() and not output.overwrite:  # the same command again continues a run that was cut off
+    if output.resume and not ckpt.exists():
+        if (out / "summary.json").exists():
+            run.finished = True
+            return run
+        raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
+    if output.resume or (ckpt.exists() and not output.overwrite):
         snapshot, saved = load_checkpoint(ckpt)
         diff = first_difference(saved, record)
+        if diff and output.resume:
+            raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
         if diff:
             raise DgtdInputError(
                 f"{out} holds the checkpoint of another run ({diff}); continue it with `dgtd run --resume {out}`, "

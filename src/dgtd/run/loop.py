@@ -453,8 +453,9 @@ def run(
                 if w_trace is not None:
                     w_trace[c:] = np.nan
                 break
-        ages = mpi.message_ages() if asynchronous and every and k % every == 0 and k < T else {}  # every rank
-        if every and k % every == 0 and k < T and on_checkpoint is not None:
+        checkpoint = every and k % every == 0 and k < T
+        ages = mpi.message_ages() if asynchronous and checkpoint else {}  # a collective: every rank, saving or not
+        if checkpoint and on_checkpoint is not None:
             on_checkpoint(
                 snapshot(
                     k,

@@ -33,7 +33,6 @@ from dgtd.backends.compiled.sampling import (
     _sample_step,
     _step_edges,
     _step_observations,
-    _step_samples,
     channel_draws,
     sample_args,
 )
@@ -74,7 +73,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
     for b in range(b0, b1):
         arcs_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
         for t in range(T):
-            arcs_up += _sample_step(sampler, b, t, space)
+            arcs_up += _sample_step(sampler, b, 0, t, sampler[1], space)
             if NEEDS_DEGREES:
                 count_heard(up_t, 0, indptr, eid, degree, 0)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
@@ -99,7 +98,7 @@ def _seeds_held(
     x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
     for b in range(b0, b1):
         for t in range(T):
-            sampler[-1][b] += _sample_step(sampler, b, t, space)
+            sampler[-1][b] += _sample_step(sampler, b, 0, t, sampler[1], space)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
             step = held.step[b] + t
             held.delivered[b] += carry(
@@ -264,36 +263,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
     words = np.zeros((B, rng.shape[1], 16), np.uint64)
     words[:, :, :4] = rng
     for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
-        n_up[b] += _step_samples(
-            b,
-            b,
-            0,
-            fused,
-            words,
-            markov,
-            current,
-            d_prob,
-            d_alias,
-            sa_prob,
-            sa_alias,
-            terminal,
-            R_sample,
-            sigma,
-            noise,
-            p_edge,
-            loss,
-            links,
-            s_blk,
-            a_blk,
-            sn_blk,
-            r_blk,
-            up_blk,
-            s_t,
-            a_t,
-            sn_t,
-            r_t,
-            up_t,
-        )
+        n_up[b] += _sample_step(sampler, b, b, 0, words, space)
         if NEEDS_DEGREES:
             count_heard(up_t, b, indptr, eid, degree, b)
     for t in range(T):

@@ -235,12 +235,13 @@ def _step_samples(
 
 
 @njit(cache=True, inline="always")
-def _sample_step(sampler, b, t, space):
-    """Seed b's samples of step t into row 0 of the step's arrays (the first five of a driver's ``space``), from the
-    sampling arguments as `sample_args` lays them out; returns how many arcs deliver (`_step_samples`)."""
+def _sample_step(sampler, b, row, t, rng, space):
+    """Seed b's samples of step t into row ``row`` of the step's arrays (the first five of a driver's ``space``), from
+    the sampling arguments as `sample_args` lays them out and the stream words ``rng`` (the sampler's own, or a
+    kernel's copy of them); returns how many arcs deliver (`_step_samples`)."""
     (
         fused,
-        rng,
+        _,
         markov,
         current,
         d_prob,
@@ -264,7 +265,7 @@ def _sample_step(sampler, b, t, space):
     s_t, a_t, sn_t, r_t, up_t = space[0], space[1], space[2], space[3], space[4]
     return _step_samples(
         b,
-        0,
+        row,
         t,
         fused,
         rng,
