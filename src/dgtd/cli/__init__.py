@@ -574,7 +574,7 @@ def main(argv=None) -> None:
     ARGV[:] = sys.argv[1:] if argv is None else list(argv)
     _quiet_ranks()
     try:
-        _only_run_spreads(sys.argv[1:] if argv is None else argv)
+        _only_run_spreads(ARGV)
         with warnings.catch_warnings():
             warnings.showwarning = _note
             code = cli.main(args=argv, prog_name="dgtd", standalone_mode=False)
