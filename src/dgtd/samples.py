@@ -99,13 +99,13 @@ class Source(Protocol):
 @dataclass(eq=False)
 class Draws:
     """T steps of a model source that are not drawn yet: a compiled kernel that draws its own samples takes them
-    from ``source.streams`` where it uses them (nothing is materialised) and hands the advanced streams back with
-    `settle`. The samples are those the source's ``next_block(T)`` would have returned."""
+    from ``source.streams``' keys where it uses them (nothing is materialised) and hands the trajectories' states
+    back with `settle`. The samples are those the source's ``next_block(T)`` would have returned."""
 
     source: Any  # a `dgtd.sources.model.ModelSource` (a layer above this one)
     T: int
 
-    def settle(self, words: np.ndarray, current: np.ndarray | None) -> None:
-        self.source.streams.set_pcg_words(words)
+    def settle(self, current: np.ndarray | None) -> None:
+        self.source.streams.step += self.T
         if current is not None:
             self.source.current = current

@@ -158,10 +158,11 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     assert code == 2 and "is not a directory" in err
 
 
-@pytest.mark.parametrize("old", [1, 2])
+@pytest.mark.parametrize("old", [1, 2, 3])
 def test_checkpoint_of_another_format_is_refused(tmp_path, old):
     """A checkpoint written by another file format (1 kept a second running sum for the tail average, 2 no channel
-    state) is refused with one line that says so, not misread."""
+    state, 3 sequential random streams' states) is refused with one line that says which dgtd wrote it, not
+    misread."""
     import io
 
     from dgtd.errors import DgtdInputError
@@ -172,12 +173,15 @@ def test_checkpoint_of_another_format_is_refused(tmp_path, old):
     with np.load(path) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays.pop("__meta__")))
+    assert meta["written_by"].startswith("dgtd ")
     meta["format"] = old
+    del meta["written_by"]  # as the older formats were written
     buf = io.BytesIO()
     np.savez(buf, __meta__=np.array(json.dumps(meta)), **arrays)
     path.write_bytes(buf.getvalue())
-    assert checkpoint.FORMAT == 3
-    with pytest.raises(DgtdInputError, match=f"has format {old}, this dgtd reads 3"):
+    assert checkpoint.FORMAT == 4
+    who = "with sequential random streams" if old == 3 else "before the channels"
+    with pytest.raises(DgtdInputError, match=f"written by dgtd {who} \\(format {old}\\); this dgtd \\(format 4, keyed"):
         load_checkpoint(path)
 
 

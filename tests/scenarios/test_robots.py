@@ -13,6 +13,7 @@ from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_s
 from dgtd.problems.features import tabular
 from dgtd.problems.model import make_problem
 from dgtd.run.loop import RunSettings, run
+from dgtd.streams import AGENT_START, AGENT_STATE, seed_key, uniforms
 from dgtd.scenarios.robots import (
     PatrolSource,
     PatrolWorld,
@@ -107,10 +108,12 @@ def test_links_are_the_proximity_graph_of_the_robots_positions():
     """Replay seed 0's uniforms by hand: the masks must be the positions' proximity links at each step."""
     src = source(seed_ids=[0])
     blk = src.next_block(200)
-    g = np.random.Generator(np.random.PCG64(np.random.SeedSequence(7, spawn_key=(0,)).spawn(3)[0]))
+    key, robots = np.uint64(seed_key(7, 0)), np.arange(3)
+    start = [uniforms(key, AGENT_START, 0, robots, j) for j in (0, 1)]  # 4 per robot: x, y, then the waypoint
+    u0 = np.stack([start[0][0], start[0][1], start[1][0], start[1][1]], axis=-1)
+    moves = np.stack(uniforms(key, AGENT_STATE, np.arange(200, dtype=np.uint64)[:, None], robots), axis=-1)
     w = PatrolWorld()
-    u0 = g.random((3, 4))
-    X, _ = trajectory(w, w.size * u0[:, :2], w.size * u0[:, 2:], g.random((200, 3, 2)))
+    X, _ = trajectory(w, w.size * u0[:, :2], w.size * u0[:, 2:], moves)
     net = ProximityNetwork(3, 5.0)
     assert_array_equal(blk.up[:, 0], net.masks(X[:-1]))
     assert_array_equal(blk.s[:, 0], cell_index(w, X[:-1]))

@@ -102,28 +102,3 @@ def test_markov_trajectories_are_chained(rng):
     assert a.up is None
 
 
-def test_compiled_pcg64_is_numpys_stream():
-    """The kernels' own PCG64 (numba_rng) gives exactly Generator.random()'s doubles, and a generator that takes
-    the advanced words back continues where the kernel stopped."""
-    from numba import njit
-
-    from dgtd.backends.compiled.rng import pcg_step
-
-    @njit
-    def draw(words, n):
-        out = np.empty((words.shape[0], n))
-        for b in range(words.shape[0]):
-            hi, lo = words[b, 1, 0], words[b, 1, 1]
-            for t in range(n):
-                hi, lo, out[b, t] = pcg_step(hi, lo, words[b, 1, 2], words[b, 1, 3])
-            words[b, 1, 0], words[b, 1, 1] = hi, lo
-        return out
-
-    a = Streams(5, [0, 4], 1, 3, 2, mode="iid", reward_noise=True, random_edges=True)
-    b = Streams(5, [0, 4], 1, 3, 2, mode="iid", reward_noise=True, random_edges=True)
-    words = a.pcg_words()
-    compiled = draw(words, 1000)  # stream 1 (rewards) of each seed
-    assert_array_equal(compiled, np.stack([g[1].random(1000) for g in b.gens]))
-    a.set_pcg_words(words)
-    assert_array_equal(a.draw(3)["reward"], b.draw(3)["reward"])
-    assert_array_equal(a.draw(2)["state"], b.draw(2)["state"])

@@ -17,10 +17,11 @@ both ends hold, which each end adds to it (CHOCO-gossip's public copies, Kolosko
 now is sent later.
 
 Where the links lose nothing, every agent is awake, nothing is late and nothing compressed, an arc's copy is its
-sender's current value and the inbox is `Lossy`'s. Each step draws from the seed's channel stream, in this order:
-one uniform per arc for the links (`Lossy`), then where asked one per agent (awake: u < wake_i), one per arc
-(delay: d = floor(u (D + 1))), and one per arc and number sent (stochastic rounding). docs/links.md derives where
-each leads: none of delay, sleep, stochastic rounding or error feedback moves a method's fixed point.
+sender's current value and the inbox is `Lossy`'s. Each step draws from the seed's keyed streams (`dgtd.streams`):
+one uniform per arc for the links (`Lossy`), and where asked one per agent (awake: u < wake_i), one per arc (delay:
+d = floor(u (D + 1))), and one per arc and number sent (stochastic rounding), each keyed by its agent or arc.
+docs/links.md derives where each leads: none of delay, sleep, stochastic rounding or error feedback moves a
+method's fixed point.
 """
 
 from __future__ import annotations
@@ -32,9 +33,10 @@ import numpy as np
 
 from dgtd.channels.arcs import Arcs
 from dgtd.channels.inbox import Inbox
-from dgtd.channels.lossy import Lossy, uniforms
+from dgtd.channels.lossy import Lossy, arc_uniforms
 from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
 from dgtd.errors import DgtdInputError
+from dgtd.streams import DELAY, ROUNDING, WAKE, uniforms
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,18 +83,20 @@ class Imperfect:
         B, N, Q = x.shape
         state = held(state, arcs.n_arcs, Q, self.delay)
         t = state.step  # (B,): the same step for every seed
-        carried, words, links = self.lossy.arcs_up(state, arcs, up, B)
+        carried, links = self.lossy.arcs_up(state, arcs, up, B)
+        keys, step = state.keys, int(t[0])
         awake = np.ones((B, N), bool)
         if self.wake is not None:
-            u, words = uniforms(words, N)
-            awake = u < self.wake
+            awake = uniforms(keys[:, None], WAKE, step, np.arange(N))[0] < self.wake
         if self.delay:
-            u, words = uniforms(words, arcs.n_arcs)
+            u = arc_uniforms(keys, DELAY, step, arcs.n_arcs)
             late = np.minimum(np.floor(u * (self.delay + 1)).astype(np.int64), self.delay)
         rounding = None
-        if self.bits < BITS_PER_NUMBER:
-            u, words = uniforms(words, arcs.n_arcs * Q)
-            rounding = u.reshape(B, arcs.n_arcs, Q)
+        if self.bits < BITS_PER_NUMBER:  # arc a's numbers 2j and 2j + 1 from its call j
+            u0, u1 = uniforms(
+                keys[:, None, None], ROUNDING, step, np.arange(arcs.n_arcs)[:, None], np.arange((Q + 1) // 2)
+            )
+            rounding = np.stack([u0, u1], axis=-1).reshape(B, arcs.n_arcs, -1)[:, :, :Q]
         sends = carried & awake[:, arcs.src]
         value = x[:, arcs.src]
         copies, since = state.copies.copy(), state.since.copy()
@@ -127,7 +131,7 @@ class Imperfect:
         return inbox, ChannelState(
             state.messages + delivered * len(sent),
             state.bits + delivered * bits,
-            words,
+            keys,
             links,
             copies,
             since,

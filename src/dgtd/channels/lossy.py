@@ -1,9 +1,9 @@
 """Lost messages: each message on arc j -> i is lost with its own probability, independently of everything else.
 
-The loss of arc a at step k is drawn from the seed's own channel stream (`channel_stream`: child 3 of the seed's
-SeedSequence, beside the sampler's three), one uniform per arc and step whether or not its link is up, so that a
-seed's draws do not depend on the other seeds, on the block size or on the backend, and the sampler's streams are
-those of a run without loss: a loss of 0 delivers exactly what `Perfect` delivers.
+The losses of edge e's two arcs at step k are a pair of uniforms keyed by (seed, arc loss, e, k) (`dgtd.streams`),
+drawn whether or not the link is up, so that a seed's draws do not depend on the other seeds, on the block size, on
+the backend or on which rank draws them, and the samples are those of a run without loss: a loss of 0 delivers
+exactly what `Perfect` delivers.
 
 A lost message leaves agent i with the neighbours it did hear: i may hear j while j misses i, so the mean Laplacian
 of what is heard, E[L(k)]_ij = -P(i hears j), is no longer symmetric (`mean_laplacian`), nor is the mean Metropolis
@@ -24,36 +24,14 @@ from dgtd.channels.arcs import Arcs
 from dgtd.channels.inbox import Inbox
 from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
 from dgtd.errors import DgtdInputError
-
-CHANNEL_STREAM = 3  # the seed's SeedSequence child that draws the channel's events (the sampler uses 0, 1, 2)
-
-
-_MASK64 = (1 << 64) - 1
+from dgtd.streams import ARC_BURST_START, ARC_LOSS, seed_keys, uniforms
 
 
-def channel_stream(seed: int, seed_ids) -> np.ndarray:
-    """The PCG64 state words (B, 4: state high, state low, increment high, increment low, as the compiled kernels
-    hold a stream) of each seed's channel stream."""
-    words = np.empty((len(seed_ids), 4), np.uint64)
-    for n, k in enumerate(seed_ids):
-        st = np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(k), CHANNEL_STREAM))).state["state"]
-        words[n] = (st["state"] >> 64, st["state"] & _MASK64, st["inc"] >> 64, st["inc"] & _MASK64)
-    return words
-
-
-def uniforms(words: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n uniforms per seed (B, n), the advanced words) from the streams whose PCG64 words are ``words`` (B, 4):
-    ``Generator.random``'s doubles, which the kernels draw alike."""
-    out, new = np.empty((words.shape[0], n)), words.copy()
-    for b, w in enumerate(words):
-        bits = np.random.PCG64()
-        state = bits.state
-        state["state"] = {"state": (int(w[0]) << 64) | int(w[1]), "inc": (int(w[2]) << 64) | int(w[3])}
-        bits.state = state
-        out[b] = np.random.Generator(bits).random(n)
-        s = bits.state["state"]["state"]
-        new[b, 0], new[b, 1] = s >> 64, s & _MASK64
-    return out, new
+def arc_uniforms(keys: np.ndarray, purpose: int, step: int, n_arcs: int) -> np.ndarray:
+    """One uniform per arc (B, 2E) of each seed (``keys`` (B,)) at ``step``: arcs 2e and 2e + 1 take the pair keyed
+    by their edge e (`dgtd.streams`), so either end of the edge can draw both."""
+    u0, u1 = uniforms(keys[:, None], purpose, step, np.arange(n_arcs // 2))
+    return np.stack([u0, u1], axis=-1).reshape(keys.shape[0], n_arcs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +43,7 @@ class Lossy:
     arc is a two-state Markov chain that leaves its losing state with probability 1 / L at each step (bursts of mean
     length L) and enters it with probability loss / (L (1 - loss)), so that it loses a fraction ``loss`` of the
     steps in the long run, as without bursts; the chain starts in its stationary law. Each step draws one uniform per
-    arc either way (`uniforms`): the move of its chain, or whether its message is lost."""
+    arc either way (`arc_uniforms`): the move of its chain, or whether its message is lost."""
 
     loss: np.ndarray  # (2E,) in [0, 1)
     burst: float | None = None
@@ -97,31 +75,34 @@ class Lossy:
         return np.minimum(self.loss / (float(self.burst) * (1.0 - self.loss)), 1.0)
 
     def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
-        """Counts at zero, seed k's channel stream (k = 0 .. seeds - 1 of base seed ``seed``), and with bursts each
-        arc's chain drawn from its stationary law (the stream's first uniforms)."""
-        words = channel_stream(seed, range(seeds))
+        """Counts at zero, seed k's key (k = 0 .. seeds - 1 of base seed ``seed``), step 0, and with bursts each arc's
+        chain drawn from its stationary law."""
+        keys = seed_keys(seed, range(seeds))
         links = np.zeros((seeds, 0), np.uint8)
         if self.burst is not None:
-            u, words = uniforms(words, arcs.n_arcs)
-            links = (u < self.loss).astype(np.uint8)
-        return ChannelState(np.zeros(seeds), np.zeros(seeds), words, links)
+            links = (arc_uniforms(keys, ARC_BURST_START, 0, arcs.n_arcs) < self.loss).astype(np.uint8)
+        return ChannelState(np.zeros(seeds), np.zeros(seeds), keys, links, step=np.zeros(seeds, np.int64))
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state): arcs of the edges up (B, E) (None: every edge) that keep the message."""
         B = next(iter(sent.values())).shape[0] if sent else state.messages.shape[0]
-        kept, words, links = self.arcs_up(state, arcs, up, B)
+        kept, links = self.arcs_up(state, arcs, up, B)
         heard = kept.astype(np.float64)
         arrived = heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())
         weights = self.arc_weights if self.reweight else None
         return Inbox(arcs, sent, heard, weights=weights), ChannelState(
-            state.messages + arrived * len(sent), state.bits + arrived * numbers * BITS_PER_NUMBER, words, links
+            state.messages + arrived * len(sent),
+            state.bits + arrived * numbers * BITS_PER_NUMBER,
+            state.keys,
+            links,
+            step=state.step + 1,
         )
 
     def arcs_up(self, state: ChannelState, arcs: Arcs, up: np.ndarray | None, B: int):
         """(the arcs that carry a message at this step (B, 2E): their edge up (B, E; None: every edge) and their
-        message kept; the channel stream's advanced words; the links' new states), from one uniform per arc."""
-        u, words = uniforms(state.words, arcs.n_arcs)
+        message kept; the links' new states), from one uniform per arc."""
+        u = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs.n_arcs)
         links = state.links
         if self.burst is None:
             kept = u >= self.loss
@@ -129,7 +110,7 @@ class Lossy:
             losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < self.enter)
             links, kept = losing.astype(np.uint8), ~losing
         edges = np.ones((B, arcs.n_arcs), bool) if up is None else Arcs.both_ways(up)
-        return edges & kept, words, links
+        return edges & kept, links
 
     def describe(self) -> str:
         lo, hi = float(self.loss.min()), float(self.loss.max())

@@ -15,19 +15,20 @@ BITS_PER_NUMBER = 64  # a message's coordinates are float64
 
 class ChannelState(NamedTuple):
     """What a channel carries from step to step, per seed: the counts of messages and bits it delivered (B,), the
-    PCG64 words (B, 4) of the seed's channel stream where the channel draws events (B, 0 where it draws none), and
-    each arc's state where links have one (B, 2E: 1 while a bursty link is in its losing state; else B, 0).
+    seed's key (B,) where the channel draws events (`dgtd.streams`; empty where it draws none), each arc's state
+    where links have one (B, 2E: 1 while a bursty link is in its losing state; else B, 0), and the step ``step`` (B,)
+    where it draws events.
 
     A channel whose receivers keep copies of what they heard (`dgtd.channels.Imperfect`: late, asleep or compressed
     messages) also carries, else holds empty arrays: ``copies`` (B, 2E, Q), what each arc's receiver holds of its
     sender's messages (the Q numbers of all its messages side by side); ``since`` (B, 2E), the step that copy was
     sent at (-1: nothing heard yet); the messages in flight, ``pending`` (B, 2E, D + 1, Q), each in slot (step sent)
-    mod (D + 1) with the step it arrives at, ``due``, and was sent at, ``posted`` (B, 2E, D + 1; -1: none); the step
-    ``step`` (B,); and ``per_arc`` (B, 2E), how many times each arc delivered."""
+    mod (D + 1) with the step it arrives at, ``due``, and was sent at, ``posted`` (B, 2E, D + 1; -1: none); and
+    ``per_arc`` (B, 2E), how many times each arc delivered."""
 
     messages: np.ndarray
     bits: np.ndarray
-    words: np.ndarray = np.zeros((0, 0), np.uint64)
+    keys: np.ndarray = np.zeros(0, np.uint64)
     links: np.ndarray = np.zeros((0, 0), np.uint8)
     copies: np.ndarray = np.zeros((0, 0, 0))
     since: np.ndarray = np.zeros((0, 0), np.int64)
@@ -46,9 +47,7 @@ class Perfect:
     name: ClassVar[str] = "perfect"
 
     def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
-        return ChannelState(
-            np.zeros(seeds), np.zeros(seeds), np.zeros((seeds, 0), np.uint64), np.zeros((seeds, 0), np.uint8)
-        )
+        return ChannelState(np.zeros(seeds), np.zeros(seeds), np.zeros(0, np.uint64), np.zeros((seeds, 0), np.uint8))
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up (B, E)
@@ -59,7 +58,7 @@ class Perfect:
         return inbox, ChannelState(
             state.messages + arrived * len(sent),
             state.bits + arrived * numbers * BITS_PER_NUMBER,
-            state.words,
+            state.keys,
             state.links,
         )
 

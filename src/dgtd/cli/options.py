@@ -44,7 +44,7 @@ def _run_options() -> dict:
                 "--seed",
                 type=int,
                 default=None,
-                help="Base seed; seed k uses SeedSequence(seed, spawn_key=(k,))." + shown("seed"),
+                help="Base seed; seed k draws from the keyed streams of key (seed, k)." + shown("seed"),
             ),
             click.option(
                 "--alpha0",

@@ -1,9 +1,10 @@
 """Checkpoints of a long run on disk: one .npz holding a loop snapshot (`dgtd.run.loop.snapshot`) exactly.
 
 Arrays are stored as binary .npz entries, so every float comes back bit for bit; everything else (step,
-checkpoint index, the streams' bit-generator states with their 128-bit integers, the run's config) goes
-into one JSON entry. Nothing is pickled. The file is written atomically, so a run killed while saving
-leaves the previous checkpoint intact.
+checkpoint index, the step the keyed streams are at, the run's config) goes into one JSON entry. No generator's
+state is saved: every random number is keyed by its seed, purpose, entity and step (`dgtd.streams`).
+Nothing is pickled. The file is written atomically, so a run killed while saving leaves the previous checkpoint
+intact.
 """
 
 from __future__ import annotations
@@ -18,7 +19,10 @@ from dgtd.errors import DgtdInputError
 from dgtd.files import read_npz
 from dgtd.run.results import atomic_write
 
-FORMAT = 3  # 3: the channel's state (message and bit counts); 2 counted messages in the loop; 1 kept a second sum
+# 4: keyed random streams (a source's and a channel's state is the step they are at); 3: sequential PCG64 streams
+# and the channel's state (message and bit counts); 2 counted messages in the loop; 1 kept a second sum
+FORMAT = 4
+_WRITTEN_BY = {1: "dgtd before the channels", 2: "dgtd before the channels", 3: "dgtd with sequential random streams"}
 
 
 def _split(obj, key: str, arrays: dict):
@@ -45,10 +49,24 @@ def _join(obj, arrays):
     return obj
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("dgtd")
+    except PackageNotFoundError:
+        return "(not installed)"
+
+
 def save_checkpoint(path: Path, snap: dict, config: dict) -> None:
     """Write ``snap`` and the run's resolved ``config`` to ``path`` atomically."""
     arrays: dict = {}
-    meta = {"format": FORMAT, "config": config, "snapshot": _split(snap, "s", arrays)}
+    meta = {
+        "format": FORMAT,
+        "written_by": f"dgtd {_version()}",
+        "config": config,
+        "snapshot": _split(snap, "s", arrays),
+    }
     buf = io.BytesIO()
     np.savez(buf, __meta__=np.array(json.dumps(meta)), **arrays)
     atomic_write(Path(path), buf.getvalue())
@@ -63,5 +81,9 @@ def load_checkpoint(path: Path) -> tuple[dict, dict]:
     except ValueError:
         raise DgtdInputError(f"checkpoint {path} is damaged (its description is not JSON); {fix}") from None
     if meta.get("format") != FORMAT:
-        raise DgtdInputError(f"checkpoint {path} has format {meta.get('format')}, this dgtd reads {FORMAT}; {fix}")
+        who = meta.get("written_by") or _WRITTEN_BY.get(meta.get("format"), f"checkpoint format {meta.get('format')}")
+        raise DgtdInputError(
+            f"checkpoint {path} was written by {who} (format {meta.get('format')}); this dgtd (format {FORMAT}, keyed "
+            f"random streams) cannot continue it with the same numbers: {fix}"
+        )
     return _join(meta["snapshot"], arrays), meta["config"]

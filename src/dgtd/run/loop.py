@@ -31,7 +31,7 @@ class RunSettings:
     """How long and how many: the only defaults of these fields in dgtd (`dgtd.config.RunLength`, the CLI and
     `dgtd compare` take theirs from here).
 
-    - ``iterations`` T, ``seeds`` B run side by side, base ``seed`` (seed k uses SeedSequence(seed, spawn_key=(k,)));
+    - ``iterations`` T, ``seeds`` B run side by side, base ``seed`` (seed k draws with key (seed, k), `dgtd.streams`);
     - ``checkpoints``: about how many times metrics are recorded (`checkpoint_steps`);
     - ``tail_fraction``: the final fraction of the run averaged for w_tail;
     - ``block_size``: steps drawn and advanced per block (no effect on results);
@@ -366,8 +366,8 @@ def run(
         w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
         sum_trace = None if resume.get("sum_trace") is None else np.array(resume["sum_trace"])
         messages, bits = np.array(resume["messages"], dtype=np.float64), np.array(resume["bits"], dtype=np.float64)
-        saved = resume["channel"]  # (a checkpoint of a run without channel events holds no stream words)
-        channel = ChannelState(*(np.array(saved[name]) for name in ChannelState._fields if name in saved))
+        saved = resume["channel"]  # (a checkpoint of a run without channel events holds no keys)
+        channel = ChannelState(**{name: np.array(saved[name]) for name in ChannelState._fields if name in saved})
         per_arc = np.array(resume.get("per_arc", per_arc), dtype=np.float64)
         diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}

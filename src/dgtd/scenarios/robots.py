@@ -35,6 +35,7 @@ from dgtd.graphs.proximity import LinkStats, ProximityNetwork, count_links, empt
 from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_star, visit_frequencies
 from dgtd.samples import Block
 from dgtd.scenarios.tuned import TASKS, tuned_steps
+from dgtd.streams import AGENT_START, AGENT_STATE, seed_keys, uniforms
 
 # (x0, y0, x1, y1) in metres: region i is detected only by robot i's sensor.
 PAPER_REGIONS = (
@@ -145,12 +146,23 @@ def trajectory(world: PatrolWorld, x: np.ndarray, r: np.ndarray, U: np.ndarray):
     return X, r
 
 
+def robot_uniforms(keys: np.ndarray, steps, n: int) -> np.ndarray:
+    """Robot i's uniforms of seeds ``keys`` (B,) (`dgtd.streams`): its 4 to start (``steps`` None: (B, n, 4)), or its
+    2 at each of ``steps`` (T,) ((T, B, n, 2)), keyed by (seed, robot start or robot move, i, step)."""
+    robots = np.arange(n)
+    if steps is None:
+        pairs = [uniforms(keys[:, None], AGENT_START, 0, robots, j) for j in (0, 1)]
+        return np.stack([pairs[0][0], pairs[0][1], pairs[1][0], pairs[1][1]], axis=-1)
+    steps = np.asarray(steps, dtype=np.uint64)[:, None, None]
+    return np.stack(uniforms(keys[None, :, None], AGENT_STATE, steps, robots), axis=-1)
+
+
 class PatrolSource:
     """The patrol world as a sample source for the run loop (protocol of `dgtd.sources.model.ModelSource`).
 
-    Seed k's robots use the generator of ``SeedSequence(seed, spawn_key=(k,))``'s first child (the core's
-    'states' stream): 4 uniforms per robot to start, then 2 per robot per step whether or not a waypoint is
-    redrawn, so blocks of any size concatenate to the same run and a seed's run does not depend on the others.
+    Seed k's robots draw from its keyed streams (`robot_uniforms`): 4 uniforms per robot to start, then 2 per robot
+    per step whether or not a waypoint is redrawn, each keyed by the robot and the step, so blocks of any size
+    concatenate to the same run and a seed's run does not depend on the others.
     The block's ``up`` masks are the proximity links of the positions at each step, over the complete graph's
     edge list (the network's). Link statistics (how often each edge was up, how often the graph was
     connected) accumulate in ``stats``; with ``record`` > 0 the last ``record`` positions of seed 0 are kept
@@ -164,10 +176,7 @@ class PatrolSource:
         self.edges = network.base.edges
         self.R = reward_table(world)
         self.seed, self.seed_ids = int(seed), np.asarray(list(seed_ids), dtype=np.int64)
-        self.gens = [
-            np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(int(k),)).spawn(3)[0]))
-            for k in self.seed_ids
-        ]
+        self.keys = seed_keys(self.seed, self.seed_ids)
         self.record = int(record)
         self.x = self.r = None
         self.k = 0
@@ -182,7 +191,7 @@ class PatrolSource:
 
     def start(self) -> None:
         N = self.world.n_robots
-        self.x, self.r = initial(self.world, np.stack([g.random((N, 4)) for g in self.gens]))
+        self.x, self.r = initial(self.world, robot_uniforms(self.keys, None, N))
         self.k = 0
         self.stats = empty_stats(self.network.n_edges)
         self.snapshots = []
@@ -191,7 +200,7 @@ class PatrolSource:
 
     def next_block(self, T: int) -> Block:
         N = self.world.n_robots
-        U = np.stack([g.random((T, N, 2)) for g in self.gens], axis=1)  # (T, B, N, 2)
+        U = robot_uniforms(self.keys, self.k + np.arange(T), N)  # (T, B, N, 2)
         X, self.r = trajectory(self.world, self.x, self.r, U)
         self.x = X[-1].copy()
         cells = cell_index(self.world, X)  # (T + 1, B, N)
@@ -206,7 +215,6 @@ class PatrolSource:
 
     def get_state(self) -> dict:
         return {
-            "gens": [g.bit_generator.state for g in self.gens],
             "x": self.x.copy(),
             "r": self.r.copy(),
             "k": self.k,
@@ -214,8 +222,6 @@ class PatrolSource:
         }
 
     def set_state(self, state: dict) -> None:
-        for g, st in zip(self.gens, state["gens"], strict=True):
-            g.bit_generator.state = st
         self.x, self.r, self.k, self.stats = state["x"].copy(), state["r"].copy(), state["k"], state["stats"]
 
 
@@ -288,7 +294,7 @@ def simulate_reference(
 
     All robots are independent copies of one chain, so their transitions are pooled; teams only matter for the
     proximity links. Teams start uniform and run ``burn_in`` uncounted steps (a few legs, so the start is
-    forgotten). The randomness is one generator, ``SeedSequence(seed)``.
+    forgotten). The randomness is the keyed streams of seed 0 of ``seed``, robot i of team m its entity m N + i.
     """
     from dgtd.problems.exact import stationary_distribution
 
@@ -296,8 +302,8 @@ def simulate_reference(
     if teams < replicates or steps < 1 or burn_in < 0 or replicates < 1:
         raise DgtdInputError("the reference run needs steps >= 1, burn_in >= 0 and at least one team per replicate")
     N, S = world.n_robots, world.n_states
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed))))
-    x, r = initial(world, rng.random((teams, N, 4)))
+    key = seed_keys(int(seed), [0])
+    x, r = initial(world, robot_uniforms(key, None, teams * N).reshape(teams, N, 4))
     group = (np.arange(teams) * replicates // teams)[:, None] * np.ones(N, np.int64)  # (teams, N) replicate id
     counts = np.zeros(replicates * S * S, np.int64)
     r_mean = reward_table(world).mean(axis=0)
@@ -316,7 +322,8 @@ def simulate_reference(
     )
     while done < steps:
         T = min(block, steps - done) if done >= 0 else min(block, -done)
-        X, r = trajectory(world, x, r, rng.random((T, teams, N, 2)))
+        u = robot_uniforms(key, burn_in + done + np.arange(T), teams * N).reshape(T, teams, N, 2)
+        X, r = trajectory(world, x, r, u)
         x = X[-1]
         if done >= 0:
             cells = cell_index(world, X)

@@ -30,6 +30,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.files import open_npz
 from dgtd.samples import Block, SampleTable
+from dgtd.streams import EDGE_UP, ORDER, seed_key, seed_keys, uniforms
 
 KEYS = ("seed", "episode", "step", "agent")
 GROUPS = 8  # the reference's groups of episodes, without independent recordings
@@ -247,13 +248,12 @@ class TransitionFile:
         return len(self.ids) if self.by_seed else None
 
     def order(self, seed: int, k: int) -> np.ndarray:
-        """The episodes seed id ``k`` replays, in order: recording k's, or every episode in an order drawn from
-        SeedSequence(seed, spawn_key=(k,)) when the file has no independent recordings."""
+        """The episodes seed id ``k`` replays, in order: recording k's, or when the file has no independent
+        recordings every episode, sorted by a uniform keyed by (seed k, order, episode) (`dgtd.streams`)."""
         if self.by_seed:
             return self.groups[k]
-        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(k),)))).permutation(
-            len(self.units)
-        )
+        u = uniforms(np.uint64(seed_key(seed, k)), ORDER, 0, np.arange(len(self.units)))[0]
+        return np.argsort(u, kind="stable")
 
     def steps(self, seed_ids) -> int:
         """How many steps a run over ``seed_ids`` can take: its shortest recording's, or every episode's."""
@@ -286,8 +286,8 @@ class DataSource:
     """Blocks from recorded transitions: seed b replays the episodes of `TransitionFile.order` (seed, seed_ids[b]),
     each agent its own transition at every step (n = N); a block reads only its own rows of the file's disk-backed
     array. The recordings hold what the agents saw, not which of their links were up: those come from the run's
-    ``network``, drawn at every step from the seed's own edge stream (the third child of SeedSequence(seed,
-    spawn_key=(k,)), as a model's run draws them: the same links for seed k); without a network every link is up."""
+    ``network``, each edge up at each step by the uniform keyed by (seed k, edge up, edge, step), as a model's run
+    draws them (`dgtd.streams`: the same links for seed k); without a network every link is up."""
 
     def __init__(self, data: TransitionFile, seed_ids=None, seed: int = 0, network=None):
         self.data, self.network = data, network
@@ -301,10 +301,7 @@ class DataSource:
         orders = [data.order(seed, k) for k in self.chosen]
         self.starts = [data.offsets[o] for o in orders]
         self.ends = [np.cumsum(data.lengths[o]) for o in orders]
-        self.edges = [
-            np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(k,)).spawn(3)[2]))
-            for k in self.chosen
-        ]
+        self.keys = seed_keys(seed, self.chosen)
 
     def _positions(self, b: int, k: int, T: int) -> np.ndarray:
         """The rows of steps k .. k+T-1 of seed b's stream."""
@@ -337,12 +334,12 @@ class DataSource:
         """The edges up at each of the next T steps (T, B, E), or None when every edge is always up."""
         if self.network is None or self.network.fixed:
             return None
-        return np.stack([g.random((T, self.network.n_edges)) for g in self.edges], axis=1) < self.network.p
+        steps = (self.k - T + np.arange(T, dtype=np.uint64))[:, None, None]  # (next_block has moved k on)
+        u = uniforms(self.keys[None, :, None], EDGE_UP, steps, np.arange(self.network.n_edges))[0]
+        return u < self.network.p
 
     def get_state(self) -> dict:
-        return {"k": self.k, "edges": [g.bit_generator.state for g in self.edges]}
+        return {"k": self.k}
 
     def set_state(self, state: dict) -> None:
         self.k = int(state["k"])
-        for g, st in zip(self.edges, state["edges"], strict=True):
-            g.bit_generator.state = st

@@ -2,9 +2,9 @@
 
 The paper's agents learn from samples and never see a model; PettingZoo's parallel API hands each agent its own
 reward, which is exactly the paper's local reward r-hat_i. `EnvSource` runs one copy of the environment per seed
-(each seeded through ``reset(seed=...)`` from the run's seed and the seed's id, so a seed's samples do not depend
-on the others) and turns its steps into `dgtd.samples.Block` s whose rows (`SampleTable`) hold the features of
-each state, computed in one batch per block:
+(each episode seeded through ``reset(seed=...)`` from the seed's keyed stream, `dgtd.streams`, so a seed's samples
+do not depend on the others) and turns its steps into `dgtd.samples.Block` s whose rows (`SampleTable`) hold the
+features of each state, computed in one batch per block:
 
 - the state the value function is defined on is the environment's ``state()`` where it has one, else the agents'
   observations concatenated in the order of ``possible_agents``; all agents observe it (n = 1);
@@ -13,7 +13,8 @@ each state, computed in one batch per block:
   transition (``terminations``) has discount 0, so its TD target is the reward alone; a time-limit end
   (``truncations``) is not terminal, so its target bootstraps from the state reached; either way the next
   transition starts from ``reset``, the environment's restart distribution;
-- links: a `dgtd.graphs.random.RandomEdges` network draws its edges up from the seed's own stream, or
+- links: a `dgtd.graphs.random.RandomEdges` network draws its edges up from the seed's keyed stream (the links a
+  model's run of the same seed draws), or
   ``positions(env) -> (N, dim)`` with a `dgtd.graphs.proximity.ProximityNetwork` links the agents within its
   radius (the robots' and the particles' case).
 
@@ -28,6 +29,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError, call_user, user_error
 from dgtd.samples import Block, SampleTable
+from dgtd.streams import EDGE_UP, SIMULATOR, entity_seed, seed_key, uniforms
 
 
 def random_policy(agent: str, observation, space, rng: np.random.Generator):
@@ -103,17 +105,14 @@ class EnvSource:
     def edges(self) -> np.ndarray:
         return (self.network.base if self.network is not None else self.proximity.base).edges
 
-    def _streams(self, k: int) -> np.random.Generator:
-        """Seed id k's generator for actions and links: its own, so that it does not depend on the other seeds."""
-        return np.random.Generator(
-            np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(self.seed_offset + k,)))
-        )
-
     def start(self) -> None:
         self.envs, self.gens, self.current, self.spaces = [], [], [], []
-        for k in self.seed_ids:
+        # seed id k's key: its episodes' seeds, its policy's generator and its links are its own (`dgtd.streams`)
+        self.keys = [seed_key(self.seed, self.seed_offset + k) for k in self.seed_ids]
+        self.episodes, self.step = [0] * len(self.seed_ids), 0
+        for b, key in enumerate(self.keys):
             env = call_user(f"{self.name}()", self.make_env)
-            gen = self._streams(k)
+            gen = np.random.default_rng(entity_seed(key, SIMULATOR, 1))  # the policy's: a user's callable takes one
             for name in ("reset", "step", "possible_agents", "action_space"):
                 if not hasattr(env, name):
                     raise DgtdInputError(
@@ -124,11 +123,14 @@ class EnvSource:
             self.envs.append(env)
             self.gens.append(gen)
             self.spaces.append({a: env.action_space(a) for a in env.possible_agents})  # fixed, as PettingZoo asks
-            self.current.append(self._reset(env, gen))
+            self.current.append(self._reset(env, b))
         self.agents = list(self.envs[0].possible_agents)
 
-    def _reset(self, env, gen) -> np.ndarray:
-        obs, _ = call_user(f"the env's reset() ({self.name})", env.reset, seed=int(gen.integers(2**31 - 1)))
+    def _reset(self, env, b: int) -> np.ndarray:
+        """A new episode of seed b's env, seeded by (its key, simulator, episode)."""
+        seed = entity_seed(self.keys[b], SIMULATOR, 0, self.episodes[b]) % (2**31 - 1)
+        self.episodes[b] += 1
+        obs, _ = call_user(f"the env's reset() ({self.name})", env.reset, seed=seed)
         env._dgtd_last_obs = obs
         return env_state(env, list(env.possible_agents))
 
@@ -150,7 +152,8 @@ class EnvSource:
                     where = call_user(f"positions {named(self.positions)}", self.positions, env)
                     up[t, b] = self.proximity.masks(np.asarray(where, dtype=np.float64))
                 else:
-                    up[t, b] = gen.random(E) < self.network.p
+                    key = np.uint64(self.keys[b])
+                    up[t, b] = uniforms(key, EDGE_UP, self.step + t, np.arange(E))[0] < self.network.p
                 obs, rewards, terms, truncs, _ = call_user(f"the env's step() ({self.name})", env.step, actions)
                 env._dgtd_last_obs = obs
                 states[t, b] = self.current[b]
@@ -159,9 +162,10 @@ class EnvSource:
                 terminated = any(terms.get(a, False) for a in self.agents)
                 cont_next[t, b] = 0.0 if terminated else 1.0  # a terminal transition's target is its reward alone
                 if terminated or not env.agents or any(truncs.get(a, False) for a in self.agents):
-                    self.current[b] = self._reset(env, gen)
+                    self.current[b] = self._reset(env, b)
                 else:
                     self.current[b] = nexts[t, b]
+        self.step += T
         try:
             rows = np.stack(list(states.ravel()) + list(nexts.ravel()))
         except ValueError:

@@ -1,11 +1,11 @@
-"""Sampling streams: every random quantity is a transform of uniforms drawn from one stream per seed.
+"""Sampling streams: every random quantity is a transform of uniforms drawn from the seed's keyed streams.
 
-Per seed k there are three independent generators, children of ``SeedSequence(seed, spawn_key=(k,))``:
-states (which (s, a, s') are sampled), rewards (their noise) and edges (which links are up). Each draws a
-fixed number of uniform doubles per step, so a block of T steps is the concatenation of T single steps:
-results do not depend on the block size, and seed k's stream does not depend on how many seeds ran.
-Every backend turns the same uniforms into samples with the same arithmetic (`alias_pick`), so the
-NumPy reference and the compiled kernels see identical samples.
+Each uniform is a pure function of (seed, purpose, entity, step) (`dgtd.streams`): the states of observation o at
+step k (one pair: u for s ~ d or a restart's state, u for (a, s')), agent i's reward noise at step k, edge e being up
+at step k. So a block of T steps is the concatenation of T single steps, seed k's numbers do not depend on how many
+seeds ran, and anyone (a kernel, a thread, a rank that holds some agents) can draw exactly the numbers it needs.
+Every backend turns the same uniforms into samples with the same arithmetic (`alias_pick`), so the NumPy reference
+and the compiled kernels see identical samples.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.problems.model import Problem
 from dgtd.samples import Block, Draws
+from dgtd.streams import AGENT_START, AGENT_STATE, EDGE_UP, REWARD, SHARED_START, SHARED_STATE, seed_keys, uniforms
 
 SAMPLING_MODES = ("iid", "markov")
 
@@ -103,7 +104,8 @@ def reward_from_uniform(mean: np.ndarray, sigma: float, noise: str, u) -> np.nda
 
 
 class Streams:
-    """The uniform streams of B seeds; ``draw(T)`` returns the next T steps of every stream."""
+    """The keyed uniform streams of B seeds (`dgtd.streams`); ``draw(T)`` returns the next T steps' uniforms. Their
+    whole state is the step they are at: what a checkpoint keeps."""
 
     def __init__(
         self,
@@ -121,50 +123,41 @@ class Streams:
         self.seed = int(seed)
         self.width = 2 if mode == "iid" or restart_uniform else 1  # state uniforms per observation and step
         self.seed_ids = np.asarray(seed_ids, dtype=np.int64)
+        self.keys = seed_keys(self.seed, self.seed_ids)
         self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, n_edges
         self.mode, self.reward_noise, self.random_edges = mode, reward_noise, random_edges
-        self.gens = []
-        for k in self.seed_ids:
-            ss = np.random.SeedSequence(self.seed, spawn_key=(int(k),))
-            self.gens.append([np.random.Generator(np.random.PCG64(c)) for c in ss.spawn(3)])
+        # one observation is the trajectory every agent sees; else observation o is agent o's own
+        self.state_purpose = SHARED_STATE if n_obs == 1 else AGENT_STATE
+        self.step = 0
 
     def initial_uniforms(self) -> np.ndarray:
-        """Uniforms (B, n_obs) for the initial states s_0 ~ d of Markovian trajectories (drawn once, first)."""
-        return np.stack([g[0].random(self.n_obs) for g in self.gens])
+        """Uniforms (B, n_obs) for the initial states s_0 ~ d of Markovian trajectories."""
+        start = SHARED_START if self.n_obs == 1 else AGENT_START
+        return uniforms(self.keys[:, None], start, 0, np.arange(self.n_obs))[0]
 
     def draw(self, T: int) -> dict[str, np.ndarray]:
         """Next T steps: 'state' (T, B, n_obs, 2 or 1: s ~ d or a skipped restart's state, then (a, s')), 'reward'
         (T, B, N) and 'edge' (T, B, E) when used."""
-        out = {"state": np.stack([g[0].random((T, self.n_obs, self.width)) for g in self.gens], axis=1)}
+        steps = (self.step + np.arange(T, dtype=np.uint64))[:, None, None]
+        keys = self.keys[None, :, None]
+        u_s, u_sa = uniforms(keys, self.state_purpose, steps, np.arange(self.n_obs))
+        out = {"state": np.stack([u_s, u_sa], axis=-1) if self.width == 2 else u_sa[..., None]}
         if self.reward_noise:
-            out["reward"] = np.stack([g[1].random((T, self.n_agents)) for g in self.gens], axis=1)
+            out["reward"] = uniforms(keys, REWARD, steps, np.arange(self.n_agents))[0]
         if self.random_edges:
-            out["edge"] = np.stack([g[2].random((T, self.n_edges)) for g in self.gens], axis=1)
+            out["edge"] = uniforms(keys, EDGE_UP, steps, np.arange(self.n_edges))[0]
+        self.step += T
         return out
 
-    def get_state(self) -> list:
-        return [[g.bit_generator.state for g in gs] for gs in self.gens]
+    def cursor(self) -> np.ndarray:
+        """(B, 2) uint64: each seed's key and the step the streams are at, for kernels that draw the uniforms."""
+        return np.stack([self.keys, np.full(self.keys.shape, self.step, np.uint64)], axis=1)
 
-    def pcg_words(self) -> np.ndarray:
-        """(B, 3, 4) uint64: the PCG64 state of every stream, for kernels that draw the uniforms themselves."""
-        from dgtd.backends.compiled.rng import pcg_words
+    def get_state(self) -> dict:
+        return {"step": self.step}
 
-        return pcg_words(self._all()).reshape(len(self.gens), 3, 4)
-
-    def set_pcg_words(self, words: np.ndarray) -> None:
-        """Take back the states a kernel advanced (`pcg_words`)."""
-        from dgtd.backends.compiled.rng import set_pcg_words
-
-        set_pcg_words(self._all(), words.reshape(-1, 4))
-
-    def _all(self) -> list:
-        """Every generator, seed by seed, each seed's (states, rewards, edges) in order."""
-        return [g for gs in self.gens for g in gs]
-
-    def set_state(self, state: list) -> None:
-        for gs, st in zip(self.gens, state, strict=True):
-            for g, s in zip(gs, st, strict=True):
-                g.bit_generator.state = s
+    def set_state(self, state: dict) -> None:
+        self.step = int(state["step"])
 
 
 def pick_states(tables: SamplerTables, S: int, u_state: np.ndarray, current: np.ndarray | None):

@@ -3,7 +3,7 @@
 - the layouts: seeds one after another, or several at once in threads (`_seeds`), or the agents of a seed spread over
   the cores at every step (`_agents`), chosen per run and, where both fit, by measuring which is faster here now
   (`Layouts`): on a machine shared with another busy process the agent layout's per-step synchronisation collapses;
-- the samples, drawn inside the kernel from the seeds' PCG64 streams (`dgtd.backends.compiled.sampling`: the samples
+- the samples, drawn inside the kernel from the seeds' keyed streams (`dgtd.backends.compiled.sampling`: the samples
   of the NumPy reference) or copied from a block of a simulator's or a recording's;
 - the messages, double-buffered: every agent reads its neighbours' values of step k while it writes its own of step
   k + 1 (the Jacobi form of every algorithm here), and the channel (`dgtd.backends.compiled.channel`): the neighbours
@@ -37,7 +37,6 @@ from dgtd.backends.compiled.sampling import (
     sample_args,
 )
 from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
-from dgtd.channels.lossy import CHANNEL_STREAM
 from dgtd.samples import Block, Draws, SampleTable
 
 # The kernels below are templates: `driver` compiles a copy of each per algorithm, with the algorithm's step in
@@ -133,7 +132,7 @@ def _chunk(
     q,
     alphas,
     fused,
-    words,
+    rng,
     markov,
     current,
     d_prob,
@@ -200,7 +199,7 @@ def _chunk(
                         nxt + sb,
                         t + 1,
                         fused,
-                        words,
+                        rng,
                         markov,
                         current,
                         d_prob,
@@ -221,7 +220,7 @@ def _chunk(
                         r_t,
                     )
                 else:
-                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, words, p_edge, loss, links, up_blk, up_t)
+                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, rng, p_edge, loss, links, up_blk, up_t)
                     if NEEDS_DEGREES:
                         count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
 
@@ -231,7 +230,8 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
     own: the parallel part stays small and compiles in a moment). Samples are double-buffered too: while the agents
     update with step k's, the chunks also draw step k + 1's, each seed's state and reward streams in one chunk and its
     edge stream in another (a stream is sequential, but the streams are independent), so that no core waits while
-    another samples. numba hands a parallel loop arrays and numbers, not tuples: they are unpacked first."""
+    another samples (each number is keyed by what it is for, so the order does not matter). numba hands a parallel
+    loop arrays and numbers, not tuples: they are unpacked first."""
     (
         fused,
         rng,
@@ -259,11 +259,8 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
     indptr, nbr, eid, agent_of, arc_weights = graph
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
     B, T = sums.shape[0], alphas.shape[0]
-    # each stream's words on cache lines of their own: two cores advance streams of the same seed at once
-    words = np.zeros((B, rng.shape[1], 16), np.uint64)
-    words[:, :, :4] = rng
-    for b in range(B if T > 0 else 0):  # step 0's samples (none for an empty block: the streams stay put)
-        n_up[b] += _sample_step(sampler, b, b, 0, words, space)
+    for b in range(B if T > 0 else 0):  # step 0's samples
+        n_up[b] += _sample_step(sampler, b, b, 0, rng, space)
         if NEEDS_DEGREES:
             count_heard(up_t, b, indptr, eid, degree, b)
     for t in range(T):
@@ -280,7 +277,7 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 q,
                 alphas,
                 fused,
-                words,
+                rng,
                 markov,
                 current,
                 d_prob,
@@ -325,11 +322,6 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 scratch,
                 work,
             )
-    # element by element: in a parallel function, numba loses a slice assignment to an array unpacked from a tuple
-    for b in range(B):
-        for k in range(rng.shape[1]):
-            for x in range(4):
-                rng[b, k, x] = words[b, k, x]
 
 
 def driver(name: str) -> tuple:
@@ -430,12 +422,12 @@ def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
         newest = _layouts(ctx, B, L, q, bool(messages)).run(
             driver(algorithm.name), args, buffers, np.ascontiguousarray(alphas), blk, len(messages), compiled.work
         )
-    rng = sampler[1]
     if isinstance(blk, Draws):
         _, _, markov, current = sampler[:4]
-        blk.settle(rng[:, :3], current if markov else None)
-    if channel_draws(ctx):  # the channel's stream and its links' states, as the kernel left them
-        channel = channel._replace(words=np.ascontiguousarray(rng[:, CHANNEL_STREAM]), links=sampler[14].copy())
+        blk.settle(current if markov else None)
+    if channel_draws(ctx):  # the links' states as the kernel left them, and the steps it took (`_run_held`'s own)
+        step = channel.step if holds else channel.step + alphas.shape[0]
+        channel = channel._replace(links=sampler[14].copy(), step=step)
     final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest][:, :, :N]))
     new = state._make(back(final[f]) for f in state._fields)
     if holds:  # counted as they were carried (`_run_held`)
@@ -652,11 +644,11 @@ class Layouts:
             )
             return
         # seeds in small groups taken by whichever thread is free: a thread slowed by another process takes fewer.
-        # Each seed's stream words and trajectory states, written at every step, get cache lines of their own.
-        rng, current = sampler[1], sampler[3]
-        words, states = _private((B, rng.shape[1], 8), np.uint64), _private(current.shape, np.int64)
-        words[:, :, :4], states[...] = rng, current
-        sampler = (sampler[0], words, sampler[2], states, *sampler[4:])
+        # Each seed's trajectory states, written at every step, get cache lines of their own.
+        current = sampler[3]
+        states = _private(current.shape, np.int64)
+        states[...] = current
+        sampler = (*sampler[:3], states, *sampler[4:])
         if not _POOL or _POOL[0]._max_workers != threads:
             _POOL[:] = [ThreadPoolExecutor(threads, thread_name_prefix="dgtd-seeds")]
         work = (t1 - t0) * self.per_step
@@ -686,7 +678,7 @@ class Layouts:
         ]
         for job in jobs:
             job.result()
-        rng[...], current[...] = words[:, :, :4], states
+        current[...] = states
 
 
 def _space(
@@ -731,12 +723,26 @@ def _max_degree(indptr: np.ndarray) -> int:
 
 
 def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
-    """The sampling arguments of steps t0 .. t1 - 1 of the block: a materialised block's arrays from step t0 on (the
-    streams of `Draws` simply go on)."""
-    if isinstance(blk, Draws) or t0 == 0:
+    """The sampling arguments of steps t0 .. t1 - 1 of the block: the keyed streams from step t0 on, and a
+    materialised block's arrays from step t0 on."""
+    if t0 == 0:
         return sampler
+    rng = sampler[1].copy()
+    rng[:, 1] += np.uint64(t0)
+    if isinstance(blk, Draws):
+        return (sampler[0], rng, *sampler[2:])
     s, a, sn, r, up = sampler[15:20]
-    return (*sampler[:15], s[t0:], a[t0:], sn[t0:], r[t0:], up[t0:] if up.shape[0] else up, sampler[20])
+    return (
+        sampler[0],
+        rng,
+        *sampler[2:15],
+        s[t0:],
+        a[t0:],
+        sn[t0:],
+        r[t0:],
+        up[t0:] if up.shape[0] else up,
+        sampler[20],
+    )
 
 
 def _layouts(ctx, B: int, L: int, q: int, messages: bool) -> Layouts:

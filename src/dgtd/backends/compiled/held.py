@@ -13,7 +13,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from dgtd.backends.compiled.rng import pcg_step
+from dgtd.backends.compiled.rng import keyed_pair
+from dgtd.streams import DELAY, ROUNDING, WAKE
 
 
 class Links(NamedTuple):
@@ -53,22 +54,23 @@ def carry(links, held, b, t, rng, up_t, sent, N, scratch):
     awake, late, rounding, value, chosen = scratch
     A, Q, D = up_t.shape[1], held.copies.shape[2], links.delay
     M, q = sent.shape[0], links.width
-    hi, lo, inc_hi, inc_lo = rng[b, 3, 0], rng[b, 3, 1], rng[b, 3, 2], rng[b, 3, 3]
+    key = rng[b, 0]  # the seed's key (`dgtd.streams`): each number keyed by its agent or arc and the step t
     for k in range(N):
         awake[k] = True
         if links.wake.shape[0] > 0:
-            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
-            awake[k] = u < links.wake[k]
+            awake[k] = keyed_pair(key, WAKE, t, k, 0)[0] < links.wake[k]
     if D > 0:
-        for a in range(A):
-            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
-            late[a] = min(np.int64(np.floor(u * (D + 1))), D)
+        for e in range(A // 2):
+            u0, u1 = keyed_pair(key, DELAY, t, e, 0)
+            late[2 * e] = min(np.int64(np.floor(u0 * (D + 1))), D)
+            late[2 * e + 1] = min(np.int64(np.floor(u1 * (D + 1))), D)
     if links.bits < 64:
         for a in range(A):
-            for f in range(Q):
-                hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
-                rounding[a, f] = u
-    rng[b, 3, 0], rng[b, 3, 1] = hi, lo
+            for f in range(0, Q, 2):
+                u0, u1 = keyed_pair(key, ROUNDING, t, a, f // 2)
+                rounding[a, f] = u0
+                if f + 1 < Q:
+                    rounding[a, f + 1] = u1
     slot = t % (D + 1)
     n = 0
     for a in range(A):

@@ -1,7 +1,7 @@
 """Compiled sampling (numba): uniforms into samples with exactly the arithmetic of the NumPy reference
 (`dgtd.sources.model.alias_pick`, `reward_from_uniform`), either for a whole block (`block_from_uniforms`, used
-by the baseline kernels and simulators) or step by step inside a kernel that draws its own uniforms from
-NumPy's PCG64 streams (`_step_samples`, `sample_args`).
+by the baseline kernels and simulators) or step by step inside a kernel that draws its own uniforms from the keyed
+streams (`_step_samples`, `sample_args`; `dgtd.streams`).
 """
 
 from __future__ import annotations
@@ -10,8 +10,9 @@ import numpy as np
 from numba import njit, prange
 
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.rng import pcg_step
+from dgtd.backends.compiled.rng import keyed_pair
 from dgtd.samples import Block, Draws
+from dgtd.streams import AGENT_STATE, ARC_LOSS, EDGE_UP, REWARD, SHARED_STATE
 
 NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2, "transition": 0}  # a transition's reward: deterministic
 
@@ -201,11 +202,11 @@ def _step_samples(
     """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
     and up_t (edges, or arcs on a lossy channel); returns how many arcs deliver.
 
-    Fused: drawn here from seed b's streams in rng, in the order `dgtd.sources.model.Streams.draw` draws them
-    (states, then rewards, then edges; each in index order) and turned into samples with the arithmetic of
-    `block_from_uniforms`, so the NumPy reference sees the same samples. Otherwise copied from a block
-    (samples from a simulator). The two halves, `_step_observations` and `_step_edges`, read disjoint streams
-    and write disjoint arrays: a kernel may run them at the same time."""
+    Fused: drawn here from seed b's keyed streams (``rng`` [b] = (its key, the block's first step): each number a
+    function of the purpose, the observation, agent, edge or arc, and the step, as `dgtd.sources.model.Streams.draw`
+    draws them) and turned into samples with the arithmetic of `block_from_uniforms`, so the NumPy reference sees
+    the same samples. Otherwise copied from a block (samples from a simulator). The two halves,
+    `_step_observations` and `_step_edges`, write disjoint arrays: a kernel may run them at the same time."""
     _step_observations(
         b,
         row,
@@ -237,8 +238,8 @@ def _step_samples(
 @njit(cache=True, inline="always")
 def _sample_step(sampler, b, row, t, rng, space):
     """Seed b's samples of step t into row ``row`` of the step's arrays (the first five of a driver's ``space``), from
-    the sampling arguments as `sample_args` lays them out and the stream words ``rng`` (the sampler's own, or a
-    kernel's copy of them); returns how many arcs deliver (`_step_samples`)."""
+    the sampling arguments as `sample_args` lays them out and the seeds' keys and first step ``rng``; returns how
+    many arcs deliver (`_step_samples`)."""
     (
         fused,
         _,
@@ -331,54 +332,47 @@ def _step_observations(
         for i in range(N):
             r_t[row, i] = r_blk[t, b, i]
         return
-    hi, lo, inc_hi, inc_lo = rng[b, 0, 0], rng[b, 0, 1], rng[b, 0, 2], rng[b, 0, 3]  # in registers (`pcg_step`)
+    key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
+    purpose = SHARED_STATE if n_obs == 1 else AGENT_STATE  # one observation: the trajectory every agent sees
     for o in range(n_obs):
-        u_s = 0.0
-        if not markov or terminal.shape[0] > 0:  # drawn first, as `Streams.draw` lays them out
-            hi, lo, u_s = pcg_step(hi, lo, inc_hi, inc_lo)
-        hi, lo, u_sa = pcg_step(hi, lo, inc_hi, inc_lo)
+        u_s, u_sa = keyed_pair(key, purpose, step, o, 0)
         s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(
             u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, terminal, S
         )
-    rng[b, 0, 0], rng[b, 0, 1] = hi, lo
-    hi, lo, inc_hi, inc_lo = rng[b, 1, 0], rng[b, 1, 1], rng[b, 1, 2], rng[b, 1, 3]
     for i in range(N):
         o = i if n_obs == N else 0
         r = R_sample[
             i, s_t[row, o], a_t[row, o], sn_t[row, o] if R_sample.shape[3] > 1 else 0
         ]  # (`Problem.reward_table`)
         if noise != 0:
-            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
-            r = _reward(r, sigma, noise, u)
+            r = _reward(r, sigma, noise, keyed_pair(key, REWARD, step, i, 0)[0])
         r_t[row, i] = r
-    rng[b, 1, 0], rng[b, 1, 1] = hi, lo
 
 
 @njit(cache=True, inline="always")
 def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t):
     """Which links deliver at step t, for `_step_samples` (seed b's edge stream): into row ``row`` of up_t, each
     edge up (E), or where the channel loses messages each arc that delivers (2E: its edge up and its message kept,
-    from one uniform per arc and step of the seed's channel stream rng[b, 3], as `dgtd.channels.Lossy` draws them).
-    ``loss`` is empty on a perfect channel, else row 0 holds each arc's loss probability (i.i.d. losses) or, with
-    bursts, the probability that its chain enters its losing state, and row 1 that it leaves it; ``links`` [b, a]
-    is 1 while arc a's chain is losing. Returns how many arcs deliver (two per edge up, without loss)."""
+    from the pair of uniforms of each edge's two arcs at the step, as `dgtd.channels.Lossy` draws them). ``loss`` is
+    empty on a perfect channel, else row 0 holds each arc's loss probability (i.i.d. losses) or, with bursts, the
+    probability that its chain enters its losing state, and row 1 that it leaves it; ``links`` [b, a] is 1 while arc
+    a's chain is losing. Returns how many arcs deliver (two per edge up, without loss)."""
     if loss.shape[0] == 0:
         return 2 * _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t)
     E = loss.shape[1] // 2
     bursty = loss.shape[0] == 2
     drawn = fused and p_edge.shape[0] == E  # random edges drawn here; a fixed graph draws nothing
-    hi, lo, inc_hi, inc_lo = rng[b, 2, 0], rng[b, 2, 1], rng[b, 2, 2], rng[b, 2, 3]
-    chi, clo, cinc_hi, cinc_lo = rng[b, 3, 0], rng[b, 3, 1], rng[b, 3, 2], rng[b, 3, 3]
+    key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
     n = 0
     for e in range(E):
         up = True
         if drawn:
-            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
-            up = u < p_edge[e]
+            up = keyed_pair(key, EDGE_UP, step, e, 0)[0] < p_edge[e]
         elif not fused and up_blk.shape[0] > 0:
             up = up_blk[t, b, e]
+        u0, u1 = keyed_pair(key, ARC_LOSS, step, e, 0)
         for a in range(2 * e, 2 * e + 2):
-            chi, clo, u = pcg_step(chi, clo, cinc_hi, cinc_lo)
+            u = u0 if a == 2 * e else u1
             if bursty:
                 losing = u >= loss[1, a] if links[b, a] == 1 else u < loss[0, a]
                 links[b, a] = 1 if losing else 0
@@ -387,9 +381,6 @@ def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t):
                 kept = up and u >= loss[0, a]
             up_t[row, a] = kept
             n += kept
-    if drawn:
-        rng[b, 2, 0], rng[b, 2, 1] = hi, lo
-    rng[b, 3, 0], rng[b, 3, 1] = chi, clo
     return n
 
 
@@ -407,12 +398,10 @@ def _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t):
             n_up = E
         return n_up
     if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
-        hi, lo, inc_hi, inc_lo = rng[b, 2, 0], rng[b, 2, 1], rng[b, 2, 2], rng[b, 2, 3]
+        key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
         for e in range(E):
-            hi, lo, u = pcg_step(hi, lo, inc_hi, inc_lo)
-            up_t[row, e] = u < p_edge[e]
+            up_t[row, e] = keyed_pair(key, EDGE_UP, step, e, 0)[0] < p_edge[e]
             n_up += up_t[row, e]
-        rng[b, 2, 0], rng[b, 2, 1] = hi, lo
     else:
         n_up = E
     return n_up
@@ -442,7 +431,7 @@ def sample_args(ctx, blk, B: int, channel=None):
         if not network.fixed:
             p_edge = np.asarray(network.p, dtype=np.float64)
         samples = (none_i, none_i, none_i, none_f, none_b)
-        fused, rng = True, src.streams.pcg_words()
+        fused, rng = True, src.streams.cursor()
     else:
         markov, current = False, np.zeros((B, blk.s.shape[2]), np.int64)
         samples = (
@@ -452,7 +441,7 @@ def sample_args(ctx, blk, B: int, channel=None):
             writable(blk.r, np.float64),
             writable(up_mask(blk), np.bool_),
         )
-        fused, rng = False, np.zeros((B, 3, 4), np.uint64)
+        fused, rng = False, np.zeros((B, 2), np.uint64)
     if tables is None:  # no model (a simulator's or a data file's samples): the drawing arguments go unread
         empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
         model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros(0, np.bool_), np.zeros((1, 1, 1, 1)), 1.0, 0)
@@ -479,14 +468,14 @@ def sample_args(ctx, blk, B: int, channel=None):
         noise,
     )
     loss, links = np.zeros((0, 0)), np.zeros((B, 0), np.uint8)
-    if channel_draws(ctx):  # the seed's channel stream beside its sampler's three
+    if channel_draws(ctx):  # the channel's events, keyed by the same seeds and steps as the samples
         lossy = ctx.channel
         if lossy.burst is None:
             loss = lossy.loss[None, :]
         else:
             loss = np.stack([lossy.enter, np.full(lossy.loss.shape, 1.0 / float(lossy.burst))])
             links = np.array(channel.links, dtype=np.uint8, order="C")
-        rng = np.ascontiguousarray(np.concatenate([rng, channel.words[:, None, :]], axis=1))
+        rng = channel_cursor(channel, rng, fused)
     return (
         fused,
         rng,
@@ -499,6 +488,15 @@ def sample_args(ctx, blk, B: int, channel=None):
         *samples,
         np.zeros(B, np.int64),
     )
+
+
+def channel_cursor(channel, rng: np.ndarray, fused: bool) -> np.ndarray:
+    """The keys and step (B, 2) a kernel draws a channel's events with: the channel's own, which are the samples'
+    where the kernel draws those too (one run, one seed's key, one step count)."""
+    cursor = np.stack([channel.keys, channel.step.astype(np.uint64)], axis=1)
+    if fused and not np.array_equal(cursor, rng):
+        raise RuntimeError(f"the channel's keys and step {cursor[:1]} are not the samples' {rng[:1]}")
+    return np.ascontiguousarray(cursor)
 
 
 def restart_flags(problem, markov: bool) -> np.ndarray:

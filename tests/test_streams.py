@@ -1,0 +1,120 @@
+"""Keyed random streams: Philox-4x32-10's published known answers, the compiled twin equal to the NumPy definition
+bit for bit, and every number a function of (seed, purpose, entity, step) alone."""
+
+import numpy as np
+import pytest
+from numba import njit
+from numpy.testing import assert_array_equal
+
+from dgtd.backends.compiled.rng import _philox, keyed_pairs
+from dgtd.channels import Arcs, Lossy
+from dgtd.graphs import topologies
+from dgtd.sources.model import Streams
+from dgtd.streams import (
+    AGENT_STATE,
+    ARC_LOSS,
+    EDGE_UP,
+    PURPOSES,
+    REWARD,
+    SHARED_STATE,
+    philox4x32,
+    seed_key,
+    seed_keys,
+    uniforms,
+)
+
+# Random123's kat_vectors, the three "philox4x32 10" lines: counter (4 words), key (2 words), expected (4 words).
+KNOWN_ANSWERS = [
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    (
+        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
+        (0xA4093822, 0x299F31D0),
+        (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
+    ),
+]
+
+
+@njit
+def _compiled_philox(c0, c1, c2, c3, k0, k1):
+    return _philox(c0, c1, c2, c3, k0, k1)
+
+
+@pytest.mark.parametrize("counter, key, expected", KNOWN_ANSWERS)
+def test_philox_gives_the_published_known_answers(counter, key, expected):
+    words = [np.uint64(x) for x in (*counter, *key)]
+    assert [int(x) for x in philox4x32(*words)] == list(expected)
+    assert [int(x) for x in _compiled_philox(*words)] == list(expected)
+    arrays = [np.full(3, x) for x in words]  # and NumPy's arrays, element by element
+    assert [x.tolist() for x in philox4x32(*arrays)] == [[e] * 3 for e in expected]
+
+
+def test_compiled_twin_equals_the_numpy_definition_on_a_million_keys():
+    rng = np.random.default_rng(12)
+    n = 1_000_000
+    key = rng.integers(0, 2**64 - 1, n, dtype=np.uint64, endpoint=True)
+    step = rng.integers(0, 2**64 - 1, n, dtype=np.uint64, endpoint=True)
+    step[:1000] = np.arange(1000)  # small steps, as runs have them
+    entity = rng.integers(0, 2**32, n, dtype=np.uint64)
+    index = rng.integers(0, 2**24, n, dtype=np.uint64)
+    for purpose in (SHARED_STATE, ARC_LOSS, 255):
+        u0, u1 = uniforms(key, purpose, step, entity, index)
+        c0, c1 = np.empty(n), np.empty(n)
+        keyed_pairs(key, purpose, step, entity, index, c0, c1)
+        assert_array_equal(u0, c0)
+        assert_array_equal(u1, c1)
+    # doubles in [0, 1) with 53 bits; the mean of 10^6 uniforms has standard deviation 0.29e-3, so 3e-3 is 10 sigma
+    both = np.concatenate([u0, u1])
+    assert both.min() >= 0.0 and both.max() < 1.0
+    assert abs(both.mean() - 0.5) < 3e-3
+    assert np.all(both * 2.0**53 == np.floor(both * 2.0**53))
+
+
+def test_purposes_are_distinct_bytes():
+    assert len(set(PURPOSES.values())) == len(PURPOSES)
+    assert all(0 <= p < 256 for p in PURPOSES.values())
+
+
+def test_a_seed_key_depends_on_the_base_seed_and_its_index_only():
+    assert_array_equal(seed_keys(5, [3]), seed_keys(5, [0, 1, 2, 3])[3:])
+    keys = {seed_key(s, k) for s in range(20) for k in range(20)}
+    assert len(keys) == 400
+    assert seed_key(2**64 - 1, 2**64 - 1) != seed_key(0, 0)
+    with pytest.raises(ValueError, match="2\\^64"):
+        seed_key(-1, 0)
+
+
+def test_the_model_streams_are_the_keyed_numbers():
+    """Every uniform of a block is the keyed number of its purpose, entity and step: any agent or rank can draw it."""
+    a = Streams(9, [0, 4], 3, 3, 2, mode="iid", reward_noise=True, random_edges=True)
+    a.draw(5)
+    U = a.draw(4)  # steps 5 .. 8
+    keys = seed_keys(9, [0, 4])
+    for t, k in ((0, 5), (3, 8)):
+        for b in range(2):
+            for o in range(3):
+                s_u, sa_u = uniforms(keys[b], AGENT_STATE, k, o)
+                assert (U["state"][t, b, o, 0], U["state"][t, b, o, 1]) == (s_u, sa_u)
+                assert U["reward"][t, b, o] == uniforms(keys[b], REWARD, k, o)[0]
+            for e in range(2):
+                assert U["edge"][t, b, e] == uniforms(keys[b], EDGE_UP, k, e)[0]
+    shared = Streams(9, [0], 1, 3, 2, mode="iid", reward_noise=False, random_edges=False).draw(1)
+    assert shared["state"][0, 0, 0, 1] == uniforms(keys[0], SHARED_STATE, 0, 0)[1]
+    assert set(shared) == {"state"}
+
+
+def test_both_ends_of_a_link_draw_its_losses_alone():
+    """A lossy link's two arcs take the pair keyed by their edge and the step: what either end computes by itself."""
+    ring = topologies.ring(5)
+    arcs = Arcs.of(ring.edges, ring.n_nodes)
+    channel = Lossy(np.full(arcs.n_arcs, 0.5))
+    state = channel.init(3, arcs, seed=11)
+    for _ in range(7):
+        kept, _ = channel.arcs_up(state, arcs, None, 3)
+        _, state = channel.deliver(state, arcs, {"w": np.zeros((3, 5, 2))}, None)
+    assert int(state.step[0]) == 7
+    step, keys = 6, seed_keys(11, range(3))
+    for b in range(3):
+        for e in range(arcs.n_arcs // 2):
+            u0, u1 = uniforms(keys[b], ARC_LOSS, step, e)
+            assert (kept[b, 2 * e], kept[b, 2 * e + 1]) == (u0 >= 0.5, u1 >= 0.5)
