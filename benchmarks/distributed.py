@@ -1,22 +1,28 @@
-"""How the MPI runtime scales: regenerates the measured part of docs/distributed.md and its figure.
+"""How the MPI runtime scales: regenerates the measured part of docs/distributed.md and its figures.
 
-    python benchmarks/distributed.py [--ranks 1,2,4] [--agents 1000,10000,100000] [--steps 200]
+    python benchmarks/distributed.py [--weak 50000] [--weak-ranks 1,2,4,8] [--agents 100000,1000000] [--ranks 1,2]
 
-For each number of agents N and of ranks R it starts ``mpiexec -n R`` on this machine (loopback only) running DGTD on
-the garnet task (30 states, 8 features) with N agents on a small-world graph (networkx's connected Watts-Strogatz
-graph: each agent linked to its 6 nearest in a ring, 2 % of the links rewired at random, so that most links stay
-inside a rank and the graph is well connected), each link up with probability 0.9, one seed, for ``--steps`` steps,
-and reads back from every rank: the loop's seconds, and how they split (`dgtd.backends.mpi.SECONDS`) between updating
-its own agents, drawing what every rank draws (the samples and the channel's events of all agents), exchanging the
-messages of the links that cross ranks (waiting for the others included) and gathering the state at block ends; and
-its peak memory. Prints a Markdown table and writes docs/distributed.png.
+Every measurement starts ``mpiexec -n R`` on this machine (loopback only) running DGTD on the garnet task (30 states,
+8 features) with N agents on a small-world graph (networkx's connected Watts-Strogatz graph: each agent linked to its
+6 nearest in a ring, 2 % of the links rewired at random, so that most links stay inside a rank and the graph is well
+connected), each link up with probability 0.9, one seed, for ``--steps`` steps, with compiled ranks (the default; or
+``--backend numpy``, the reference's), and reads back from every rank: the loop's seconds and CPU seconds, how the
+seconds split (`dgtd.backends.mpi.SECONDS`) between stepping its share (its own agents and ghosts: samples drawn in
+the kernel), exchanging the messages of the links that cross ranks (waiting for the others included), setting up and
+drawing outside the kernel, and gathering the state at block ends; and its peak memory. One rank (R = 1) is one
+process with the compiled kernels: the baseline.
 
-With ``--asynchronous-agents`` (default 1000,10000) the same runs are repeated with ``--asynchronous`` ranks (no rank
-waits for another inside a block; `dgtd.backends.mailbox`), interleaved with the synchronous ones. Then the ages of
-the messages used (``--ages``): ``dgtd run garnet --asynchronous`` on 2 and 4 ranks, beside one-process runs of the
-``--delay D`` model of docs/links.md whose closed-form age distribution has the same mean (a message sent at step s
-arrives after d ~ U{0..D} steps and the newest arrived is used, so P(age > a) = prod_{j<=a} (D - j) / (D + 1)), and
-the synchronous run; prints their ages and errors and writes docs/distributed-ages.png.
+- Weak scaling (``--weak`` agents a rank, ``--weak-ranks``): CPU seconds a step and peak memory a rank as R grows
+  (R ranks share this machine's 2 cores, so wall time grows with R and CPU time is the measure).
+- Strong scaling (``--agents``, ``--ranks``): agent-steps per second of R ranks against one process.
+- The projection to 64 and 1 024 ranks from the measured costs (`projection`).
+
+With ``--asynchronous-agents`` the strong-scaling runs are repeated with ``--asynchronous`` ranks (no rank waits for
+another inside a block; `dgtd.backends.mailbox`; the reference's arithmetic). Then the ages of the messages used
+(``--ages``): ``dgtd run garnet --asynchronous`` on 2 and 4 ranks, beside one-process runs of the ``--delay D`` model
+of docs/links.md whose closed-form age distribution has the same mean (a message sent at step s arrives after d ~
+U{0..D} steps and the newest arrived is used, so P(age > a) = prod_{j<=a} (D - j) / (D + 1)), and the synchronous
+run; prints their ages and errors and writes docs/distributed-ages.png.
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs"
 FEATURES, STATES = 8, 30
 
 
-def worker(n_agents: int, steps: int, asynchronous: int = 0) -> None:
+def worker(n_agents: int, steps: int, asynchronous: int = 0, compiled: int = 1) -> None:
     """One measurement, on every rank of the mpiexec job this runs in; rank 0 prints one JSON line."""
     import networkx as nx
 
@@ -53,29 +59,41 @@ def worker(n_agents: int, steps: int, asynchronous: int = 0) -> None:
     network = random_edges(from_networkx(nx.connected_watts_strogatz_graph(n_agents, 6, 0.02, seed=0)), 0.9)
     algorithm = make_algorithm("dgtd", alpha0=1.0, beta=1000.0)
     t0 = time.perf_counter()
+    backend = "numba" if compiled and not asynchronous else "numpy"
     settings = RunSettings(
-        iterations=steps, seeds=1, checkpoints=1, backend="numpy", block_size=steps, asynchronous=bool(asynchronous)
+        iterations=steps, seeds=1, checkpoints=1, backend=backend, block_size=steps, asynchronous=bool(asynchronous)
     )
-    result = run(problem, network, algorithm, Sampling(), settings)
+    cpu = {}
+
+    def ready(_seconds):  # the kernels are loaded: the loop starts now
+        cpu["start"] = time.process_time()
+
+    result = run(problem, network, algorithm, Sampling(), settings, kernel_ready=ready)
     total = time.perf_counter() - t0
     mine = {
         **mpi.SECONDS,
         "loop": result.info["loop_seconds"],
+        "cpu": time.process_time() - cpu["start"],  # the loop's and the results' (a few ms), on this rank
         "setup": total - result.info["loop_seconds"],
         "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
     every = mpi.world().gather(mine, root=0) if mpi.world() is not None else [mine]
     if mpi.rank() == 0:
         mode = "asynchronous" if asynchronous else "synchronous"
-        print(json.dumps({"agents": n_agents, "ranks": mpi.size(), "steps": steps, "mode": mode, "per_rank": every}))
+        print(
+            json.dumps(
+                {"agents": n_agents, "ranks": mpi.size(), "steps": steps, "mode": mode, "backend": backend}
+                | {"per_rank": every}
+            )
+        )
 
 
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
 
 
-def measure(ranks: int, n_agents: int, steps: int, asynchronous: bool = False) -> dict:
+def measure(ranks: int, n_agents: int, steps: int, asynchronous: bool = False, compiled: bool = True) -> dict:
     cmd = [str(MPIEXEC), "-n", str(ranks), sys.executable, __file__, "--worker", str(n_agents), str(steps)]
-    cmd.append(str(int(asynchronous)))
+    cmd += [str(int(asynchronous)), str(int(compiled))]
     env = dict(os.environ, MPIEXEC_TIMEOUT="3000")
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=3600)
     if done.returncode != 0:
@@ -91,54 +109,99 @@ def row(m: dict) -> dict:
         agents=m["agents"],
         ranks=m["ranks"],
         mode=m["mode"],
+        backend=m["backend"],
+        steps=m["steps"],
         rounds=m["steps"] / loop,
         agent_steps=m["steps"] * m["agents"] / loop,
+        cpu_per_step=max(r["cpu"] for r in ranks) / m["steps"],
         own=share("own"),
-        replicated=share("replicated") + (loop - max(r["own"] + r["replicated"] + r["exchange"] for r in ranks)) / loop,
+        draws=share("draws"),
         exchange=share("exchange"),
         gather=share("gather"),
-        kb_per_agent=max(r["rss_mb"] for r in ranks) * 1024 / m["agents"],
+        own_seconds=max(r["own"] for r in ranks),
+        exchange_seconds=max(r["exchange"] for r in ranks),
+        gather_seconds=max(r["gather"] for r in ranks),
+        mb_per_rank=max(r["rss_mb"] for r in ranks),
         setup=max(r["setup"] for r in ranks),
     )
 
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| agents | ranks | mode | rounds/s | agent-steps/s | own agents | drawn on every rank | exchange | gather | "
-        "peak memory a rank, per agent | setup (s) |",
-        "| ---: | ---: | :--- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| agents | ranks | kernels | mode | rounds/s | agent-steps/s | CPU s a step (a rank) | stepping its share | "
+        "set-up and draws | exchange | gather | peak memory a rank | setup (s) |",
+        "| ---: | ---: | :--- | :--- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
-        if r["ranks"] == 1:  # one process: the plain reference kernel, nothing split or exchanged
-            r = {**r, "own": float("nan"), "replicated": float("nan"), "exchange": float("nan"), "gather": float("nan")}
+        if r["ranks"] == 1:  # one process: the kernels alone, nothing split or exchanged
+            r = {**r, "own": float("nan"), "draws": float("nan"), "exchange": float("nan"), "gather": float("nan")}
         pct = lambda x, digits=0: "-" if x != x else f"{x:.{digits}%}"  # noqa: E731  (NaN: one process)
+        kernels = "compiled" if r["backend"] == "numba" else "NumPy"
         lines.append(
-            f"| {r['agents']:,} | {r['ranks']} | {r['mode'][:5]} | {r['rounds']:,.1f} | "
-            f"{r['agent_steps'] / 1e6:.3f} M | "
-            f"{pct(r['own'])} | {pct(r['replicated'])} | {pct(r['exchange'])} | {pct(r['gather'], 1)} | "
-            f"{r['kb_per_agent']:.1f} KB | {r['setup']:.1f} |"
+            f"| {r['agents']:,} | {r['ranks']} | {kernels} | {r['mode'][:5]} | {r['rounds']:,.1f} | "
+            f"{r['agent_steps'] / 1e6:.3f} M | {r['cpu_per_step'] * 1e3:.1f} ms | "
+            f"{pct(r['own'])} | {pct(r['draws'])} | {pct(r['exchange'])} | {pct(r['gather'], 1)} | "
+            f"{r['mb_per_rank']:,.0f} MB | {r['setup']:.1f} |"
         )
     return "\n".join(lines)
 
 
-def figure(rows: list[dict], path: Path) -> None:
+def projection(rows: list[dict], agents=(10**6, 10**8), ranks=(64, 1024)) -> str:
+    """Seconds a step on R cluster ranks of N agents, from the 2-rank compiled measurement of the most agents: each rank
+    steps N / R agents at the measured cost per agent-step, exchanges a boundary that does not grow with N / R (the
+    measured exchange a step, waiting included), and gathers every agent's state at block ends (the measured gathers
+    of the run per agent and step, times N: what every rank still does, `dgtd.backends.mpi.Partition.gather`)."""
+    two = [r for r in rows if r["ranks"] == 2 and r["backend"] == "numba" and r["mode"] == "synchronous"]
+    if not two:
+        return ""
+    m = max(two, key=lambda r: r["agents"])
+    per_agent_step = m["own_seconds"] / (m["steps"] * m["agents"] / 2)
+    exchange = m["exchange_seconds"] / m["steps"]
+    gather_per_agent = m["gather_seconds"] / m["agents"]  # the run's blocks' (`dgtd.run.loop.block_steps`)
+    lines = [
+        f"From {m['agents']:,} agents on 2 ranks: {per_agent_step * 1e9:.0f} ns an agent-step, {exchange * 1e3:.2f} ms "
+        f"of exchange a step, {gather_per_agent * 1e9:.0f} ns an agent for the gathers at the ends of the blocks of "
+        f"its {m['steps']} steps.",
+        "",
+        "| agents | ranks | stepping (ms a step) | exchange | gather, per step | rounds/s |",
+        "| ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for n in agents:
+        for R in ranks:
+            step = n / R * per_agent_step
+            gather = n * gather_per_agent / m["steps"]
+            total = step + exchange + gather
+            lines.append(
+                f"| {n:,} | {R:,} | {step * 1e3:.2f} | {exchange * 1e3:.2f} | {gather * 1e3:.2f} | {1 / total:,.1f} |"
+            )
+    return "\n".join(lines)
+
+
+def figure(weak: list[dict], strong: list[dict], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
-    for n in sorted({r["agents"] for r in rows}):
-        pts = sorted((r for r in rows if r["agents"] == n and r["mode"] == "synchronous"), key=lambda r: r["ranks"])
-        axes[0].plot([r["ranks"] for r in pts], [r["agent_steps"] for r in pts], "o-", label=f"{n:,} agents")
-        axes[1].plot([r["ranks"] for r in pts], [r["exchange"] for r in pts], "o-", label=f"{n:,} agents")
-    axes[0].set_ylabel("agent-steps per second")
-    axes[1].set_ylabel("share of the loop in the exchange")
-    for ax in axes:
-        ax.set_xlabel("ranks (on 2 cores)")
-        ax.set_xticks(sorted({r["ranks"] for r in rows}))
-    axes[0].set_yscale("log")
-    axes[0].legend(fontsize=7)
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    if weak:
+        pts = sorted(weak, key=lambda r: r["ranks"])
+        R = [r["ranks"] for r in pts]
+        axes[0].plot(R, [r["cpu_per_step"] * 1e3 for r in pts], "o-")
+        axes[1].plot(R, [r["mb_per_rank"] for r in pts], "o-")
+        for ax, what in ((axes[0], "CPU ms a step, a rank"), (axes[1], "peak memory a rank (MB)")):
+            ax.set_xlabel(f"ranks ({pts[0]['agents'] // pts[0]['ranks']:,} agents each, on 2 cores)")
+            ax.set_ylabel(what)
+            ax.set_xticks(R)
+            ax.set_ylim(bottom=0)
+    for n in sorted({r["agents"] for r in strong}):
+        pts = sorted((r for r in strong if r["agents"] == n and r["mode"] == "synchronous"), key=lambda r: r["ranks"])
+        axes[2].plot([r["ranks"] for r in pts], [r["agent_steps"] for r in pts], "o-", label=f"{n:,} agents")
+    axes[2].set_xlabel("ranks (on 2 cores)")
+    axes[2].set_ylabel("agent-steps per second")
+    axes[2].set_xticks(sorted({r["ranks"] for r in strong}) or [1])
+    axes[2].set_ylim(bottom=0)
+    axes[2].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -245,27 +308,35 @@ def ages_figure(runs: dict, matched: dict, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ranks", default="1,2,4")
-    parser.add_argument("--agents", default="1000,10000,100000")
-    parser.add_argument("--asynchronous-agents", default="1000,10000")
-    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--weak", type=int, default=50_000, help="agents a rank for the weak scaling (0: none)")
+    parser.add_argument("--weak-ranks", default="1,2,4,8")
+    parser.add_argument("--ranks", default="1,2")
+    parser.add_argument("--agents", default="100000,1000000")
+    parser.add_argument("--asynchronous-agents", default="")
+    parser.add_argument("--backend", default="numba", choices=("numba", "numpy"))
+    parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--no-scaling", action="store_true", help="only the ages study")
-    parser.add_argument("--no-ages", action="store_true", help="only the scaling table")
-    parser.add_argument("--worker", nargs=3, type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--no-ages", action="store_true", help="only the scaling tables")
+    parser.add_argument("--worker", nargs=4, type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         worker(*args.worker)
         return
+    compiled = args.backend == "numba"
     if not args.no_scaling:
-        rows = []
+        weak, strong = [], []
+        for ranks in map(int, args.weak_ranks.split(",")) if args.weak else ():
+            weak.append(row(measure(ranks, args.weak * ranks, args.steps, compiled=compiled)))
+            print(table(weak[-1:]).splitlines()[-1], flush=True)
         also = set(map(int, args.asynchronous_agents.split(","))) if args.asynchronous_agents else set()
         for n in map(int, args.agents.split(",")):
             for ranks in map(int, args.ranks.split(",")):
                 for asynchronous in (False, True) if n in also and ranks > 1 else (False,):
-                    rows.append(row(measure(ranks, n, args.steps, asynchronous)))
-                    print(table(rows[-1:]).splitlines()[-1], flush=True)
-        print(table(rows))
-        figure(rows, DOCS / "distributed.png")
+                    strong.append(row(measure(ranks, n, args.steps, asynchronous, compiled)))
+                    print(table(strong[-1:]).splitlines()[-1], flush=True)
+        print("Weak scaling:\n" + table(weak) + "\n\nStrong scaling:\n" + table(strong))
+        print("\nProjection:\n" + projection(strong))
+        figure(weak, strong, DOCS / "distributed.png")
         print(f"wrote {DOCS / 'distributed.png'}")
     if not args.no_ages:
         with tempfile.TemporaryDirectory() as work:

@@ -20,6 +20,7 @@ from dgtd.streams import (
     philox4x32,
     seed_key,
     seed_keys,
+    singles,
     uniforms,
 )
 
@@ -95,12 +96,22 @@ def test_the_model_streams_are_the_keyed_numbers():
             for o in range(3):
                 s_u, sa_u = uniforms(keys[b], AGENT_STATE, k, o)
                 assert (U["state"][t, b, o, 0], U["state"][t, b, o, 1]) == (s_u, sa_u)
-                assert U["reward"][t, b, o] == uniforms(keys[b], REWARD, k, o)[0]
+                assert U["reward"][t, b, o] == uniforms(keys[b], REWARD, k, o // 2)[o % 2]  # agents in pairs
             for e in range(2):
-                assert U["edge"][t, b, e] == uniforms(keys[b], EDGE_UP, k, e)[0]
+                assert U["edge"][t, b, e] == uniforms(keys[b], EDGE_UP, k, 0)[e]  # edges 0 and 1: one call
     shared = Streams(9, [0], 1, 3, 2, mode="iid", reward_noise=False, random_edges=False).draw(1)
     assert shared["state"][0, 0, 0, 1] == uniforms(keys[0], SHARED_STATE, 0, 0)[1]
     assert set(shared) == {"state"}
+
+
+def test_singles_pair_entities_and_any_subset_gives_the_same_numbers():
+    keys = seed_keys(3, range(2))[:, None]
+    every = singles(keys, EDGE_UP, 17, np.arange(11))
+    some = np.array([10, 3, 4, 7])
+    assert_array_equal(singles(keys, EDGE_UP, 17, some), every[:, some])
+    u0, u1 = uniforms(keys, EDGE_UP, 17, np.arange(6))
+    assert_array_equal(every[:, 0::2], u0[:, :6])
+    assert_array_equal(every[:, 1::2], u1[:, :5])
 
 
 def test_both_ends_of_a_link_draw_its_losses_alone():

@@ -35,12 +35,15 @@ import os as _os
 if "OMP_WAIT_POLICY" not in _os.environ and "GOMP_SPINCOUNT" not in _os.environ:
     _os.environ["GOMP_SPINCOUNT"] = "10000"
 # A rank of an mpiexec job shares this machine's cores with the job's other ranks here (MPI_LOCALNRANKS, which MPICH
-# sets; OMPI_COMM_WORLD_LOCAL_SIZE, Open MPI): each gets its share of BLAS threads, set before NumPy loads, or their
-# threads fight over the cores (measured: the exact solution of 30 000 agents took 41.5 s on each of 2 ranks, 1.6 s
-# with one thread each). Values the user set are kept.
+# sets; OMPI_COMM_WORLD_LOCAL_SIZE, Open MPI): each gets its share of BLAS threads and of the compiled kernels'
+# threads, set before NumPy and numba load, or their threads fight over the cores (measured: the exact solution of
+# 30 000 agents took 41.5 s on each of 2 ranks, 1.6 s with one thread each). Values the user set are kept.
 _local = _os.environ.get("MPI_LOCALNRANKS") or _os.environ.get("OMPI_COMM_WORLD_LOCAL_SIZE")
-if _local and "OPENBLAS_NUM_THREADS" not in _os.environ and "OMP_NUM_THREADS" not in _os.environ:
-    _os.environ["OPENBLAS_NUM_THREADS"] = str(max(1, (_os.cpu_count() or 1) // max(1, int(_local))))
+if _local:
+    _share = str(max(1, (_os.cpu_count() or 1) // max(1, int(_local))))
+    if "OPENBLAS_NUM_THREADS" not in _os.environ and "OMP_NUM_THREADS" not in _os.environ:
+        _os.environ["OPENBLAS_NUM_THREADS"] = _share
+    _os.environ.setdefault("NUMBA_NUM_THREADS", _share)
 
 __version__ = "0.1.0"
 

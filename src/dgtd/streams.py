@@ -15,7 +15,9 @@ A seed's numbers are laid out so that anyone can draw their own, in any order, o
   the entity the number is for (an agent, an observation, an edge, an arc), the purpose (`PURPOSES`) and the index of
   the call among those of one (purpose, entity, step) (a message of many numbers);
 - a call gives two doubles in [0, 1) of 53 bits each: words (x1 x0) and (x3 x2) read as 64-bit integers, their top
-  53 bits times 2^-53 (`uniforms`).
+  53 bits times 2^-53 (`uniforms`). Where an entity needs one number a step (an edge up, an agent's reward noise
+  or wake), entities 2j and 2j + 1 share call j (entity j), the first taking u0 and the second u1 (`singles`): half
+  the calls, and still a pure function of the entity.
 
 `philox4x32` is written once in plain arithmetic on unsigned 64-bit values: NumPy runs it on arrays (the readable
 definition) and numba compiles the same function for the kernels (`dgtd.backends.compiled.rng`), bit for bit equal.
@@ -40,11 +42,11 @@ SHARED_STATE = 1  # the shared trajectory's (s, a, s') at a step (entity 0): u f
 AGENT_STATE = 2  # agent i's own trajectory's (s, a, s') at a step (entity i), as SHARED_STATE
 SHARED_START = 3  # the shared trajectory's first state s_0 ~ d (step 0, entity 0)
 AGENT_START = 4  # agent i's first state s_0 ~ d (step 0, entity i)
-REWARD = 5  # agent i's reward noise at a step (entity i)
-EDGE_UP = 6  # edge e being up at a step (entity e, the undirected edge: both ends draw the same number)
+REWARD = 5  # agent i's reward noise at a step (paired: `singles`)
+EDGE_UP = 6  # edge e being up at a step (paired: `singles`; the undirected edge: both ends draw the same number)
 ARC_LOSS = 7  # the losses (or burst moves) of edge e's two arcs at a step: u0 for arc 2e, u1 for arc 2e + 1
 ARC_BURST_START = 8  # the first states of edge e's two arcs' burst chains (step 0), as ARC_LOSS
-WAKE = 9  # agent i being awake at a step (entity i)
+WAKE = 9  # agent i being awake at a step (paired: `singles`)
 DELAY = 10  # how late the messages on edge e's arcs are at a step, as ARC_LOSS
 ROUNDING = 11  # the stochastic rounding of arc a's numbers at a step: index j gives numbers 2j and 2j + 1
 ORDER = 12  # the order of a recording's rows for a seed (step 0, entity = row)
@@ -93,6 +95,19 @@ def uniforms(key, purpose, step, entity, index=0):
     u0 = (((x1 << _32) | x0) >> _11).astype(np.int64).astype(np.float64) * _TO_UNIT
     u1 = (((x3 << _32) | x2) >> _11).astype(np.int64).astype(np.float64) * _TO_UNIT
     return u0, u1
+
+
+def singles(key, purpose, step, ids):
+    """One uniform for each entity of ``ids`` (whole numbers): entities 2j and 2j + 1 take the two doubles of the call
+    of entity j. Broadcast as `uniforms`, ``ids`` along the last axis; the numbers of ids 0 .. n - 1 take n / 2
+    calls."""
+    ids = np.asarray(ids, dtype=np.int64)
+    n = ids.shape[-1]
+    if ids.ndim == 1 and n and ids[0] == 0 and (n == 1 or np.all(np.diff(ids) == 1)):  # 0 .. n - 1: each call once
+        u0, u1 = uniforms(key, purpose, step, np.arange((n + 1) // 2))
+        return np.stack([u0, u1], axis=-1).reshape(u0.shape[:-1] + (2 * u0.shape[-1],))[..., :n]
+    u0, u1 = uniforms(key, purpose, step, ids >> 1)
+    return np.where(ids & 1 == 0, u0, u1)
 
 
 def seed_key(seed: int, k: int) -> int:

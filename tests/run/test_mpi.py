@@ -1,4 +1,4 @@
-"""Agents spread over the ranks of an MPI job (`dgtd.backends.mpi`): the same metrics bit for bit on 1, 2 and 4 ranks
+"""Agents spread over the ranks of an MPI job (`dgtd.backends.mpi`): the same metrics bit for bit on 1 to 8 ranks
 as a one-process run, a rank killed mid-run and the run resumed to the uninterrupted numbers, and what the runtime
 does not run refused in one line with exit code 2 on every rank. Each test starts mpiexec on this machine only
 (loopback), under a timeout; they need the mpi extra (pip install 'dgtd[mpi]'), which CI installs."""
@@ -46,19 +46,22 @@ def alone(*args) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize("algorithm", SPREAD + CENTRALISED)
-def test_every_algorithm_gives_the_one_process_numbers_on_1_2_and_4_ranks(tmp_path, algorithm):
+def test_every_algorithm_gives_the_one_process_numbers_on_1_to_4_ranks(tmp_path, algorithm):
     """paper-example-1 over random edges with receiver-dependent loss: metrics.csv identical, byte for byte, to a
-    one-process --backend numpy run's (4 ranks on 5 agents: one rank holds two; a centralised learner is run whole
-    by every rank)."""
+    one-process run's, NumPy ranks to --backend numpy's and compiled ranks (the default) to the compiled kernels'
+    (each rank drawing only its own agents' and links' numbers; 4 ranks on 5 agents: one rank holds two; a
+    centralised learner is run whole by every rank)."""
     run = ["run", "paper-example-1", "--algorithm", algorithm, "-T", 1500, "--seeds", 2, "--no-plots"]
     run += ["--loss", "0.1,0.5,0,0.8,0.3", "--edge-prob", 0.7]
-    base = alone(*run, "--backend", "numpy", "--out", tmp_path / "one")
-    assert base.returncode == 0, base.stderr
-    for ranks in (1, 2, 4):
-        done = mpirun(ranks, *run, "--out", tmp_path / f"r{ranks}")
-        assert done.returncode == 0, done.stderr
-        assert (tmp_path / f"r{ranks}" / "metrics.csv").read_bytes() == (tmp_path / "one" / "metrics.csv").read_bytes()
-        assert "numpy backend" in done.stdout and done.stdout.count("wrote ") == 1  # rank 0 alone says it
+    for backend, ranks_list in {"numpy": (1, 2, 3, 4), "numba": (2, 3, 4)}.items():
+        base = alone(*run, "--backend", backend, "--out", tmp_path / f"one-{backend}")
+        assert base.returncode == 0, base.stderr
+        for ranks in ranks_list:
+            out = tmp_path / f"r{ranks}-{backend}"
+            done = mpirun(ranks, *run, *(["--backend", "numpy"] if backend == "numpy" else []), "--out", out)
+            assert done.returncode == 0, done.stderr
+            assert (out / "metrics.csv").read_bytes() == (tmp_path / f"one-{backend}" / "metrics.csv").read_bytes()
+            assert f"{backend} backend" in done.stdout and done.stdout.count("wrote ") == 1  # rank 0 alone says it
 
 
 @pytest.mark.parametrize("algorithm", ["dgtd", "consensus-td0"])
@@ -75,17 +78,18 @@ def test_late_asleep_and_compressed_messages_across_ranks_give_the_one_process_n
 
     run = ["run", "paper-example-1", "--algorithm", algorithm, "-T", 1500, "--seeds", 2, "--no-plots"]
     run += ["--loss", "0.1,0.5,0,0.8,0.3", *links, "--checkpoint-every", 700]
-    base = alone(*run, "--backend", "numpy", "--out", tmp_path / "one")
-    assert base.returncode == 0, base.stderr
-    one = json.loads((tmp_path / "one" / "summary.json").read_text())
-    for ranks in (2, 4):
-        out = tmp_path / f"r{ranks}"
-        done = mpirun(ranks, *run, "--out", out)
-        assert done.returncode == 0, done.stderr
-        assert (out / "metrics.csv").read_bytes() == (tmp_path / "one" / "metrics.csv").read_bytes()
-        spread = json.loads((out / "summary.json").read_text())
-        for key in ("w_last", "messages", "bits", "messages_per_agent", "bits_per_agent"):
-            assert spread[key] == one[key], key
+    for backend in ("numpy", "numba"):
+        base = alone(*run, "--backend", backend, "--out", tmp_path / f"one-{backend}")
+        assert base.returncode == 0, base.stderr
+        one = json.loads((tmp_path / f"one-{backend}" / "summary.json").read_text())
+        for ranks in (2, 4):
+            out = tmp_path / f"r{ranks}-{backend}"
+            done = mpirun(ranks, *run, "--backend", backend, "--out", out)
+            assert done.returncode == 0, done.stderr
+            assert (out / "metrics.csv").read_bytes() == (tmp_path / f"one-{backend}" / "metrics.csv").read_bytes()
+            spread = json.loads((out / "summary.json").read_text())
+            for key in ("w_last", "messages", "bits", "messages_per_agent", "bits_per_agent"):
+                assert spread[key] == one[key], key
 
 
 @pytest.mark.parametrize("algorithm", ["dgtd", "consensus-td0", "tdc-tracking"])
@@ -101,7 +105,7 @@ def test_asynchronous_with_staleness_0_gives_the_synchronous_numbers(tmp_path, a
     assert base.returncode == 0, base.stderr
     for ranks in (2, 4):
         out = tmp_path / f"r{ranks}"
-        done = mpirun(ranks, *run, "--asynchronous", "--staleness", 0, "--out", out)
+        done = mpirun(ranks, *run, "--asynchronous", "--staleness", 0, "--out", out)  # the reference, by itself
         assert done.returncode == 0, done.stderr
         assert (out / "metrics.csv").read_bytes() == (tmp_path / "one" / "metrics.csv").read_bytes()
         ages = json.loads((out / "summary.json").read_text())["message_ages"]
@@ -138,12 +142,29 @@ def test_garnet_and_a_users_env_on_two_ranks(tmp_path):
         "garnet": ["garnet"],
         "env": ["--env", f"{chain}:make_chain", "--features", "one-hot", "--agents", 4],
     }.items():
-        run = ["run", *args, "-T", 2000, "--seeds", 2, "--no-plots"]
-        base = alone(*run, "--backend", "numpy", "--out", tmp_path / f"{name}-one")
-        done = mpirun(2, *run, "--out", tmp_path / f"{name}-two")
-        assert base.returncode == 0 and done.returncode == 0, done.stderr
-        one, two = (tmp_path / f"{name}-{k}" / "metrics.csv" for k in ("one", "two"))
-        assert one.read_bytes() == two.read_bytes()
+        for backend in ("numpy", "numba"):
+            run = ["run", *args, "-T", 2000, "--seeds", 2, "--no-plots", "--backend", backend]
+            base = alone(*run, "--out", tmp_path / f"{name}-one-{backend}")
+            done = mpirun(2, *run, "--out", tmp_path / f"{name}-two-{backend}")
+            assert base.returncode == 0 and done.returncode == 0, done.stderr
+            one, two = (tmp_path / f"{name}-{k}-{backend}" / "metrics.csv" for k in ("one", "two"))
+            assert one.read_bytes() == two.read_bytes()
+
+
+@pytest.mark.parametrize("algorithm", ["dgtd", "consensus-td0"])
+def test_eight_ranks_over_late_asleep_rounded_and_markovian_samples(tmp_path, algorithm):
+    """garnet's 10 agents on 8 ranks (most ranks hold one agent, every link crosses ranks), Markovian samples of
+    each agent's own chain, random edges, bursty loss, late, asleep and rounded messages: the numbers of one process
+    (consensus TD(0)'s Metropolis weights need what the ghosts heard, drawn by each rank itself)."""
+    run = ["run", "garnet", "--algorithm", algorithm, "-T", 800, "--seeds", 2, "--no-plots", "--sampling", "markov"]
+    run += ["--edge-prob", 0.8, "--loss", 0.2, "--burst", 3, "--delay", 2, "--wake", 0.8, "--bits", 6]
+    for backend in ("numpy", "numba"):
+        base = alone(*run, "--backend", backend, "--out", tmp_path / f"one-{backend}")
+        assert base.returncode == 0, base.stderr
+        done = mpirun(8, *run, "--backend", backend, "--out", tmp_path / f"eight-{backend}")
+        assert done.returncode == 0, done.stderr
+        eight, one = (tmp_path / f"{k}-{backend}" / "metrics.csv" for k in ("eight", "one"))
+        assert eight.read_bytes() == one.read_bytes()
 
 
 def test_a_graph_numbered_at_random_is_split_in_storage_order(tmp_path):
@@ -158,7 +179,7 @@ def test_a_graph_numbered_at_random_is_split_in_storage_order(tmp_path):
         f'[problem]\nscenario = "garnet"\nparams = {{ n_agents = 300 }}\n[network]\ngraph = "{tmp_path / "ring.txt"}"\n'
     )
     run = ["run", toml, "-T", 300, "--seeds", 2, "--no-plots"]
-    base = alone(*run, "--backend", "numpy", "--out", tmp_path / "one")
+    base = alone(*run, "--out", tmp_path / "one")  # compiled, as the ranks
     done = mpirun(3, *run, "--out", tmp_path / "three")
     assert base.returncode == 0 and done.returncode == 0, done.stderr
     assert (tmp_path / "one" / "metrics.csv").read_bytes() == (tmp_path / "three" / "metrics.csv").read_bytes()
@@ -188,11 +209,11 @@ def _wait_for_a_checkpoint(job: subprocess.Popen, out: Path) -> None:
         time.sleep(0.1)
 
 
-def _killed_after_a_checkpoint(run: list, out: Path) -> list:
-    """Start ``dgtd run RUN --out OUT`` on 2 ranks, SIGKILL rank 1 once a checkpoint is written, check that mpiexec
-    ends the job (no rank left waiting) with nothing finished; returns the command."""
+def _killed_after_a_checkpoint(run: list, out: Path, ranks: int = 2) -> list:
+    """Start ``dgtd run RUN --out OUT`` on ``ranks`` ranks, SIGKILL rank 1 once a checkpoint is written, check that
+    mpiexec ends the job (no rank left waiting) with nothing finished; returns the command."""
     tag = f"kill{os.getpid()}{out.name}"
-    cmd = [MPIEXEC, "-n", "2", *DGTD, *map(str, run), "--out", str(out)]
+    cmd = [MPIEXEC, "-n", str(ranks), *DGTD, *map(str, run), "--out", str(out)]
     job = subprocess.Popen(cmd, env=env(DGTD_TEST_TAG=tag), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         _wait_for_a_checkpoint(job, out)
@@ -209,12 +230,27 @@ def test_a_rank_killed_mid_run_loses_nothing_checkpointed(tmp_path):
     """SIGKILL to rank 1 after the first checkpoint, and the same command run again on two ranks resumes from the
     checkpoint and ends with the numbers of an uninterrupted one-process run, byte for byte."""
     out = tmp_path / "run"
-    run = ["run", "garnet", "-T", 60_000, "--seeds", 2, "--no-plots", "--checkpoint-every", 3000]
+    run = ["run", "garnet", "-T", 60_000, "--seeds", 2, "--no-plots", "--checkpoint-every", 3000, "--backend", "numpy"]
     cmd = _killed_after_a_checkpoint(run, out)
     resumed = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=300)  # the same command again
     assert resumed.returncode == 0, resumed.stderr
     assert "resuming" in resumed.stdout
     whole = alone(*run, "--backend", "numpy", "--out", tmp_path / "whole")
+    assert whole.returncode == 0
+    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+
+
+def test_a_run_killed_on_two_ranks_resumes_on_three_with_the_same_numbers(tmp_path):
+    """A checkpoint holds no rank's layout (the keyed streams need only the step; each agent's chain state is
+    gathered): killed on 2 ranks, the same command on 3 ranks resumes it and ends with the uninterrupted numbers."""
+    out = tmp_path / "run"
+    run = ["run", "garnet", "-T", 30_000, "--seeds", 2, "--no-plots", "--checkpoint-every", 3000]
+    run += ["--sampling", "markov", "--loss", 0.3, "--burst", 2]
+    cmd = _killed_after_a_checkpoint(run, out)
+    cmd[cmd.index("-n") + 1] = "3"
+    resumed = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0 and "resuming" in resumed.stdout, resumed.stderr
+    whole = alone(*run, "--out", tmp_path / "whole")  # compiled, as the ranks
     assert whole.returncode == 0
     assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
 
@@ -240,7 +276,7 @@ def test_an_asynchronous_run_resumes_with_its_message_ages(tmp_path):
     "args, words",
     [
         (["paper-example-1", "--delay", "2", "--asynchronous"], "not with --asynchronous"),
-        (["paper-example-1", "--backend", "numba"], "NumPy reference"),
+        (["paper-example-1", "--backend", "numba", "--asynchronous"], "NumPy reference"),
     ],
 )
 def test_what_the_runtime_does_not_run_is_one_line_and_exit_2_on_every_rank(tmp_path, args, words):
@@ -265,7 +301,7 @@ def test_ranks_started_by_dgtd_run_itself(tmp_path):
     """`dgtd run --ranks 2` starts the mpi extra's mpiexec: the numbers of `mpiexec -n 2 dgtd run`, which are one
     process's; a host file naming this machine works."""
     run = ["run", "paper-example-1", "-T", 500, "--seeds", 2, "--no-plots"]
-    base = alone(*run, "--backend", "numpy", "--out", tmp_path / "one")
+    base = alone(*run, "--out", tmp_path / "one")
     (tmp_path / "hosts.txt").write_text("localhost:2\n")
     for name, extra in {"ranks": [], "hosts": ["--hosts", tmp_path / "hosts.txt"]}.items():
         done = alone(*run, "--ranks", 2, *extra, "--out", tmp_path / name)

@@ -13,7 +13,6 @@ from dgtd.problems.estimated import chain_from_counts, minibatch_td, tabular_w_s
 from dgtd.problems.features import tabular
 from dgtd.problems.model import make_problem
 from dgtd.run.loop import RunSettings, run
-from dgtd.streams import AGENT_START, AGENT_STATE, seed_key, uniforms
 from dgtd.scenarios.robots import (
     PatrolSource,
     PatrolWorld,
@@ -26,6 +25,7 @@ from dgtd.scenarios.robots import (
     simulate_reference,
     trajectory,
 )
+from dgtd.streams import AGENT_START, AGENT_STATE, seed_key, uniforms
 
 # A small world for fast tests: a 10 m square on a 5 x 5 grid (2 m cells), two robots, two corner regions.
 SMALL = PatrolWorld(size=10.0, grid=5, regions=((0.0, 6.0, 4.0, 10.0), (6.0, 0.0, 10.0, 4.0)))

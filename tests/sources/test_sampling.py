@@ -100,5 +100,3 @@ def test_markov_trajectories_are_chained(rng):
     assert_array_equal(a.s[1:], a.s_next[:-1])
     assert_array_equal(b.s[0], a.s_next[-1])
     assert a.up is None
-
-

@@ -3,14 +3,15 @@
 is its non-blocking messages).
 
 Rank r holds a contiguous block of the agents in their storage order (`Partition`: the compiled kernels' order,
-reverse Cuthill-McKee where it keeps more links local, split as evenly as it goes) and updates only
-those, with the NumPy reference's arithmetic (`dgtd.backends.reference`), so that a run on R ranks gives the numbers
-of a one-process ``--backend numpy`` run bit for bit. At every step each rank sends the messages of its agents that
-another rank's agents hear (the links that cross ranks) and receives those of its ghosts (the other ranks' agents its
-own hear), through one neighbourhood collective on a distributed-graph communicator of the ranks whose agents are
-linked; links inside a rank cost nothing. The samples and the channel's draws (edges up, losses) are drawn on every
-rank from the seed's own streams (each rank draws what every rank draws, a cost of O(N + |E|) numbers a step), which
-is what keeps a seed's numbers independent of the number of ranks; each rank then reads its own agents' rows.
+reverse Cuthill-McKee where it keeps more links local, split as evenly as it goes) and updates only those, with the
+compiled kernels over its share (`compiled_block`, `dgtd.backends.share`) or the NumPy reference's arithmetic
+(`run_block`), so that a run on R ranks gives the numbers of a one-process run of the same backend bit for bit. At
+every step each rank sends the messages of its agents that another rank's agents hear (the links that cross ranks)
+and receives those of its ghosts (the other ranks' agents its own hear), through one neighbourhood collective on a
+distributed-graph communicator of the ranks whose agents are linked; links inside a rank cost nothing. Every random
+number is keyed by what it is for (`dgtd.streams`), so each rank draws only its own agents' and ghosts' samples and
+the events of the links into them (`local_source`, the channel over `Partition.arcs`): O(N / R + boundary) numbers a
+step, the numbers a one-process run draws for them.
 
 At the end of every block the ranks gather the agents' state and running sums (one collective per block, thousands
 of steps), so that every rank holds the whole run state there: the run loop's metrics, divergence checks and
@@ -32,16 +33,17 @@ from typing import Any
 import numpy as np
 
 from dgtd.backends.mailbox import AGES, Mailbox
-from dgtd.channels import Arcs, Inbox
+from dgtd.backends.share import PER_ARC, channel_share
+from dgtd.channels import Arcs
 from dgtd.errors import DgtdInputError
 
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_RANK")  # what mpiexec (MPICH's, Open MPI's) sets in its ranks
 TIMEOUT = 300.0  # seconds a rank waits for its neighbours before it gives up (DGTD_MPI_TIMEOUT)
 _WORLD: dict = {}
 # Seconds this rank spent, summed over the run's blocks: in the step's exchange of messages (waiting for the others
-# included), in the gathers at block ends, drawing what every rank draws (samples and the channel's events), and
-# updating its own agents (benchmarks/distributed.py reads them)
-SECONDS = {"exchange": 0.0, "gather": 0.0, "replicated": 0.0, "own": 0.0}
+# included), in the gathers at block ends, in its channel's draws and deliveries, and updating its own agents and
+# ghosts (benchmarks/distributed.py reads them)
+SECONDS = {"exchange": 0.0, "gather": 0.0, "draws": 0.0, "own": 0.0}
 
 
 def launched() -> bool:
@@ -109,10 +111,10 @@ def check_supported(algorithm, channel, n_agents: int, backend: str, asynchronou
     R = size()
     if R > n_agents:
         raise DgtdInputError(f"{R} ranks for {n_agents} agents: run with at most {n_agents} ranks (mpiexec -n)")
-    if backend != "numpy":
+    if asynchronous and backend != "numpy":
         raise DgtdInputError(
-            "under mpiexec every rank runs the NumPy reference arithmetic (the numbers of --backend numpy, bit for "
-            f"bit): leave out --backend {backend} or give --backend numpy"
+            "asynchronous ranks run the NumPy reference (their messages arrive between the steps of a kernel): "
+            f"give --backend numpy with --asynchronous, not --backend {backend}"
         )
     if asynchronous and getattr(channel, "name", "perfect") not in ("perfect", "lossy"):
         raise DgtdInputError(
@@ -123,11 +125,16 @@ def check_supported(algorithm, channel, n_agents: int, backend: str, asynchronou
 
 @dataclass(frozen=True, eq=False)
 class Partition:
-    """Rank ``rank``'s share of the agents: ``own`` (a contiguous range of agent ids), ``local`` (own, then its
+    """Rank ``rank``'s share of the agents: ``own`` (a contiguous block of the storage order), ``local`` (own, then its
     ghosts: the other ranks' agents its own hear, in increasing order), the arcs into its own agents (``arcs``, in
-    local numbering; ``arc_ids``, their global ids, in the global order, so that each agent's sums add in the order
-    of a one-process run), and per neighbouring rank (``neighbours``) the local rows it sends (``send``) and
-    receives into (``recv``)."""
+    local numbering, each knowing its id, its agents' and its edge in the whole network (`dgtd.channels.Arcs`), in the
+    global order, so that each agent's sums add in the order of a one-process run), ``edges`` (the ids of every edge
+    whose draws this rank needs), and per neighbouring rank (``neighbours``) the local rows it sends (``send``) and
+    receives into (``recv``).
+
+    ``halo``, where an algorithm weighs what it hears by how much its neighbours heard (Metropolis weights), holds
+    the arcs into the ghosts over rows of their own (the ghosts, then their neighbours; ``halo_ghosts``: the ghosts'
+    rows there): the rank draws their events itself and counts what each ghost heard, without a message."""
 
     comm: Any  # the distributed-graph communicator of the linked ranks (mpi4py's Distgraphcomm)
     rank: int
@@ -136,16 +143,24 @@ class Partition:
     own: np.ndarray
     local: np.ndarray
     arcs: Arcs
-    arc_ids: np.ndarray
+    edges: np.ndarray
     neighbours: list
     send: list
     recv: list
+    n_arcs: int = 0  # the whole network's
+    halo: Arcs | None = None
+    halo_ghosts: np.ndarray | None = None
+
+    @property
+    def arc_ids(self) -> np.ndarray:
+        """The ids of the arcs into this rank's own agents, in the global order."""
+        return self.arcs.arc_ids
 
     @classmethod
-    def of(cls, arcs: Arcs, comm, order: np.ndarray | None = None) -> Partition:
+    def of(cls, arcs: Arcs, comm, order: np.ndarray | None = None, halo: bool = False) -> Partition:
         """Rank r's share: the agents order[bounds[r]:bounds[r + 1]] of the storage ``order`` (the compiled kernels'
         `dgtd.backends.compiled.graph.storage_order`: reverse Cuthill-McKee where it keeps more links local than
-        the agents' own numbering; None: that numbering)."""
+        the agents' own numbering; None: that numbering); with ``halo``, the arcs into its ghosts too."""
         R, r = comm.Get_size(), comm.Get_rank()
         N = arcs.n_agents
         order = np.arange(N) if order is None else order
@@ -156,15 +171,37 @@ class Partition:
         into = np.flatnonzero(owner[arcs.dst] == r)  # arcs into my agents, in global order
         ghosts = np.unique(arcs.src[into][owner[arcs.src[into]] != r])
         local = np.concatenate([own, ghosts])
-        row = np.full(N, -1, np.int64)
-        row[local] = np.arange(len(local))
-        sub = Arcs(len(local), row[arcs.src[into]], row[arcs.dst[into]])
+        around = np.flatnonzero(np.isin(arcs.dst, ghosts)) if halo else np.zeros(0, np.int64)
+        edges = np.unique(np.concatenate([into, around]) // 2)
+        sub = _share(arcs, local, into, edges)
         out_arcs = np.flatnonzero((owner[arcs.src] == r) & (owner[arcs.dst] != r))  # my agents heard elsewhere
         neighbours = sorted(set(owner[ghosts].tolist()) | set(owner[arcs.dst[out_arcs]].tolist()))
+        row = np.full(N, -1, np.int64)
+        row[local] = np.arange(len(local))
         send = [row[np.unique(arcs.src[out_arcs][owner[arcs.dst[out_arcs]] == k])] for k in neighbours]
         recv = [row[ghosts[owner[ghosts] == k]] for k in neighbours]
         graph = comm.Create_dist_graph_adjacent(neighbours, neighbours, reorder=False)
-        return cls(graph, r, bounds, order, own, local, sub, into, neighbours, send, recv)
+        around_rows = halo_ghosts = None
+        if halo:
+            outer = np.setdiff1d(np.unique(arcs.src[around]), ghosts)
+            around_rows = _share(arcs, np.concatenate([ghosts, outer]), around, edges)
+            halo_ghosts = np.arange(len(ghosts))
+        return cls(
+            graph,
+            r,
+            bounds,
+            order,
+            own,
+            local,
+            sub,
+            edges,
+            neighbours,
+            send,
+            recv,
+            arcs.n_arcs,
+            around_rows,
+            halo_ghosts,
+        )
 
     def exchange(self, sent: dict) -> None:
         """Each ghost row of the messages ``sent`` (name -> (B, local, q)) <- its owner's value, in place."""
@@ -188,16 +225,48 @@ class Partition:
                 x[:, rows] = into[at : at + n].reshape(x.shape[0], len(rows), x.shape[2])
                 at += n
 
-    def gather_arcs(self, channel_state):
-        """The copies' channel's state (`dgtd.channels.ChannelState`) with each arc's copies and messages in flight
-        from the rank of its receiver, on every rank (the rest of it is drawn alike on every rank)."""
+    def exchange_buffers(self, messages: np.ndarray, send: list, recv: list) -> None:
+        """`exchange` into a compiled kernel's buffer ``messages`` (M, B, rows, q), the rows to send to and receive
+        from each neighbouring rank given in its storage order (``send``, ``recv``)."""
+        if not self.neighbours:
+            return
+        from mpi4py import MPI
+
+        M, B, _, q = messages.shape
+        per = [M * B * q * len(rows) for rows in send]
+        out = np.concatenate([messages[:, :, rows].ravel() for rows in send]) if sum(per) else np.zeros(0)
+        got = [M * B * q * len(rows) for rows in recv]
+        into = np.empty(sum(got))
+        self.comm.Neighbor_alltoallv(
+            [out, per, np.concatenate([[0], np.cumsum(per)[:-1]]), MPI.DOUBLE],
+            [into, got, np.concatenate([[0], np.cumsum(got)[:-1]]), MPI.DOUBLE],
+        )
+        at = 0
+        for rows in recv:
+            n = M * B * q * len(rows)
+            messages[:, :, rows] = into[at : at + n].reshape(M, B, len(rows), q)
+            at += n
+
+    def gather_channel(self, state, local, arc_ids=None, counted=None):
+        """The whole network's channel state after a block: ``state`` (as it began) with every arc's fields from the
+        rank of its receiver (``local``: this rank's share after the block, over the arcs into its agents, or over
+        the arcs ``arc_ids`` of which it gives those ``counted``) and the counts of every rank added."""
+        comm = world()
         whole = {}
-        for name in ("copies", "pending"):
-            x = getattr(channel_state, name)
-            whole[name] = np.empty_like(x)
-            for ids, part in world().allgather((self.arc_ids, x[:, self.arc_ids])):
-                whole[name][:, ids] = part
-        return channel_state._replace(**whole)
+        ids = self.arc_ids if arc_ids is None else arc_ids[counted.astype(bool)]
+        for name in PER_ARC:
+            x = getattr(local, name)
+            x = x if arc_ids is None or not x.size else x[:, counted.astype(bool)]
+            if not x.size and not getattr(state, name).size:
+                continue
+            before = getattr(state, name)
+            # made by the block where it began without them (the copies, at a run's first step): shaped from x
+            whole[name] = before.copy() if before.size else np.zeros((x.shape[0], self.n_arcs) + x.shape[2:], x.dtype)
+            for at, part in comm.allgather((ids, x)):
+                whole[name][:, at] = part
+        counts = comm.allreduce(np.stack([local.messages, local.bits]))  # whole numbers: exact in any order
+        keep = {name: getattr(local, name) for name in ("keys", "step")}
+        return state._replace(messages=state.messages + counts[0], bits=state.bits + counts[1], **keep, **whole)
 
     def gather(self, x: np.ndarray) -> np.ndarray:
         """Every rank's own rows of x (B, local, q) side by side: the whole (B, N, q), on every rank."""
@@ -213,14 +282,12 @@ class Partition:
         return whole
 
 
-def everyone(sent: dict, P: Partition, n_agents: int) -> dict:
-    """The messages ``sent`` (name -> (B, local, q)) in every agent's row (B, N, q): this rank's own agents' and
-    ghosts' where they are, zeros elsewhere."""
-    out = {}
-    for name, x in sent.items():
-        out[name] = np.zeros((x.shape[0], n_agents, x.shape[2]))
-        out[name][:, P.local] = x
-    return out
+def _share(arcs: Arcs, rows: np.ndarray, ids: np.ndarray, edges: np.ndarray) -> Arcs:
+    """The arcs ``ids`` of ``arcs`` (global ids, in order) over the agents ``rows`` (global ids), their links' up
+    columns those of ``edges`` (sorted global edge ids)."""
+    row = np.full(arcs.n_agents, -1, np.int64)
+    row[rows] = np.arange(len(rows))
+    return Arcs(len(rows), row[arcs.src[ids]], row[arcs.dst[ids]], ids, rows, np.searchsorted(edges, ids // 2))
 
 
 def partition(ctx) -> Partition:
@@ -230,8 +297,52 @@ def partition(ctx) -> Partition:
         from dgtd.backends.compiled.graph import storage_order
 
         order = storage_order(ctx)
-        cache["partition"] = Partition.of(ctx.arcs, world(), None if order is None else order[0])
+        halo = ctx.algorithm.mixing == "metropolis"
+        cache["partition"] = Partition.of(ctx.arcs, world(), None if order is None else order[0], halo)
     return cache["partition"]
+
+
+def kernel(ctx, backend: str, staleness):
+    """The run's kernel on this rank: the compiled driver over its share (`compiled_block`) or the NumPy reference
+    (`run_block`), synchronous, or asynchronous where ``staleness`` is not False (None: unbounded)."""
+    ctx.__dict__.setdefault("_mpi", {})["compiled"] = backend != "numpy"
+    if staleness is not False:
+        return asynchronous(staleness)
+    return compiled_block if backend != "numpy" else run_block
+
+
+def share(ctx):
+    """The run's compiled share (`dgtd.backends.share.Share`: this rank's rows, edges and channel as a run of its
+    own), built once per run."""
+    cache = ctx.__dict__.setdefault("_mpi", {})
+    if "share" not in cache:
+        from dgtd.backends.compiled.graph import storage_order
+        from dgtd.backends.share import Share
+
+        P = partition(ctx)
+        order = storage_order(ctx)
+        position = np.arange(ctx.network.n_nodes) if order is None else order[1]
+        cache["share"] = Share.of(ctx, P.own, P.local[len(P.own) :], P.edges, position)
+    return cache["share"]
+
+
+def local_source(ctx, source):
+    """``source`` drawing only this rank's numbers, where it can (a model's: `dgtd.sources.model.ModelSource.restrict`):
+    the samples of its own agents and ghosts and the links of the edges it needs, O(N / R + boundary) a step. A source
+    that cannot (a simulator's, a recording's) is read whole and its rows picked (`run_block`)."""
+    if not hasattr(source, "restrict"):
+        return source
+    P = partition(ctx)
+    compiled = ctx.__dict__["_mpi"].get("compiled")
+    rows = share(ctx).rows if compiled else P.local
+    mine = share(ctx).local_rows if compiled else np.arange(len(P.local))  # own, then ghosts
+
+    def gather(x):
+        return P.gather(x[:, mine, None].astype(np.float64))[:, :, 0].astype(x.dtype)
+
+    source.restrict(rows, P.edges, gather=gather)
+    ctx.__dict__["_mpi"]["restricted"] = True
+    return source
 
 
 def local_sample(sample, local: np.ndarray):
@@ -246,16 +357,22 @@ def local_sample(sample, local: np.ndarray):
 def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool = False, staleness: int | None = None):
     """`dgtd.backends.reference.run_block`'s contract, this rank's agents only; returns the whole state, gathered.
     ``asynchronous``: the ghosts' messages are the newest received, waiting only for one at most ``staleness`` steps
-    old (None: never; `dgtd.backends.mailbox`)."""
+    old (None: never; `dgtd.backends.mailbox`).
+
+    The channel runs over the arcs into this rank's agents (and, for Metropolis weights, into its ghosts: ``halo``),
+    each drawing the numbers the whole network's run draws for it; the block's samples are this rank's rows where the
+    source draws them so (`local_source`), else the whole network's, of which it reads its own."""
     P = partition(ctx)
     algorithm, channel = ctx.algorithm, ctx.channel
     local = state._make(np.ascontiguousarray(x[:, P.local]) for x in state)
     sums = np.ascontiguousarray(w_sum[:, P.local])
     Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
-    metropolis = algorithm.mixing == "metropolis"
+    restricted = ctx.__dict__["_mpi"].get("restricted", False)
     clock = time.perf_counter
     mail = Mailbox(P, algorithm.sends(local), len(alphas), staleness, WATCHDOG.beat) if asynchronous else None
-    copies = channel.name == "imperfect"
+    mine = channel_share(channel_state, P.arcs.arc_ids)
+    halo = P.halo
+    around = None if halo is None else channel_share(channel_state, halo.arc_ids)
     for t in range(len(alphas)):
         t0 = clock()
         sums += algorithm.estimate(local)
@@ -267,36 +384,85 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
             mail.swap(sent, t)
         WATCHDOG.beat()
         t2 = clock()
-        up = None if blk.up is None else blk.up[t]
-        # every arc's draws, on every rank; the copies' channel holds what arcs carry, right here for those into
-        # this rank's agents (their senders are its own agents and ghosts; the other rows are zeros)
-        given = everyone(sent, P, ctx.arcs.n_agents) if copies else sent
-        whole, channel_state = channel.deliver(channel_state, ctx.arcs, given, up)
-        degrees = ctx.arcs.into(whole.heard[:, :, None])[:, P.local, 0] if metropolis else None
-        weights = None if whole.weights is None else whole.weights[P.arc_ids]
-        received = {name: x[:, P.arc_ids] for name, x in whole.received.items()}
-        awake = None if whole.awake is None else whole.awake[:, P.local]
-        inbox = Inbox(P.arcs, sent, whole.heard[:, P.arc_ids], received, weights, awake, degrees)
-        sample = local_sample(blk.sample(t, Phi, ratio, ctx.gamma, continuing), P.local)
+        up = None if blk.up is None else (blk.up[t] if restricted else blk.up[t][:, P.edges])
+        inbox, mine = channel.deliver(mine, P.arcs, sent, up)
+        if halo is not None:  # what the ghosts heard, from the draws of the arcs into them (their values unused)
+            zeros = {name: np.zeros((x.shape[0], halo.n_agents, x.shape[2])) for name, x in sent.items()}
+            heard_around, around = channel.deliver(around, halo, zeros, up)
+            own = inbox.count()[:, : len(P.own)]
+            inbox.degrees = np.concatenate([own, heard_around.count()[:, P.halo_ghosts]], axis=1)
+        sample = blk.sample(t, Phi, ratio, ctx.gamma, continuing)
+        sample = sample if restricted else local_sample(sample, P.local)
         t3 = clock()
         new = algorithm.update(local, sample, inbox, alphas[t])
-        if awake is not None:  # an asleep agent keeps its state, as in `dgtd.backends.reference.run_block`
-            new = new._make(np.where(awake[:, :, None], x, old) for x, old in zip(new, local))
+        if inbox.awake is not None:  # an asleep agent keeps its state, as in `dgtd.backends.reference.run_block`
+            new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, local))
         local = new
         t4 = clock()
         SECONDS["own"] += (t1 - t0) + (t4 - t3)
         SECONDS["exchange"] += t2 - t1
-        SECONDS["replicated"] += t3 - t2
+        SECONDS["draws"] += t3 - t2
     t5 = clock()
     if mail is not None:
         mail.finish()
     t6 = clock()
-    if copies and len(alphas):
-        channel_state = P.gather_arcs(channel_state)
+    channel_state = P.gather_channel(channel_state, mine) if len(alphas) else channel_state
     new = state._make(P.gather(x) for x in local), channel_state, P.gather(sums)
     SECONDS["exchange"] += t6 - t5
     SECONDS["gather"] += clock() - t6
     return new
+
+
+def compiled_block(ctx, state, channel_state, w_sum, alphas, blk):
+    """`run_block` with the compiled driver (`dgtd.backends.compiled.driver.Advance`) over this rank's share
+    (`dgtd.backends.share`): the share's samples drawn inside the kernel where the source is a model's, its ghosts'
+    messages exchanged into the kernel's buffers between steps; the numbers of a one-process compiled run."""
+    from dgtd.backends.compiled.driver import Advance
+    from dgtd.samples import Draws
+
+    P, S = partition(ctx), share(ctx)
+    clock = time.perf_counter
+    t0 = clock()
+    local = state._make(np.ascontiguousarray(x[:, S.rows]) for x in state)
+    sums = np.ascontiguousarray(w_sum[:, S.rows])
+    restricted = ctx.__dict__["_mpi"].get("restricted", False)
+    if not isinstance(blk, Draws) and not restricted:  # a simulator's or a recording's block: this share's rows
+        blk = _rows_of_block(blk, S)
+    run = Advance(S.ctx, local, S.channel_state(channel_state), sums, alphas, blk)
+    send = [run.storage_rows(S.local_rows[rows]) for rows in P.send]
+    recv = [run.storage_rows(S.local_rows[rows]) for rows in P.recv]
+    if len(alphas) == 0:
+        run.advance(0)  # loads or compiles the kernels
+    SECONDS["draws"] += clock() - t0
+    for t in range(len(alphas)):
+        t2 = clock()
+        P.exchange_buffers(run.message_rows(), send, recv)
+        WATCHDOG.beat()
+        t3 = clock()
+        run.advance(t + 1)
+        SECONDS["exchange"] += t3 - t2
+        SECONDS["own"] += clock() - t3
+    t4 = clock()
+    new, mine, sums = run.finish()
+    mine_rows = S.local_rows  # own then ghosts: the rows `Partition.gather` reads its own from
+    whole = state._make(P.gather(x[:, mine_rows]) for x in new)
+    channel = P.gather_channel(channel_state, mine, S.arc_ids, S.counted)
+    SECONDS["gather"] += clock() - t4
+    return whole, channel, P.gather(sums[:, mine_rows])
+
+
+compiled_block.draws_samples = True  # type: ignore[attr-defined]  # it takes `Draws` of a model's source
+
+
+def _rows_of_block(blk, S):
+    """A whole network's block cut to share ``S``: its rows' samples (a shared observation stays) and its edges."""
+    from dgtd.samples import Block
+
+    def rows(x):
+        return x[:, :, S.rows] if x.shape[2] > 1 else x
+
+    up = None if blk.up is None else np.ascontiguousarray(blk.up[:, :, S.edges])
+    return Block(rows(blk.s), rows(blk.a), rows(blk.s_next), np.ascontiguousarray(blk.r[:, :, S.rows]), up, blk.table)
 
 
 def asynchronous(staleness: int | None):

@@ -14,11 +14,20 @@ class Arcs:
 
     ``src`` and ``dst`` (2E,) are each arc's sender and receiver; numbered this way, the arcs into an agent come in
     the order of its edges, so that a sum over them (`into`) adds an edge's terms in the order of the edge list.
+
+    A share of a network's arcs (an MPI rank's: the arcs into its agents, over its own and its neighbours' rows) says
+    what each is in the whole network, so that every number drawn for it is the one the whole network draws
+    (`dgtd.streams`): ``ids`` each arc's id there, ``agents`` each row's agent, and ``edges`` the column of a step's
+    edges up (B, E') that tells whether its link is up. None: the arcs are the whole network's (ids 0 .. 2E - 1, agent
+    i in row i, arc a's edge a // 2).
     """
 
     n_agents: int
     src: np.ndarray
     dst: np.ndarray
+    ids: np.ndarray | None = None
+    agents: np.ndarray | None = None
+    edges: np.ndarray | None = None
 
     @classmethod
     def of(cls, edges: np.ndarray, n_agents: int) -> Arcs:
@@ -28,6 +37,22 @@ class Arcs:
     @property
     def n_arcs(self) -> int:
         return self.src.shape[0]
+
+    @property
+    def arc_ids(self) -> np.ndarray:
+        """Each arc's id in the whole network (2E,)."""
+        return np.arange(self.n_arcs) if self.ids is None else self.ids
+
+    @property
+    def agent_ids(self) -> np.ndarray:
+        """Each row's agent in the whole network (N,)."""
+        return np.arange(self.n_agents) if self.agents is None else self.agents
+
+    def up(self, up: np.ndarray | None, B: int) -> np.ndarray:
+        """Arcs up (B, 2E) from a step's edges up (B, E'; None: every edge)."""
+        if up is None:
+            return np.ones((B, self.n_arcs), bool)
+        return self.both_ways(up) if self.edges is None else np.asarray(up)[:, self.edges]
 
     @staticmethod
     def both_ways(up: np.ndarray) -> np.ndarray:

@@ -36,7 +36,7 @@ from dgtd.channels.inbox import Inbox
 from dgtd.channels.lossy import Lossy, arc_uniforms
 from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
 from dgtd.errors import DgtdInputError
-from dgtd.streams import DELAY, ROUNDING, WAKE, uniforms
+from dgtd.streams import DELAY, ROUNDING, WAKE, singles, uniforms
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,15 +87,14 @@ class Imperfect:
         keys, step = state.keys, int(t[0])
         awake = np.ones((B, N), bool)
         if self.wake is not None:
-            awake = uniforms(keys[:, None], WAKE, step, np.arange(N))[0] < self.wake
+            agents = arcs.agent_ids
+            awake = singles(keys[:, None], WAKE, step, agents) < self.wake[agents]
         if self.delay:
-            u = arc_uniforms(keys, DELAY, step, arcs.n_arcs)
+            u = arc_uniforms(keys, DELAY, step, arcs)
             late = np.minimum(np.floor(u * (self.delay + 1)).astype(np.int64), self.delay)
         rounding = None
         if self.bits < BITS_PER_NUMBER:  # arc a's numbers 2j and 2j + 1 from its call j
-            u0, u1 = uniforms(
-                keys[:, None, None], ROUNDING, step, np.arange(arcs.n_arcs)[:, None], np.arange((Q + 1) // 2)
-            )
+            u0, u1 = uniforms(keys[:, None, None], ROUNDING, step, arcs.arc_ids[:, None], np.arange((Q + 1) // 2))
             rounding = np.stack([u0, u1], axis=-1).reshape(B, arcs.n_arcs, -1)[:, :, :Q]
         sends = carried & awake[:, arcs.src]
         value = x[:, arcs.src]
@@ -126,7 +125,7 @@ class Imperfect:
             start += m.shape[-1]
         delivered = sends.sum(axis=1).astype(np.float64)
         bits = sum(self.vector_bits(m.shape[-1]) for m in sent.values())
-        weights = self.arc_weights if self.reweight else None
+        weights = self.arc_weights[arcs.arc_ids] if self.reweight else None
         inbox = Inbox(arcs, sent, heard, received, weights, awake if self.wake is not None else None)
         return inbox, ChannelState(
             state.messages + delivered * len(sent),

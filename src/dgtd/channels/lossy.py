@@ -27,11 +27,14 @@ from dgtd.errors import DgtdInputError
 from dgtd.streams import ARC_BURST_START, ARC_LOSS, seed_keys, uniforms
 
 
-def arc_uniforms(keys: np.ndarray, purpose: int, step: int, n_arcs: int) -> np.ndarray:
-    """One uniform per arc (B, 2E) of each seed (``keys`` (B,)) at ``step``: arcs 2e and 2e + 1 take the pair keyed
-    by their edge e (`dgtd.streams`), so either end of the edge can draw both."""
-    u0, u1 = uniforms(keys[:, None], purpose, step, np.arange(n_arcs // 2))
-    return np.stack([u0, u1], axis=-1).reshape(keys.shape[0], n_arcs)
+def arc_uniforms(keys: np.ndarray, purpose: int, step: int, arcs: Arcs) -> np.ndarray:
+    """One uniform per arc (B, 2E) of each seed (``keys`` (B,)) at ``step``: arcs 2e and 2e + 1 of the whole network
+    take the pair keyed by their edge e (`dgtd.streams`), so either end of the edge can draw both."""
+    if arcs.ids is None:  # the whole network: each edge's pair once
+        u0, u1 = uniforms(keys[:, None], purpose, step, np.arange(arcs.n_arcs // 2))
+        return np.stack([u0, u1], axis=-1).reshape(keys.shape[0], arcs.n_arcs)
+    u0, u1 = uniforms(keys[:, None], purpose, step, arcs.ids // 2)
+    return np.where(arcs.ids % 2 == 0, u0, u1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,7 +83,7 @@ class Lossy:
         keys = seed_keys(seed, range(seeds))
         links = np.zeros((seeds, 0), np.uint8)
         if self.burst is not None:
-            links = (arc_uniforms(keys, ARC_BURST_START, 0, arcs.n_arcs) < self.loss).astype(np.uint8)
+            links = (arc_uniforms(keys, ARC_BURST_START, 0, arcs) < self.loss[arcs.arc_ids]).astype(np.uint8)
         return ChannelState(np.zeros(seeds), np.zeros(seeds), keys, links, step=np.zeros(seeds, np.int64))
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
@@ -90,7 +93,7 @@ class Lossy:
         heard = kept.astype(np.float64)
         arrived = heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())
-        weights = self.arc_weights if self.reweight else None
+        weights = self.arc_weights[arcs.arc_ids] if self.reweight else None
         return Inbox(arcs, sent, heard, weights=weights), ChannelState(
             state.messages + arrived * len(sent),
             state.bits + arrived * numbers * BITS_PER_NUMBER,
@@ -102,15 +105,14 @@ class Lossy:
     def arcs_up(self, state: ChannelState, arcs: Arcs, up: np.ndarray | None, B: int):
         """(the arcs that carry a message at this step (B, 2E): their edge up (B, E; None: every edge) and their
         message kept; the links' new states), from one uniform per arc."""
-        u = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs.n_arcs)
+        u = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs)
         links = state.links
         if self.burst is None:
-            kept = u >= self.loss
+            kept = u >= self.loss[arcs.arc_ids]
         else:
-            losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < self.enter)
+            losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < self.enter[arcs.arc_ids])
             links, kept = losing.astype(np.uint8), ~losing
-        edges = np.ones((B, arcs.n_arcs), bool) if up is None else Arcs.both_ways(up)
-        return edges & kept, links
+        return arcs.up(up, B) & kept, links
 
     def describe(self) -> str:
         lo, hi = float(self.loss.min()), float(self.loss.max())

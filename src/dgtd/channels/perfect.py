@@ -68,5 +68,5 @@ class Perfect:
     def inbox(self, arcs: Arcs, sent: dict, up: np.ndarray | None = None) -> Inbox:
         """What every agent hears of ``sent`` (name -> (B, N, q)) over the edges up (B, E) (None: every edge)."""
         B = next(iter(sent.values())).shape[0] if sent else (1 if up is None else up.shape[0])
-        heard = np.ones((B, arcs.n_arcs)) if up is None else Arcs.both_ways(up).astype(np.float64)
+        heard = arcs.up(up, B).astype(np.float64)
         return Inbox(arcs, sent, heard)

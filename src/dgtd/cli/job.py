@@ -200,8 +200,8 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
         )
     from dgtd.backends import mpi
 
-    if mpi.launched() and config.run.backend is None:  # the ranks run the reference's arithmetic
-        config = replace(config, run=replace(config.run, backend="numpy"))
+    if mpi.launched() and config.run.backend is None and config.run.asynchronous:  # ranks that do not wait run
+        config = replace(config, run=replace(config.run, backend="numpy"))  # the reference (`mpi.check_supported`)
     problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(config))
     out = Path(config.output.out) if config.output.out else Path("runs") / problem.name
     out = out.resolve()

@@ -308,11 +308,11 @@ def run(
 
     mpi.check_supported(algorithm, ctx.channel, N, settings.backend, settings.asynchronous)
     asynchronous = settings.asynchronous and mpi.spreads(algorithm)
-    if asynchronous:
-        kernel = mpi.asynchronous(settings.staleness)
-        mpi.message_ages(restore=mpi.NO_AGES if resume is None else resume["message_ages"])
-    elif mpi.spreads(algorithm):  # ranks of an mpiexec job: the agents spread over them (`dgtd.backends.mpi`)
-        kernel = mpi.run_block
+    if mpi.spreads(algorithm):  # ranks of an mpiexec job: the agents spread over them (`dgtd.backends.mpi`)
+        kernel = mpi.kernel(ctx, settings.backend, settings.staleness if asynchronous else False)
+        if asynchronous:
+            mpi.message_ages(restore=mpi.NO_AGES if resume is None else resume["message_ages"])
+        source = mpi.local_source(ctx, source)  # each rank draws the numbers of its agents and their neighbours only
     else:
         kernel = kernel_for(settings.backend, algorithm.name)
     algorithm = ctx.algorithm
@@ -376,8 +376,8 @@ def run(
     # Kernels that draw their own samples (`Draws`) materialise nothing: their blocks are bounded by work (a few
     # seconds between progress updates), not by the memory of a block of samples.
     fused = getattr(kernel, "draws_samples", False) and isinstance(source, ModelSource)
-    if fused:
-        block = block_steps(settings.block_size, N, 0, B, budget=1 << 24)
+    if fused:  # ranks gather every agent's state at each block's end: longer blocks (each rank steps N / R agents)
+        block = block_steps(settings.block_size, N, 0, B, budget=(1 << 24) * (16 if mpi.spreads(algorithm) else 1))
     else:
         block = block_steps(settings.block_size, N, network.n_edges, B)
     t_kernel = time.perf_counter()
@@ -455,6 +455,7 @@ def run(
                 break
         checkpoint = every and k % every == 0 and k < T
         ages = mpi.message_ages() if asynchronous and checkpoint else {}  # a collective: every rank, saving or not
+        source_state = source.get_state() if checkpoint else None  # the same (a rank's source holds its own agents)
         if checkpoint and on_checkpoint is not None:
             on_checkpoint(
                 snapshot(
@@ -466,7 +467,7 @@ def run(
                     err_last,
                     err_avg,
                     w_trace,
-                    source.get_state(),
+                    source_state,
                     seconds_before + time.perf_counter() - t_start,
                     extra={
                         "messages": messages,

@@ -30,7 +30,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.files import open_npz
 from dgtd.samples import Block, SampleTable
-from dgtd.streams import EDGE_UP, ORDER, seed_key, seed_keys, uniforms
+from dgtd.streams import EDGE_UP, ORDER, seed_key, seed_keys, singles, uniforms
 
 KEYS = ("seed", "episode", "step", "agent")
 GROUPS = 8  # the reference's groups of episodes, without independent recordings
@@ -335,7 +335,7 @@ class DataSource:
         if self.network is None or self.network.fixed:
             return None
         steps = (self.k - T + np.arange(T, dtype=np.uint64))[:, None, None]  # (next_block has moved k on)
-        u = uniforms(self.keys[None, :, None], EDGE_UP, steps, np.arange(self.network.n_edges))[0]
+        u = singles(self.keys[None, :, None], EDGE_UP, steps, np.arange(self.network.n_edges))
         return u < self.network.p
 
     def get_state(self) -> dict:

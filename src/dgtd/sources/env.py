@@ -29,7 +29,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError, call_user, user_error
 from dgtd.samples import Block, SampleTable
-from dgtd.streams import EDGE_UP, SIMULATOR, entity_seed, seed_key, uniforms
+from dgtd.streams import EDGE_UP, SIMULATOR, entity_seed, seed_key, singles
 
 
 def random_policy(agent: str, observation, space, rng: np.random.Generator):
@@ -153,7 +153,7 @@ class EnvSource:
                     up[t, b] = self.proximity.masks(np.asarray(where, dtype=np.float64))
                 else:
                     key = np.uint64(self.keys[b])
-                    up[t, b] = uniforms(key, EDGE_UP, self.step + t, np.arange(E))[0] < self.network.p
+                    up[t, b] = singles(key, EDGE_UP, self.step + t, np.arange(E)) < self.network.p
                 obs, rewards, terms, truncs, _ = call_user(f"the env's step() ({self.name})", env.step, actions)
                 env._dgtd_last_obs = obs
                 states[t, b] = self.current[b]

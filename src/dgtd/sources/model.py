@@ -17,7 +17,17 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.problems.model import Problem
 from dgtd.samples import Block, Draws
-from dgtd.streams import AGENT_START, AGENT_STATE, EDGE_UP, REWARD, SHARED_START, SHARED_STATE, seed_keys, uniforms
+from dgtd.streams import (
+    AGENT_START,
+    AGENT_STATE,
+    EDGE_UP,
+    REWARD,
+    SHARED_START,
+    SHARED_STATE,
+    seed_keys,
+    singles,
+    uniforms,
+)
 
 SAMPLING_MODES = ("iid", "markov")
 
@@ -127,25 +137,34 @@ class Streams:
         self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, n_edges
         self.mode, self.reward_noise, self.random_edges = mode, reward_noise, random_edges
         # one observation is the trajectory every agent sees; else observation o is agent o's own
-        self.state_purpose = SHARED_STATE if n_obs == 1 else AGENT_STATE
+        self.shared = n_obs == 1
+        self.state_purpose = SHARED_STATE if self.shared else AGENT_STATE
+        self.obs_ids, self.agent_ids, self.edge_ids = np.arange(n_obs), np.arange(n_agents), np.arange(n_edges)
         self.step = 0
+
+    def restrict(self, agents: np.ndarray, edges: np.ndarray) -> None:
+        """Draw only the numbers of ``agents`` and ``edges`` (ids in the whole network): their states (or the shared
+        trajectory's), rewards and links, each the number the whole network's streams give it."""
+        self.agent_ids, self.edge_ids = np.asarray(agents, np.int64), np.asarray(edges, np.int64)
+        self.obs_ids = self.obs_ids if self.shared else self.agent_ids
+        self.n_obs, self.n_agents, self.n_edges = len(self.obs_ids), len(self.agent_ids), len(self.edge_ids)
 
     def initial_uniforms(self) -> np.ndarray:
         """Uniforms (B, n_obs) for the initial states s_0 ~ d of Markovian trajectories."""
-        start = SHARED_START if self.n_obs == 1 else AGENT_START
-        return uniforms(self.keys[:, None], start, 0, np.arange(self.n_obs))[0]
+        start = SHARED_START if self.shared else AGENT_START
+        return uniforms(self.keys[:, None], start, 0, self.obs_ids)[0]
 
     def draw(self, T: int) -> dict[str, np.ndarray]:
         """Next T steps: 'state' (T, B, n_obs, 2 or 1: s ~ d or a skipped restart's state, then (a, s')), 'reward'
         (T, B, N) and 'edge' (T, B, E) when used."""
         steps = (self.step + np.arange(T, dtype=np.uint64))[:, None, None]
         keys = self.keys[None, :, None]
-        u_s, u_sa = uniforms(keys, self.state_purpose, steps, np.arange(self.n_obs))
+        u_s, u_sa = uniforms(keys, self.state_purpose, steps, self.obs_ids)
         out = {"state": np.stack([u_s, u_sa], axis=-1) if self.width == 2 else u_sa[..., None]}
         if self.reward_noise:
-            out["reward"] = uniforms(keys, REWARD, steps, np.arange(self.n_agents))[0]
+            out["reward"] = singles(keys, REWARD, steps, self.agent_ids)
         if self.random_edges:
-            out["edge"] = uniforms(keys, EDGE_UP, steps, np.arange(self.n_edges))[0]
+            out["edge"] = singles(keys, EDGE_UP, steps, self.edge_ids)
         self.step += T
         return out
 
@@ -183,20 +202,22 @@ def next_current(tables: SamplerTables, S: int, terminal, sn: np.ndarray, u: np.
     return np.where(terminal[sn], restart, sn)
 
 
-def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, sn: np.ndarray, u_reward) -> np.ndarray:
-    """r (..., N): agent i's reward at its observation (s_i, a_i, s'_i); shared observations broadcast."""
-    N = problem.n_agents
+def rewards(problem: Problem, s: np.ndarray, a: np.ndarray, sn: np.ndarray, u_reward, agents=None) -> np.ndarray:
+    """r (..., N): agent i's reward at its observation (s_i, a_i, s'_i); shared observations broadcast. ``agents``:
+    the agents (ids) of the observations, where they are not all (an MPI rank's)."""
+    agents = np.arange(problem.n_agents) if agents is None else agents
     table = problem.reward_table
     sn = sn if table.shape[3] > 1 else np.zeros_like(sn)
-    if s.shape[-1] == N:
-        mean = table[np.arange(N), s, a, sn]
+    if s.shape[-1] == len(agents):
+        mean = table[agents, s, a, sn]
     else:
-        mean = np.moveaxis(table[:, s[..., 0], a[..., 0], sn[..., 0]], 0, -1)
+        mean = np.moveaxis(table[agents][:, s[..., 0], a[..., 0], sn[..., 0]], 0, -1)
     return reward_from_uniform(mean, problem.sigma, problem.reward_noise, u_reward)
 
 
-def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dict, current):
-    """NumPy reference: turn a block of uniforms into a `Block`; returns (block, current state or None)."""
+def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dict, current, agents=None, edges=None):
+    """NumPy reference: turn a block of uniforms into a `Block`; returns (block, current state or None). ``agents``
+    and ``edges``: the ids of the agents and edges the uniforms are of, where they are not all (`Streams.restrict`)."""
     S = problem.n_states
     if current is None:
         s, a, sn = pick_states(tables, S, U["state"], None)
@@ -206,8 +227,10 @@ def block_from_uniforms(problem: Problem, network, tables: SamplerTables, U: dic
         for t in range(T):
             s[t], a[t], sn[t] = pick_states(tables, S, U["state"][t], current)
             current = next_current(tables, S, problem.skipped_terminals, sn[t], U["state"][t][..., 0])
-    r = rewards(problem, s, a, sn, U.get("reward"))
-    up = network.masks_from_uniforms(U["edge"]) if "edge" in U else None
+    r = rewards(problem, s, a, sn, U.get("reward"), agents)
+    up = None
+    if "edge" in U:
+        up = network.masks_from_uniforms(U["edge"]) if edges is None else U["edge"] < network.p[edges]
     return Block(s, a, sn, np.ascontiguousarray(r, dtype=np.float64), up), current
 
 
@@ -245,6 +268,19 @@ class ModelSource:
         self.markov = sampling.mode == "markov"
         self.backend = backend
         self.current = None
+        self.agents = self.edges = self.gather = None  # all of them (`restrict`)
+
+    def restrict(self, agents: np.ndarray, edges: np.ndarray, gather=None) -> None:
+        """Draw only the samples of ``agents`` and the links of ``edges`` (ids in the whole network, as an MPI rank
+        does for its own agents and their neighbours): a block then holds their rows (T, B, len(agents)) and columns
+        (T, B, len(edges)), each the sample the whole network's run gives it (`Streams.restrict`). ``gather`` (B, n)
+        -> (B, N) collects every rank's trajectories' states for a checkpoint (a collective); a shared trajectory is
+        the same on every rank and needs none."""
+        self.streams.restrict(agents, edges)
+        self.agents, self.edges, self.gather = self.streams.agent_ids, self.streams.edge_ids, gather
+        self.n_obs = self.streams.n_obs
+        if self.current is not None and not self.streams.shared:
+            self.current = self.current[:, self.agents]
 
     def start(self) -> None:
         """Initial states s_0 ~ d of Markovian trajectories, from the state streams' first draws."""
@@ -257,9 +293,11 @@ class ModelSource:
         if self.backend == "numba":
             from dgtd.backends.compiled.sampling import block_from_uniforms as fast
 
-            blk, self.current = fast(self.problem, self.network, self.tables, U, self.current)
+            blk, self.current = fast(self.problem, self.network, self.tables, U, self.current, self.agents, self.edges)
         else:
-            blk, self.current = block_from_uniforms(self.problem, self.network, self.tables, U, self.current)
+            blk, self.current = block_from_uniforms(
+                self.problem, self.network, self.tables, U, self.current, self.agents, self.edges
+            )
         return blk
 
     def draws(self, T: int) -> Draws:
@@ -267,8 +305,16 @@ class ModelSource:
         return Draws(self, int(T))
 
     def get_state(self) -> dict:
-        return {"streams": self.streams.get_state(), "current": None if self.current is None else self.current.copy()}
+        """The step the streams are at and every trajectory's state (all agents', gathered where this source holds
+        some: a collective then)."""
+        current = None if self.current is None else self.current.copy()
+        if current is not None and self.agents is not None and not self.streams.shared:
+            current = self.gather(current)
+        return {"streams": self.streams.get_state(), "current": current}
 
     def set_state(self, state: dict) -> None:
         self.streams.set_state(state["streams"])
-        self.current = state["current"]
+        current = state["current"]
+        if current is not None and self.agents is not None and not self.streams.shared:
+            current = np.array(current)[:, self.agents]
+        self.current = current

@@ -34,6 +34,7 @@ from dgtd.backends.compiled.sampling import (
     _step_edges,
     _step_observations,
     channel_draws,
+    entity_ids,
     sample_args,
 )
 from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
@@ -79,7 +80,7 @@ def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, 
             inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0, graph[4])
             for i in range(L):
                 _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
-        sampler[-1][b] += arcs_up  # n_up
+        sampler[20][b] += arcs_up  # n_up
 
 
 def _seeds_held(
@@ -97,7 +98,7 @@ def _seeds_held(
     x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
     for b in range(b0, b1):
         for t in range(T):
-            sampler[-1][b] += _sample_step(sampler, b, 0, t, sampler[1], space)
+            sampler[20][b] += _sample_step(sampler, b, 0, t, sampler[1], space)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
             step = held.step[b] + t
             held.delivered[b] += carry(
@@ -152,6 +153,11 @@ def _chunk(
     r_blk,
     up_blk,
     n_up,
+    obs_ids,
+    agent_ids,
+    edge_ids,
+    counted_arcs,
+    purpose,
     Phi,
     sparse,
     ptr,
@@ -189,49 +195,53 @@ def _chunk(
         inbox = Inbox(sent, heard, n_heard, weights, degree, now + b, scratch, c, arc_weights)
         x = Samples(s_t, a_t, sn_t, r_t, now + b, ratio, cont, gamma)
         _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, now + b, b, i, alphas[t], q)
-    if t + 1 < T:  # task j of 2B: seed j // 2, observations (even j) or edges (odd j); spread over the chunks
-        for j in range(2 * B):
-            if j * n_chunks // (2 * B) == c:
-                sb = j // 2
-                if j % 2 == 0:
-                    _step_observations(
-                        sb,
-                        nxt + sb,
-                        t + 1,
-                        fused,
-                        rng,
-                        markov,
-                        current,
-                        d_prob,
-                        d_alias,
-                        sa_prob,
-                        sa_alias,
-                        terminal,
-                        R_sample,
-                        sigma,
-                        noise,
-                        s_blk,
-                        a_blk,
-                        sn_blk,
-                        r_blk,
-                        s_t,
-                        a_t,
-                        sn_t,
-                        r_t,
-                    )
-                else:
-                    n_up[sb] += _step_edges(sb, nxt + sb, t + 1, fused, rng, p_edge, loss, links, up_blk, up_t)
-                    if NEEDS_DEGREES:
-                        count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
+    if t + 1 < T:  # the samples of step t + 1: every chunk draws its share of each seed's observations (the numbers
+        # are keyed: any part can be drawn anywhere), and seed j's edges fall to chunk n_chunks - 1 - j % n_chunks
+        n_obs = s_t.shape[1]
+        for sb in range(B):
+            _step_observations(
+                sb,
+                nxt + sb,
+                t + 1,
+                fused,
+                rng,
+                markov,
+                current,
+                d_prob,
+                d_alias,
+                sa_prob,
+                sa_alias,
+                terminal,
+                R_sample,
+                sigma,
+                noise,
+                s_blk,
+                a_blk,
+                sn_blk,
+                r_blk,
+                s_t,
+                a_t,
+                sn_t,
+                r_t,
+                (obs_ids, agent_ids, edge_ids, counted_arcs, purpose),
+                c * n_obs // n_chunks,
+                (c + 1) * n_obs // n_chunks,
+            )
+            if c == n_chunks - 1 - sb % n_chunks:
+                n_up[sb] += _step_edges(
+                    sb, nxt + sb, t + 1, fused, rng, p_edge, loss, links, up_blk, up_t, edge_ids, counted_arcs
+                )
+                if NEEDS_DEGREES:
+                    count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
 
 
 def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, n_chunks):
     """The agents of every seed spread over the cores at every step, in ``n_chunks`` chunks (`_chunk`, compiled on its
     own: the parallel part stays small and compiles in a moment). Samples are double-buffered too: while the agents
-    update with step k's, the chunks also draw step k + 1's, each seed's state and reward streams in one chunk and its
-    edge stream in another (a stream is sequential, but the streams are independent), so that no core waits while
-    another samples (each number is keyed by what it is for, so the order does not matter). numba hands a parallel
-    loop arrays and numbers, not tuples: they are unpacked first."""
+    update with step k's, the chunks also draw step k + 1's, each chunk its share of every seed's observations and
+    rewards and one chunk a seed's edges (each number is keyed by what it is for, so any part can be drawn anywhere
+    and in any order), so that no core waits while another samples. numba hands a parallel loop arrays and numbers,
+    not tuples: they are unpacked first."""
     (
         fused,
         rng,
@@ -254,7 +264,9 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
         r_blk,
         up_blk,
         n_up,
+        ids,
     ) = sampler
+    obs_ids, agent_ids, edge_ids, counted_arcs, purpose = ids
     Phi, sparse, ptr, idx, val = feat
     indptr, nbr, eid, agent_of, arc_weights = graph
     s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
@@ -297,6 +309,11 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
                 r_blk,
                 up_blk,
                 n_up,
+                obs_ids,
+                agent_ids,
+                edge_ids,
+                counted_arcs,
+                purpose,
                 Phi,
                 sparse,
                 ptr,
@@ -381,71 +398,122 @@ JOB_WORK = 200_000  # agent-steps a group of seeds holds at least, where there a
 def run_block(ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
     """The contract of `dgtd.backends.reference.run_block`, compiled; ``blk`` is a `Block` of samples or `Draws`
     that the kernel draws itself (the same samples, never materialised)."""
-    algorithm = ctx.algorithm
-    compiled = STEPS[algorithm.name]
-    messages = tuple(algorithm.messages)
-    B, L, q = w_sum.shape
-    N = ctx.network.n_nodes
-    holds = messages and getattr(ctx.channel, "name", "") == "imperfect"
-    A = ctx.arcs.n_arcs if holds else 0  # rows N + a of the buffers hold arc a's copies (`_seeds_held`)
-    order = storage_order(ctx) if messages else None  # agents in rows near their neighbours: `storage_order`
-    rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
-    back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
-    copy = lambda x: np.array(rows(x), dtype=np.float64, order="C")  # noqa: E731  (updated in place: not the caller's)
-    own_names = [f for f in state._fields if f not in messages]
-    if tuple(own_names) != compiled.own:
-        raise TypeError(f"{algorithm.name}'s compiled step keeps {compiled.own}, its state {tuple(own_names)}")
-    own = np.stack([copy(getattr(state, f)) for f in own_names]) if own_names else np.zeros((0, B, L, q))
-    sent = algorithm.sends(state)
-    buffers = np.zeros((2, len(messages), B, N + A, q))  # step k's messages in buffers[k % 2], k counted in the block
-    for m, name in enumerate(messages):
-        buffers[0, m, :, :N] = rows(sent[name])
-    sums = copy(w_sum)
-    sampler = sample_args(ctx, blk, B, channel)
-    Phi, ratio = rows_of(ctx, blk)
-    args = (
-        compiled.params(algorithm, ctx),
-        own,
-        sums,
-        q,
-        N,
-        sampler,
-        Features(*feature_arrays(ctx, blk)),
-        readonly(ratio),
-        continuing_flags(ctx, blk),
-        float(ctx.gamma),
-        _graph(ctx, bool(messages)),
-    )
-    if holds:
-        newest, channel = _run_held(ctx, compiled, args, buffers, np.ascontiguousarray(alphas), blk, channel)
-    else:
-        newest = _layouts(ctx, B, L, q, bool(messages)).run(
-            driver(algorithm.name), args, buffers, np.ascontiguousarray(alphas), blk, len(messages), compiled.work
+    run = Advance(ctx, state, channel, w_sum, alphas, blk)
+    run.advance(alphas.shape[0])
+    return run.finish()
+
+
+class Advance:
+    """A block set up for the compiled kernels (the state in storage rows, the message buffers, the sampling
+    arguments), advanced a number of steps at a time (`advance`: an MPI rank exchanges its ghosts' messages between
+    steps, `message_rows`), and handed back (`finish`)."""
+
+    def __init__(self, ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
+        algorithm = self.algorithm = ctx.algorithm
+        compiled = self.compiled = STEPS[algorithm.name]
+        messages = self.messages = tuple(algorithm.messages)
+        B, L, q = w_sum.shape
+        N = self.N = ctx.network.n_nodes
+        self.holds = bool(messages) and getattr(ctx.channel, "name", "") == "imperfect"
+        A = ctx.arcs.n_arcs if self.holds else 0  # rows N + a of the buffers hold arc a's copies (`_seeds_held`)
+        order = self.order = storage_order(ctx) if messages else None  # agents in rows near their neighbours
+        rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])
+        copy = lambda x: np.array(rows(x), dtype=np.float64, order="C")  # noqa: E731  (updated in place)
+        self.own_names = [f for f in state._fields if f not in messages]
+        if tuple(self.own_names) != compiled.own:
+            raise TypeError(f"{algorithm.name}'s compiled step keeps {compiled.own}, its state {tuple(self.own_names)}")
+        own = np.stack([copy(getattr(state, f)) for f in self.own_names]) if self.own_names else np.zeros((0, B, L, q))
+        sent = algorithm.sends(state)
+        # step k's messages in buffers[k % 2], k counted in the block
+        self.buffers = np.zeros((2, len(messages), B, N + A, q))
+        for m, name in enumerate(messages):
+            self.buffers[0, m, :, :N] = rows(sent[name])
+        sums = copy(w_sum)
+        self.sampler = sample_args(ctx, blk, B, channel)
+        Phi, ratio = rows_of(ctx, blk)
+        self.args = (
+            compiled.params(algorithm, ctx),
+            own,
+            sums,
+            q,
+            N,
+            self.sampler,
+            Features(*feature_arrays(ctx, blk)),
+            readonly(ratio),
+            continuing_flags(ctx, blk),
+            float(ctx.gamma),
+            _graph(ctx, bool(messages)),
         )
-    if isinstance(blk, Draws):
-        _, _, markov, current = sampler[:4]
-        blk.settle(current if markov else None)
-    if channel_draws(ctx):  # the links' states as the kernel left them, and the steps it took (`_run_held`'s own)
-        step = channel.step if holds else channel.step + alphas.shape[0]
-        channel = channel._replace(links=sampler[14].copy(), step=step)
-    final = dict(zip(own_names, own)) | dict(zip(messages, buffers[newest][:, :, :N]))
-    new = state._make(back(final[f]) for f in state._fields)
-    if holds:  # counted as they were carried (`_run_held`)
-        return new, channel, back(sums)
-    # every arc that delivers carries every message (`_step_edges` counted them)
-    return new, counted(channel, sampler[-1], len(messages), len(messages) * q), back(sums)
+        self.ctx, self.state, self.channel, self.blk = ctx, state, channel, blk
+        self.alphas = np.ascontiguousarray(alphas)
+        self.newest, self.t = 0, 0  # the buffer of the newest messages, and the steps taken
+
+    def message_rows(self) -> np.ndarray:
+        """(messages, B, N, q): the newest messages in the agents' own rows order (a view: an MPI rank writes its
+        ghosts' rows there between steps, through `storage_rows`)."""
+        return self.buffers[self.newest][:, :, : self.N]
+
+    def storage_rows(self, rows: np.ndarray) -> np.ndarray:
+        """Where agents ``rows`` sit in the buffers."""
+        return rows if self.order is None else self.order[1][rows]
+
+    def advance(self, t1: int) -> None:
+        """Steps self.t .. t1 - 1 of the block (none: load or compile the kernels it runs)."""
+        ctx, compiled = self.ctx, self.compiled
+        if self.holds:
+            self.newest, self.channel = _run_held(
+                ctx, compiled, self.args, self.buffers, self.alphas, self.blk, self.channel, self.t, t1, self.newest
+            )
+        else:
+            B, L, q = self.args[2].shape
+            self.newest = _layouts(ctx, B, L, q, bool(self.messages)).run(
+                driver(self.algorithm.name),
+                self.args,
+                self.buffers,
+                self.alphas,
+                self.blk,
+                len(self.messages),
+                compiled.work,
+                self.t,
+                t1,
+                self.newest,
+            )
+        self.t = t1
+
+    def finish(self):
+        """(the new state, the channel's, the running sums) in the agents' own order, the sources settled."""
+        sampler, channel, state, q = self.sampler, self.channel, self.state, self.args[3]
+        T, order, messages = self.t, self.order, self.messages
+        back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
+        if isinstance(self.blk, Draws):
+            _, _, markov, current = sampler[:4]
+            self.blk.settle(current if markov else None)
+        if channel_draws(self.ctx):  # the links' states as the kernel left them, and the steps (`_run_held`'s own)
+            step = channel.step if self.holds else channel.step + T
+            channel = channel._replace(links=sampler[14].copy(), step=step)
+        own = self.args[1]
+        final = dict(zip(self.own_names, own)) | dict(zip(messages, self.buffers[self.newest][:, :, : self.N]))
+        new = state._make(back(final[f]) for f in state._fields)
+        sums = back(self.args[2])
+        if self.holds:  # counted as they were carried (`_run_held`)
+            return new, channel, sums
+        # every arc that delivers carries every message (`_step_edges` counted them)
+        return new, counted(channel, sampler[20], len(messages), len(messages) * q), sums
 
 
 run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
 
 
-def _run_held(ctx, compiled, args, buffers, alphas, blk, channel):
-    """Every step of the block over a channel whose receivers hold copies (`_seeds_held`), the seeds in as many
-    threads as there are cores; returns (which buffer holds the newest messages, the channel's new state)."""
+def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None, first=0):
+    """Steps t0 .. t1 - 1 of the block (all of it by default; those of step t0 in buffer ``first``) over a channel
+    whose receivers hold copies (`_seeds_held`), the seeds in as many threads as there are cores; returns (which
+    buffer holds the newest messages, the channel's new state)."""
     from dgtd.backends.compiled.held import Held, Links
     from dgtd.channels.imperfect import held
 
     p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
+    t1 = alphas.shape[0] if t1 is None else t1
+    sampler, alphas = _piece_of(sampler, blk, t0, t1), alphas[t0:t1]
     link = ctx.channel
     M, B, A, T = buffers.shape[1], sums.shape[0], ctx.arcs.n_arcs, alphas.shape[0]
     Q = M * q
@@ -461,6 +529,7 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel):
         q,
         np.ascontiguousarray(ctx.arcs.src, np.int64),
         np.ascontiguousarray(src_row, np.int64),
+        *entity_ids(ctx)[1:4],
     )
     state = Held(
         channel.copies.copy(),
@@ -485,7 +554,24 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel):
         space += (_private((N,), np.bool_), _private((A,), np.int64), _private((A, Q), np.float64))
         space += (_private((Q,), np.float64), _private((Q,), np.bool_))
         kernel(
-            p, own, sums, buffers, 0, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, links, state, b0, b1
+            p,
+            own,
+            sums,
+            buffers,
+            first,
+            q,
+            alphas,
+            sampler,
+            feat,
+            ratio,
+            cont,
+            gamma,
+            graph,
+            space,
+            links,
+            state,
+            b0,
+            b1,
         )
 
     if threads == 1:
@@ -508,7 +594,7 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel):
         step=state.step,
         per_arc=state.per_arc,
     )
-    return T % 2, channel
+    return (first + T) % 2, channel
 
 
 def _held_driver(name: str, compiled: CompiledStep):
@@ -566,13 +652,14 @@ class Layouts:
         self.since_check, self.started = 0.0, set[str]()
         self.spaces: dict = {}  # (layout, job) -> (dimensions, `_space`): made once per run, not once per block
 
-    def run(self, kernels, args, buffers, alphas, blk, n_messages: int, n_work: int) -> int:
-        """Every step of the block, piece by piece; returns which of the two buffers holds the newest messages."""
+    def run(self, kernels, args, buffers, alphas, blk, n_messages: int, n_work: int, t0=0, T=None, newest=0) -> int:
+        """Steps t0 .. T - 1 of the block (all of it by default), piece by piece, the messages of step t0 in buffer
+        ``newest``; returns which of the two buffers holds the newest messages."""
         if alphas.shape[0] == 0:  # an empty block (the run's first): load or compile every layout it may use
             for layout in self.candidates:
                 self._call(kernels, layout, args, buffers, 0, alphas, blk, 0, 0, n_messages, n_work)
             return 0
-        t0, T, newest = 0, alphas.shape[0], 0
+        T = alphas.shape[0] if T is None else T
         while t0 < T:
             layout = self._choose()
             steps = T - t0 if len(self.candidates) == 1 else self._piece(layout, T - t0)
@@ -741,7 +828,7 @@ def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
         sn[t0:],
         r[t0:],
         up[t0:] if up.shape[0] else up,
-        sampler[20],
+        *sampler[20:],
     )
 
 

@@ -20,7 +20,8 @@ from dgtd.streams import DELAY, ROUNDING, WAKE
 class Links(NamedTuple):
     """What `carry` reads of the channel: ``wake`` (N,) each agent's probability of being awake (empty: always),
     ``delay`` D, ``bits`` B, ``top_k`` K (0: none), ``feedback`` (1 with error feedback), ``width`` q (the numbers
-    of each message), and each arc's sender as an agent (``src``) and as a storage row (``src_row``)."""
+    of each message), each arc's sender as an agent (``src``) and as a storage row (``src_row``), and the ids of the
+    agents and edges in the whole network and the arcs counted (`dgtd.backends.compiled.sampling.entity_ids`)."""
 
     wake: np.ndarray
     delay: int
@@ -30,6 +31,9 @@ class Links(NamedTuple):
     width: int
     src: np.ndarray
     src_row: np.ndarray
+    agent_ids: np.ndarray
+    edge_ids: np.ndarray
+    counted: np.ndarray
 
 
 class Held(NamedTuple):
@@ -55,19 +59,26 @@ def carry(links, held, b, t, rng, up_t, sent, N, scratch):
     A, Q, D = up_t.shape[1], held.copies.shape[2], links.delay
     M, q = sent.shape[0], links.width
     key = rng[b, 0]  # the seed's key (`dgtd.streams`): each number keyed by its agent or arc and the step t
+    u_even = u_odd = 0.0
+    pair = -1
     for k in range(N):
         awake[k] = True
-        if links.wake.shape[0] > 0:
-            awake[k] = keyed_pair(key, WAKE, t, k, 0)[0] < links.wake[k]
+        if links.wake.shape[0] > 0:  # agents 2j and 2j + 1 share call j (`dgtd.streams.singles`)
+            agent = k if links.agent_ids.shape[0] == 0 else links.agent_ids[k]
+            if agent >> 1 != pair:
+                pair = agent >> 1
+                u_even, u_odd = keyed_pair(key, WAKE, t, pair, 0)
+            awake[k] = (u_even if agent & 1 == 0 else u_odd) < links.wake[k]
     if D > 0:
         for e in range(A // 2):
-            u0, u1 = keyed_pair(key, DELAY, t, e, 0)
+            u0, u1 = keyed_pair(key, DELAY, t, e if links.edge_ids.shape[0] == 0 else links.edge_ids[e], 0)
             late[2 * e] = min(np.int64(np.floor(u0 * (D + 1))), D)
             late[2 * e + 1] = min(np.int64(np.floor(u1 * (D + 1))), D)
     if links.bits < 64:
         for a in range(A):
+            arc = a if links.edge_ids.shape[0] == 0 else 2 * links.edge_ids[a >> 1] + (a & 1)
             for f in range(0, Q, 2):
-                u0, u1 = keyed_pair(key, ROUNDING, t, a, f // 2)
+                u0, u1 = keyed_pair(key, ROUNDING, t, arc, f // 2)
                 rounding[a, f] = u0
                 if f + 1 < Q:
                     rounding[a, f + 1] = u1
@@ -76,7 +87,7 @@ def carry(links, held, b, t, rng, up_t, sent, N, scratch):
     for a in range(A):
         sends = up_t[0, a] and awake[links.src[a]]
         if sends:
-            n += 1
+            n += 1 if links.counted.shape[0] == 0 else links.counted[a]
             held.per_arc[b, a] += 1.0
             j = links.src_row[a]
             for m in range(M):

@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit, prange
 
 from dgtd.backends.compiled.cache import load_quickly
+from dgtd.backends.compiled.graph import per_run
 from dgtd.backends.compiled.rng import keyed_pair
 from dgtd.samples import Block, Draws
 from dgtd.streams import AGENT_STATE, ARC_LOSS, EDGE_UP, REWARD, SHARED_STATE
@@ -135,15 +136,18 @@ def _sample_kernel(
 load_quickly(_sample_kernel)
 
 
-def block_from_uniforms(problem, network, tables, U: dict, current):
+def block_from_uniforms(problem, network, tables, U: dict, current, agents=None, edges=None):
     """Compiled twin of `dgtd.sources.model.block_from_uniforms`."""
     T, B, n_obs, _ = U["state"].shape
-    N = problem.n_agents
+    table, p = problem.reward_table, np.asarray(network.p, dtype=np.float64)
+    if agents is not None:
+        table, p = table[agents], p[edges]
+    N = table.shape[0]
     markov = current is not None
     cur = np.array(current, dtype=np.int64) if markov else np.zeros((1, 1), np.int64)
     s, a, sn = (np.empty((T, B, n_obs), np.int64) for _ in range(3))
     r = np.empty((T, B, N))
-    up = np.empty((T, B, network.n_edges), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
+    up = np.empty((T, B, p.shape[0]), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
     _sample_kernel(
         np.ascontiguousarray(U["state"]),
         U.get("reward", np.zeros((0, 0, 0))),
@@ -155,10 +159,10 @@ def block_from_uniforms(problem, network, tables, U: dict, current):
         tables.sa_prob,
         tables.sa_alias,
         restart_flags(problem, markov),
-        np.ascontiguousarray(problem.reward_table),
+        np.ascontiguousarray(table),
         float(problem.sigma),
         NOISE_CODES[problem.reward_noise],
-        np.asarray(network.p, dtype=np.float64),
+        p,
         s,
         a,
         sn,
@@ -198,9 +202,10 @@ def _step_samples(
     sn_t,
     r_t,
     up_t,
+    ids,
 ):
     """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
-    and up_t (edges, or arcs on a lossy channel); returns how many arcs deliver.
+    and up_t (edges, or arcs on a lossy channel); returns how many arcs deliver (those ``ids``' counts count).
 
     Fused: drawn here from seed b's keyed streams (``rng`` [b] = (its key, the block's first step): each number a
     function of the purpose, the observation, agent, edge or arc, and the step, as `dgtd.sources.model.Streams.draw`
@@ -231,8 +236,11 @@ def _step_samples(
         a_t,
         sn_t,
         r_t,
+        ids,
+        0,
+        s_t.shape[1],
     )
-    return _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t)
+    return _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t, ids[2], ids[3])
 
 
 @njit(cache=True, inline="always")
@@ -262,6 +270,7 @@ def _sample_step(sampler, b, row, t, rng, space):
         r_blk,
         up_blk,
         _,
+        ids,
     ) = sampler
     s_t, a_t, sn_t, r_t, up_t = space[0], space[1], space[2], space[3], space[4]
     return _step_samples(
@@ -293,6 +302,7 @@ def _sample_step(sampler, b, row, t, rng, space):
         sn_t,
         r_t,
         up_t,
+        ids,
     )
 
 
@@ -321,56 +331,75 @@ def _step_observations(
     a_t,
     sn_t,
     r_t,
+    ids,
+    o0,
+    o1,
 ):
-    """The states, actions, next states and rewards of `_step_samples` (seed b's state and reward streams)."""
+    """The states, actions, next states and rewards of `_step_samples` (seed b's state and reward streams), each
+    drawn by its observation's and agent's ids in the whole network (`entity_ids`): those of observations o0 .. o1 - 1
+    and their agents (every agent where they share one observation), so that several threads can draw a step's."""
+    obs_ids, agent_ids, purpose = ids[0], ids[1], ids[4]
     n_obs = s_t.shape[1]
     N = r_t.shape[1]
     S = R_sample.shape[1]
+    i0, i1 = (o0, o1) if n_obs == N else (0, N if o0 == 0 < o1 else 0)  # a shared observation's: with observation 0
     if not fused:
-        for o in range(n_obs):
+        for o in range(o0, o1):
             s_t[row, o], a_t[row, o], sn_t[row, o] = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
-        for i in range(N):
+        for i in range(i0, i1):
             r_t[row, i] = r_blk[t, b, i]
         return
     key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
-    purpose = SHARED_STATE if n_obs == 1 else AGENT_STATE  # one observation: the trajectory every agent sees
-    for o in range(n_obs):
-        u_s, u_sa = keyed_pair(key, purpose, step, o, 0)
+    for o in range(o0, o1):
+        u_s, u_sa = keyed_pair(key, purpose, step, o if obs_ids.shape[0] == 0 else obs_ids[o], 0)
         s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(
             u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, terminal, S
         )
-    for i in range(N):
+    u_even = u_odd = 0.0
+    pair = -1
+    for i in range(i0, i1):
         o = i if n_obs == N else 0
         r = R_sample[
             i, s_t[row, o], a_t[row, o], sn_t[row, o] if R_sample.shape[3] > 1 else 0
         ]  # (`Problem.reward_table`)
-        if noise != 0:
-            r = _reward(r, sigma, noise, keyed_pair(key, REWARD, step, i, 0)[0])
+        if noise != 0:  # agents 2j and 2j + 1 share call j (`dgtd.streams.singles`)
+            agent = i if agent_ids.shape[0] == 0 else agent_ids[i]
+            if agent >> 1 != pair:
+                pair = agent >> 1
+                u_even, u_odd = keyed_pair(key, REWARD, step, pair, 0)
+            r = _reward(r, sigma, noise, u_even if agent & 1 == 0 else u_odd)
         r_t[row, i] = r
 
 
 @njit(cache=True, inline="always")
-def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t):
+def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t, edge_ids, counted):
     """Which links deliver at step t, for `_step_samples` (seed b's edge stream): into row ``row`` of up_t, each
     edge up (E), or where the channel loses messages each arc that delivers (2E: its edge up and its message kept,
     from the pair of uniforms of each edge's two arcs at the step, as `dgtd.channels.Lossy` draws them). ``loss`` is
     empty on a perfect channel, else row 0 holds each arc's loss probability (i.i.d. losses) or, with bursts, the
     probability that its chain enters its losing state, and row 1 that it leaves it; ``links`` [b, a] is 1 while arc
-    a's chain is losing. Returns how many arcs deliver (two per edge up, without loss)."""
+    a's chain is losing. Each edge draws by its id ``edge_ids`` [e] in the whole network. Returns how many arcs
+    deliver of those ``counted`` (two per edge up, without loss, in a whole network)."""
     if loss.shape[0] == 0:
-        return 2 * _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t)
+        return _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t, edge_ids, counted)
     E = loss.shape[1] // 2
     bursty = loss.shape[0] == 2
     drawn = fused and p_edge.shape[0] == E  # random edges drawn here; a fixed graph draws nothing
     key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
     n = 0
+    u_even = u_odd = 0.0
+    pair = -1
     for e in range(E):
         up = True
-        if drawn:
-            up = keyed_pair(key, EDGE_UP, step, e, 0)[0] < p_edge[e]
+        edge = e if edge_ids.shape[0] == 0 else edge_ids[e]
+        if drawn:  # edges 2j and 2j + 1 share call j (`dgtd.streams.singles`)
+            if edge >> 1 != pair:
+                pair = edge >> 1
+                u_even, u_odd = keyed_pair(key, EDGE_UP, step, pair, 0)
+            up = (u_even if edge & 1 == 0 else u_odd) < p_edge[e]
         elif not fused and up_blk.shape[0] > 0:
             up = up_blk[t, b, e]
-        u0, u1 = keyed_pair(key, ARC_LOSS, step, e, 0)
+        u0, u1 = keyed_pair(key, ARC_LOSS, step, edge, 0)
         for a in range(2 * e, 2 * e + 2):
             u = u0 if a == 2 * e else u1
             if bursty:
@@ -380,31 +409,38 @@ def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t):
             else:
                 kept = up and u >= loss[0, a]
             up_t[row, a] = kept
-            n += kept
+            n += kept * (1 if counted.shape[0] == 0 else counted[a])
     return n
 
 
 @njit(cache=True, inline="always")
-def _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t):
-    """Each edge up at step t into row ``row`` of up_t (a perfect channel's `_step_edges`); returns how many."""
+def _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t, edge_ids, counted):
+    """Each edge up at step t into row ``row`` of up_t (a perfect channel's `_step_edges`); returns how many of
+    their arcs ``counted`` counts (2 per edge up in a whole network)."""
     E = up_t.shape[1]
-    n_up = 0
-    if not fused:
-        if up_blk.shape[0] > 0:
-            for e in range(E):
-                up_t[row, e] = up_blk[t, b, e]
-                n_up += up_blk[t, b, e]
-        else:
-            n_up = E
-        return n_up
-    if p_edge.shape[0] == E:  # random edges; a fixed graph draws nothing
+    if fused and p_edge.shape[0] == E:  # random edges drawn here; a fixed graph draws nothing
         key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
+        if edge_ids.shape[0] == 0:  # the whole network: edges 2j and 2j + 1 from call j, a loop LLVM vectorises
+            for j in range(E >> 1):
+                u0, u1 = keyed_pair(key, EDGE_UP, step, j, 0)
+                up_t[row, 2 * j] = u0 < p_edge[2 * j]
+                up_t[row, 2 * j + 1] = u1 < p_edge[2 * j + 1]
+            if E & 1:
+                up_t[row, E - 1] = keyed_pair(key, EDGE_UP, step, E >> 1, 0)[0] < p_edge[E - 1]
+        else:  # a rank's share: each edge by its id
+            for e in range(E):
+                edge = edge_ids[e]
+                u0, u1 = keyed_pair(key, EDGE_UP, step, edge >> 1, 0)
+                up_t[row, e] = (u0 if edge & 1 == 0 else u1) < p_edge[e]
+    elif not fused and up_blk.shape[0] > 0:
         for e in range(E):
-            up_t[row, e] = keyed_pair(key, EDGE_UP, step, e, 0)[0] < p_edge[e]
-            n_up += up_t[row, e]
-    else:
-        n_up = E
-    return n_up
+            up_t[row, e] = up_blk[t, b, e]
+    drawn = (fused and p_edge.shape[0] == E) or (not fused and up_blk.shape[0] > 0)
+    n = 0
+    for e in range(E):
+        up = up_t[row, e] if drawn else True
+        n += up * (2 if counted.shape[0] == 0 else counted[2 * e] + counted[2 * e + 1])
+    return n
 
 
 def up_mask(blk: Block):
@@ -487,7 +523,27 @@ def sample_args(ctx, blk, B: int, channel=None):
         links,
         *samples,
         np.zeros(B, np.int64),
+        entity_ids(ctx),
     )
+
+
+def entity_ids(ctx) -> tuple:
+    """(each observation's and each row's agent, each edge's id in the whole network, 1 for each arc the counts count,
+    the states' purpose: `dgtd.streams`): none for a whole network (each index is its id, every arc counts), a rank's
+    share's where it is one (`dgtd.backends.share`)."""
+
+    def whole():  # no ids: each entity's index is its id, and every arc counts
+        none = np.zeros(0, np.int64)
+        shared = ctx.sampling.shared or ctx.network.n_nodes == 1  # one observation: the trajectory every agent sees
+        return entities(none, none, none, none, shared)
+
+    return getattr(ctx, "entity_ids", None) or per_run(ctx, "entity_ids", whole)
+
+
+def entities(obs_ids, agent_ids, edge_ids, counted, shared: bool) -> tuple:
+    """`entity_ids` as the kernels take them."""
+    ids = (obs_ids, agent_ids, edge_ids)
+    return (*(frozen(x, np.int64) for x in ids), frozen(counted, np.uint8), SHARED_STATE if shared else AGENT_STATE)
 
 
 def channel_cursor(channel, rng: np.ndarray, fused: bool) -> np.ndarray:
