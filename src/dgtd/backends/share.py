@@ -65,7 +65,8 @@ class Share:
         row = np.full(ctx.network.n_nodes, -1, np.int64)
         row[rows] = np.arange(len(rows))
         graph = Graph(len(rows), row[ends].reshape(-1, 2), name=ctx.network.base.name)
-        network = RandomEdges(graph, ctx.network.p[edges])
+        p = getattr(ctx.network, "p", None)  # a simulator's links (proximity) come with its blocks: no probabilities
+        network = RandomEdges(graph, np.ones(len(edges)) if p is None else p[edges])
         arcs = Arcs.of(graph.edges, len(rows))
         arc_ids = (2 * edges[:, None] + np.arange(2)).ravel()
         is_own = np.zeros(len(rows), bool)
