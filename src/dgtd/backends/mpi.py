@@ -205,37 +205,20 @@ class Partition:
 
     def exchange(self, sent: dict) -> None:
         """Each ghost row of the messages ``sent`` (name -> (B, local, q)) <- its owner's value, in place."""
+        self.exchange_rows(list(sent.values()), self.send, self.recv)
+
+    def exchange_rows(self, values: list, send: list, recv: list) -> None:
+        """Rows ``recv[k]`` of every array of ``values`` (each (B, rows, q)) <- what neighbouring rank k sends from
+        its rows ``send``, in place: `exchange` over this rank's local rows, or a compiled kernel's buffers over their
+        storage rows (`compiled_block`)."""
         if not self.neighbours:
             return
         from mpi4py import MPI
 
-        values = list(sent.values())
-        per = [sum(x.shape[0] * x.shape[2] for x in values) * len(rows) for rows in self.send]
-        out = np.concatenate([x[:, rows].ravel() for rows in self.send for x in values]) if sum(per) else np.zeros(0)
-        got = [sum(x.shape[0] * x.shape[2] for x in values) * len(rows) for rows in self.recv]
-        into = np.empty(sum(got))
-        self.comm.Neighbor_alltoallv(
-            [out, per, np.concatenate([[0], np.cumsum(per)[:-1]]), MPI.DOUBLE],
-            [into, got, np.concatenate([[0], np.cumsum(got)[:-1]]), MPI.DOUBLE],
-        )
-        at = 0
-        for rows in self.recv:
-            for x in values:
-                n = x.shape[0] * len(rows) * x.shape[2]
-                x[:, rows] = into[at : at + n].reshape(x.shape[0], len(rows), x.shape[2])
-                at += n
-
-    def exchange_buffers(self, messages: np.ndarray, send: list, recv: list) -> None:
-        """`exchange` into a compiled kernel's buffer ``messages`` (M, B, rows, q), the rows to send to and receive
-        from each neighbouring rank given in its storage order (``send``, ``recv``)."""
-        if not self.neighbours:
-            return
-        from mpi4py import MPI
-
-        M, B, _, q = messages.shape
-        per = [M * B * q * len(rows) for rows in send]
-        out = np.concatenate([messages[:, :, rows].ravel() for rows in send]) if sum(per) else np.zeros(0)
-        got = [M * B * q * len(rows) for rows in recv]
+        width = sum(x.shape[0] * x.shape[2] for x in values)  # numbers a row carries, every message side by side
+        per = [width * len(rows) for rows in send]
+        out = np.concatenate([x[:, rows].ravel() for rows in send for x in values]) if sum(per) else np.zeros(0)
+        got = [width * len(rows) for rows in recv]
         into = np.empty(sum(got))
         self.comm.Neighbor_alltoallv(
             [out, per, np.concatenate([[0], np.cumsum(per)[:-1]]), MPI.DOUBLE],
@@ -243,9 +226,10 @@ class Partition:
         )
         at = 0
         for rows in recv:
-            n = M * B * q * len(rows)
-            messages[:, :, rows] = into[at : at + n].reshape(M, B, len(rows), q)
-            at += n
+            for x in values:
+                n = x.shape[0] * len(rows) * x.shape[2]
+                x[:, rows] = into[at : at + n].reshape(x.shape[0], len(rows), x.shape[2])
+                at += n
 
     def gather_channel(self, state, local, arc_ids=None, counted=None):
         """The whole network's channel state after a block: ``state`` (as it began) with every arc's fields from the
@@ -253,10 +237,11 @@ class Partition:
         the arcs ``arc_ids`` of which it gives those ``counted``) and the counts of every rank added."""
         comm = world()
         whole = {}
-        ids = self.arc_ids if arc_ids is None else arc_ids[counted.astype(bool)]
+        mine = None if arc_ids is None else counted.astype(bool)
+        ids = self.arc_ids if arc_ids is None else arc_ids[mine]
         for name in PER_ARC:
             x = getattr(local, name)
-            x = x if arc_ids is None or not x.size else x[:, counted.astype(bool)]
+            x = x if mine is None or not x.size else x[:, mine]
             if not x.size and not getattr(state, name).size:
                 continue
             before = getattr(state, name)
@@ -373,6 +358,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
     mine = channel_share(channel_state, P.arcs.arc_ids)
     halo = P.halo
     around = None if halo is None else channel_share(channel_state, halo.arc_ids)
+    zeros: dict = {}  # the messages on the halo's arcs: their values are not used, made once a block
     for t in range(len(alphas)):
         t0 = clock()
         sums += algorithm.estimate(local)
@@ -387,7 +373,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         up = None if blk.up is None else (blk.up[t] if restricted else blk.up[t][:, P.edges])
         inbox, mine = channel.deliver(mine, P.arcs, sent, up)
         if halo is not None:  # what the ghosts heard, from the draws of the arcs into them (their values unused)
-            zeros = {name: np.zeros((x.shape[0], halo.n_agents, x.shape[2])) for name, x in sent.items()}
+            zeros = zeros or {name: np.zeros((x.shape[0], halo.n_agents, x.shape[2])) for name, x in sent.items()}
             heard_around, around = channel.deliver(around, halo, zeros, up)
             own = inbox.count()[:, : len(P.own)]
             inbox.degrees = np.concatenate([own, heard_around.count()[:, P.halo_ghosts]], axis=1)
@@ -436,7 +422,7 @@ def compiled_block(ctx, state, channel_state, w_sum, alphas, blk):
     SECONDS["draws"] += clock() - t0
     for t in range(len(alphas)):
         t2 = clock()
-        P.exchange_buffers(run.message_rows(), send, recv)
+        P.exchange_rows(list(run.message_rows()), send, recv)  # each message's (B, rows, q), a view of the buffer
         WATCHDOG.beat()
         t3 = clock()
         run.advance(t + 1)

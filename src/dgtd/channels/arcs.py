@@ -48,6 +48,14 @@ class Arcs:
         """Each row's agent in the whole network (N,)."""
         return np.arange(self.n_agents) if self.agents is None else self.agents
 
+    def of_arcs(self, x: np.ndarray) -> np.ndarray:
+        """A quantity of every arc of the whole network (2E,) for these arcs."""
+        return x if self.ids is None else x[self.ids]
+
+    def of_agents(self, x: np.ndarray) -> np.ndarray:
+        """A quantity of every agent of the whole network (N,) for these rows."""
+        return x if self.agents is None else x[self.agents]
+
     def up(self, up: np.ndarray | None, B: int) -> np.ndarray:
         """Arcs up (B, 2E) from a step's edges up (B, E'; None: every edge)."""
         if up is None:

@@ -88,7 +88,7 @@ class Imperfect:
         awake = np.ones((B, N), bool)
         if self.wake is not None:
             agents = arcs.agent_ids
-            awake = singles(keys[:, None], WAKE, step, agents) < self.wake[agents]
+            awake = singles(keys[:, None], WAKE, step, agents) < arcs.of_agents(self.wake)
         if self.delay:
             u = arc_uniforms(keys, DELAY, step, arcs)
             late = np.minimum(np.floor(u * (self.delay + 1)).astype(np.int64), self.delay)
@@ -125,7 +125,7 @@ class Imperfect:
             start += m.shape[-1]
         delivered = sends.sum(axis=1).astype(np.float64)
         bits = sum(self.vector_bits(m.shape[-1]) for m in sent.values())
-        weights = self.arc_weights[arcs.arc_ids] if self.reweight else None
+        weights = arcs.of_arcs(self.arc_weights) if self.reweight else None
         inbox = Inbox(arcs, sent, heard, received, weights, awake if self.wake is not None else None)
         return inbox, ChannelState(
             state.messages + delivered * len(sent),

@@ -83,7 +83,7 @@ class Lossy:
         keys = seed_keys(seed, range(seeds))
         links = np.zeros((seeds, 0), np.uint8)
         if self.burst is not None:
-            links = (arc_uniforms(keys, ARC_BURST_START, 0, arcs) < self.loss[arcs.arc_ids]).astype(np.uint8)
+            links = (arc_uniforms(keys, ARC_BURST_START, 0, arcs) < arcs.of_arcs(self.loss)).astype(np.uint8)
         return ChannelState(np.zeros(seeds), np.zeros(seeds), keys, links, step=np.zeros(seeds, np.int64))
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
@@ -93,7 +93,7 @@ class Lossy:
         heard = kept.astype(np.float64)
         arrived = heard.sum(axis=1)
         numbers = sum(x.shape[-1] for x in sent.values())
-        weights = self.arc_weights[arcs.arc_ids] if self.reweight else None
+        weights = arcs.of_arcs(self.arc_weights) if self.reweight else None
         return Inbox(arcs, sent, heard, weights=weights), ChannelState(
             state.messages + arrived * len(sent),
             state.bits + arrived * numbers * BITS_PER_NUMBER,
@@ -108,9 +108,9 @@ class Lossy:
         u = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs)
         links = state.links
         if self.burst is None:
-            kept = u >= self.loss[arcs.arc_ids]
+            kept = u >= arcs.of_arcs(self.loss)
         else:
-            losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < self.enter[arcs.arc_ids])
+            losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < arcs.of_arcs(self.enter))
             links, kept = losing.astype(np.uint8), ~losing
         return arcs.up(up, B) & kept, links
 
