@@ -42,39 +42,38 @@ DOCS = Path(__file__).resolve().parents[1] / "docs"
 # NumPy is imported where used, after dgtd: dgtd gives each rank its share of the BLAS threads, which NumPy fixes when
 # it loads (imported first, 100 000 agents' setup took 84 s on each of 2 ranks instead of 6 s)
 FEATURES, STATES = 8, 30
+HOP = 5e-6  # seconds of one small MPI message between cluster machines (assumed, for the projection)
+CHECKPOINTS = 10  # metrics measured (and combined over the ranks) about every tenth of the run, as a run's are
 
 
 def worker(n_agents: int, steps: int, asynchronous: int = 0, compiled: int = 1) -> None:
     """One measurement, on every rank of the mpiexec job this runs in; rank 0 prints one JSON line."""
-    import networkx as nx
-
     from dgtd.algorithms import make_algorithm
     from dgtd.backends import mpi
     from dgtd.graphs.random import random_edges
-    from dgtd.graphs.topologies import from_networkx
     from dgtd.problems import tasks
     from dgtd.run.loop import RunSettings, Sampling, run
 
     problem = tasks.garnet(STATES, 3, n_agents, FEATURES, seed=0)
-    network = random_edges(from_networkx(nx.connected_watts_strogatz_graph(n_agents, 6, 0.02, seed=0)), 0.9)
+    network = random_edges(small_world(n_agents), 0.9)
     algorithm = make_algorithm("dgtd", alpha0=1.0, beta=1000.0)
     t0 = time.perf_counter()
     backend = "numba" if compiled and not asynchronous else "numpy"
     settings = RunSettings(
-        iterations=steps, seeds=1, checkpoints=1, backend=backend, block_size=steps, asynchronous=bool(asynchronous)
+        iterations=steps,
+        seeds=1,
+        checkpoints=CHECKPOINTS,
+        backend=backend,
+        block_size=steps,
+        asynchronous=bool(asynchronous),
     )
-    cpu = {}
-
-    def ready(_seconds):  # the kernels are loaded: the loop starts now
-        cpu["start"] = time.process_time()
-
-    result = run(problem, network, algorithm, Sampling(), settings, kernel_ready=ready)
+    result = run(problem, network, algorithm, Sampling(), settings)
     total = time.perf_counter() - t0
     mine = {
         **mpi.SECONDS,
-        "loop": result.info["loop_seconds"],
-        "cpu": time.process_time() - cpu["start"],  # the loop's and the results' (a few ms), on this rank
-        "setup": total - result.info["loop_seconds"],
+        "loop": result.info["loop_seconds"],  # the steps and the metrics at checkpoints
+        "cpu": result.info["loop_cpu_seconds"],
+        "setup": total - result.info["loop_seconds"] - mpi.SECONDS["gather"],
         "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
     every = mpi.world().gather(mine, root=0) if mpi.world() is not None else [mine]
@@ -86,6 +85,23 @@ def worker(n_agents: int, steps: int, asynchronous: int = 0, compiled: int = 1) 
                 | {"per_rank": every}
             )
         )
+
+
+def small_world(n: int, k: int = 3, rewired: float = 0.02, seed: int = 0):
+    """A Watts-Strogatz small world built in NumPy (networkx's takes 0.9 KB an agent, on every rank): agent i linked
+    to i + 1 .. i + k around a ring, and a fraction ``rewired`` of the links but the ring's own (i, i + 1), which keep
+    it connected, moved to an agent drawn at random."""
+    import numpy as np
+
+    from dgtd.graphs.topologies import from_edges
+
+    rng = np.random.default_rng(seed)
+    i = np.repeat(np.arange(n), k)
+    j = (i + np.tile(np.arange(1, k + 1), n)) % n
+    moved = (np.tile(np.arange(1, k + 1), n) > 1) & (rng.random(n * k) < rewired)
+    j[moved] = rng.integers(0, n, moved.sum())
+    keep = i != j
+    return from_edges(n, np.stack([i[keep], j[keep]], 1), "small world")
 
 
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
@@ -117,9 +133,10 @@ def row(m: dict) -> dict:
         own=share("own"),
         draws=share("draws"),
         exchange=share("exchange"),
-        gather=share("gather"),
+        reduce=share("reduce"),
         own_seconds=max(r["own"] for r in ranks),
         exchange_seconds=max(r["exchange"] for r in ranks),
+        reduce_seconds=max(r["reduce"] for r in ranks),
         gather_seconds=max(r["gather"] for r in ranks),
         mb_per_rank=max(r["rss_mb"] for r in ranks),
         setup=max(r["setup"] for r in ranks),
@@ -129,18 +146,18 @@ def row(m: dict) -> dict:
 def table(rows: list[dict]) -> str:
     lines = [
         "| agents | ranks | kernels | mode | rounds/s | agent-steps/s | CPU s a step (a rank) | stepping its share | "
-        "set-up and draws | exchange | gather | peak memory a rank | setup (s) |",
+        "set-up and draws | exchange | metrics combined | peak memory a rank | setup (s) |",
         "| ---: | ---: | :--- | :--- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
         if r["ranks"] == 1:  # one process: the kernels alone, nothing split or exchanged
-            r = {**r, "own": float("nan"), "draws": float("nan"), "exchange": float("nan"), "gather": float("nan")}
+            r = {**r, "own": float("nan"), "draws": float("nan"), "exchange": float("nan"), "reduce": float("nan")}
         pct = lambda x, digits=0: "-" if x != x else f"{x:.{digits}%}"  # noqa: E731  (NaN: one process)
         kernels = "compiled" if r["backend"] == "numba" else "NumPy"
         lines.append(
             f"| {r['agents']:,} | {r['ranks']} | {kernels} | {r['mode'][:5]} | {r['rounds']:,.1f} | "
             f"{r['agent_steps'] / 1e6:.3f} M | {r['cpu_per_step'] * 1e3:.1f} ms | "
-            f"{pct(r['own'])} | {pct(r['draws'])} | {pct(r['exchange'])} | {pct(r['gather'], 1)} | "
+            f"{pct(r['own'])} | {pct(r['draws'])} | {pct(r['exchange'])} | {pct(r['reduce'], 1)} | "
             f"{r['mb_per_rank']:,.0f} MB | {r['setup']:.1f} |"
         )
     return "\n".join(lines)
@@ -148,31 +165,34 @@ def table(rows: list[dict]) -> str:
 
 def projection(rows: list[dict], agents=(10**6, 10**8), ranks=(64, 1024)) -> str:
     """Seconds a step on R cluster ranks of N agents, from the 2-rank compiled measurement of the most agents: each rank
-    steps N / R agents at the measured cost per agent-step, exchanges a boundary that does not grow with N / R (the
-    measured exchange a step, waiting included), and gathers every agent's state at block ends (the measured gathers
-    of the run per agent and step, times N: what every rank still does, `dgtd.backends.mpi.Partition.gather`)."""
+    steps N / R agents at the measured cost per agent-step and exchanges a boundary that does not grow with N / R (the
+    measured exchange a step, waiting included); at checkpoints it measures its own agents' errors and the ranks
+    combine them (the measured seconds per own agent and checkpoint, `dgtd.backends.mpi.Ranks`), and the consensus
+    sums pass along the R ranks in order, twice: 2 R messages of a few numbers, at ``HOP`` seconds each (a cluster
+    network's latency, assumed: one machine's ranks cannot measure it)."""
     two = [r for r in rows if r["ranks"] == 2 and r["backend"] == "numba" and r["mode"] == "synchronous"]
     if not two:
         return ""
     m = max(two, key=lambda r: r["agents"])
     per_agent_step = m["own_seconds"] / (m["steps"] * m["agents"] / 2)
     exchange = m["exchange_seconds"] / m["steps"]
-    gather_per_agent = m["gather_seconds"] / m["agents"]  # the run's blocks' (`dgtd.run.loop.block_steps`)
+    every = m["steps"] / CHECKPOINTS  # steps between checkpoints
+    per_agent_checkpoint = m["reduce_seconds"] / CHECKPOINTS / (m["agents"] / 2)
     lines = [
         f"From {m['agents']:,} agents on 2 ranks: {per_agent_step * 1e9:.0f} ns an agent-step, {exchange * 1e3:.2f} ms "
-        f"of exchange a step, {gather_per_agent * 1e9:.0f} ns an agent for the gathers at the ends of the blocks of "
-        f"its {m['steps']} steps.",
+        f"of exchange a step, {per_agent_checkpoint * 1e9:.0f} ns an own agent for the metrics at a checkpoint, "
+        f"every {every:.0f} steps; {HOP * 1e6:.0f} us a message from rank to rank (assumed).",
         "",
-        "| agents | ranks | stepping (ms a step) | exchange | gather, per step | rounds/s |",
+        "| agents | ranks | stepping (ms a step) | exchange | metrics, per step | rounds/s |",
         "| ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for n in agents:
         for R in ranks:
             step = n / R * per_agent_step
-            gather = n * gather_per_agent / m["steps"]
-            total = step + exchange + gather
+            metrics = (n / R * per_agent_checkpoint + 2 * R * HOP) / every
+            total = step + exchange + metrics
             lines.append(
-                f"| {n:,} | {R:,} | {step * 1e3:.2f} | {exchange * 1e3:.2f} | {gather * 1e3:.2f} | {1 / total:,.1f} |"
+                f"| {n:,} | {R:,} | {step * 1e3:.2f} | {exchange * 1e3:.2f} | {metrics * 1e3:.2f} | {1 / total:,.1f} |"
             )
     return "\n".join(lines)
 

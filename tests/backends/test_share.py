@@ -40,7 +40,7 @@ def _source(ctx, sampling, rows=None, edges=None):
 @pytest.mark.parametrize("sampling", [Sampling(), Sampling("markov")], ids=["iid", "markov"])
 def test_a_share_of_every_agent_advanced_step_by_step_is_the_whole_run(name, sampling):
     """The share's ids (each row's agent and each edge in the whole network, listed rather than implied), its
-    channel state cut from the whole one, and one step at a time: the whole run's state, counts and links."""
+    channel state, and one step at a time: the whole run's state, counts and links."""
     ctx = _setup(name, sampling)
     N, q = ctx.network.n_nodes, ctx.problem.n_features
     state = ctx.algorithm.init(B, N, q)._replace(w=np.full((B, N, q), 0.5))
@@ -55,7 +55,7 @@ def test_a_share_of_every_agent_advanced_step_by_step_is_the_whole_run(name, sam
     run = Advance(
         share.ctx,
         state,
-        share.channel_state(channel),
+        channel,  # over every arc: the share's arcs are the whole network's
         np.zeros((B, N, q)),
         alphas,
         _source(ctx, sampling, share.rows, share.edges).draws(T),

@@ -240,19 +240,28 @@ def test_a_rank_killed_mid_run_loses_nothing_checkpointed(tmp_path):
     assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
 
 
-def test_a_run_killed_on_two_ranks_resumes_on_three_with_the_same_numbers(tmp_path):
-    """A checkpoint holds no rank's layout (the keyed streams need only the step; each agent's chain state is
-    gathered): killed on 2 ranks, the same command on 3 ranks resumes it and ends with the uninterrupted numbers."""
+def test_a_run_killed_on_two_ranks_resumes_on_three_and_in_one_process_with_the_same_numbers(tmp_path):
+    """Each rank writes a shard of the checkpoint (its agents' rows, the arcs into them, its agents' Markov chains:
+    checkpoint.npz, rank 0's, names the others'); killed on 2 ranks, the same command on 3 ranks, and the run
+    resumed by one process, each take their agents' rows by id and end with the uninterrupted numbers."""
     out = tmp_path / "run"
     run = ["run", "garnet", "-T", 30_000, "--seeds", 2, "--no-plots", "--checkpoint-every", 3000]
     run += ["--sampling", "markov", "--loss", 0.3, "--burst", 2]
     cmd = _killed_after_a_checkpoint(run, out)
+    shards = sorted(p.name for p in out.glob("checkpoint*.npz"))
+    assert len(shards) == 2 and shards[0].endswith(".1.npz") and shards[1] == "checkpoint.npz", shards
+    shutil.copytree(out, tmp_path / "alone")
     cmd[cmd.index("-n") + 1] = "3"
     resumed = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0 and "resuming" in resumed.stdout, resumed.stderr
+    assert not list(out.glob("checkpoint*")), "the checkpoint and its shards go once the results are written"
+    alone_resumed = alone(*run, "--out", tmp_path / "alone")
+    assert alone_resumed.returncode == 0 and "resuming" in alone_resumed.stdout, alone_resumed.stderr
     whole = alone(*run, "--out", tmp_path / "whole")  # compiled, as the ranks
     assert whole.returncode == 0
-    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+    expected = (tmp_path / "whole" / "metrics.csv").read_bytes()
+    assert (out / "metrics.csv").read_bytes() == expected
+    assert (tmp_path / "alone" / "metrics.csv").read_bytes() == expected
 
 
 def test_an_asynchronous_run_resumes_with_its_message_ages(tmp_path):

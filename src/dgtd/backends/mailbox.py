@@ -16,7 +16,7 @@ waits.
 
 At the end of the block every rank receives the rest of what was sent to it (each sends exactly one message per
 step to each neighbour, so both ends know how many) and its sends complete: nothing is in flight across a block
-end, where the ranks gather the state (`dgtd.backends.mpi.run_block`) and checkpoints are taken.
+end, where the ranks combine their metrics (`dgtd.backends.mpi.Ranks`) and checkpoints are taken.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class Mailbox:
     """One block of ``steps`` asynchronous steps' messages between this rank (`Partition` ``P``) and its neighbours.
 
     ``start``: the messages of the block's first step (name -> (B, local, q)), whose ghost rows are the ghosts'
-    messages gathered at the block start (stamped step 0). ``beat``: called whenever a message arrives."""
+    owners' messages at the block start (stamped step 0). ``beat``: called whenever a message arrives."""
 
     def __init__(self, P, start: dict, steps: int, staleness: int | None, beat):
         self.P, self.steps, self.staleness, self.beat = P, steps, staleness, beat

@@ -13,9 +13,12 @@ number is keyed by what it is for (`dgtd.streams`), so each rank draws only its 
 the events of the links into them (`local_source`, the channel over `Partition.arcs`): O(N / R + boundary) numbers a
 step, the numbers a one-process run draws for them.
 
-At the end of every block the ranks gather the agents' state and running sums (one collective per block, thousands
-of steps), so that every rank holds the whole run state there: the run loop's metrics, divergence checks and
-checkpoints (`dgtd.run.loop.run`) are then those of a one-process run, and rank 0 writes them.
+The state stays spread: a rank holds its own agents' rows of the state, the running sums and the metrics' per-agent
+arrays, and the channel's state of the arcs it draws, from the first step to the last (`Ranks`, the run loop's view of
+the layout); memory per rank follows its own agents and ghosts. At checkpoints the ranks combine their agents' errors
+(max for the worst agent, sums in the storage order for the consensus error, so that the numbers are a one-process
+run's bit for bit) and each writes a shard of the checkpoint (`dgtd.run.checkpoint`); rank 0 gathers every agent's
+iterates only where the output asks for them (a small run's trajectory, and the final results).
 
 A rank that stops answering (killed, or its machine gone) would leave its neighbours waiting in the collective:
 `Watchdog` ends a rank that has waited longer than ``timeout`` seconds with one line, and mpiexec then ends the job.
@@ -33,17 +36,18 @@ from typing import Any
 import numpy as np
 
 from dgtd.backends.mailbox import AGES, Mailbox
-from dgtd.backends.share import PER_ARC, channel_share
 from dgtd.channels import Arcs
+from dgtd.channels.perfect import per_arc_fields
 from dgtd.errors import DgtdInputError
 
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_RANK")  # what mpiexec (MPICH's, Open MPI's) sets in its ranks
 TIMEOUT = 300.0  # seconds a rank waits for its neighbours before it gives up (DGTD_MPI_TIMEOUT)
 _WORLD: dict = {}
-# Seconds this rank spent, summed over the run's blocks: in the step's exchange of messages (waiting for the others
-# included), in the gathers at block ends, in its channel's draws and deliveries, and updating its own agents and
-# ghosts (benchmarks/distributed.py reads them)
-SECONDS = {"exchange": 0.0, "gather": 0.0, "draws": 0.0, "own": 0.0}
+# Seconds this rank spent, summed over the run: in the step's exchange of messages (waiting for the others included),
+# combining the metrics with the other ranks at checkpoints (`Ranks`: waiting included), gathering every agent's rows
+# on rank 0 for the output, in its channel's draws and deliveries, and updating its own agents and ghosts
+# (benchmarks/distributed.py reads them)
+SECONDS = {"exchange": 0.0, "reduce": 0.0, "gather": 0.0, "draws": 0.0, "own": 0.0}
 
 
 def launched() -> bool:
@@ -231,40 +235,31 @@ class Partition:
                 x[:, rows] = into[at : at + n].reshape(x.shape[0], len(rows), x.shape[2])
                 at += n
 
-    def gather_channel(self, state, local, arc_ids=None, counted=None):
-        """The whole network's channel state after a block: ``state`` (as it began) with every arc's fields from the
-        rank of its receiver (``local``: this rank's share after the block, over the arcs into its agents, or over
-        the arcs ``arc_ids`` of which it gives those ``counted``) and the counts of every rank added."""
-        comm = world()
-        whole = {}
-        mine = None if arc_ids is None else counted.astype(bool)
-        ids = self.arc_ids if arc_ids is None else arc_ids[mine]
-        for name in PER_ARC:
-            x = getattr(local, name)
-            x = x if mine is None or not x.size else x[:, mine]
-            if not x.size and not getattr(state, name).size:
-                continue
-            before = getattr(state, name)
-            # made by the block where it began without them (the copies, at a run's first step): shaped from x
-            whole[name] = before.copy() if before.size else np.zeros((x.shape[0], self.n_arcs) + x.shape[2:], x.dtype)
-            for at, part in comm.allgather((ids, x)):
-                whole[name][:, at] = part
-        counts = comm.allreduce(np.stack([local.messages, local.bits]))  # whole numbers: exact in any order
-        keep = {name: getattr(local, name) for name in ("keys", "step")}
-        return state._replace(messages=state.messages + counts[0], bits=state.bits + counts[1], **keep, **whole)
+    def counts(self, before, local):
+        """``local`` (this rank's channel state after a block, its counts from zero) with the messages and bits every
+        rank's agents heard in the block added to those of ``before`` (whole numbers: exact in any order)."""
+        counts = world().allreduce(np.stack([local.messages, local.bits]))
+        return local._replace(messages=before.messages + counts[0], bits=before.bits + counts[1])
 
-    def gather(self, x: np.ndarray) -> np.ndarray:
-        """Every rank's own rows of x (B, local, q) side by side: the whole (B, N, q), on every rank."""
+    def gather(self, x: np.ndarray, axis: int = 1) -> np.ndarray | None:
+        """Every rank's own rows of ``x`` (its own agents on ``axis``) in the agents' order, on rank 0 (None on the
+        others): the whole network's array, where the output asks for it."""
         from mpi4py import MPI
 
-        B, q = x.shape[0], x.shape[2]
-        mine = np.ascontiguousarray(x[:, : len(self.own)].transpose(1, 0, 2))  # agents first: blocks line up
-        counts = np.diff(self.bounds) * B * q
-        stored = np.empty((int(self.bounds[-1]), B, q))  # in storage order
-        world().Allgatherv(mine, [stored, counts, self.bounds[:-1] * B * q, MPI.DOUBLE])
-        whole = np.empty((B, int(self.bounds[-1]), q))
-        whole[:, self.order] = stored.transpose(1, 0, 2)
-        return whole
+        mine = np.ascontiguousarray(np.moveaxis(x, axis, 0))  # agents first: the ranks' blocks line up
+        rest = mine.shape[1:]
+        width = int(np.prod(rest))
+        N = int(self.bounds[-1])
+        stored = np.empty((N, *rest), x.dtype) if self.rank == 0 else None
+        counts = np.diff(self.bounds) * width
+        displacements = self.bounds[:-1] * width
+        kind = MPI._typedict[x.dtype.char]
+        world().Gatherv(mine, [stored, counts, displacements, kind] if self.rank == 0 else None, root=0)
+        if self.rank != 0:
+            return None
+        whole = np.empty_like(stored)
+        whole[self.order] = stored
+        return np.moveaxis(whole, 0, axis)
 
 
 def _share(arcs: Arcs, rows: np.ndarray, ids: np.ndarray, edges: np.ndarray) -> Arcs:
@@ -319,13 +314,7 @@ def local_source(ctx, source):
         return source
     P = partition(ctx)
     compiled = ctx.__dict__["_mpi"].get("compiled")
-    rows = share(ctx).rows if compiled else P.local
-    mine = share(ctx).local_rows if compiled else np.arange(len(P.local))  # own, then ghosts
-
-    def gather(x):
-        return P.gather(x[:, mine, None].astype(np.float64))[:, :, 0].astype(x.dtype)
-
-    source.restrict(rows, P.edges, gather=gather)
+    source.restrict(share(ctx).rows if compiled else P.local, P.edges)
     ctx.__dict__["_mpi"]["restricted"] = True
     return source
 
@@ -339,25 +328,62 @@ def local_sample(sample, local: np.ndarray):
     return type(sample)(*(rows(x) for x in sample))
 
 
+def _placed(x: np.ndarray, rows, n: int) -> np.ndarray:
+    """``x`` (B, own, ...) in the rows ``rows`` of a (B, n, ...) array of zeros: a rank's own agents among its ghosts
+    (whose values are never read: their messages come from their ranks at every step)."""
+    out = np.zeros((x.shape[0], n, *x.shape[2:]), x.dtype)
+    out[:, rows] = x
+    return out
+
+
+def _counting(state):
+    """``state`` with its counts from zero: what a rank's agents hear in a block, which the ranks then add up."""
+    B = state.messages.shape[0]
+    return state._replace(messages=np.zeros(B), bits=np.zeros(B))
+
+
+def _split(state, n: int):
+    """A channel state over the arcs [into own agents (n), into ghosts (the halo)] as the two, the first counting
+    from zero."""
+    fields = per_arc_fields(state)
+    head = {name: x[:, :n] for name, x in fields.items()}
+    tail = {name: x[:, n:] for name, x in fields.items()}
+    return _counting(state._replace(**head)), state._replace(**tail)
+
+
+def _joined(head, tail):
+    """`_split`'s inverse: the per-arc fields side by side, the counts and the step of ``head``."""
+    a, b = per_arc_fields(head), per_arc_fields(tail)  # (a side without arcs holds none: (B, 0))
+    both = {
+        name: np.concatenate([a[name], b[name]], axis=1) if name in a and name in b else a.get(name, b.get(name))
+        for name in a | b
+    }
+    return head._replace(**both)
+
+
 def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool = False, staleness: int | None = None):
-    """`dgtd.backends.reference.run_block`'s contract, this rank's agents only; returns the whole state, gathered.
-    ``asynchronous``: the ghosts' messages are the newest received, waiting only for one at most ``staleness`` steps
-    old (None: never; `dgtd.backends.mailbox`).
+    """`dgtd.backends.reference.run_block`'s contract over this rank's own agents (``state``, ``w_sum``: their rows;
+    ``channel_state``: the arcs it draws, `Ranks.arc_ids`). ``asynchronous``: the ghosts' messages are the newest
+    received, waiting only for one at most ``staleness`` steps old (None: never; `dgtd.backends.mailbox`).
 
     The channel runs over the arcs into this rank's agents (and, for Metropolis weights, into its ghosts: ``halo``),
     each drawing the numbers the whole network's run draws for it; the block's samples are this rank's rows where the
     source draws them so (`local_source`), else the whole network's, of which it reads its own."""
     P = partition(ctx)
     algorithm, channel = ctx.algorithm, ctx.channel
-    local = state._make(np.ascontiguousarray(x[:, P.local]) for x in state)
-    sums = np.ascontiguousarray(w_sum[:, P.local])
+    n = len(P.own)
+    local = state._make(_placed(x, slice(0, n), len(P.local)) for x in state)
+    sums = _placed(w_sum, slice(0, n), len(P.local))
     Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
     restricted = ctx.__dict__["_mpi"].get("restricted", False)
     clock = time.perf_counter
-    mail = Mailbox(P, algorithm.sends(local), len(alphas), staleness, WATCHDOG.beat) if asynchronous else None
-    mine = channel_share(channel_state, P.arcs.arc_ids)
+    mail = None
+    if asynchronous:
+        ghosts = {name: np.array(x) for name, x in algorithm.sends(local).items()}
+        P.exchange(ghosts)  # each ghost holds its owner's messages at the block start, until newer ones arrive
+        mail = Mailbox(P, ghosts, len(alphas), staleness, WATCHDOG.beat)
     halo = P.halo
-    around = None if halo is None else channel_share(channel_state, halo.arc_ids)
+    mine, around = _split(channel_state, P.arcs.n_arcs) if halo is not None else (_counting(channel_state), None)
     zeros: dict = {}  # the messages on the halo's arcs: their values are not used, made once a block
     for t in range(len(alphas)):
         t0 = clock()
@@ -375,7 +401,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         if halo is not None:  # what the ghosts heard, from the draws of the arcs into them (their values unused)
             zeros = zeros or {name: np.zeros((x.shape[0], halo.n_agents, x.shape[2])) for name, x in sent.items()}
             heard_around, around = channel.deliver(around, halo, zeros, up)
-            own = inbox.count()[:, : len(P.own)]
+            own = inbox.count()[:, :n]
             inbox.degrees = np.concatenate([own, heard_around.count()[:, P.halo_ghosts]], axis=1)
         sample = blk.sample(t, Phi, ratio, ctx.gamma, continuing)
         sample = sample if restricted else local_sample(sample, P.local)
@@ -391,12 +417,10 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
     t5 = clock()
     if mail is not None:
         mail.finish()
-    t6 = clock()
-    channel_state = P.gather_channel(channel_state, mine) if len(alphas) else channel_state
-    new = state._make(P.gather(x) for x in local), channel_state, P.gather(sums)
-    SECONDS["exchange"] += t6 - t5
-    SECONDS["gather"] += clock() - t6
-    return new
+    SECONDS["exchange"] += clock() - t5
+    if len(alphas):
+        channel_state = P.counts(channel_state, mine if around is None else _joined(mine, around))
+    return state._make(np.ascontiguousarray(x[:, :n]) for x in local), channel_state, sums[:, :n].copy()
 
 
 def compiled_block(ctx, state, channel_state, w_sum, alphas, blk):
@@ -409,12 +433,13 @@ def compiled_block(ctx, state, channel_state, w_sum, alphas, blk):
     P, S = partition(ctx), share(ctx)
     clock = time.perf_counter
     t0 = clock()
-    local = state._make(np.ascontiguousarray(x[:, S.rows]) for x in state)
-    sums = np.ascontiguousarray(w_sum[:, S.rows])
+    own = S.local_rows[: len(P.own)]  # the share's rows of this rank's own agents
+    local = state._make(_placed(x, own, len(S.rows)) for x in state)
+    sums = _placed(w_sum, own, len(S.rows))
     restricted = ctx.__dict__["_mpi"].get("restricted", False)
     if not isinstance(blk, Draws) and not restricted:  # a simulator's or a recording's block: this share's rows
         blk = _rows_of_block(blk, S)
-    run = Advance(S.ctx, local, S.channel_state(channel_state), sums, alphas, blk)
+    run = Advance(S.ctx, local, _counting(channel_state), sums, alphas, blk)
     send = [run.storage_rows(S.local_rows[rows]) for rows in P.send]
     recv = [run.storage_rows(S.local_rows[rows]) for rows in P.recv]
     if len(alphas) == 0:
@@ -428,13 +453,9 @@ def compiled_block(ctx, state, channel_state, w_sum, alphas, blk):
         run.advance(t + 1)
         SECONDS["exchange"] += t3 - t2
         SECONDS["own"] += clock() - t3
-    t4 = clock()
     new, mine, sums = run.finish()
-    mine_rows = S.local_rows  # own then ghosts: the rows `Partition.gather` reads its own from
-    whole = state._make(P.gather(x[:, mine_rows]) for x in new)
-    channel = P.gather_channel(channel_state, mine, S.arc_ids, S.counted)
-    SECONDS["gather"] += clock() - t4
-    return whole, channel, P.gather(sums[:, mine_rows])
+    channel = P.counts(channel_state, mine) if len(alphas) else channel_state
+    return state._make(np.ascontiguousarray(x[:, own]) for x in new), channel, sums[:, own].copy()
 
 
 compiled_block.draws_samples = True  # type: ignore[attr-defined]  # it takes `Draws` of a model's source
@@ -449,6 +470,102 @@ def _rows_of_block(blk, S):
 
     up = None if blk.up is None else np.ascontiguousarray(blk.up[:, :, S.edges])
     return Block(rows(blk.s), rows(blk.a), rows(blk.s_next), np.ascontiguousarray(blk.r[:, :, S.rows]), up, blk.table)
+
+
+CHAIN = 17  # the tag of the sums passed from rank to rank in storage order (`Ranks.ordered_sum`)
+
+
+class Ranks:
+    """The run loop's view of a run spread over the ranks (`dgtd.run.layout.Whole`'s for one process): which rows this
+    rank holds (``agents``: its own, in storage order; ``arc_ids``: the arcs it draws, of which ``counted``, the arcs
+    into its own agents, are its to report and save) and how the ranks combine what each holds: the worst agent by a
+    max, the consensus error by sums added in the agents' storage order from rank to rank, so that every number is
+    that of one process bit for bit; and every agent's rows on rank 0 where the output asks for them (`whole`)."""
+
+    def __init__(self, ctx):
+        self.partition = P = partition(ctx)
+        self.agents, self.n_agents, self.root = P.own, int(P.bounds[-1]), P.rank == 0
+        if ctx.__dict__["_mpi"].get("compiled"):
+            S = share(ctx)
+            self.arc_ids, self.counted = S.arc_ids, S.counted.astype(bool)
+        else:  # the arcs into its own agents, then (Metropolis weights) into its ghosts: `run_block`'s order
+            halo = [] if P.halo is None else [P.halo.arc_ids]
+            self.arc_ids = np.concatenate([P.arcs.arc_ids, *halo])
+            self.counted = np.arange(len(self.arc_ids)) < P.arcs.n_arcs
+
+    def rows(self, x: np.ndarray) -> np.ndarray:
+        """This rank's rows of a quantity of every agent (N, ...); one row for all (1, ...) stays."""
+        return x[self.agents] if np.ndim(x) >= 2 and x.shape[0] == self.n_agents else x
+
+    def max(self, x: np.ndarray) -> np.ndarray:
+        from mpi4py import MPI
+
+        x = np.ascontiguousarray(x)
+        out = np.empty_like(x)
+        self._timed(lambda: world().Allreduce(x, out, op=MPI.MAX), "reduce")
+        return out
+
+    def any(self, x: np.ndarray) -> np.ndarray:
+        return self.max(x.astype(np.uint8)).astype(bool)
+
+    def ordered_sum(self, x: np.ndarray) -> np.ndarray:
+        """x (B, own, ...) summed over the agents of every rank, one after another in storage order
+        (`dgtd.problems.exact.ordered_sum`): each rank continues the sum of the ranks before it."""
+        from dgtd.problems.exact import ordered_sum
+
+        def chain():
+            comm, r, R = world(), self.partition.rank, world().Get_size()
+            start = comm.recv(source=r - 1, tag=CHAIN) if r > 0 else None
+            total = ordered_sum(x, start)
+            if r < R - 1:
+                comm.send(total, dest=r + 1, tag=CHAIN)
+            return comm.bcast(total, root=R - 1)
+
+        return self._timed(chain, "reduce")
+
+    def consensus(self, W: np.ndarray) -> np.ndarray:
+        """The consensus error (B,) of every agent's estimate, from this rank's rows W (B, own, q)."""
+        from dgtd.problems.exact import ordered_consensus_error
+
+        return ordered_consensus_error(W, self.n_agents, self.ordered_sum)
+
+    def init_channel(self, channel, seeds: int, seed: int):
+        """The channel's state over the arcs this rank draws (`arc_ids`), as the whole network's run begins it."""
+        none = np.zeros(len(self.arc_ids), np.int64)
+        return channel.init(seeds, Arcs(0, none, none, self.arc_ids), seed)
+
+    def whole(self, x: np.ndarray, axis: int = 1) -> np.ndarray:
+        """Every agent's rows of ``x`` (this rank's own on ``axis``) on rank 0; its own rows on the others."""
+        whole = self._timed(lambda: self.partition.gather(x, axis), "gather")
+        return whole if self.root else x
+
+    def whole_arcs(self, x: np.ndarray, n_arcs: int) -> np.ndarray:
+        """Every arc's entries (B, 2E) of a per-arc count ``x`` (B, arc_ids), each from its receiver's rank, on rank
+        0; this rank's counted arcs on the others."""
+        parts = self._timed(lambda: world().gather((self.arc_ids[self.counted], x[:, self.counted]), root=0), "gather")
+        if not self.root:
+            return x[:, self.counted]
+        whole = np.zeros((x.shape[0], n_arcs))
+        for ids, part in parts:
+            whole[:, ids] = part
+        return whole
+
+    def reported(self, x: np.ndarray) -> np.ndarray:
+        """The entries of the arcs into this rank's own agents of a per-arc array (B, arc_ids, ...)."""
+        return x[:, self.counted]
+
+    def shard(self) -> dict:
+        """What a checkpoint's shard of this rank says it holds: its agents' and counted arcs' ids."""
+        return {"agents": self.agents, "arcs": self.arc_ids[self.counted]}
+
+    @staticmethod
+    def _timed(compute, what: str):
+        t = time.perf_counter()
+        try:
+            return compute()
+        finally:
+            SECONDS[what] += time.perf_counter() - t
+            WATCHDOG.beat()
 
 
 def asynchronous(staleness: int | None):

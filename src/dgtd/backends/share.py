@@ -99,22 +99,6 @@ class Share:
         )
         return cls(share, rows, edges, arc_ids, row[local], counted)
 
-    def channel_state(self, whole):
-        """The share of the whole network's channel state (`channel_share`)."""
-        return channel_share(whole, self.arc_ids)
-
-
-# the fields of a channel's state that hold one entry per arc (`dgtd.channels.ChannelState`)
-PER_ARC = ("links", "copies", "since", "pending", "due", "posted", "per_arc")
-
-
-def channel_share(whole, arc_ids: np.ndarray):
-    """The part of the whole network's channel state (`dgtd.channels.ChannelState`) of the arcs ``arc_ids``: their
-    own fields, and counts from zero (what the share then delivers, which the ranks add up)."""
-    B = whole.messages.shape[0]
-    part = {name: getattr(whole, name)[:, arc_ids] for name in PER_ARC if getattr(whole, name).size}
-    return whole._replace(messages=np.zeros(B), bits=np.zeros(B), **part)
-
 
 def _channel(channel, arc_ids: np.ndarray, rows: np.ndarray):
     """The channel over the share's arcs (``arc_ids``) and agents (``rows``): each one's loss, weight and wake."""

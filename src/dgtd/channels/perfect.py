@@ -39,6 +39,17 @@ class ChannelState(NamedTuple):
     per_arc: np.ndarray = np.zeros((0, 0))
 
 
+# the fields of a channel's state that hold one entry per arc (their axis 1)
+PER_ARC = ("links", "copies", "since", "pending", "due", "posted", "per_arc")
+
+
+def per_arc_fields(state) -> dict:
+    """The per-arc fields (`PER_ARC`) a channel's state holds (B, arcs, ...), some perhaps of size 0 (no slots for
+    late messages); those it does not are empty placeholders ((0, ...) or (B, 0))."""
+    B = state.messages.shape[0]
+    return {name: x for name in PER_ARC if (x := getattr(state, name)).ndim >= 2 and x.shape[0] == B and x.shape[1]}
+
+
 @dataclass(frozen=True)
 class Perfect:
     """Every link up at step k carries every message both ways, at once and exactly: agent i hears x_j(k) from each

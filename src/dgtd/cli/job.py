@@ -16,7 +16,7 @@ from pathlib import Path
 from dgtd.config import PROBLEM_FIELDS, RunConfig, make_channel, make_source, resolve, scenario_of, spec_record
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
-from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
+from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint, save_checkpoint
 from dgtd.run.owner import Owner
 from dgtd.run.results import atomic_write, first_difference, refuse_other_results
 
@@ -95,7 +95,9 @@ class PreparedRun:
         if mpi.spreads(self.algorithm):  # a rank that waits too long for the others ends with one line
             again = "run the same command again to continue from it" if every else "rerun"
             mpi.WATCHDOG.start(float(os.environ.get("DGTD_MPI_TIMEOUT", mpi.TIMEOUT)), again)
-        saving = mpi.rank() == 0  # one copy of the run's files: rank 0's (every rank holds the same state)
+        # one copy of the run's files: rank 0's, or where the agents are spread, a shard of the checkpoint a rank
+        comm = mpi.world() if mpi.spreads(self.algorithm) else None
+        saving = mpi.rank() == 0 or comm is not None
         try:
             return run_loop(
                 self.problem,
@@ -106,7 +108,7 @@ class PreparedRun:
                 progress=advance,
                 source=self.source,
                 checkpoint_every=every,
-                on_checkpoint=(lambda snap: save_checkpoint(ckpt, snap, self.record)) if saving else None,
+                on_checkpoint=(lambda snap: save_checkpoint(ckpt, snap, self.record, comm)) if saving else None,
                 resume=self.snapshot,
                 kernel_ready=start_bar,
                 channel=make_channel(self.resolved, self.network),
@@ -131,7 +133,7 @@ class PreparedRun:
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
         names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz", *also]
         names += ["message_ages.csv"] if "message_ages" in result.info else []
-        (self.out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
+        remove_checkpoint(self.out / CHECKPOINT)  # the numbers are complete: nothing is left to resume
         if plots:
             try:
                 names += self._figures(result, sc)
@@ -298,3 +300,4 @@ def clear_previous_run(out: Path, record: dict, overwrite: bool) -> None:
         refuse_other_results(out, record, "run")
     for name in RUN_FILES:
         (out / name).unlink(missing_ok=True)
+    drop_shards(out / CHECKPOINT)  # a spread run's other ranks' shards of its checkpoint

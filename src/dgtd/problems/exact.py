@@ -308,7 +308,7 @@ def rmspbe(m: Moments, w: np.ndarray) -> np.ndarray:
     return np.sqrt(2.0 * np.maximum(mspbe(m, w), 0.0))
 
 
-def value_error(m: Moments, W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
+def value_error(m: Moments, W: np.ndarray, w_ref: np.ndarray, of: np.ndarray | None = None) -> np.ndarray:
     """The relative value error |Phi w_i - Phi w_ref|_d / |Phi (w_ref - w0)|_d of each agent, shape (..., N).
 
     The RMSVE of the field (root mean squared value error, Sutton and Barto 2018, section 9.2) weighted by d, the
@@ -317,11 +317,12 @@ def value_error(m: Moments, W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
     error. It is relative to the value error of the start w0 (zero, Algorithm 1 line 3, unless the task prescribes
     one), which for w0 = 0 is |Phi w_ref|_d, the size of the values; Baird's values are all zero, and its error is
     relative to that of its prescribed start. |Phi x|_d^2 = x^T M x, so no S-sized array is formed. ``w_ref`` (q,)
-    or one row per agent (N, q).
+    or one row per agent (N, q); ``of``: the whole reference whose size scales the error, where ``w_ref`` is some
+    agents' rows of it (a rank's; default ``w_ref``).
     """
     diff = W - w_ref
     sq = np.einsum("...j,...j->...", np.einsum("...i,ij->...j", diff, m.M), diff)
-    ref = np.atleast_2d(w_ref) - (0.0 if m.problem.w0 is None else m.problem.w0)
+    ref = np.atleast_2d(w_ref if of is None else of) - (0.0 if m.problem.w0 is None else m.problem.w0)
     scale = float(np.sqrt(np.einsum("ni,ij,nj->n", ref, m.M, ref).max()))
     return np.sqrt(np.maximum(sq, 0.0)) / max(scale, 1e-300)
 
@@ -346,9 +347,27 @@ def consensus_error(W: np.ndarray) -> np.ndarray:
     return ((W - W.mean(axis=-2, keepdims=True)) ** 2).sum(axis=(-2, -1))
 
 
-def relative_error(W: np.ndarray, w_ref: np.ndarray) -> np.ndarray:
-    """|w_i - w*|_inf / |w*|_inf for each agent, shape (..., N)."""
-    scale = max(float(np.abs(w_ref).max()), 1e-300)
+def ordered_sum(x: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """x (B, n, ...) summed over axis 1 one row after another (after ``start`` (B, ...), where given): a sum that
+    ranks holding consecutive rows continue from one to the next and end with one process's number bit for bit (a
+    cumulative sum is sequential by definition; a plain sum may add pairwise)."""
+    if start is not None:
+        x = np.concatenate([np.asarray(start)[:, None], x], axis=1)
+    return np.cumsum(x, axis=1)[:, -1]
+
+
+def ordered_consensus_error(W: np.ndarray, n_agents: int, ordered_sum=ordered_sum) -> np.ndarray:
+    """`consensus_error` of ``n_agents`` agents' rows W (B, n, q), each sum over the agents taken by ``ordered_sum``
+    (B, n, ...) -> (B, ...): in a fixed order (this one's: as W comes), or the ranks' (`dgtd.backends.mpi.Ranks`),
+    where W is a rank's rows. The run loop's consensus metric, the same bit for bit however the agents are spread."""
+    mean = ordered_sum(W) / n_agents
+    return ordered_sum(((W - mean[:, None]) ** 2).sum(axis=-1))
+
+
+def relative_error(W: np.ndarray, w_ref: np.ndarray, of: np.ndarray | None = None) -> np.ndarray:
+    """|w_i - w*|_inf / |w*|_inf for each agent, shape (..., N); ``of``: the whole reference whose size scales the
+    error, where ``w_ref`` is some agents' rows of it (default ``w_ref``)."""
+    scale = max(float(np.abs(w_ref if of is None else of).max()), 1e-300)
     return np.abs(W - w_ref).max(axis=-1) / scale
 
 

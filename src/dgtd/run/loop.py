@@ -15,6 +15,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
+from dgtd.run.layout import Whole, reported
 from dgtd.run.memory import SUM_TRACE_MAX, TRACE_MAX, check_memory
 from dgtd.samples import Block
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
@@ -313,14 +314,18 @@ def run(
         if asynchronous:
             mpi.message_ages(restore=mpi.NO_AGES if resume is None else resume["message_ages"])
         source = mpi.local_source(ctx, source)  # each rank draws the numbers of its agents and their neighbours only
+        layout = mpi.Ranks(ctx)  # ... and holds their rows only
     else:
         kernel = kernel_for(settings.backend, algorithm.name)
+        layout = Whole(ctx)
     algorithm = ctx.algorithm
-    state = algorithm.init(B, N, q)
-    channel = ctx.channel.init(B, ctx.arcs, settings.seed)
+    state = algorithm.init(B, N if layout.agents is None else len(layout.agents), q)
+    channel = layout.init_channel(ctx.channel, B, settings.seed)
     if problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
         state = state._replace(w=np.broadcast_to(problem.w0, state.w.shape).copy())
-    n_est = algorithm.estimate(state).shape[1]  # N agents' estimates, or 1 for a centralised learner
+    n_est = algorithm.estimate(state).shape[1]  # the agents' estimates held here, or 1 for a centralised learner
+    n_all = n_est if layout.agents is None else N  # ... and of the whole run
+    w_ref_held = layout.rows(w_ref)
     # Kernels keep one running sum of w_k; the tail average is its difference from a copy taken at tail_start (a
     # block boundary), so no kernel reads or writes a second sum.
     sums = {"all": np.zeros((B, n_est, q))}
@@ -343,11 +348,11 @@ def run(
     metrics = {m: np.zeros((C, B)) for m in names}
     counts = {m: np.zeros((C, B)) for m in COUNTS}
     err_last, err_avg = np.zeros((C, B, n_est)), np.zeros((C, B, n_est))
-    keep_trace = B * n_est * q * C <= TRACE_MAX
-    w_trace = np.zeros((C, B, n_est, q)) if keep_trace else None
+    keep_trace = B * n_all * q * C <= TRACE_MAX
+    w_trace = np.zeros((C, B, n_all, q)) if keep_trace and layout.root else None  # (rank 0 gathers it)
     # The running sum at every checkpoint, for the tail average at each checkpoint (`tail_at`): up to 160 MB (it is
     # not saved with the results, unlike the trace), else the tail metrics are NaN
-    sum_trace = np.zeros((C, B, n_est, q)) if B * n_est * q * C <= SUM_TRACE_MAX else None
+    sum_trace = np.zeros((C, B, n_est, q)) if B * n_all * q * C <= SUM_TRACE_MAX else None
     # the channel's counts, frozen for a seed once it diverges (a stopped seed sends nothing)
     messages, bits, diverged_at = np.zeros(B), np.zeros(B), np.full(B, -1, dtype=np.int64)
     per_arc = np.zeros((B, 0))  # how often each arc delivered, where the channel counts it (`Imperfect`)
@@ -357,13 +362,17 @@ def run(
     if resume is None:
         source.start()
     else:
+        from dgtd.run.checkpoint import assemble
+
+        trajectories = getattr(source, "state_agents", None)  # a rank's Markov chains
+        resume = assemble(resume, N, ctx.arcs.n_arcs, layout.agents, layout.arc_ids, trajectories)
         k, c, seconds_before = int(resume["k"]), int(resume["c"]), float(resume["seconds"])
         state = state._make(np.array(resume["state"][f]) for f in state._fields)
         sums = {name: np.array(v) for name, v in resume["sums"].items()}
         tail_base = None if resume.get("tail_base") is None else np.array(resume["tail_base"])
         metrics = {name: np.array(v) for name, v in resume["metrics"].items()}
         err_last, err_avg = np.array(resume["agent_error_last"]), np.array(resume["agent_error_avg"])
-        w_trace = None if resume["w_trace"] is None else np.array(resume["w_trace"])
+        w_trace = None if resume["w_trace"] is None or not layout.root else np.array(resume["w_trace"])
         sum_trace = None if resume.get("sum_trace") is None else np.array(resume["sum_trace"])
         messages, bits = np.array(resume["messages"], dtype=np.float64), np.array(resume["bits"], dtype=np.float64)
         saved = resume["channel"]  # (a checkpoint of a run without channel events holds no keys)
@@ -376,7 +385,7 @@ def run(
     # Kernels that draw their own samples (`Draws`) materialise nothing: their blocks are bounded by work (a few
     # seconds between progress updates), not by the memory of a block of samples.
     fused = getattr(kernel, "draws_samples", False) and isinstance(source, ModelSource)
-    if fused:  # ranks gather every agent's state at each block's end: longer blocks (each rank steps N / R agents)
+    if fused:  # a rank sets its share's driver up at each block: longer blocks (each rank steps N / R agents)
         block = block_steps(settings.block_size, N, 0, B, budget=(1 << 24) * (16 if mpi.spreads(algorithm) else 1))
     else:
         block = block_steps(settings.block_size, N, network.n_edges, B)
@@ -390,7 +399,7 @@ def run(
     kernel_seconds = time.perf_counter() - t_kernel
     if kernel_ready is not None:
         kernel_ready(kernel_seconds)
-    t_loop = time.perf_counter()
+    t_loop, cpu_loop = time.perf_counter(), time.process_time()
     while k < T:
         if k == ctx.tail_start and tail_base is None:
             tail_base = sums["all"].copy()
@@ -412,7 +421,7 @@ def run(
         if progress is not None:
             progress(k1 - k)
         k = k1
-        state, sums = stop_diverged(state, sums, algorithm.estimate(state), limit, diverged_at, k)
+        state, sums = stop_diverged(state, sums, algorithm.estimate(state), limit, diverged_at, k, layout.any)
         if k == steps[c]:
             alive = diverged_at < 0
             w, w_avg = algorithm.estimate(state), sums["all"] / k
@@ -421,29 +430,38 @@ def run(
             err_last[c], err_avg[c] = np.nan, np.nan
             if alive.any():
                 wa, wv = w[alive], w_avg[alive]
-                err_last[c, alive] = exact.relative_error(wa, w_ref)
-                err_avg[c, alive] = exact.relative_error(wv, w_ref)
-                metrics["error_last"][c, alive] = err_last[c, alive].max(-1)
-                metrics["error_avg"][c, alive] = err_avg[c, alive].max(-1)
-                metrics["value_error_last"][c, alive] = exact.value_error(moments, wa, w_ref).max(-1)
-                metrics["value_error_avg"][c, alive] = exact.value_error(moments, wv, w_ref).max(-1)
+
+                def worst(x):  # the worst agent of every live seed, over the ranks where they are spread
+                    return layout.max(x.max(-1))
+
+                def value_error(x):
+                    return worst(exact.value_error(moments, x, w_ref_held, of=w_ref))
+
+                err_last[c, alive] = exact.relative_error(wa, w_ref_held, of=w_ref)
+                err_avg[c, alive] = exact.relative_error(wv, w_ref_held, of=w_ref)
+                metrics["error_last"][c, alive] = worst(err_last[c, alive])
+                metrics["error_avg"][c, alive] = worst(err_avg[c, alive])
+                metrics["value_error_last"][c, alive] = value_error(wa)
+                metrics["value_error_avg"][c, alive] = value_error(wv)
                 if sum_trace is not None:
                     sum_trace[c] = sums["all"]
                     wt = tail_at(c, steps, sum_trace, settings.tail_fraction)[alive]
-                    metrics["error_tail"][c, alive] = exact.relative_error(wt, w_ref).max(-1)
-                    metrics["value_error_tail"][c, alive] = exact.value_error(moments, wt, w_ref).max(-1)
-                    metrics["rmspbe_tail"][c, alive] = exact.rmspbe(moments, wt).max(-1)
-                metrics["consensus"][c, alive] = exact.consensus_error(wa)
-                metrics["mspbe_last"][c, alive] = exact.mspbe(moments, wa).max(-1)
-                metrics["mspbe_avg"][c, alive] = exact.mspbe(moments, wv).max(-1)
-                metrics["rmspbe_last"][c, alive] = exact.rmspbe(moments, wa).max(-1)
-                metrics["rmspbe_avg"][c, alive] = exact.rmspbe(moments, wv).max(-1)
+                    metrics["error_tail"][c, alive] = worst(exact.relative_error(wt, w_ref_held, of=w_ref))
+                    metrics["value_error_tail"][c, alive] = value_error(wt)
+                    metrics["rmspbe_tail"][c, alive] = worst(exact.rmspbe(moments, wt))
+                metrics["consensus"][c, alive] = layout.consensus(wa)
+                metrics["mspbe_last"][c, alive] = worst(exact.mspbe(moments, wa))
+                metrics["mspbe_avg"][c, alive] = worst(exact.mspbe(moments, wv))
+                metrics["rmspbe_last"][c, alive] = worst(exact.rmspbe(moments, wa))
+                metrics["rmspbe_avg"][c, alive] = worst(exact.rmspbe(moments, wv))
                 counts["samples"][c, alive] = N * k  # one sample per agent per step, for every algorithm
                 counts["messages"][c, alive] = messages[alive]
                 counts["bits"][c, alive] = bits[alive]
             counts["diverged"][c] = ~alive
-            if w_trace is not None:
-                w_trace[c] = w
+            if keep_trace:
+                whole = layout.whole(w)  # (a collective where the agents are spread)
+                if w_trace is not None:
+                    w_trace[c] = whole
             c += 1
             if not alive.any():  # every seed has diverged: nothing left to run
                 for x in (*metrics.values(), *counts.values()):
@@ -470,10 +488,11 @@ def run(
                     source_state,
                     seconds_before + time.perf_counter() - t_start,
                     extra={
+                        **layout.shard(),  # the agents and arcs whose rows this snapshot holds (a rank's)
                         "messages": messages,
                         "bits": bits,
-                        "channel": channel._asdict(),
-                        "per_arc": per_arc,
+                        "channel": reported(channel, layout)._asdict(),
+                        "per_arc": layout.reported(per_arc) if per_arc.size else per_arc,
                         "diverged_at": diverged_at,
                         "counts": counts,
                         **({} if tail_base is None else {"tail_base": tail_base}),
@@ -482,7 +501,15 @@ def run(
                     },
                 )
             )
-    report = {**fixed.report, **report, **algorithm.diagnostics(state, moments, L_mean)}
+    loop_seconds, loop_cpu = time.perf_counter() - t_loop, time.process_time() - cpu_loop
+    # Every agent's rows on rank 0 where the agents are spread (its own on the others: their results are not written)
+    state = state._make(layout.whole(x) for x in state)
+    w_sum, tail_sum = layout.whole(sums["all"]), None if tail_base is None else layout.whole(tail_base)
+    err_last, err_avg = layout.whole(err_last, axis=2), layout.whole(err_avg, axis=2)
+    if getattr(ctx.channel, "name", "") == "imperfect":  # (on every rank: a collective)
+        per_arc = layout.whole_arcs(per_arc, ctx.arcs.n_arcs)
+    if layout.root:
+        report = {**fixed.report, **report, **algorithm.diagnostics(state, moments, L_mean)}
     return RunResult(
         steps=steps,
         metrics=metrics,
@@ -490,8 +517,8 @@ def run(
         agent_error_avg=err_avg,
         w_trace=w_trace,
         w_last=algorithm.estimate(state),
-        w_avg=sums["all"] / T,
-        w_tail=(sums["all"] - (np.nan if tail_base is None else tail_base)) / tail_window,
+        w_avg=w_sum / T,
+        w_tail=(w_sum - (np.nan if tail_sum is None else tail_sum)) / tail_window,
         tail_window=tail_window,
         w_star=w_star,
         fixed=fixed,
@@ -507,14 +534,15 @@ def run(
             "messages": messages,
             "bits": bits,
             "counts": counts,
-            **per_agent_counts(ctx, per_arc),
+            **(per_agent_counts(ctx, per_arc) if layout.root else {}),
             # how far DGTD's regularised saddle point (rho > 0) is from w* (|.|_inf relative); lost messages move the
             # fixed point too, which the results report as w_fixed
             "regularisation_shift": float(exact.relative_error(w_ref, w_star).max())
             if getattr(algorithm, "rho", 0.0)
             else 0.0,
             **({"message_ages": mpi.message_ages()} if asynchronous else {}),
-            "loop_seconds": time.perf_counter() - t_loop,
+            "loop_seconds": loop_seconds,  # the steps and their metrics (not the results gathered after them)
+            "loop_cpu_seconds": loop_cpu,
             "kernel_seconds": kernel_seconds,
         },
     )
@@ -531,12 +559,14 @@ def per_agent_counts(ctx, per_arc: np.ndarray) -> dict:
     return {"per_agent": {"messages": sent * M, "bits": sent * M * ctx.channel.vector_bits(q)}}
 
 
-def stop_diverged(state, sums, w: np.ndarray, limit: float, diverged_at: np.ndarray, k: int):
+def stop_diverged(state, sums, w: np.ndarray, limit: float, diverged_at: np.ndarray, k: int, any_=None):
     """Mark seeds whose estimate is not finite or exceeds ``limit`` as diverged at step k (in place in
-    ``diverged_at``) and stop them: their state and sums become NaN, which every kernel carries along."""
+    ``diverged_at``) and stop them: their state and sums become NaN, which every kernel carries along. ``any_``:
+    whether any rank found a seed so (`dgtd.backends.mpi.Ranks.any`), where the agents are spread."""
     bad = ~np.all(np.isfinite(w), axis=(1, 2)) | (np.nan_to_num(np.abs(w), nan=np.inf).max(axis=(1, 2)) > limit)
     for x in state:
         bad |= ~np.all(np.isfinite(x.reshape(x.shape[0], -1)), axis=1)
+    bad = bad if any_ is None else any_(bad)
     new = bad & (diverged_at < 0)
     if not new.any():
         return state, sums

@@ -268,16 +268,14 @@ class ModelSource:
         self.markov = sampling.mode == "markov"
         self.backend = backend
         self.current = None
-        self.agents = self.edges = self.gather = None  # all of them (`restrict`)
+        self.agents = self.edges = None  # all of them (`restrict`)
 
-    def restrict(self, agents: np.ndarray, edges: np.ndarray, gather=None) -> None:
+    def restrict(self, agents: np.ndarray, edges: np.ndarray) -> None:
         """Draw only the samples of ``agents`` and the links of ``edges`` (ids in the whole network, as an MPI rank
         does for its own agents and their neighbours): a block then holds their rows (T, B, len(agents)) and columns
-        (T, B, len(edges)), each the sample the whole network's run gives it (`Streams.restrict`). ``gather`` (B, n)
-        -> (B, N) collects every rank's trajectories' states for a checkpoint (a collective); a shared trajectory is
-        the same on every rank and needs none."""
+        (T, B, len(edges)), each the sample the whole network's run gives it (`Streams.restrict`)."""
         self.streams.restrict(agents, edges)
-        self.agents, self.edges, self.gather = self.streams.agent_ids, self.streams.edge_ids, gather
+        self.agents, self.edges = self.streams.agent_ids, self.streams.edge_ids
         self.n_obs = self.streams.n_obs
         if self.current is not None and not self.streams.shared:
             self.current = self.current[:, self.agents]
@@ -305,16 +303,21 @@ class ModelSource:
         return Draws(self, int(T))
 
     def get_state(self) -> dict:
-        """The step the streams are at and every trajectory's state (all agents', gathered where this source holds
-        some: a collective then)."""
+        """The step the streams are at and the state of every trajectory drawn here, with their agents' ids where
+        these are some agents' (``agents``: a rank's; `dgtd.run.checkpoint.assemble` picks them by id)."""
         current = None if self.current is None else self.current.copy()
-        if current is not None and self.agents is not None and not self.streams.shared:
-            current = self.gather(current)
-        return {"streams": self.streams.get_state(), "current": current}
+        return {"streams": self.streams.get_state(), "current": current, **self._ids()}
+
+    def _ids(self) -> dict:
+        return {} if self.state_agents is None or self.current is None else {"agents": self.state_agents}
+
+    @property
+    def state_agents(self) -> np.ndarray | None:
+        """The agents whose trajectories' states this source holds, where they are some agents' (a rank's); None:
+        every agent's, or the one shared trajectory."""
+        return None if self.streams.shared else self.agents
 
     def set_state(self, state: dict) -> None:
+        """Continue from `get_state`'s dict, its trajectories' states those of the agents drawn here."""
         self.streams.set_state(state["streams"])
-        current = state["current"]
-        if current is not None and self.agents is not None and not self.streams.shared:
-            current = np.array(current)[:, self.agents]
-        self.current = current
+        self.current = None if state["current"] is None else np.array(state["current"])
