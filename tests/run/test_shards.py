@@ -143,3 +143,25 @@ def test_a_set_of_shards_is_committed_whole_or_not_at_all(tmp_path, lossy_markov
     (tmp_path / "checkpoint.1200.1.npz").unlink()
     with pytest.raises(DgtdInputError, match="names shards that are not there"):
         load_checkpoint(path)
+
+
+@pytest.mark.parametrize("algorithm", ["td0", "dgtd"])
+def test_the_consensus_error_of_many_agents_numbered_at_random_is_summed_in_storage_order(algorithm):
+    """300 agents on a ring numbered at random (reordered for storage, `storage_order`): the consensus metric is the
+    plain one to 1e-12 for a distributed method, and 0 for a centralised learner (one estimate, no agents' rows to
+    reorder)."""
+    from dgtd.algorithms import make_algorithm
+    from dgtd.graphs.random import random_edges
+    from dgtd.graphs.topologies import from_edges
+    from dgtd.problems import tasks
+    from dgtd.run.loop import RunSettings, Sampling
+
+    n = 300
+    label = np.random.default_rng(1).permutation(n)
+    ring = from_edges(n, np.stack([label, np.roll(label, 1)], 1))
+    problem = tasks.garnet(10, 2, n, 3, seed=0)
+    settings = RunSettings(iterations=200, seeds=2, checkpoints=4, backend="numpy")
+    result = run_loop(problem, random_edges(ring, 0.8), make_algorithm(algorithm), Sampling(), settings)
+    consensus = result.metrics["consensus"][-1]
+    np.testing.assert_allclose(consensus, exact.consensus_error(result.w_last), rtol=1e-12, atol=0)
+    assert np.all(consensus == 0) == (algorithm == "td0")

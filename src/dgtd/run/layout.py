@@ -36,7 +36,8 @@ class Whole:
         return x
 
     def ordered_sum(self, x: np.ndarray) -> np.ndarray:
-        return ordered_sum(x if self.order is None else x[:, self.order])
+        stored = self.order is not None and x.shape[1] == len(self.order)  # (a centralised learner: one row)
+        return ordered_sum(x[:, self.order] if stored else x)
 
     def consensus(self, W: np.ndarray) -> np.ndarray:
         """The consensus error (B,) of the agents' estimates W (B, N, q) (`ordered_consensus_error`)."""
