@@ -83,6 +83,10 @@ def test_read_edge_list(tmp_path):
     bad.write_text("0 x\n")
     with pytest.raises(DgtdInputError, match="malformed"):
         topologies.read_edge_list(str(bad))
+    weighted = tmp_path / "weighted.txt"
+    weighted.write_text("0 1\n1 2 0.5\n")  # a third column would be dropped: refused, naming the line
+    with pytest.raises(DgtdInputError, match="line 2 .* 3 columns"):
+        topologies.read_edge_list(str(weighted))
 
 
 def test_all_reachable_matches_scipy(rng):

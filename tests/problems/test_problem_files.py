@@ -108,3 +108,53 @@ def test_a_bad_mdp_file_gets_one_line_and_exit_2(case, tmp_path, run_cli):
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and lines[0].startswith("dgtd: error:"), err
     assert words in lines[0], lines[0]
+
+
+def _mrp_arrays() -> dict:
+    """A two-state Markov reward process of two agents in the MRP form."""
+    return {
+        "P": np.array([[0.3, 0.7], [0.6, 0.4]]),
+        "R": np.array([[1.0, 0.0], [0.0, 2.0]]),
+        "Phi": np.array([[1.0], [0.5]]),
+        "gamma": 0.9,
+    }
+
+
+@pytest.mark.parametrize(
+    "name, value, words",
+    [
+        ("R", np.array([[1.0, 0.0], [0.0, 2.0]]) + 1e-3j, "R in .* holds complex numbers"),
+        ("P", np.array([[0.3, 0.7], [0.6, 0.4]], complex), "P in .* holds complex numbers"),
+        ("gamma", np.array("0.9"), "gamma in .* holds text"),
+        ("Phi", np.array([["1"], ["0.5"]]), "Phi in .* holds text"),
+    ],
+)
+def test_a_problem_file_of_numbers_that_are_not_real_is_refused_naming_the_dtype(tmp_path, name, value, words):
+    """Complex numbers (their imaginary parts would be dropped) and text ("0.9", which float() would read) are
+    refused in one line that names the array and what it holds, not run."""
+    from dgtd.errors import DgtdInputError
+
+    path = write(tmp_path, **{**_mrp_arrays(), name: value})
+    with pytest.raises(DgtdInputError, match=words):
+        load_problem(path)
+
+
+def test_probabilities_saved_in_single_precision_are_read_to_their_precision(tmp_path):
+    """P and the policies saved as float32 sum to 1 only to float32's precision (1.000000015): read, their rows made
+    to sum to 1 in float64, and the problem equal to the float64 one's to that precision; a row off by more than
+    float32 can explain is still refused."""
+    from dgtd.errors import DgtdInputError
+
+    exact64 = load_problem(write(tmp_path, "a.npz", **_mrp_arrays()))
+    P32 = np.array([[0.3, 0.7], [0.1, 0.9]], np.float32)
+    assert abs(float(P32.astype(np.float64).sum(1)[1]) - 1.0) > 1e-8  # (float32 cannot hold 0.1 and 0.9 exactly)
+    p = load_problem(write(tmp_path, "b.npz", **{**_mrp_arrays(), "P": P32}))
+    np.testing.assert_allclose(p.P.sum(1), 1.0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(p.P, P32, rtol=1e-7)
+    mdp = chain_arrays()
+    mdp32 = {k: (v.astype(np.float32) if k.startswith(("P", "policy", "behaviour")) else v) for k, v in mdp.items()}
+    w32 = exact.w_star(exact.Moments(load_problem(write(tmp_path, "c.npz", **mdp32))))
+    np.testing.assert_allclose(w32, 105.0, rtol=1e-5)  # 0.32 in float32, through the chain's conditioning
+    assert exact64.P.dtype == np.float64
+    with pytest.raises(DgtdInputError, match="sums to"):
+        load_problem(write(tmp_path, "d.npz", **{**_mrp_arrays(), "P": np.array([[0.3, 0.6], [0.1, 0.9]], np.float32)}))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -116,9 +117,20 @@ def read_edge_list(path_: str) -> Graph:
     import networkx as nx
 
     try:
-        G = nx.read_edgelist(path_, nodetype=int, data=False)
+        lines = Path(path_).read_text().splitlines()
     except FileNotFoundError:
         raise DgtdInputError(f"edge-list file {path_} does not exist") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DgtdInputError(f"edge-list file {path_} cannot be read ({e})") from None
+    for number, line in enumerate(lines, 1):  # networkx drops what follows the pair: say so rather than lose it
+        columns = len(line.split("#", 1)[0].split())
+        if columns not in (0, 2):
+            raise DgtdInputError(
+                f"edge-list file {path_}, line {number} has {columns} columns; write one 'i j' pair per line (a "
+                "graph's links carry no weights here: their probabilities are --edge-prob)"
+            )
+    try:
+        G = nx.read_edgelist(path_, nodetype=int, data=False)
     except (TypeError, ValueError, IndexError) as e:
         raise DgtdInputError(f"edge-list file {path_} is malformed ({e}); write one 'i j' pair per line") from None
     if G.number_of_nodes() == 0:

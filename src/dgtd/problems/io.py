@@ -32,6 +32,7 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
     """Load and validate a problem file of either form; every failure is a one-line `DgtdInputError`."""
     p = Path(path)
     arrays = read_npz(p, "problem file", FORMS, required=REQUIRED)
+    arrays = {name: _real(path, name, x) for name, x in arrays.items()}
     for k in ("gamma", "sigma", "signed_rewards"):
         if k in arrays and np.asarray(arrays[k]).size != 1:
             raise DgtdInputError(f"{k} in {path} must be a scalar, got shape {np.asarray(arrays[k]).shape}")
@@ -61,6 +62,31 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
         terminal=terminal,
         signed_rewards=signed,
     )
+
+
+STOCHASTIC = ("P", "policy_", "behaviour_")  # arrays whose last axis holds probabilities that sum to one
+
+
+def _real(path, name: str, x: np.ndarray) -> np.ndarray:
+    """``x`` if it holds real numbers, else one line naming what it holds (complex numbers would lose their imaginary
+    parts, text would be read as numbers). Probabilities saved in a lower precision than float64 (float32: rows sum
+    to 1.000000015) have their rows divided by their sums in float64 where these are 1 to that precision, so that
+    they pass the float64 check; rows further off are left to it, which refuses them."""
+    kind = x.dtype.kind
+    if kind == "c":
+        raise DgtdInputError(
+            f"{name} in {path} holds complex numbers ({x.dtype}); a problem's numbers are real: save the real part "
+            "(numpy.real) if that is what is meant"
+        )
+    if kind not in "biuf":
+        what = "text" if kind in "US" else f"{x.dtype} values"
+        raise DgtdInputError(f"{name} in {path} holds {what}, not numbers; save it as a numeric array")
+    if kind == "f" and x.dtype.itemsize < 8 and name.startswith(STOCHASTIC) and x.ndim >= 1 and x.shape[-1]:
+        wide = x.astype(np.float64)
+        sums = wide.sum(axis=-1, keepdims=True)
+        if np.all(np.abs(sums - 1.0) <= 4 * x.shape[-1] * np.finfo(x.dtype).eps) and np.all(wide >= 0):
+            return wide / sums
+    return x
 
 
 def _numbered(arrays: dict, prefix: str) -> list:
