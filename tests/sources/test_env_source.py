@@ -123,6 +123,17 @@ def test_an_object_that_is_not_a_parallel_env_is_refused_in_one_line():
         EnvSource(lambda: object(), lambda s: s, 0, [0], network=random_edges(topologies.path(3), 1.0)).start()
 
 
+@pytest.mark.parametrize("action", [17, -1, 0.5])
+def test_a_policy_choosing_an_action_outside_its_space_is_refused_in_one_line(action):
+    """Action 17 (or -1, or 0.5) for the chain's Discrete(2) space: refused naming the policy, the agent, the action
+    and the space, rather than handed to the env (which may take it)."""
+    policy = lambda agent, observation, space, rng: action  # noqa: E731
+    src = EnvSource(Chain, lambda s: s, 0, [0], network=random_edges(topologies.path(3), 1.0), policy=policy)
+    src.start()
+    with pytest.raises(DgtdInputError, match=f"returned {action} for agent_0, outside its action space Discrete"):
+        src.next_block(3)
+
+
 def test_features_of_the_wrong_shape_or_nan_are_refused():
     bad = EnvSource(Chain, lambda s: s[:, :2][:-1], 0, [0], network=random_edges(topologies.path(3), 1.0))
     bad.start()

@@ -42,6 +42,31 @@ def random_policy(agent: str, observation, space, rng: np.random.Generator):
     return int(rng.integers(space.n))
 
 
+def checked_action(policy, agent: str, action, space):
+    """``action`` where it lies in ``space`` (a discrete space's: a whole number in its range; a box's: its shape,
+    within its bounds, in any float type; any other: its ``contains``), else one line: an env may take an action
+    outside its space and run on."""
+    from gymnasium import spaces  # (PettingZoo's own dependency: there whenever an env is)
+
+    if isinstance(space, spaces.Discrete):
+        whole = isinstance(action, (int, np.integer)) and not isinstance(action, (bool, np.bool_))
+        inside = whole and int(space.start) <= int(action) < int(space.start) + int(space.n)
+    elif isinstance(space, spaces.Box):
+        try:
+            x = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            x = None
+        inside = x is not None and x.shape == space.shape and bool(np.all((x >= space.low) & (x <= space.high)))
+    else:
+        inside = bool(space.contains(action))
+    if not inside:
+        raise DgtdInputError(
+            f"the policy {named(policy)} returned {action!r} for {agent}, outside its action space {space}; "
+            "return one of the space's actions"
+        )
+    return action
+
+
 def named(function) -> str:
     """A user's function as its messages name it: its qualified name (a partial's function's)."""
     function = getattr(function, "func", function)
@@ -145,7 +170,12 @@ class EnvSource:
             for t in range(T):
                 obs = env._dgtd_last_obs
                 actions = {
-                    a: call_user(f"the policy {named(self.policy)}", self.policy, a, obs[a], spaces[a], gen)
+                    a: checked_action(
+                        self.policy,
+                        a,
+                        call_user(f"the policy {named(self.policy)}", self.policy, a, obs[a], spaces[a], gen),
+                        spaces[a],
+                    )
                     for a in env.agents
                 }
                 if self.positions is not None:
