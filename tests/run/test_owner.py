@@ -57,3 +57,13 @@ def test_a_sweep_into_a_runs_directory_is_refused(run_cli, tmp_path):
     experiment = tmp_path / "sweep.toml"
     experiment.write_text('scenario = "paper-example-1"\niterations = 20\n\n[grid]\nalpha0 = [1.0, 2.0]\n')
     one_line_error(*run_cli("sweep", experiment, "--out", out, "--no-progress"), "holds the results of a run")
+
+
+@pytest.mark.parametrize("command", [("run", "paper-example-1"), ("compare", "paper-example-1", "-a", "td0")])
+def test_a_results_folder_that_cannot_be_made_is_named_as_such(run_cli, tmp_path, command):
+    """--out under a file (or anywhere the folder cannot be made): one line that says it is the results folder and
+    what to do, not a bare "[Errno 20] Not a directory"."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    code, text, err = run_cli(*command, *QUICK, "--out", blocker / "results")
+    one_line_error(code, text, err, "the results folder", "cannot be made", "choose another --out")

@@ -43,12 +43,23 @@ class Owner:
                 f"{self.out} holds the results of a {there}, not of a {kind}; choose another --out, "
                 f"or pass --overwrite to write a {kind} there"
             )
-        self.out.mkdir(parents=True, exist_ok=True)
         try:
+            self.out.mkdir(parents=True, exist_ok=True)
             import fcntl
         except ImportError:  # no flock (Windows): the directory is not locked
             return
-        fd = os.open(self.out / LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as e:
+            raise DgtdInputError(
+                f"the results folder {self.out} cannot be made ({e.strerror or e}); choose another --out, in a folder "
+                "you can write to"
+            ) from None
+        try:
+            fd = os.open(self.out / LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as e:
+            raise DgtdInputError(
+                f"the results folder {self.out} cannot be written ({e.strerror or e}); choose another --out, in a "
+                "folder you can write to"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
