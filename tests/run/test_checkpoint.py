@@ -214,3 +214,24 @@ def test_the_same_command_again_resumes_its_checkpoint(tmp_path, run_cli):
     code, said, err = run_cli(*command, "--overwrite", "--out", out)  # --overwrite starts afresh
     assert code == 0 and "resuming" not in said, err
     assert not (out / "checkpoint.npz").exists()
+
+
+def test_a_problem_file_changed_under_a_checkpoint_is_said_so_by_every_command_that_meets_it(tmp_path, run_cli):
+    """The problem file changed since the checkpoint was written: the same command, --resume and the run's own
+    config.toml each say that the file changed and how to go on (restore it, or --overwrite), instead of sending
+    the user from one to the next in a circle; --overwrite then runs."""
+    problem = tmp_path / "chain.npz"
+    np.savez(problem, P=np.array([[0.3, 0.7], [0.6, 0.4]]), R=np.eye(2), Phi=np.array([[1.0], [0.5]]), gamma=0.9)
+    out = tmp_path / "run"
+    command = ("run", "--problem", problem, "-T", "50", "--no-plots", "--no-progress", "--out", out)
+    code, _, err = run_cli(*command)
+    assert code == 0, err
+    record = json.loads((out / "summary.json").read_text())["config"]
+    (out / "summary.json").unlink()
+    save_checkpoint(out / "checkpoint.npz", {"k": 25}, {**record, "problem_sha256": "0" * 64})  # as the file was
+    for again in (command, ("run", "--resume", out), ("run", out / "config.toml")):
+        code, said, err = run_cli(*again)
+        assert code == 2 and f"the problem file {problem} changed since the checkpoint" in err, err
+        assert "--overwrite" in err and "--resume" not in err and "config.toml" not in err, err
+    code, _, err = run_cli(*command, "--overwrite")
+    assert code == 0, err

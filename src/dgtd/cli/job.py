@@ -258,6 +258,12 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
     if output.resume or (ckpt.exists() and not output.overwrite):
         snapshot, saved = load_checkpoint(ckpt)
         diff = first_difference(saved, record)
+        if diff.startswith("problem_sha256") and not first_difference(*(_without_file(c) for c in (saved, record))):
+            raise DgtdInputError(
+                f"the problem file {record.get('problem_file', '')} changed since the checkpoint in {out} "
+                "was written (its SHA-256 differs): put the file back as it was to continue the run, or pass "
+                "--overwrite to start it afresh on the file as it is"
+            )
         if diff and output.resume:
             raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
         if diff:
@@ -270,6 +276,11 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
         clear_previous_run(out, record, output.overwrite)
         atomic_write(out / CONFIG, run.config_toml.encode())
     return run
+
+
+def _without_file(record: dict) -> dict:
+    """A run's config record but for its problem file's digest."""
+    return {key: value for key, value in record.items() if key != "problem_sha256"}
 
 
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's
