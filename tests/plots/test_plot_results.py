@@ -111,6 +111,19 @@ def test_an_exact_zero_consensus_is_left_out_of_its_log_axis_and_said(monkeypatc
     assert "zero at 2 checkpoints up to k = 10" in line.get_label()
 
 
+def test_one_seeds_figure_says_one_seed_not_a_median(monkeypatch):
+    """One seed has no median and no band: the title says what it is ("one seed"), and two seeds' says median and
+    band."""
+    from dgtd.plots import plot_errors
+
+    one = _result([1, 10], [1.0])
+    one.metrics = {name: x[:, :1] for name, x in one.metrics.items()}
+    title = _drawn(monkeypatch, lambda: plot_errors(one, "unused"))._suptitle.get_text()
+    assert title.startswith("one seed") and "median" not in title
+    two = _drawn(monkeypatch, lambda: plot_errors(_result([1, 10], [1.0]), "unused"))._suptitle.get_text()
+    assert two.startswith("median over 2 seeds")
+
+
 def test_errors_figure_shows_the_tail_average(monkeypatch):
     """The output the README tells users to read, the tail average, is drawn beside the last and averaged iterates,
     for weights and values alike."""

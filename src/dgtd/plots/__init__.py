@@ -180,9 +180,7 @@ def plot_errors(result: RunResult, path: Path) -> None:
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
-    fig.suptitle(
-        f"median over {seeds} seed{'s' if seeds > 1 else ''}" + (f", {BAND_WORDS}" if seeds > 1 else ""), fontsize=9
-    )
+    fig.suptitle(f"median over {seeds} seeds, {BAND_WORDS}" if seeds > 1 else "one seed (no band)", fontsize=9)
     _save(fig, path)
 
 
