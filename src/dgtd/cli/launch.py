@@ -118,3 +118,5 @@ def launch(ranks: int | None, hosts: str | None, argv: list[str]) -> int:
             return job.wait(timeout=INTERRUPTED_SECONDS) or 130  # as an interrupted run exits (MPICH's says 0)
         finally:
             job.kill()  # a second Ctrl-C, or ranks that did not end in time
+            # said here too: a rank's own line can be lost when its job is aborted before mpiexec passes it on
+            print("dgtd: interrupted; files already written are complete", file=sys.stderr, flush=True)
