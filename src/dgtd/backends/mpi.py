@@ -244,7 +244,7 @@ class Partition:
     def gather(self, x: np.ndarray, axis: int = 1) -> np.ndarray | None:
         """Every rank's own rows of ``x`` (its own agents on ``axis``) in the agents' order, on rank 0 (None on the
         others): the whole network's array, where the output asks for it."""
-        from mpi4py import MPI
+        from mpi4py.util.dtlib import from_numpy_dtype
 
         mine = np.ascontiguousarray(np.moveaxis(x, axis, 0))  # agents first: the ranks' blocks line up
         rest = mine.shape[1:]
@@ -253,7 +253,7 @@ class Partition:
         stored = np.empty((N, *rest), x.dtype) if self.rank == 0 else None
         counts = np.diff(self.bounds) * width
         displacements = self.bounds[:-1] * width
-        kind = MPI._typedict[x.dtype.char]
+        kind = from_numpy_dtype(x.dtype)
         world().Gatherv(mine, [stored, counts, displacements, kind] if self.rank == 0 else None, root=0)
         if self.rank != 0:
             return None
@@ -542,9 +542,10 @@ class Ranks:
     def whole_arcs(self, x: np.ndarray, n_arcs: int) -> np.ndarray:
         """Every arc's entries (B, 2E) of a per-arc count ``x`` (B, arc_ids), each from its receiver's rank, on rank
         0; this rank's counted arcs on the others."""
-        parts = self._timed(lambda: world().gather((self.arc_ids[self.counted], x[:, self.counted]), root=0), "gather")
+        mine = self.reported(x)
+        parts = self._timed(lambda: world().gather((self.arc_ids[self.counted], mine), root=0), "gather")
         if not self.root:
-            return x[:, self.counted]
+            return mine
         whole = np.zeros((x.shape[0], n_arcs))
         for ids, part in parts:
             whole[:, ids] = part
