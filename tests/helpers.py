@@ -35,3 +35,19 @@ def record(problem, seeds: int, steps: int) -> dict:
     for j in range(problem.n_features):
         cols[f"phi_{j}"], cols[f"next_phi_{j}"] = phi[:, j], nphi[:, j]
     return cols
+
+
+def assert_same_run(ref, fast, rtol: float, metrics_atol: float) -> None:
+    """Two runs' final states, averaged iterates and metrics equal to ``rtol`` (absolute: rtol x the iterates' scale;
+    metrics: ``metrics_atol``), their message counts exactly: a backend against the reference."""
+    from numpy.testing import assert_allclose, assert_array_equal
+
+    assert np.abs(ref.w_last).max() > 0
+    scale = max(1.0, float(np.abs(ref.w_last).max()))
+    for key in ref.final_state:
+        assert_allclose(fast.final_state[key], ref.final_state[key], rtol=rtol, atol=rtol * scale)
+    assert_allclose(fast.w_avg, ref.w_avg, rtol=rtol, atol=rtol * scale)
+    for key in ref.metrics:
+        assert_allclose(fast.metrics[key], ref.metrics[key], rtol=rtol, atol=metrics_atol)
+    for key in ref.info["counts"]:
+        assert_array_equal(fast.info["counts"][key], ref.info["counts"][key])

@@ -15,7 +15,7 @@ The names a user needs, each documented where it is defined::
   `Sampling`, `RunResult`;
 - scenarios: `scenario`, `SCENARIOS`;
 - algorithms: `DGTD`, `GTD2`, `TDC`, `TD0`, `ConsensusTD0`, `PDTD`, `TDTracking`, `Local`, `make_algorithm`,
-  `ALGORITHMS`;
+  `ALGORITHMS`, and `check_algorithm`, which checks a user's own on every backend;
 - problems: `make_problem`, `from_mdp`, `load_problem`, `save_problem`, `tasks`, `exact`;
 - graphs: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`;
 - channels, which turn what agents send into what they hear: `Perfect`, `Inbox`, `Arcs`;
@@ -89,6 +89,7 @@ _EXPORTS = {
     "Inbox": "dgtd.channels",
     "Arcs": "dgtd.channels",
     "read_results": "dgtd.run.results",
+    "check_algorithm": "dgtd.run.conformance",
 }
 __all__ = sorted(_EXPORTS)
 

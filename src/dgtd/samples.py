@@ -12,6 +12,15 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 
+def namespace(x):
+    """The array library of ``x``: jax.numpy for a JAX array (`dgtd.backends.jax`), else NumPy."""
+    if type(x).__module__.startswith("jax"):
+        import jax.numpy as jnp
+
+        return jnp
+    return np
+
+
 class Sample(NamedTuple):
     """One step's data for every seed and agent, as an algorithm's ``update`` reads it.
 

@@ -283,10 +283,10 @@ def test_td_tracking_has_consensus_on_w_star_as_its_exact_fixed_point():
     w = np.broadcast_to(w_star, (1, 4, 3)).copy()
     g = (m.b - w_star @ m.A.T)[None]  # (1, N, q): b_i - A w*, nonzero per agent, zero on average
     assert np.abs(g).max() > 1e-3
-    e = expected(p, TDTracking(), TrackingState(w, np.zeros_like(w), g), graph)
+    e = expected(p, TDTracking(), TrackingState(g=g, w=w, z=np.zeros_like(w)), graph)
     assert_allclose(e.w, w, atol=1e-12)
     assert_allclose(e.z, 0.0, atol=1e-12)
-    moved = expected(p, TDTracking(), TrackingState(w + 0.1, np.zeros_like(w), g), graph)
+    moved = expected(p, TDTracking(), TrackingState(g=g, w=w + 0.1, z=np.zeros_like(w)), graph)
     assert np.abs(moved.w - (w + 0.1)).max() > 1e-3
 
 
@@ -313,8 +313,9 @@ def test_td_tracking_reaches_w_star_on_random_links(backend):
 
 
 def test_an_algorithm_without_a_compiled_step_runs_on_the_reference_with_a_notice():
-    """A new algorithm is one file: the run loop finds no compiled step under its name, says so in one line, and
-    runs it on the reference backend (the same numbers as --backend numpy)."""
+    """An algorithm that writes ``update`` alone (not the one definition of `dgtd.algorithms.base`): the run loop says
+    in one line that it has no compiled step, and runs it on the reference backend (the same numbers as --backend
+    numpy)."""
     from dataclasses import dataclass
     from typing import ClassVar
 
@@ -328,7 +329,7 @@ def test_an_algorithm_without_a_compiled_step_runs_on_the_reference_with_a_notic
     p = chain_problem()
     net = random_edges(topologies.ring(3), 1.0)
     settings = dict(iterations=500, seeds=2, checkpoints=2)
-    with pytest.warns(UserWarning, match="has no compiled step") as notices:
+    with pytest.warns(UserWarning, match="writes update alone") as notices:
         compiled = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numba"))
     assert len(notices) == 1 and "half-step-td0" in str(notices[0].message)
     reference = run(p, net, HalfStepTD0(), Sampling(), RunSettings(**settings, backend="numpy"))

@@ -32,7 +32,7 @@ def test_consensus_on_w_star_is_its_exact_fixed_point(off_policy):
     theta = np.linalg.solve(m.M, (m.b - w_star @ m.A.T).T).T[None]  # (1, N, q)
     g = (m.b - w_star @ m.A.T)[None] - theta @ (m.M - m.A.T).T
     assert np.abs(g).max() > 1e-3  # each agent's direction is not zero; their mean is
-    point = TDCTrackingState(w, theta, np.zeros_like(w), g)
+    point = TDCTrackingState(theta=theta, g=g, w=w, z=np.zeros_like(w))
     e = expected(p, TDCTracking(), point, graph)
     assert_allclose(e.w, w, atol=1e-12)
     assert_allclose(e.theta, theta, atol=1e-12)

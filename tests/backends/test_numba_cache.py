@@ -3,6 +3,7 @@
 import contextlib
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -95,9 +96,9 @@ print(repr(float(res.w_last.sum())))
 
 @pytest.mark.slow  # compiles a kernel twice in a copy of the package: 8 s
 def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path):
-    """numba keys a cached kernel by its own file; editing `step.phi_axpy`, which the TD(0) step and so the driver
-    inline, must still change what a fresh process computes (the package clears its cache when any module of it
-    changed), and an unchanged package loads from the cache."""
+    """numba keys a cached kernel by its own file; editing TD(0)'s arithmetic (`dgtd.algorithms.td0.TD0.terms`),
+    which the driver inlines, must still change what a fresh process computes (the compiled package clears its cache
+    when any module of it or of the algorithms changed), and an unchanged package loads from the cache."""
     import shutil
     from pathlib import Path
 
@@ -114,9 +115,30 @@ def test_editing_a_helper_module_recompiles_the_kernels_that_inline_it(tmp_path)
 
     before = value()
     assert value() == before
-    helper = src / "dgtd" / "backends" / "compiled" / "step.py"
+    helper = src / "dgtd" / "algorithms" / "td0.py"
     text = helper.read_text()
-    line = "            X[at + (f,)] += c * feat.Phi[s, f]\n"
+    line = "        return (ratio_delta * phi,)\n"
     assert line in text
-    helper.write_text(text.replace(line, line.replace("+= c *", "+= 0.5 * c *")))
+    helper.write_text(text.replace(line, line.replace("(ratio_delta *", "(0.5 * ratio_delta *")))
     assert value() != before
+
+
+def test_the_refresh_clears_the_folders_numba_caches_in_under_numba_cache_dir(tmp_path, monkeypatch):
+    """With NUMBA_CACHE_DIR set, numba keeps a module's kernels in <dir>/<folder>_<sha1 of its path>, not in a mirror of
+    the path: the refresh must clear those, or a kernel compiled before an edit of an inlined helper (an algorithm's
+    arithmetic, the step's template) is loaded after it, stale (seen: wrong numbers, then a crash)."""
+    from numba.core.caching import UserProvidedCacheLocator
+
+    import dgtd.backends.compiled as compiled
+    from dgtd.backends.compiled import driver
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr("numba.core.config.CACHE_DIR", str(tmp_path))
+    where = UserProvidedCacheLocator(driver._seeds, driver.__file__).get_cache_path()
+    assert any(str(d) == where for d in compiled._cache_dirs()), (where, compiled._cache_dirs())
+    stale = Path(where) / "driver._seeds_dgtd-65.py311.nbi"
+    stale.parent.mkdir(parents=True, exist_ok=True)
+    stale.write_text("stale")
+    monkeypatch.setattr(compiled, "_STAMP", "test-stamp.sha256")  # no stamp yet: as after an edit
+    compiled._refresh_cache()
+    assert not stale.exists()

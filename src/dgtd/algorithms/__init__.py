@@ -1,5 +1,6 @@
 """The algorithms, each a frozen dataclass of hyperparameters with pure ``init`` / ``sends`` / ``update`` /
-``estimate`` and the hooks of `dgtd.algorithms.base`, registered by name in `ALGORITHMS`.
+``estimate`` from its arithmetic written once, and the hooks of `dgtd.algorithms.base`, registered by name in
+`ALGORITHMS`.
 
 Configs, experiment files, sweeps, comparisons and kernels look algorithms up here by name, never by a list of their
 own. Besides DGTD (the paper's Algorithm 1) they are the baselines it is compared with. Adding an algorithm is one

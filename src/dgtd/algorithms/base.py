@@ -21,18 +21,39 @@ Hooks, with the defaults of `StepSizes`, through which the run loop treats every
   projection boxes), and what to report of that;
 - ``diagnostics(state, moments, mean_laplacian) -> dict``: numbers reported after a run (DGTD's KKT residuals);
 - ``describe() -> str``: one line for the command line.
+
+**One definition of the arithmetic.** An algorithm's step is written once, as plain arithmetic that a float, a NumPy
+array and a JAX array all accept (as rlax and optax write theirs), in pure functions of its class, so that the NumPy
+reference (`StepSizes.update`: arrays (B, N, q) broadcast against (B, N, 1)), the compiled driver (one agent, a loop
+over the features: `dgtd.backends.compiled.step`) and JAX (`dgtd.backends.jax`) all run the same lines:
+
+- ``reads``: the products phi(s)^T x and phi(s')^T x the step reads, as pairs ("phi" or "phi_next", a field);
+- ``coefficients(p, dots, r, ratio, gamma) -> tuple``: per transition, the scalars its directions are made of
+  (``dots`` in the order of ``reads``: TD errors and the like);
+- ``terms(p, phi, phi_next, c, gamma) -> tuple``: per transition and feature, its sample directions, linear in
+  (phi_f(s), phi_f(s')) so that they vanish where both do (the compiled driver skips them there on sparse features);
+  a centralised learner (``centralised``) averages them over the N transitions the agents observed;
+- ``feature(p, x, heard, d, steps) -> tuple``: per agent and feature, the new state ``x`` (its fields in order) from
+  the old, what it heard (``heard``: the aggregate of each message, Laplacian or Metropolis as its ``mixing`` says),
+  the directions ``d`` and the step sizes (`StepSizes.steps`: alpha_k, and whatever else it derives from it);
+- ``transmit(x) -> tuple``: per agent and feature, its messages from its state.
+
+``p`` is the algorithm's `StepSizes.params`, a NamedTuple of floats. The state's fields list what an agent keeps to
+itself first and then what it sends (a message named as a field is that field), so that the compiled driver finds
+them without a table. Helpers the functions call (`clip`, `dgtd.algorithms.gtd2.aux_step`) are plain functions too,
+which the compiled backend compiles with them.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import ClassVar, Protocol
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 
 from dgtd.algorithms.stepsizes import check_schedule
 from dgtd.errors import DgtdInputError
-from dgtd.samples import Sample
+from dgtd.samples import Sample, namespace
 
 
 @dataclass(frozen=True)
@@ -70,6 +91,10 @@ class Algorithm(Protocol):
     def describe(self) -> str: ...
 
 
+class NoParams(NamedTuple):
+    """No hyperparameter the arithmetic reads (beyond the step sizes)."""
+
+
 @dataclass(frozen=True)
 class StepSizes:
     """The step sizes alpha_k (`dgtd.algorithms.stepsizes`): ``alpha0``, ``beta`` and the ``schedule``; and the
@@ -88,9 +113,62 @@ class StepSizes:
     def __post_init__(self):
         check_schedule(self.schedule, self.alpha0, self.beta)
 
+    reads: ClassVar[tuple[tuple[str, str], ...]] = ()
+    centralised: ClassVar[bool] = False  # one learner that averages the N transitions' directions
+    Params: ClassVar[Any] = NoParams  # a NamedTuple type: what `params` hands the arithmetic
+
+    def params(self) -> tuple:
+        """``p``, what the arithmetic reads of the hyperparameters: the fields of ``Params``, as floats."""
+        return self.Params(*(float(getattr(self, f)) for f in self.Params._fields))
+
+    @staticmethod
+    def steps(p, alpha):
+        """The step sizes of step k from alpha_k: alpha_k alone by default."""
+        return (alpha,)
+
+    @staticmethod
+    def coefficients(p, dots, r, ratio, gamma) -> tuple:
+        """Per transition, the scalars its directions are made of (each algorithm's own)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def terms(p, phi, phi_next, c, gamma) -> tuple:
+        """Per transition and feature, its sample directions (each algorithm's own)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def feature(p, x, heard, d, steps) -> tuple:
+        """Per agent and feature, the new state (each algorithm's own)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def transmit(x) -> tuple:
+        """What an agent sends, from its state: nothing, for an algorithm without ``messages``."""
+        return ()
+
     def sends(self, state) -> dict:
-        """What each agent sends at step k: nothing, for an algorithm without ``messages``."""
-        return {}
+        """What each agent sends at step k (name -> (B, N, q)): ``transmit`` of its state."""
+        return dict(zip(self.messages, self.transmit(tuple(state))))
+
+    def directions(self, state, sample: Sample) -> tuple:
+        """The sample directions ``d`` of every seed and agent (B, N, q), or of the learner (B, 1, q): ``terms`` of the
+        ``coefficients`` of the products it ``reads``, averaged over the N transitions for a centralised learner."""
+        xp = namespace(sample.phi)
+        p = self.params()
+        features = {"phi": sample.phi, "phi_next": sample.phi_next}
+        dots = tuple(dot(features[f], getattr(state, x), xp) for f, x in self.reads)
+        c = self.coefficients(p, dots, sample.r, sample.ratio, sample.gamma)
+        d = self.terms(p, sample.phi, sample.phi_next, tuple(xp.asarray(x)[..., None] for x in c), discount(sample))
+        if self.centralised:
+            d = tuple(agent_mean(x, sample.r.shape[1], xp) for x in d)
+        return d
+
+    def update(self, state, sample: Sample, inbox, alpha: float):
+        """One step of every seed and agent from the algorithm's one definition (the module's docstring): its
+        ``directions`` and what each agent heard, through its ``feature`` on whole arrays."""
+        heard = tuple(getattr(inbox, self.mixing)(m) for m in self.messages)
+        p = self.params()
+        return type(state)(*self.feature(p, tuple(state), heard, self.directions(state, sample), self.steps(p, alpha)))
 
     def estimate(self, state) -> np.ndarray:
         """The value-function weights: ``state.w`` for every algorithm of dgtd."""
@@ -126,27 +204,27 @@ def check_nonnegative(name: str, x: float, strict: bool = False) -> None:
         raise DgtdInputError(f"{name} must be {'positive' if strict else '>= 0'}, got {x}")
 
 
-def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def clip(x, bound):
+    """Projection onto [-bound, bound] (Algorithm 1 line 9); NaN stays NaN. A method of NumPy's and JAX's arrays alike
+    (the compiled backend compiles `dgtd.backends.compiled.step.clip` in its place)."""
+    return x.clip(-bound, bound)
+
+
+def dot(x, y, xp=np):
     """x_n^T y_n over the last axis of (B, n, q) arrays, broadcasting n = 1 against n = N."""
-    return np.einsum("bnq,bnq->bn", *np.broadcast_arrays(x, y))
+    return xp.einsum("bnq,bnq->bn", *xp.broadcast_arrays(x, y))
 
 
-def discount(sample: Sample) -> np.ndarray:
+def discount(sample: Sample):
     """The step's discount gamma(s, s'), shaped to multiply (B, n, q) features: (B, n, 1), or (1,) for a float."""
-    return np.asarray(sample.gamma)[..., None]
+    return namespace(sample.phi).asarray(sample.gamma)[..., None]
 
 
-def td_error(sample: Sample, w: np.ndarray) -> np.ndarray:
-    """delta_i = r_i + gamma phi'_i^T w - phi_i^T w, (B, N); ``w`` is (B, 1 or N, q)."""
-    return sample.r + sample.gamma * dot(sample.phi_next, w) - dot(sample.phi, w)
-
-
-def ratio_td_step(sample: Sample, w: np.ndarray) -> np.ndarray:
-    """ratio_i delta_i phi_i, (B, N, q): the off-policy TD(0) direction of every agent (Sutton 1988; Maei 2011)."""
-    delta = td_error(sample, w)
-    return (np.broadcast_to(sample.ratio, delta.shape) * delta)[..., None] * sample.phi
-
-
-def agent_mean(x: np.ndarray, n_agents: int) -> np.ndarray:
+def agent_mean(x, n_agents: int, xp=np):
     """Mean over the agent axis of per-agent terms (B, N or 1, q), keeping it: a centralised learner's minibatch."""
-    return np.broadcast_to(x, (x.shape[0], n_agents, x.shape[2])).mean(axis=1, keepdims=True)
+    return xp.broadcast_to(x, (x.shape[0], n_agents, x.shape[2])).mean(axis=1, keepdims=True)
+
+
+def td_error(dot_phi_next_w, dot_phi_w, r, gamma):
+    """delta = r + gamma phi'^T w - phi^T w, from the two products: floats, or arrays (B, N)."""
+    return r + gamma * dot_phi_next_w - dot_phi_w

@@ -20,8 +20,8 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, ratio_td_step, zeros
-from dgtd.samples import Sample
+from dgtd.algorithms.base import StepSizes, zeros
+from dgtd.algorithms.td0 import TD0
 
 
 class ConsensusState(NamedTuple):
@@ -30,21 +30,30 @@ class ConsensusState(NamedTuple):
 
 @dataclass(frozen=True)
 class ConsensusTD0(StepSizes):
-    """Consensus TD(0) with Metropolis weights; ``alpha0``, ``beta``, ``schedule`` give alpha_k."""
+    """Consensus TD(0) with Metropolis weights; ``alpha0``, ``beta``, ``schedule`` give alpha_k; the TD direction is
+    TD(0)'s (`dgtd.algorithms.td0.TD0.terms`), each agent's own."""
 
     name: ClassVar[str] = "consensus-td0"
     description: ClassVar[str] = "distributed TD(0) with Metropolis consensus (Doan, Maguluri, Romberg 2019)"
     color: ClassVar[str] = "#2ca02c"
+    reads: ClassVar = TD0.reads
+    coefficients = staticmethod(TD0.coefficients)
+    terms = staticmethod(TD0.terms)
     messages: ClassVar[tuple[str, ...]] = ("w",)
     mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
 
     def init(self, seeds: int, agents: int, features: int) -> ConsensusState:
         return ConsensusState(*zeros(seeds, agents, features, 1))
 
-    def sends(self, state: ConsensusState) -> dict:
-        return {"w": state.w}
+    @staticmethod
+    def transmit(x):
+        return x
 
-    def update(self, state: ConsensusState, sample: Sample, inbox, alpha: float) -> ConsensusState:
+    @staticmethod
+    def feature(p, x, heard, d, steps):
         """W(k) w + alpha_k ratio delta phi, with W(k) w = w - L_W(k) w (`dgtd.channels.Inbox.metropolis`)."""
-        w = state.w
-        return ConsensusState(w - inbox.metropolis("w") + alpha * ratio_td_step(sample, w))
+        (w,) = x
+        (Lw,) = heard
+        (d_w,) = d
+        (alpha,) = steps
+        return (w - Lw + alpha * d_w,)

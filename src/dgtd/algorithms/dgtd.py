@@ -19,11 +19,20 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import FixedPoint, StepSizes, check_nonnegative, discount, dot, zeros
+from dgtd.algorithms.base import FixedPoint, StepSizes, check_nonnegative, clip, zeros
 from dgtd.errors import DgtdInputError
 from dgtd.samples import Sample
 
 BOX_NAMES = ("theta", "v", "mu", "w")
+
+
+class DGTDParams(NamedTuple):
+    kappa: float
+    rho: float
+    b_theta: float  # the projection boxes' half-widths (Algorithm 1 line 9; inf: none)
+    b_v: float
+    b_mu: float
+    b_w: float
 
 
 @dataclass(frozen=True)
@@ -79,25 +88,48 @@ class DGTD(StepSizes):
                 f">= 0, got {self.boxes}"
             )
 
+    reads: ClassVar = (("phi", "theta"), ("phi", "w"), ("phi_next", "w"))
+    Params: ClassVar = DGTDParams
+
+    def params(self) -> DGTDParams:
+        boxes = (np.inf,) * 4 if self.boxes is None else self.boxes
+        return DGTDParams(float(self.kappa), float(self.rho), *(float(b) for b in boxes))
+
     def init(self, seeds: int, agents: int, features: int) -> DGTDState:
         """Algorithm 1 line 3: all variables start at zero."""
         return DGTDState(*zeros(seeds, agents, features, 4))
 
-    def sends(self, state: DGTDState) -> dict:
+    @staticmethod
+    def transmit(x):
         """w_i and v_i + mu_i at step k: all that the neighbours' updates read of agent i."""
-        return {"w": state.w, "vmu": state.v + state.mu}
+        theta, v, mu, w = x
+        return w, v + mu
 
-    def update(self, state: DGTDState, sample: Sample, inbox, alpha: float) -> DGTDState:
-        """One step of Algorithm 1: lines 7-8 (descent on theta, v, mu; ascent on w) and line 9 (projection
-        onto the max-norm balls C_theta, C_v, C_mu, C_w of half-widths ``boxes``; none while it is None)."""
-        g_theta, g_v, g_mu, g_w = direction(state, sample, inbox, self.kappa, self.rho)
-        theta, v, mu, w = state
-        b_theta, b_v, b_mu, b_w = (np.inf,) * 4 if self.boxes is None else self.boxes
-        return DGTDState(
-            np.clip(theta - alpha * g_theta, -b_theta, b_theta),
-            np.clip(v - alpha * g_v, -b_v, b_v),
-            np.clip(mu - alpha * g_mu, -b_mu, b_mu),
-            np.clip(w + alpha * g_w, -b_w, b_w),
+    @staticmethod
+    def coefficients(p, dots, r, ratio, gamma):
+        """Line 7's theta direction is phi c_theta, line 8's TD part of w's is ratio phi^T theta (phi - gamma phi')."""
+        phi_theta, phi_w, phin_w = dots
+        c_theta = phi_theta + ratio * (phi_w - gamma * phin_w - r)
+        return c_theta, ratio * phi_theta
+
+    @staticmethod
+    def terms(p, phi, phi_next, c, gamma):
+        """The sample's parts of the theta and w directions: phi c_theta and ratio phi^T theta (phi - gamma phi')."""
+        c_theta, ratio_phi_theta = c
+        return phi * c_theta, ratio_phi_theta * (phi - gamma * phi_next)
+
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        """One step of Algorithm 1: lines 7-8 (descent on theta, v, mu; ascent on w, `gradient`) and line 9
+        (projection onto the max-norm balls C_theta, C_v, C_mu, C_w of half-widths ``boxes``; none while None)."""
+        theta, v, mu, w = x
+        (alpha,) = steps
+        g_theta, g_v, g_mu, g_w = gradient(p, x, heard, d)
+        return (
+            clip(theta - alpha * g_theta, p.b_theta),
+            clip(v - alpha * g_v, p.b_v),
+            clip(mu - alpha * g_mu, p.b_mu),
+            clip(w + alpha * g_w, p.b_w),
         )
 
     def fixed_point(self, moments, mean_laplacian, w_star: np.ndarray) -> FixedPoint:
@@ -159,27 +191,34 @@ class DGTDState(NamedTuple):
     w: np.ndarray
 
 
-def direction(state: DGTDState, sample: Sample, inbox, kappa: float, rho: float):
-    """Stochastic gradient of the Lagrangian at step k, (g_theta, g_v, g_mu, g_w), all (B, N, q), from what each agent
-    heard (``inbox``: the messages w and vmu = v + mu of `DGTD.sends`).
+def gradient(p: DGTDParams, x, heard, d):
+    """Stochastic gradient of the Lagrangian at step k, (g_theta, g_v, g_mu, g_w), from what the agent heard (``heard``:
+    (L(k) w)_i and (L(k) v)_i + (L(k) mu)_i) and the sample's directions ``d`` (`DGTD.terms`).
 
     Its expectation over samples and links is the gradient of the Lagrangian of section 5 plus the rho terms
-    (`dgtd.problems.exact.lagrangian_gradient`, the test of this function); the importance ratio multiplies the
-    terms that come from the TD error, as in off-policy GTD.
+    (`dgtd.problems.exact.lagrangian_gradient`, the test of `direction`); the importance ratio multiplies the terms
+    that come from the TD error, as in off-policy GTD.
     """
-    theta, v, mu, w = state
-    phi, phi_next, r, ratio, gamma = sample
-    Lw, Lvmu = inbox.laplacian("w"), inbox.laplacian("vmu")  # (L(k) w)_i, and (L(k) v)_i + (L(k) mu)_i
-    phi_theta, phi_w, phin_w = dot(phi, theta), dot(phi, w), dot(phi_next, w)
+    theta, v, mu, w = x
+    Lw, Lvmu = heard
+    d_theta, d_w = d
     # Line 7, theta: phi phi^T theta + ratio (phi phi^T w - gamma phi phi'^T w - phi r)
-    g_theta = phi * (phi_theta + ratio * (phi_w - gamma * phin_w - r))[..., None]
+    g_theta = d_theta
     # Line 7, v: v - (|N_i(k)| w_i - sum_j w_j) = v - (L(k) w)_i
     g_v = v - Lw
     # Line 8, mu: descent on -(L(k) w)_i, plus rho mu
-    g_mu = -Lw + rho * mu
+    g_mu = -Lw + p.rho * mu
     # Line 8, w: ascent on ratio (phi - gamma phi') phi^T theta - (L v)_i - (L mu)_i - kappa (L w)_i - rho w
-    g_w = (ratio * phi_theta)[..., None] * (phi - discount(sample) * phi_next) - Lvmu - kappa * Lw - rho * w
+    g_w = d_w - Lvmu - p.kappa * Lw - p.rho * w
     return g_theta, g_v, g_mu, g_w
+
+
+def direction(state: DGTDState, sample: Sample, inbox, kappa: float, rho: float):
+    """`gradient` of every seed and agent, all (B, N, q), from a step's sample and what each agent heard (the messages
+    w and vmu = v + mu of `DGTD.sends`)."""
+    algorithm = DGTD(kappa=kappa, rho=rho)
+    heard = (inbox.laplacian("w"), inbox.laplacian("vmu"))
+    return gradient(algorithm.params(), tuple(state), heard, algorithm.directions(state, sample))
 
 
 def resolve_boxes(algorithm: DGTD, moments, network, saddle: tuple) -> tuple:

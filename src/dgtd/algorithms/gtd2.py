@@ -10,7 +10,8 @@ importance ratio (off-policy GTD2, Maei 2011), at each sample:
 
 with delta = r + gamma phi'^T w - phi^T w and the paper's two step sizes alpha, beta = eta alpha. The mean
 path is w' = A^T theta, theta' = eta (b - A w - M theta). The centralised learner averages these terms over
-the N transitions the agents observed (see `dgtd.algorithms.td0`); `local` applies them per agent.
+the N transitions the agents observed (see `dgtd.algorithms.td0`); `local` applies them per agent. In the paper's
+notation beta_k (`TwoTimescale.aux_step`).
 """
 
 from __future__ import annotations
@@ -20,9 +21,14 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, agent_mean, check_nonnegative, discount, dot, td_error, zeros
+from dgtd.algorithms.base import StepSizes, check_nonnegative, td_error, zeros
 from dgtd.errors import DgtdInputError
-from dgtd.samples import Sample
+
+
+class TwoTimescaleParams(NamedTuple):
+    eta: float  # beta_k = eta alpha0 (alpha_k / alpha0)^timescale (`TwoTimescale`)
+    alpha0: float
+    timescale: float
 
 
 class GTDState(NamedTuple):
@@ -45,6 +51,8 @@ class TwoTimescale(StepSizes):
     eta: float = 1.0
     timescale: float = 1.0
 
+    Params: ClassVar = TwoTimescaleParams
+
     def __post_init__(self):
         super().__post_init__()
         check_nonnegative("eta (auxiliary step size / main step size)", self.eta, strict=True)
@@ -55,53 +63,48 @@ class TwoTimescale(StepSizes):
         """beta_k = eta alpha0 (alpha_k / alpha0)^timescale; eta alpha_k exactly for timescale 1."""
         return aux_step(alpha, self.eta, self.alpha0, self.timescale)
 
-
-@dataclass(frozen=True)
-class GTDConfig(TwoTimescale):
-    """A centralised two-timescale learner (GTD2, TDC): the value step of ``value_terms`` and theta's step, averaged
-    over the N observed transitions."""
-
     @staticmethod
-    def value_terms(state: GTDState, sample: Sample) -> np.ndarray:
-        """The value step's terms of each observed transition: each learner's own."""
-        raise NotImplementedError
-
-    def init(self, seeds: int, agents: int, features: int) -> GTDState:
-        return GTDState(*zeros(seeds, 1, features, 2))
-
-    def update(self, state: GTDState, sample: Sample, inbox, alpha: float) -> GTDState:
-        """One step of the centralised learner: its value terms (``value_terms``) and the auxiliary terms, both
-        averaged over the N observed transitions and both at the values of step k."""
-        N = sample.r.shape[1]
-        dw, dtheta = agent_mean(self.value_terms(state, sample), N), agent_mean(theta_terms(state, sample), N)
-        return GTDState(state.w + alpha * dw, state.theta + self.aux_step(alpha) * dtheta)
+    def steps(p, alpha):
+        """alpha_k and the auxiliary step beta_k."""
+        return alpha, aux_step(alpha, p.eta, p.alpha0, p.timescale)
 
 
-def aux_step(alpha: float, eta: float, alpha0: float, timescale: float) -> float:
-    """The auxiliary step beta_k of `GTDConfig` (the compiled kernels compute the same expression)."""
+def aux_step(alpha, eta, alpha0, timescale):
+    """The auxiliary step beta_k of `TwoTimescale`."""
     return eta * alpha if timescale == 1.0 else eta * alpha0 * (alpha / alpha0) ** timescale
 
 
-def theta_terms(state: GTDState, sample: Sample) -> np.ndarray:
-    """Per-agent auxiliary terms (ratio_i delta_i - phi_i^T theta) phi_i, shape (B, N, q)."""
-    delta = td_error(sample, state.w)
-    return (np.broadcast_to(sample.ratio, delta.shape) * delta - dot(sample.phi, state.theta))[..., None] * sample.phi
-
-
-def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
-    """Per-agent GTD2 value terms ratio_i (phi_i - gamma phi'_i) (phi_i^T theta), shape (B, N or 1, q)."""
-    phi, phi_next, _, ratio, _ = sample
-    return (ratio * dot(phi, state.theta))[..., None] * (phi - discount(sample) * phi_next)
-
-
 @dataclass(frozen=True)
-class GTD2(GTDConfig):
-    """Centralised GTD2 on the average reward; fields as `GTDConfig`."""
+class GTD2(TwoTimescale):
+    """Centralised GTD2 on the average reward; fields as `TwoTimescale`. Its one learner averages the directions of
+    the N transitions the agents observed (see `dgtd.algorithms.td0`), all at the values of step k."""
 
     name: ClassVar[str] = "gtd2"
     description: ClassVar[str] = "centralised GTD2 on the average reward (Sutton et al. 2009)"
     color: ClassVar[str] = "#1f77b4"
+    centralised: ClassVar[bool] = True
+    reads: ClassVar = (("phi", "w"), ("phi_next", "w"), ("phi", "theta"))
+
+    def init(self, seeds: int, agents: int, features: int) -> GTDState:
+        return GTDState(*zeros(seeds, 1, features, 2))
 
     @staticmethod
-    def value_terms(state: GTDState, sample: Sample) -> np.ndarray:
-        return w_terms(state, sample)
+    def coefficients(p, dots, r, ratio, gamma):
+        """ratio phi^T theta (of the value direction), and ratio delta - phi^T theta (of the auxiliary's)."""
+        phi_w, phin_w, phi_theta = dots
+        return ratio * phi_theta, ratio * td_error(phin_w, phi_w, r, gamma) - phi_theta
+
+    @staticmethod
+    def terms(p, phi, phi_next, c, gamma):
+        """GTD2's value direction ratio (phi - gamma phi') phi^T theta, and the auxiliary's (ratio delta - phi^T
+        theta) phi."""
+        c_w, c_theta = c
+        return c_w * (phi - gamma * phi_next), c_theta * phi
+
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        """w += alpha_k d_w; theta += beta_k d_theta."""
+        w, theta = x
+        d_w, d_theta = d
+        alpha, beta = steps
+        return w + alpha * d_w, theta + beta * d_theta

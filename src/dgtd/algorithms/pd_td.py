@@ -20,8 +20,8 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, check_nonnegative, ratio_td_step, zeros
-from dgtd.samples import Sample
+from dgtd.algorithms.base import StepSizes, check_nonnegative, zeros
+from dgtd.algorithms.td0 import TD0
 
 
 class PDTDState(NamedTuple):
@@ -29,16 +29,25 @@ class PDTDState(NamedTuple):
     mu: np.ndarray  # (B, N, q)
 
 
+class PDTDParams(NamedTuple):
+    eta: float
+
+
 @dataclass(frozen=True)
 class PDTD(StepSizes):
-    """Primal-dual distributed TD. ``alpha0``, ``beta``, ``schedule``: alpha_k; ``eta`` >= 0 the consensus weight."""
+    """Primal-dual distributed TD. ``alpha0``, ``beta``, ``schedule``: alpha_k; ``eta`` >= 0 the consensus weight. The
+    TD direction is TD(0)'s (`dgtd.algorithms.td0.TD0.terms`), each agent's own."""
 
     eta: float = 1.0
 
     name: ClassVar[str] = "pd-td"
     description: ClassVar[str] = "Laplacian primal-dual distributed TD (Lim and Lee 2025)"
     color: ClassVar[str] = "#9467bd"
+    reads: ClassVar = TD0.reads
+    coefficients = staticmethod(TD0.coefficients)
+    terms = staticmethod(TD0.terms)
     messages: ClassVar[tuple[str, ...]] = ("w", "mu")
+    Params: ClassVar = PDTDParams
 
     def __post_init__(self):
         super().__post_init__()
@@ -47,14 +56,16 @@ class PDTD(StepSizes):
     def init(self, seeds: int, agents: int, features: int) -> PDTDState:
         return PDTDState(*zeros(seeds, agents, features, 2))
 
-    def sends(self, state: PDTDState) -> dict:
-        return {"w": state.w, "mu": state.mu}
+    @staticmethod
+    def transmit(x):
+        return x
 
-    def update(self, state: PDTDState, sample: Sample, inbox, alpha: float) -> PDTDState:
-        """One step; both updates use the values at step k."""
-        w, mu = state
-        Lw = inbox.laplacian("w")
-        td = ratio_td_step(sample, w)
-        return PDTDState(
-            w + alpha * (td - self.eta * Lw - self.eta * inbox.laplacian("mu")), mu + alpha * self.eta * Lw
-        )
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        """w_i += alpha_k (ratio delta_i phi_i - eta (L(k) w)_i - eta (L(k) mu)_i); mu_i += alpha_k eta (L(k) w)_i;
+        both from the values at step k."""
+        w, mu = x
+        Lw, Lmu = heard
+        (d_w,) = d
+        (alpha,) = steps
+        return w + alpha * (d_w - p.eta * Lw - p.eta * Lmu), mu + alpha * p.eta * Lw

@@ -19,8 +19,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, agent_mean, ratio_td_step, zeros
-from dgtd.samples import Sample
+from dgtd.algorithms.base import StepSizes, td_error, zeros
 
 
 class TD0State(NamedTuple):
@@ -29,7 +28,7 @@ class TD0State(NamedTuple):
 
 @dataclass(frozen=True)
 class TD0(StepSizes):
-    """Centralised TD(0): w <- w + alpha_k (1/N) sum_i ratio_i delta_i phi_i.
+    """Centralised TD(0): w <- w + alpha_k (1/N) sum_i ratio_i delta_i phi_i; its mean over samples is b_mean - A w.
 
     No projection: off-policy TD(0) may diverge (Baird's counterexample), and the run reports that.
     """
@@ -37,11 +36,28 @@ class TD0(StepSizes):
     name: ClassVar[str] = "td0"
     description: ClassVar[str] = "centralised TD(0) on the average reward"
     color: ClassVar[str] = "#7f7f7f"
+    centralised: ClassVar[bool] = True
+    reads: ClassVar = (("phi", "w"), ("phi_next", "w"))
 
     def init(self, seeds: int, agents: int, features: int) -> TD0State:
         return TD0State(*zeros(seeds, 1, features, 1))
 
-    def update(self, state: TD0State, sample: Sample, inbox, alpha: float) -> TD0State:
-        """w_{k+1} = w_k + alpha_k ratio delta_k phi_k, averaged over the N observed transitions; its mean over
-        samples is b_mean - A w."""
-        return TD0State(state.w + alpha * agent_mean(ratio_td_step(sample, state.w), sample.r.shape[1]))
+    @staticmethod
+    def coefficients(p, dots, r, ratio, gamma):
+        """ratio delta, delta = r + gamma phi'^T w - phi^T w."""
+        phi_w, phin_w = dots
+        return (ratio * td_error(phin_w, phi_w, r, gamma),)
+
+    @staticmethod
+    def terms(p, phi, phi_next, c, gamma):
+        """The off-policy TD(0) direction ratio delta phi (Sutton 1988; Maei 2011)."""
+        (ratio_delta,) = c
+        return (ratio_delta * phi,)
+
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        """w_{k+1} = w_k + alpha_k d."""
+        (w,) = x
+        (d_w,) = d
+        (alpha,) = steps
+        return (w + alpha * d_w,)

@@ -22,41 +22,52 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import StepSizes, ratio_td_step, zeros
-from dgtd.samples import Sample
+from dgtd.algorithms.base import StepSizes, zeros
+from dgtd.algorithms.td0 import TD0
 
 
 class TrackingState(NamedTuple):
-    w: np.ndarray  # (B, N, q) value weights w_i(k + 1)
-    z: np.ndarray  # (B, N, q) tracker z_i(k)
-    g: np.ndarray  # (B, N, q) the last local TD direction g_i(k)
+    g: np.ndarray  # (B, N, q) the last local TD direction g_i(k), its own
+    w: np.ndarray  # (B, N, q) value weights w_i(k + 1), sent
+    z: np.ndarray  # (B, N, q) tracker z_i(k), sent
 
 
 @dataclass(frozen=True)
 class TDTracking(StepSizes):
-    """TD(0) with gradient tracking; ``alpha0``, ``beta``, ``schedule`` give alpha_k."""
+    """TD(0) with gradient tracking; ``alpha0``, ``beta``, ``schedule`` give alpha_k; the local direction is TD(0)'s
+    (`dgtd.algorithms.td0.TD0.terms`)."""
 
     name: ClassVar[str] = "td-tracking"
     description: ClassVar[str] = "distributed TD(0) with gradient tracking (Wang et al. 2020)"
     color: ClassVar[str] = "#8c564b"
+    reads: ClassVar = TD0.reads
+    coefficients = staticmethod(TD0.coefficients)
+    terms = staticmethod(TD0.terms)
     messages: ClassVar[tuple[str, ...]] = ("w", "z")
     mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
 
     def init(self, seeds: int, agents: int, features: int) -> TrackingState:
         return TrackingState(*zeros(seeds, agents, features, 3))
 
-    def sends(self, state: TrackingState) -> dict:
-        return {"w": state.w, "z": state.z}
+    @staticmethod
+    def transmit(x):
+        g, w, z = x
+        return w, z
 
-    def update(self, state: TrackingState, sample: Sample, inbox, alpha: float) -> TrackingState:
-        """One step: the tracker first (it needs this step's direction), then w along it."""
-        g = ratio_td_step(sample, state.w)
-        w, z = track(state.w, state.z, state.g, g, inbox, alpha)
-        return TrackingState(w, z, g)
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        """One step: the tracker first (it needs this step's direction), then w along it (`track`)."""
+        g, w, z = x
+        (g_new,) = d
+        (alpha,) = steps
+        w_new, z_new = track(w, z, g, g_new, heard, alpha)
+        return g_new, w_new, z_new
 
 
-def track(w: np.ndarray, z: np.ndarray, g_prev: np.ndarray, g: np.ndarray, inbox, alpha: float) -> tuple:
-    """(w(k+1), z(k)) of gradient tracking (Wang et al. 2020) given this step's local directions g and the last g_prev:
-    z(k) = W(k) z(k-1) + g(k) - g(k-1), w(k+1) = W(k) w(k) + alpha_k z(k), with W(k) x = x - inbox.metropolis(x)."""
-    z_new = z - inbox.metropolis("z") + g - g_prev
-    return w - inbox.metropolis("w") + alpha * z_new, z_new
+def track(w, z, g_prev, g, heard, alpha):
+    """(w(k+1), z(k)) of gradient tracking (Wang et al. 2020) given this step's local direction g and the last g_prev:
+    z(k) = W(k) z(k-1) + g(k) - g(k-1), w(k+1) = W(k) w(k) + alpha_k z(k), with W(k) x = x - (L_W(k) x) and
+    ``heard`` = ((L_W(k) w)_i, (L_W(k) z)_i)."""
+    Lw, Lz = heard
+    z_new = z - Lz + g - g_prev
+    return w - Lw + alpha * z_new, z_new

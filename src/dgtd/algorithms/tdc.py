@@ -15,24 +15,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numpy as np
-
-from dgtd.algorithms.base import discount, dot, td_error
-from dgtd.algorithms.gtd2 import GTDConfig, GTDState
-from dgtd.samples import Sample
-
-
-def w_terms(state: GTDState, sample: Sample) -> np.ndarray:
-    """Per-agent TDC value terms ratio_i (delta_i phi_i - gamma phi'_i (phi_i^T theta)), shape (B, N, q)."""
-    phi, phi_next, _, ratio, _ = sample
-    delta = td_error(sample, state.w)
-    ratio = np.broadcast_to(ratio, delta.shape)
-    return (ratio * delta)[..., None] * phi - discount(sample) * (ratio * dot(phi, state.theta))[..., None] * phi_next
+from dgtd.algorithms.base import td_error
+from dgtd.algorithms.gtd2 import GTD2
 
 
 @dataclass(frozen=True)
-class TDC(GTDConfig):
-    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.GTDConfig`.
+class TDC(GTD2):
+    """Centralised TDC on the average reward; fields as `dgtd.algorithms.gtd2.TwoTimescale`, the auxiliary step and
+    the update of theta as GTD2's.
 
     Two timescales by default, as in TDC's convergence proof (Sutton et al. 2009, section 5: alpha_k / beta_k -> 0,
     theta on the faster timescale): timescale 2/3, so beta_k = eta alpha0 (alpha_k / alpha0)^(2/3). With harmonic
@@ -48,5 +38,16 @@ class TDC(GTDConfig):
     color: ClassVar[str] = "#17becf"
 
     @staticmethod
-    def value_terms(state: GTDState, sample: Sample) -> np.ndarray:
-        return w_terms(state, sample)
+    def coefficients(p, dots, r, ratio, gamma):
+        """ratio delta and ratio phi^T theta (of the value direction), and ratio delta - phi^T theta (the
+        auxiliary's)."""
+        phi_w, phin_w, phi_theta = dots
+        ratio_delta = ratio * td_error(phin_w, phi_w, r, gamma)
+        return ratio_delta, ratio * phi_theta, ratio_delta - phi_theta
+
+    @staticmethod
+    def terms(p, phi, phi_next, c, gamma):
+        """TDC's value direction ratio (delta phi - gamma phi' phi^T theta), and the auxiliary's (ratio delta - phi^T
+        theta) phi."""
+        ratio_delta, ratio_phi_theta, c_theta = c
+        return ratio_delta * phi - gamma * ratio_phi_theta * phi_next, c_theta * phi

@@ -29,23 +29,23 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.algorithms.base import zeros
-from dgtd.algorithms.gtd2 import GTDState, TwoTimescale, theta_terms
+from dgtd.algorithms.gtd2 import TwoTimescale
 from dgtd.algorithms.td_tracking import track
-from dgtd.algorithms.tdc import w_terms
-from dgtd.samples import Sample
+from dgtd.algorithms.tdc import TDC
 
 
 class TDCTrackingState(NamedTuple):
-    w: np.ndarray  # (B, N, q) value weights w_i(k + 1)
     theta: np.ndarray  # (B, N, q) TDC's auxiliary vector, each agent's own
-    z: np.ndarray  # (B, N, q) tracker z_i(k)
-    g: np.ndarray  # (B, N, q) the last local TDC direction g_i(k)
+    g: np.ndarray  # (B, N, q) the last local TDC direction g_i(k), its own
+    w: np.ndarray  # (B, N, q) value weights w_i(k + 1), sent
+    z: np.ndarray  # (B, N, q) tracker z_i(k), sent
 
 
 @dataclass(frozen=True)
 class TDCTracking(TwoTimescale):
     """TDC with gradient tracking; ``alpha0``, ``beta``, ``schedule`` give alpha_k, ``eta`` and ``timescale`` the
-    auxiliary step beta_k (two timescales by default, as `dgtd.algorithms.tdc.TDC`)."""
+    auxiliary step beta_k (two timescales by default, as `dgtd.algorithms.tdc.TDC`). The local directions are TDC's
+    (`dgtd.algorithms.tdc.TDC.terms`)."""
 
     timescale: float = 2.0 / 3.0
 
@@ -54,16 +54,24 @@ class TDCTracking(TwoTimescale):
     color: ClassVar[str] = "#e377c2"
     messages: ClassVar[tuple[str, ...]] = ("w", "z")
     mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
+    reads: ClassVar = TDC.reads
+    coefficients = staticmethod(TDC.coefficients)
+    terms = staticmethod(TDC.terms)
 
     def init(self, seeds: int, agents: int, features: int) -> TDCTrackingState:
         return TDCTrackingState(*zeros(seeds, agents, features, 4))
 
-    def sends(self, state: TDCTrackingState) -> dict:
-        return {"w": state.w, "z": state.z}
+    @staticmethod
+    def transmit(x):
+        theta, g, w, z = x
+        return w, z
 
-    def update(self, state: TDCTrackingState, sample: Sample, inbox, alpha: float) -> TDCTrackingState:
-        """One step: the tracker with this step's TDC direction, w along it, and theta's own TDC step."""
-        local = GTDState(state.w, state.theta)
-        g = w_terms(local, sample)
-        w, z = track(state.w, state.z, state.g, g, inbox, alpha)
-        return TDCTrackingState(w, state.theta + self.aux_step(alpha) * theta_terms(local, sample), z, g)
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        """One step: the tracker with this step's TDC direction, w along it (`dgtd.algorithms.td_tracking.track`), and
+        theta's own TDC step beta_k (ratio delta - phi^T theta) phi."""
+        theta, g, w, z = x
+        g_new, d_theta = d
+        alpha, beta = steps
+        w_new, z_new = track(w, z, g, g_new, heard, alpha)
+        return theta + beta * d_theta, g_new, w_new, z_new

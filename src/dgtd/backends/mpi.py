@@ -115,6 +115,10 @@ def check_supported(algorithm, channel, n_agents: int, backend: str, asynchronou
     R = size()
     if R > n_agents:
         raise DgtdInputError(f"{R} ranks for {n_agents} agents: run with at most {n_agents} ranks (mpiexec -n)")
+    if backend == "jax":
+        raise DgtdInputError(
+            "ranks of an mpiexec job run --backend numba or numpy (the JAX backend runs one process, on its device)"
+        )
     if asynchronous and backend != "numpy":
         raise DgtdInputError(
             "asynchronous ranks run the NumPy reference (their messages arrive between the steps of a kernel): "

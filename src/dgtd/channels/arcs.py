@@ -7,6 +7,8 @@ from functools import cached_property
 
 import numpy as np
 
+from dgtd.samples import namespace
+
 
 @dataclass(frozen=True, eq=False)
 class Arcs:
@@ -75,10 +77,17 @@ class Arcs:
         A = self.n_arcs
         return csr_matrix((np.ones(A), (self.dst, np.arange(A))), shape=(self.n_agents, A))
 
-    def into(self, x: np.ndarray) -> np.ndarray:
-        """sum over the arcs into each agent of x (B, 2E, q) -> (B, N, q)."""
+    def into(self, x):
+        """sum over the arcs into each agent of x (B, 2E, q) -> (B, N, q); a JAX array's by JAX's segment sum, each
+        agent's arcs added in their order too."""
         B, A, q = x.shape
         if A == 0:
-            return np.zeros((B, self.n_agents, q))
+            return namespace(x).zeros((B, self.n_agents, q))
+        if namespace(x) is not np:
+            from jax.ops import segment_sum
+
+            return segment_sum(x.transpose(1, 0, 2), self.dst, self.n_agents, indices_are_sorted=False).transpose(
+                1, 0, 2
+            )
         out = self._incidence @ x.transpose(1, 0, 2).reshape(A, B * q)
         return np.ascontiguousarray(np.asarray(out).reshape(self.n_agents, B, q).transpose(1, 0, 2))

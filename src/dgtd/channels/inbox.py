@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from dgtd.channels.arcs import Arcs
+from dgtd.samples import namespace
 
 
 class Inbox:
@@ -36,7 +37,7 @@ class Inbox:
         degrees=None,
     ):
         self.arcs, self.sent, self.received = arcs, sent, received or {}
-        self.heard = np.asarray(heard, dtype=np.float64)
+        self.heard = namespace(heard).asarray(heard, dtype=np.float64)
         self.weights = weights  # (2E,) what ``laplacian`` weighs each arc's term by, where a channel reweighs
         self.awake = awake
         self.degrees = degrees  # (B, N) d_i, where the inbox holds only some agents' arcs (an MPI rank's)
@@ -66,7 +67,7 @@ class Inbox:
     def metropolis(self, name: str) -> np.ndarray:
         """sum_j W_ij (x_i - x_j), W_ij = 1 / (1 + max(d_i, d_j)) (Metropolis weights of the links heard), (B, N, q)."""
         d = self.count()
-        weights = self.heard / (1.0 + np.maximum(d[:, self.arcs.dst], d[:, self.arcs.src]))
+        weights = self.heard / (1.0 + namespace(d).maximum(d[:, self.arcs.dst], d[:, self.arcs.src]))
         return self._differences(name, weights)
 
     def total(self, name: str) -> np.ndarray:

@@ -75,6 +75,7 @@ class Lossy:
     @property
     def enter(self) -> np.ndarray:
         """P(an arc's chain enters its losing state at a step), (2E,)."""
+        assert self.burst is not None, "only links with bursts enter a losing state"
         return np.minimum(self.loss / (float(self.burst) * (1.0 - self.loss)), 1.0)
 
     def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:

@@ -96,7 +96,8 @@ def _run_options() -> dict:
                 "--backend",
                 type=click.Choice(CHOICES["backend"]),
                 default=None,
-                help="The compiled kernels or the NumPy reference (the same numbers)." + shown("backend"),
+                help="The compiled kernels (numba), the NumPy reference, or JAX on its device (the extra dgtd[jax]; "
+                "perfect and lossy links): the same numbers." + shown("backend"),
             ),
             click.option(
                 "--asynchronous/--synchronous",

@@ -20,7 +20,7 @@ from dgtd.run.memory import SUM_TRACE_MAX, TRACE_MAX, check_memory
 from dgtd.samples import Block
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
-BACKENDS = ("numpy", "numba")
+BACKENDS = ("numpy", "numba", "jax")
 DIVERGENCE_FACTOR = 1e6  # a seed has diverged when |w|_inf exceeds this times max(1, |w*|_inf, |w0|_inf)
 # Counts recorded at every checkpoint beside the metrics (in RunResult.info["counts"], arrays (C, B)): agent-samples
 # consumed, the messages (vectors of q numbers) and bits the channel delivered, 1 once diverged.
@@ -36,7 +36,7 @@ class RunSettings:
     - ``checkpoints``: about how many times metrics are recorded (`checkpoint_steps`);
     - ``tail_fraction``: the final fraction of the run averaged for w_tail;
     - ``block_size``: steps drawn and advanced per block (no effect on results);
-    - ``backend``: one of `BACKENDS`, the compiled kernels or the NumPy reference;
+    - ``backend``: one of `BACKENDS`, the compiled kernels, the NumPy reference or JAX (`dgtd.backends.jax`);
     - ``asynchronous``: agents spread over the ranks of an mpiexec job use the newest messages received from the
       other ranks, waiting only when the newest is more than ``staleness`` steps old (None: never; 0: the
       synchronous numbers) (`dgtd.backends.mailbox`); off, the ranks give one process's numbers bit for bit.
@@ -308,6 +308,10 @@ def run(
     from dgtd.backends import mpi
 
     mpi.check_supported(algorithm, ctx.channel, N, settings.backend, settings.asynchronous)
+    if settings.backend == "jax":
+        from dgtd.backends import jax as on_jax
+
+        on_jax.check_supported(ctx.channel)
     asynchronous = settings.asynchronous and mpi.spreads(algorithm)
     if mpi.spreads(algorithm):  # ranks of an mpiexec job: the agents spread over them (`dgtd.backends.mpi`)
         kernel = mpi.kernel(ctx, settings.backend, settings.staleness if asynchronous else False)
@@ -316,7 +320,7 @@ def run(
         source = mpi.local_source(ctx, source)  # each rank draws the numbers of its agents and their neighbours only
         layout = mpi.Ranks(ctx)  # ... and holds their rows only
     else:
-        kernel = kernel_for(settings.backend, algorithm.name)
+        kernel = kernel_for(settings.backend, algorithm)
         layout = Whole(ctx)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N if layout.agents is None else len(layout.agents), q)
@@ -616,21 +620,27 @@ def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_stat
     }
 
 
-def kernel_for(backend: str, algorithm: str):
+def kernel_for(backend: str, algorithm):
     """The block kernel of ``algorithm`` on ``backend`` (`dgtd.backends.reference.run_block` contract): the compiled
     driver where the algorithm has a compiled step; else the reference, with a one-line notice."""
     from dgtd.backends.reference import run_block
 
     if backend == "numpy":
         return run_block
-    from dgtd.backends.compiled import STEPS
-    from dgtd.backends.compiled import run_block as compiled
+    if backend == "jax":
+        from dgtd.backends import jax as on_jax
 
-    if algorithm not in STEPS:
+        return on_jax.run_block
+    from dgtd.backends.compiled import run_block as compiled
+    from dgtd.backends.compiled import step_of
+
+    if step_of(algorithm) is None:
         import warnings
 
         warnings.warn(
-            f"algorithm {algorithm!r} has no compiled step: it runs on the NumPy reference backend", stacklevel=3
+            f"algorithm {algorithm.name!r} writes update alone, not the one definition the compiled backend runs "
+            "(dgtd.algorithms.base): it runs on the NumPy reference backend",
+            stacklevel=3,
         )
         return run_block
     return compiled

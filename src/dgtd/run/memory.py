@@ -37,7 +37,7 @@ def run_bytes(algorithm, seeds: int, agents: int, features: int, arcs: int, chec
     messages = len(algorithm.messages)
     cells = seeds * agents * features
     numbers = cells * (2 * state + 2 * messages + 3)
-    if backend == "numpy":
+    if backend in ("numpy", "jax"):  # they form each message's differences over the arcs
         numbers += seeds * arcs * features * 2 * messages
     numbers += checkpoints * seeds * (16 + 2 * agents)
     trace = checkpoints * cells

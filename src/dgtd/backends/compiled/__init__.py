@@ -1,41 +1,45 @@
-"""The compiled backend (numba): one driver for every algorithm (`dgtd.backends.compiled.driver`) and one per-agent
-step per algorithm in `dgtd.backends.compiled.steps`, registered by the algorithm's name
-(`dgtd.backends.compiled.step.register`); an algorithm without one runs on the reference backend.
+"""The compiled backend (numba): one driver for every algorithm (`dgtd.backends.compiled.driver`) and each
+algorithm's per-agent step, made from its one definition (`dgtd.backends.compiled.step.compiled_step`), by name in
+`STEPS` (a user's algorithm in that form gets one too: `step_of`); an algorithm that writes only ``update`` runs on
+the reference backend.
 
 The driver has the contract of `dgtd.backends.reference.run_block`: ``block(ctx, state, channel, w_sum, alphas, blk)
 -> (state, channel, w_sum)``, the same samples and the same arithmetic, so the two agree to rounding (tested for every
 algorithm). Kernels are compiled on first use and cached on disk (``cache=True``).
 
-numba keys a cached kernel by the file that defines it only (a hash of its text), so editing a step or a helper it
-inlines from another module of this package would leave the driver stale. `_refresh_cache` keeps a digest of every
-module here beside numba's cache files and, when any module changed, deletes the package's cache files before the
-steps are imported, so that numba compiles them all again.
+numba keys a cached kernel by the file that defines it only (a hash of its text), so editing an algorithm's arithmetic
+or a helper the driver inlines from another module would leave the driver stale. `_refresh_cache` keeps a digest of
+every module here and of the algorithms' beside numba's cache files and, when any changed, deletes the package's cache
+files before the steps are made, so that numba compiles them all again.
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib
 import os
-import pkgutil
 from pathlib import Path
 
 _HERE = Path(__file__).resolve().parent
+_ALGORITHMS = _HERE.parent.parent / "algorithms"
 _STAMP = "dgtd-sources.sha256"
 
 
 def _cache_dirs() -> list[Path]:
-    """Where numba keeps the cache files of this package's modules: each folder's __pycache__, or its mirror under
-    NUMBA_CACHE_DIR."""
+    """Where numba keeps the cache files of this package's modules: each folder's __pycache__, or under
+    NUMBA_CACHE_DIR the folder numba's own locator names for it (<dir>/<folder>_<sha1 of its path>, not a mirror of
+    the path)."""
+    from numba.core import config
+    from numba.core.caching import UserProvidedCacheLocator
+
     folders = sorted({p.parent for p in _sources()})
-    root = os.environ.get("NUMBA_CACHE_DIR")
+    root = os.environ.get("NUMBA_CACHE_DIR") or config.CACHE_DIR
     if root:
-        return [Path(root) / folder.relative_to(folder.anchor) for folder in folders]
+        return [Path(root) / UserProvidedCacheLocator.get_suitable_cache_subpath(str(f / "x.py")) for f in folders]
     return [folder / "__pycache__" for folder in folders]
 
 
 def _sources() -> list[Path]:
-    return sorted(p for p in _HERE.rglob("*.py") if "__pycache__" not in p.parts)
+    return sorted(p for p in [*_HERE.rglob("*.py"), *_ALGORITHMS.glob("*.py")] if "__pycache__" not in p.parts)
 
 
 def _refresh_cache() -> None:
@@ -43,7 +47,7 @@ def _refresh_cache() -> None:
     last compilation (a no-op where the cache is not writable: an installed copy is rewritten whole on upgrade)."""
     digest = hashlib.sha256()
     for p in _sources():
-        digest.update(p.relative_to(_HERE).as_posix().encode() + b"\0" + p.read_bytes())
+        digest.update(p.relative_to(_HERE.parent.parent).as_posix().encode() + b"\0" + p.read_bytes())
     dirs = _cache_dirs()
     stamp = dirs[0] / _STAMP
     try:
@@ -60,11 +64,20 @@ def _refresh_cache() -> None:
 
 _refresh_cache()
 
-from dgtd.backends.compiled import steps as _steps  # noqa: E402  (after the cache is refreshed)
+from dgtd.algorithms import ALGORITHMS  # noqa: E402
 from dgtd.backends.compiled.driver import run_block  # noqa: E402
-from dgtd.backends.compiled.step import STEPS  # noqa: E402
+from dgtd.backends.compiled.step import CompiledStep, compiled_step, user_step  # noqa: E402
 
-for _module in pkgutil.iter_modules(_steps.__path__):
-    importlib.import_module(f"{_steps.__name__}.{_module.name}")
+STEPS = {name: compiled_step(cls, name.replace("-", "_")) for name, cls in ALGORITHMS.items()}
 
-__all__ = ["STEPS", "run_block"]
+
+def step_of(algorithm) -> CompiledStep | None:
+    """The compiled step of ``algorithm`` (an instance): the registered algorithm's, or one made from a user's class
+    (`dgtd.backends.compiled.step.user_step`); None where it writes ``update`` alone."""
+    cls = type(algorithm)
+    if ALGORITHMS.get(cls.name) is cls:
+        return STEPS[cls.name]
+    return user_step(cls)
+
+
+__all__ = ["STEPS", "run_block", "step_of"]

@@ -37,7 +37,7 @@ from dgtd.backends.compiled.sampling import (
     entity_ids,
     sample_args,
 )
-from dgtd.backends.compiled.step import STEPS, CompiledStep, Features, Samples
+from dgtd.backends.compiled.step import CompiledStep, Features, Samples
 from dgtd.samples import Block, Draws, SampleTable
 
 # The kernels below are templates: `driver` compiles a copy of each per algorithm, with the algorithm's step in
@@ -45,7 +45,7 @@ from dgtd.samples import Block, Draws, SampleTable
 
 
 def agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
-    """Stands for an algorithm's registered step (`dgtd.backends.compiled.step.register`)."""
+    """Stands for an algorithm's compiled step (`dgtd.backends.compiled.step.compiled_step`)."""
     raise NotImplementedError("the driver's kernels run as compiled by `driver`")
 
 
@@ -341,8 +341,8 @@ def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont,
             )
 
 
-def driver(name: str) -> tuple:
-    """(`_seeds`, `_agents`) compiled for algorithm ``name``: copies of the templates above with its step in place of
+def driver(compiled: CompiledStep) -> tuple:
+    """(`_seeds`, `_agents`) compiled for an algorithm's step: copies of the templates above with its step in place of
     `agent_step`, each compiled on first use and cached on disk under a name of its own (`_seeds_dgtd`, ...).
 
     The step is then an ordinary global of the copies, which numba inlines as it inlines every helper here; chosen at
@@ -350,20 +350,20 @@ def driver(name: str) -> tuple:
     The serial loop and a chunk of the agent layout run without numba's reference counts (``_nrt=False``): every
     array comes in from Python, none is made there, and an array taken out of a tuple would otherwise cost an atomic
     increment and decrement at every agent-step (measured: half the time of a step)."""
-    if name not in _DRIVERS:
-        _DRIVERS[name] = _copies(STEPS[name], name.replace("-", "_"))
-    return _DRIVERS[name]
+    if compiled.key not in _DRIVERS:
+        _DRIVERS[compiled.key] = _copies(compiled)
+    return _DRIVERS[compiled.key]
 
 
 _DRIVERS: dict = {}
 
 
-def _copies(compiled: CompiledStep, suffix: str) -> tuple:
-    space = _template_space(compiled)
+def _copies(compiled: CompiledStep) -> tuple:
+    space, suffix, cache = _template_space(compiled), compiled.key, compiled.cache
     _copy(_learner, space, suffix, inline="always")
-    seeds = _copy(_seeds, space, suffix, nogil=True, _nrt=False)
-    chunk = _copy(_chunk, space, suffix, nogil=True, _nrt=False)
-    agents = _copy(_agents, space, suffix, parallel=True)
+    seeds = _copy(_seeds, space, suffix, cache, nogil=True, _nrt=False)
+    chunk = _copy(_chunk, space, suffix, cache, nogil=True, _nrt=False)
+    agents = _copy(_agents, space, suffix, cache, parallel=True)
     load_quickly(seeds, chunk, agents)
     return seeds, agents
 
@@ -373,14 +373,14 @@ def _template_space(compiled: CompiledStep) -> dict:
     return dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
 
 
-def _copy(fn, space: dict, suffix: str, **options):
+def _copy(fn, space: dict, suffix: str, cache: bool = True, **options):
     """Template ``fn`` compiled in ``space`` under the name ``{fn.__name__}_{suffix}`` (its disk cache's name), and
     put there under its own name for the copies that call it."""
     import types
 
     clone = types.FunctionType(fn.__code__, space, f"{fn.__name__}_{suffix}", fn.__defaults__, fn.__closure__)
     clone.__qualname__, clone.__doc__ = clone.__name__, fn.__doc__
-    space[fn.__name__] = dispatcher = njit(cache=True, **options)(clone)
+    space[fn.__name__] = dispatcher = njit(cache=cache, **options)(clone)
     return dispatcher
 
 
@@ -410,7 +410,12 @@ class Advance:
 
     def __init__(self, ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
         algorithm = self.algorithm = ctx.algorithm
-        compiled = self.compiled = STEPS[algorithm.name]
+        from dgtd.backends.compiled import step_of
+
+        compiled = step_of(algorithm)
+        if compiled is None:
+            raise TypeError(f"{algorithm.name} writes update alone: the compiled driver cannot run it")
+        self.compiled = compiled
         messages = self.messages = tuple(algorithm.messages)
         B, L, q = w_sum.shape
         N = self.N = ctx.network.n_nodes
@@ -432,7 +437,7 @@ class Advance:
         self.sampler = sample_args(ctx, blk, B, channel)
         Phi, ratio = rows_of(ctx, blk)
         self.args = (
-            compiled.params(algorithm, ctx),
+            algorithm.params(),
             own,
             sums,
             q,
@@ -467,7 +472,7 @@ class Advance:
         else:
             B, L, q = self.args[2].shape
             self.newest = _layouts(ctx, B, L, q, bool(self.messages)).run(
-                driver(self.algorithm.name),
+                driver(compiled),
                 self.args,
                 self.buffers,
                 self.alphas,
@@ -543,7 +548,7 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None,
     )
     indptr, nbr, eid, agent_of, arc_weights = graph
     graph = (indptr, N + eid, eid, agent_of, arc_weights)  # a neighbour's messages: its arc's copy, row N + a
-    kernel = _held_driver(ctx.algorithm.name, compiled)
+    kernel = _held_driver(compiled)
     n_obs, degree = sampler[3].shape[1], _max_degree(indptr)
     threads = max(1, min(get_num_threads(), B)) if T * B * N >= THREADED_WORK else 1
     groups = np.linspace(0, B, threads + 1).astype(int)
@@ -597,13 +602,13 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None,
     return (first + T) % 2, channel
 
 
-def _held_driver(name: str, compiled: CompiledStep):
-    """`_seeds_held` compiled for algorithm ``name`` (once, cached on disk), as `driver` compiles the others."""
-    key = ("held", name)
+def _held_driver(compiled: CompiledStep):
+    """`_seeds_held` compiled for an algorithm's step (once, cached on disk), as `driver` compiles the others."""
+    key = ("held", compiled.key)
     if key not in _DRIVERS:
-        space, suffix = _template_space(compiled), "held_" + name.replace("-", "_")
+        space, suffix = _template_space(compiled), "held_" + compiled.key
         _copy(_learner, space, suffix, inline="always")
-        _DRIVERS[key] = _copy(_seeds_held, space, suffix, nogil=True)
+        _DRIVERS[key] = _copy(_seeds_held, space, suffix, compiled.cache, nogil=True)
         load_quickly(_DRIVERS[key])
     return _DRIVERS[key]
 

@@ -1,38 +1,36 @@
-"""What a compiled per-agent step is given, and how the driver finds it.
+"""Each algorithm's compiled per-agent step, made from its one definition (`dgtd.algorithms.base`), and the helpers
+it runs on.
 
-An algorithm's compiled part is one function, its per-agent step: the lines of its ``update`` for one agent (or, for
-a centralised learner, for the one learner), registered with `register`::
+`compiled_step(cls)` compiles the algorithm's ``coefficients``, ``terms``, ``feature``, ``transmit`` and ``steps`` (and
+the plain functions they call, `clip` in place of NumPy's) and puts them in one of two templates, which the driver
+(`dgtd.backends.compiled.driver`) calls for every learner at every step with the same arguments:
 
-    W = 0  # its one message
+- `_agent`: one agent of a distributed algorithm (or a learner of its own, ``local``): the aggregates of what it heard
+  (Laplacian or Metropolis, as the algorithm's ``mixing``), the products it ``reads``, its coefficients, then for each
+  feature its directions and its ``feature``, the new state kept and its messages sent;
+- `_centralised`: the one learner of a centralised algorithm: the directions of the N transitions summed (on sparse
+  features, only where phi(s) or phi(s') is not zero), then for each feature their mean through its ``feature``.
 
-    @register("consensus-td0", ConsensusParams, degrees=True)
-    @njit(cache=True, inline="always")
-    def consensus_td0_step(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q): ...
-
-- ``p``: the algorithm's own parameters, a NamedTuple of a type of its own;
-- ``own``: the state's arrays that are not sent, stacked (K, B, learners, q) in the order ``register`` names them,
-  updated in place in rows [k, b, i];
-- ``sums``: the running sum of the estimates (B, learners, q), to which the step adds its estimate at step k (as the
-  reference's ``w_sum += estimate(state)`` before ``update``);
-- ``inbox``: what agent i heard (`dgtd.backends.compiled.channel.Inbox`: the messages of step k, stacked (M, B, N, q)
-  in the order of the algorithm's ``messages``, and their ``laplacian``, ``metropolis`` and ``total``), and ``out``:
-  the messages it sends at step k + 1, written in rows [m, b, i]: the driver double-buffers them, so every agent
-  reads its neighbours' values of step k;
-- ``work``: the scratch rows the step asked for (``register(..., work=K)``), (K, rows, q), row ``inbox.at`` its own (a
-  centralised learner sums its N transitions' terms there);
-- ``x``: the step's samples (`Samples`; `transition` gives an agent's), ``feat`` the features (`Features`; `phi_dot`
-  and `phi_axpy` read dense or sparse rows alike);
-- ``b``, ``i``, ``agent``: the seed, the storage row and the agent in it; ``alpha`` the step size; ``q`` the number
-  of features (passed in: computed from a shape inside, LLVM cannot prove the feature loops' indices in range and
-  leaves them scalar).
+What the step is given: ``p`` the algorithm's `params`; ``own`` the state's fields that are not sent, stacked (K, B,
+learners, q), updated in place in rows [k, b, i]; ``sums`` the running sum of the estimates (B, learners, q), to which
+the step adds w at step k (as the reference's ``w_sum += estimate(state)`` before ``update``); ``inbox`` what agent i
+heard (`dgtd.backends.compiled.channel.Inbox`: the messages of step k, stacked (M, B, N, q) in the order of the
+algorithm's ``messages``) and ``out`` the messages it sends at step k + 1, written in rows [m, b, i] (the driver
+double-buffers them, so every agent reads its neighbours' values of step k); ``work`` its scratch rows (`PHI`,
+`TERMS`), (K, rows, q or more), row ``inbox.at`` its own; ``x`` the step's samples (`transition` gives an
+agent's), ``feat`` the features (`Features`); ``b``, ``i``, ``agent`` the seed, the storage row and the agent in it;
+``alpha`` the step size; ``q`` the number of features (passed in: computed from a shape inside, LLVM cannot prove the
+feature loops' indices in range and leaves them scalar).
 
 The state's arrays are stacked in one array (rather than a tuple of arrays) so that the parallel layout, which numba
 cannot hand tuples of arrays, takes them as they are; each array is a contiguous block of its own, and a row's loops
-vectorise as over separate arrays.
+vectorise as over separate arrays. A feature's values go to the algorithm's functions as tuples, loaded and stored
+by accessors spelled out for its numbers of fields and messages (`_spelled`), which LLVM keeps in registers.
 """
 
 from __future__ import annotations
 
+import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -40,49 +38,204 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from dgtd.algorithms import base
+from dgtd.backends.compiled.channel import laplacian, metropolis
 from dgtd.backends.compiled.simd import dot
+
+PHI, PHI_NEXT = 0, 1  # an agent's work rows: dense rows of sparse phi(s) and phi(s')
+TERMS = 0  # a centralised learner's work rows: its directions summed over the N transitions
+
+
+def _placeholder(*args):
+    """Stands for one of an algorithm's functions in the templates below (`compiled_step` puts the algorithm's own)."""
+    raise NotImplementedError("the templates run as compiled by `compiled_step`")
+
+
+# What the templates `_agent` and `_centralised` call of an algorithm, each compiled copy its own (`compiled_step`):
+# its functions, and the accessors spelled out for its numbers of fields, messages, products and directions.
+COEFFICIENTS = TERMS_OF = FEATURE = TRANSMIT = STEPS_OF = _placeholder
+PRODUCTS = LOAD_STATE = LOAD_HEARD = STORE = LOAD_TERMS = ADD_TERMS = _placeholder
+W_AT = (0, 0)  # where w is: own 0 or sent 1, row
+M = 0  # messages
+METROPOLIS = False  # its mixing: Metropolis weights, or the Laplacian
+N_TERMS = 0  # its directions
 
 
 @dataclass(frozen=True)
 class CompiledStep:
-    """A registered per-agent step: the function, the type of its parameters, how to build them from the algorithm
-    as it runs (``params(algorithm, ctx)``), the names of the state's arrays it keeps in ``own`` (in that order),
-    whether its inbox needs every agent's count of messages heard (the Metropolis weights do), and how many scratch
-    rows it works in."""
+    """An algorithm's compiled step: the function the driver inlines, the names of the state's arrays it keeps in
+    ``own`` (in that order), whether its inbox needs every agent's count of messages heard (the Metropolis weights
+    do), how many work rows it uses, the name its kernels are compiled under and whether they are cached on disk."""
 
     step: Callable
-    params_type: type
-    params: Callable
-    own: tuple[str, ...] = ()
-    degrees: bool = False
-    work: int = 0
+    own: tuple[str, ...]
+    degrees: bool
+    work: int
+    key: str
+    cache: bool = True
 
 
-STEPS: dict[str, CompiledStep] = {}
-"""Algorithm name -> its compiled step."""
+def compiled_step(cls, name: str, cache: bool = True) -> CompiledStep:
+    """The step of algorithm class ``cls`` from its one definition, compiled (on first use) under ``name``, its kernels
+    cached on disk where ``cache``."""
+    default = cls()
+    fields = tuple(default.init(1, 1, 1)._fields)
+    own = tuple(f for f in fields if f not in cls.messages)
+    sent = tuple(f for f in fields if f in cls.messages)
+    if fields != own + sent or sent != cls.messages[: len(sent)]:
+        raise TypeError(
+            f"{cls.name}'s state lists {fields}: what it keeps to itself first, then what it sends, in the order of "
+            f"its messages {cls.messages}"
+        )
+    where = {f: ("own", k) for k, f in enumerate(own)} | {f: ("sent", m) for m, f in enumerate(sent)}
+    p = default.params()
+    n_terms = len(cls.terms(p, 1.0, 1.0, cls.coefficients(p, (1.0,) * len(cls.reads), 1.0, 1.0, 1.0), 1.0))
+    M, state = len(cls.messages), [f"{where[f][0]}[{where[f][1]}, b, i, f]" for f in fields]
+    stores = [f"own[{k}, b, i, f] = new[{k}]" for k in range(len(own))]
+    stores += [f"out[{m}, b, i, f] = messages[{m}]" for m in range(M)]
+    products = [
+        f"phi_dot(feat, {'sn' if feature == 'phi_next' else 's'}, {where[x][0]}, ({where[x][1]}, b, i), q)"
+        for feature, x in cls.reads
+    ]
+    terms = [f"work[{TERMS + k}, at, f]" for k in range(n_terms)]
+    space = dict(
+        globals(),
+        COEFFICIENTS=_compiled(cls.coefficients),
+        TERMS_OF=_compiled(cls.terms),
+        FEATURE=_compiled(cls.feature),
+        TRANSMIT=_compiled(cls.transmit),
+        STEPS_OF=_compiled(cls.steps),
+        PRODUCTS=_spelled("feat, s, sn, own, sent, b, i, q", [f"return {_tuple(products)}"]),
+        LOAD_STATE=_spelled("own, sent, b, i, f", [f"return {_tuple(state)}"]),
+        LOAD_HEARD=_spelled("L, at, f", [f"return {_tuple([f'L[{m}, at, f]' for m in range(M)])}"]),
+        STORE=_spelled("own, out, b, i, f, new, messages", stores or ["pass"]),
+        LOAD_TERMS=_spelled("work, at, f", [f"return {_tuple(terms)}"]),
+        ADD_TERMS=_spelled("work, at, f, d", [f"{x} += d[{k}]" for k, x in enumerate(terms)] or ["pass"]),
+        W_AT=(int(where["w"][0] == "sent"), where["w"][1]),
+        M=M,
+        METROPOLIS=cls.mixing == "metropolis",
+        N_TERMS=n_terms,
+    )
+    space["features"] = _in(space, features, "features")  # it reads the constants above
+    step = _in(space, _centralised if cls.centralised else _agent, f"step_{name}")
+    work = TERMS + n_terms if cls.centralised else PHI_NEXT + 1
+    return CompiledStep(step, own, cls.mixing == "metropolis", work, name, cache)
 
 
-def register(
-    name: str,
-    params_type: type,
-    params: Callable | None = None,
-    *,
-    own: tuple[str, ...] = (),
-    degrees: bool = False,
-    work: int = 0,
-):
-    """Register the decorated njit function as the compiled step of algorithm ``name``; ``params(algorithm, ctx)``
-    builds its ``params_type`` (default: the algorithm's fields of the same names); ``own`` names the state's arrays
-    that are not messages, in the order the step indexes them."""
+def _tuple(items: list[str]) -> str:
+    return "(" + "".join(f"{x}, " for x in items) + ")"
 
-    def build(algorithm, ctx):
-        return params_type(*(float(getattr(algorithm, f)) for f in params_type._fields))
 
-    def decorate(fn):
-        STEPS[name] = CompiledStep(fn, params_type, params or build, tuple(own), degrees, work)
-        return fn
+def _spelled(arguments: str, lines: list[str]):
+    """A function of ``arguments`` with body ``lines``, compiled to be inlined: the loads and stores of a feature's
+    values, spelled out for an algorithm's numbers of fields, messages, products and directions, as numba types a tuple
+    only from constant indices (a tuple from a column of the stack, ``to_fixed_tuple``, kept the feature loop from
+    being vectorised: measured 2 to 2.5 times slower)."""
+    space = {"phi_dot": phi_dot}
+    exec("def spelled(" + arguments + "):\n    " + "\n    ".join(lines), space)
+    return njit(inline="always")(space["spelled"])
 
-    return decorate
+
+def writes_one_definition(cls) -> bool:
+    """Whether algorithm class ``cls`` writes its arithmetic in the one definition (`dgtd.algorithms.base`) that the
+    compiled driver runs, rather than ``update`` alone."""
+    return cls.feature is not base.StepSizes.feature and cls.update is base.StepSizes.update
+
+
+_USERS: dict[type, CompiledStep] = {}
+
+
+def user_step(cls) -> CompiledStep | None:
+    """The compiled step of a user's algorithm class, made once per process from its one definition and not cached on
+    disk (numba cannot tell when the user's file changes); None for one that writes ``update`` alone."""
+    if not writes_one_definition(cls):
+        return None
+    if cls not in _USERS:
+        key = "user_" + "".join(c if c.isalnum() else "_" for c in f"{cls.__qualname__}_{len(_USERS)}")
+        _USERS[cls] = compiled_step(cls, key, cache=False)
+    return _USERS[cls]
+
+
+def _in(space: dict, fn, name: str):
+    """Template ``fn`` compiled (to be inlined) with the globals ``space``."""
+    return njit(inline="always")(types.FunctionType(fn.__code__, space, name, fn.__defaults__))
+
+
+def _compiled(fn):
+    """``fn`` compiled to be inlined, with the plain functions it calls compiled alike and `clip` in place of
+    `dgtd.algorithms.base.clip` (NumPy's)."""
+    fn = getattr(fn, "__func__", fn)
+    names = {}
+    for name in fn.__code__.co_names:
+        value = fn.__globals__.get(name)
+        if value is base.clip:
+            names[name] = clip
+        elif isinstance(value, types.FunctionType):
+            names[name] = _compiled(value)
+    space = dict(fn.__globals__, **names)
+    clone = types.FunctionType(fn.__code__, space, fn.__name__, fn.__defaults__, fn.__closure__)
+    return njit(inline="always")(clone)
+
+
+def _agent(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
+    """Agent i of seed b at step k: its aggregates, products and coefficients, then feature by feature its directions
+    and its new state (`dgtd.algorithms.base`); the running sum of w kept."""
+    sent, L, at = inbox.sent, inbox.sums, inbox.at
+    s, sn, r, ratio, gamma = transition(x, agent)
+    for m in range(M):
+        if METROPOLIS:
+            metropolis(inbox, m, b, i)  # (L_W(k) x)_i
+        else:
+            laplacian(inbox, m, b, i)  # (L(k) x)_i
+    c = COEFFICIENTS(p, PRODUCTS(feat, s, sn, own, sent, b, i, q), r, ratio, gamma)
+    steps = STEPS_OF(p, alpha)
+    if feat.sparse:  # dense rows of phi(s) and phi(s'), read as the dense features are
+        phi_times(feat, s, 1.0, work, (PHI, at), q)
+        phi_times(feat, sn, 1.0, work, (PHI_NEXT, at), q)
+        features(p, own, sums, L, sent, out, work[PHI, at], work[PHI_NEXT, at], c, gamma, steps, b, i, at, q)
+    else:
+        features(p, own, sums, L, sent, out, feat.Phi[s], feat.Phi[sn], c, gamma, steps, b, i, at, q)
+
+
+def features(p, own, sums, L, sent, out, phi_row, phi_next_row, c, gamma, steps, b, i, at, q):
+    """Agent i's features, one by one: its directions and its new state (one loop, which LLVM vectorises)."""
+    w_in, w_row = W_AT
+    for f in range(q):
+        sums[b, i, f] += sent[w_row, b, i, f] if w_in else own[w_row, b, i, f]
+        d = TERMS_OF(p, phi_row[f], phi_next_row[f], c, gamma)
+        new = FEATURE(p, LOAD_STATE(own, sent, b, i, f), LOAD_HEARD(L, at, f), d, steps)
+        STORE(own, out, b, i, f, new, TRANSMIT(new))
+
+
+def _centralised(p, own, sums, inbox, out, work, x, feat, b, i, agent, alpha, q):
+    """The one learner of seed b at step k: the directions of the N observed transitions summed, then feature by
+    feature their mean through its ``feature`` (`dgtd.algorithms.base`); the running sum of w kept."""
+    at, N = inbox.at, x.r.shape[1]
+    w_row = W_AT[1]
+    for f in range(q):
+        sums[b, 0, f] += own[w_row, b, 0, f]
+        for k in range(N_TERMS):
+            work[TERMS + k, at, f] = 0.0
+    for o in range(N):
+        s, sn, r, ratio, gamma = transition(x, o)
+        c = COEFFICIENTS(p, PRODUCTS(feat, s, sn, own, own, b, 0, q), r, ratio, gamma)
+        if feat.sparse:  # the directions vanish where phi_f(s) = phi_f(s') = 0
+            for k in range(feat.ptr[s], feat.ptr[s + 1]):
+                f = feat.idx[k]
+                ADD_TERMS(work, at, f, TERMS_OF(p, feat.val[k], phi_value(feat, sn, f), c, gamma))
+            for k in range(feat.ptr[sn], feat.ptr[sn + 1]):
+                f = feat.idx[k]
+                if phi_value(feat, s, f) == 0.0:  # not done above
+                    ADD_TERMS(work, at, f, TERMS_OF(p, 0.0, feat.val[k], c, gamma))
+        else:
+            for f in range(q):
+                ADD_TERMS(work, at, f, TERMS_OF(p, feat.Phi[s, f], feat.Phi[sn, f], c, gamma))
+    steps = STEPS_OF(p, alpha)
+    for f in range(q):
+        for k in range(N_TERMS):
+            work[TERMS + k, at, f] = work[TERMS + k, at, f] / N  # the mean over the N transitions
+        new = FEATURE(p, LOAD_STATE(own, own, b, 0, f), (), LOAD_TERMS(work, at, f), steps)
+        STORE(own, out, b, 0, f, new, ())
 
 
 class Samples(NamedTuple):
@@ -174,9 +327,3 @@ def clip(x, bound):
     min and one max instruction (a compare and a blend per test otherwise)."""
     inner = bound if x > bound else x
     return -bound if inner < -bound else inner
-
-
-@njit(cache=True, inline="always")
-def aux_step(alpha, eta, alpha0, timescale):
-    """The auxiliary step beta_k of the GTD learners (`dgtd.algorithms.gtd2.aux_step`, the same expression)."""
-    return eta * alpha if timescale == 1.0 else eta * alpha0 * (alpha / alpha0) ** timescale

@@ -1,0 +1,87 @@
+"""`dgtd.check_algorithm` on a user's own algorithm: one written in the one definition runs compiled and on JAX from its
+class alone and passes; one that breaks what the backends rely on is told what."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
+
+import numpy as np
+import pytest
+
+import dgtd
+from dgtd.algorithms import TD0
+from dgtd.algorithms.base import StepSizes, zeros
+
+
+class RelaxedState(NamedTuple):
+    w: np.ndarray
+
+
+class RelaxedParams(NamedTuple):
+    c: float
+
+
+@dataclass(frozen=True)
+class RelaxedConsensusTD0(StepSizes):
+    """A user's algorithm, not registered: TD(0) on each agent's reward with a Laplacian consensus step of weight c,
+    w_i <- w_i - c (L(k) w)_i + alpha_k ratio delta_i phi_i."""
+
+    c: float = 0.2
+
+    name: ClassVar[str] = "relaxed-consensus-td0"
+    description: ClassVar[str] = "a user's consensus TD(0)"
+    color: ClassVar[str] = "#000000"
+    messages: ClassVar[tuple[str, ...]] = ("w",)
+    reads: ClassVar = (("phi", "w"), ("phi_next", "w"))
+    Params: ClassVar = RelaxedParams
+
+    def init(self, seeds, agents, features):
+        return RelaxedState(*zeros(seeds, agents, features, 1))
+
+    @staticmethod
+    def transmit(x):
+        return x
+
+    coefficients = staticmethod(TD0.coefficients)  # TD(0)'s ratio delta and direction ratio delta phi, reused
+    terms = staticmethod(TD0.terms)
+
+    @staticmethod
+    def feature(p, x, heard, d, steps):
+        (w,) = x
+        (Lw,) = heard
+        (d_w,) = d
+        (alpha,) = steps
+        return (w - p.c * Lw + alpha * d_w,)
+
+
+def test_a_users_algorithm_in_the_one_definition_passes_on_every_backend():
+    report = dgtd.check_algorithm(RelaxedConsensusTD0(alpha0=0.05, beta=10.0))
+    assert set(report) == {"iid-noise", "markov-off-policy", "tabular-shared", "episodic", "recorded"}
+    for case, differences in report.items():
+        assert "numba" in differences
+        assert all(d <= 1e-9 for d in differences.values()), (case, differences)
+
+
+def test_an_algorithm_that_writes_update_alone_is_told_it_cannot_run_compiled():
+    @dataclass(frozen=True)
+    class OwnUpdate(RelaxedConsensusTD0):
+        def update(self, state, sample, inbox, alpha):
+            return super().update(state, sample, inbox, 0.5 * alpha)
+
+    with pytest.raises(AssertionError, match="writes update alone"):
+        dgtd.check_algorithm(OwnUpdate())
+
+
+def test_a_state_that_lists_what_it_sends_first_is_told_so():
+    class Sent(NamedTuple):
+        w: np.ndarray
+        theta: np.ndarray
+
+    @dataclass(frozen=True)
+    class SendsFirst(RelaxedConsensusTD0):
+        def init(self, seeds, agents, features):
+            return Sent(*zeros(seeds, agents, features, 2))
+
+    with pytest.raises(AssertionError, match="lists what it sends before what it keeps"):
+        dgtd.check_algorithm(SendsFirst())
