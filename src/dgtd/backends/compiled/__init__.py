@@ -32,7 +32,7 @@ def _cache_dirs() -> list[Path]:
     from numba.core.caching import UserProvidedCacheLocator
 
     folders = sorted({p.parent for p in _sources()})
-    root = os.environ.get("NUMBA_CACHE_DIR") or config.CACHE_DIR
+    root = os.environ.get("NUMBA_CACHE_DIR") or getattr(config, "CACHE_DIR", "")
     if root:
         return [Path(root) / UserProvidedCacheLocator.get_suitable_cache_subpath(str(f / "x.py")) for f in folders]
     return [folder / "__pycache__" for folder in folders]
