@@ -85,3 +85,16 @@ def test_a_state_that_lists_what_it_sends_first_is_told_so():
 
     with pytest.raises(AssertionError, match="lists what it sends before what it keeps"):
         dgtd.check_algorithm(SendsFirst())
+
+
+def test_a_users_algorithm_whose_fields_have_no_defaults_gets_a_compiled_step():
+    """The compiled step is made from the algorithm the user runs, not from a default instance of its class (which a
+    class with a required field does not have)."""
+    from dgtd.backends.compiled import step_of
+
+    @dataclass(frozen=True, kw_only=True)
+    class Required(RelaxedConsensusTD0):
+        tag: str  # no default
+
+    step = step_of(Required(tag="mine"))
+    assert step is not None and step.own == () and not step.degrees

@@ -86,8 +86,6 @@ class Arcs:
         if namespace(x) is not np:
             from jax.ops import segment_sum
 
-            return segment_sum(x.transpose(1, 0, 2), self.dst, self.n_agents, indices_are_sorted=False).transpose(
-                1, 0, 2
-            )
+            return segment_sum(x.transpose(1, 0, 2), self.dst, self.n_agents).transpose(1, 0, 2)
         out = self._incidence @ x.transpose(1, 0, 2).reshape(A, B * q)
         return np.ascontiguousarray(np.asarray(out).reshape(self.n_agents, B, q).transpose(1, 0, 2))

@@ -68,7 +68,7 @@ from dgtd.algorithms import ALGORITHMS  # noqa: E402
 from dgtd.backends.compiled.driver import run_block  # noqa: E402
 from dgtd.backends.compiled.step import CompiledStep, compiled_step, user_step  # noqa: E402
 
-STEPS = {name: compiled_step(cls, name.replace("-", "_")) for name, cls in ALGORITHMS.items()}
+STEPS = {name: compiled_step(cls(), name.replace("-", "_")) for name, cls in ALGORITHMS.items()}
 
 
 def step_of(algorithm) -> CompiledStep | None:
@@ -77,7 +77,7 @@ def step_of(algorithm) -> CompiledStep | None:
     cls = type(algorithm)
     if ALGORITHMS.get(cls.name) is cls:
         return STEPS[cls.name]
-    return user_step(cls)
+    return user_step(algorithm)
 
 
 __all__ = ["STEPS", "run_block", "step_of"]

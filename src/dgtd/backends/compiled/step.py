@@ -1,9 +1,9 @@
 """Each algorithm's compiled per-agent step, made from its one definition (`dgtd.algorithms.base`), and the helpers
 it runs on.
 
-`compiled_step(cls)` compiles the algorithm's ``coefficients``, ``terms``, ``feature``, ``transmit`` and ``steps`` (and
-the plain functions they call, `clip` in place of NumPy's) and puts them in one of two templates, which the driver
-(`dgtd.backends.compiled.driver`) calls for every learner at every step with the same arguments:
+`compiled_step(algorithm, name)` compiles the algorithm's ``coefficients``, ``terms``, ``feature``, ``transmit`` and
+``steps`` (and the plain functions they call, `clip` in place of NumPy's) and puts them in one of two templates, which
+the driver (`dgtd.backends.compiled.driver`) calls for every learner at every step with the same arguments:
 
 - `_agent`: one agent of a distributed algorithm (or a learner of its own, ``local``): the aggregates of what it heard
   (Laplacian or Metropolis, as the algorithm's ``mixing``), the products it ``reads``, its coefficients, then for each
@@ -75,11 +75,12 @@ class CompiledStep:
     cache: bool = True
 
 
-def compiled_step(cls, name: str, cache: bool = True) -> CompiledStep:
-    """The step of algorithm class ``cls`` from its one definition, compiled (on first use) under ``name``, its kernels
-    cached on disk where ``cache``."""
-    default = cls()
-    fields = tuple(default.init(1, 1, 1)._fields)
+def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
+    """The step of ``algorithm``'s class from its one definition, compiled (on first use) under ``name``, its kernels
+    cached on disk where ``cache``. It depends on the class only (the hyperparameters are the step's argument ``p``);
+    the instance gives the state's fields and the number of directions."""
+    cls = type(algorithm)
+    fields = tuple(algorithm.init(1, 1, 1)._fields)
     own = tuple(f for f in fields if f not in cls.messages)
     sent = tuple(f for f in fields if f in cls.messages)
     if fields != own + sent or sent != cls.messages[: len(sent)]:
@@ -88,7 +89,7 @@ def compiled_step(cls, name: str, cache: bool = True) -> CompiledStep:
             f"its messages {cls.messages}"
         )
     where = {f: ("own", k) for k, f in enumerate(own)} | {f: ("sent", m) for m, f in enumerate(sent)}
-    p = default.params()
+    p = algorithm.params()
     n_terms = len(cls.terms(p, 1.0, 1.0, cls.coefficients(p, (1.0,) * len(cls.reads), 1.0, 1.0, 1.0), 1.0))
     M, state = len(cls.messages), [f"{where[f][0]}[{where[f][1]}, b, i, f]" for f in fields]
     stores = [f"own[{k}, b, i, f] = new[{k}]" for k in range(len(own))]
@@ -145,14 +146,15 @@ def writes_one_definition(cls) -> bool:
 _USERS: dict[type, CompiledStep] = {}
 
 
-def user_step(cls) -> CompiledStep | None:
-    """The compiled step of a user's algorithm class, made once per process from its one definition and not cached on
-    disk (numba cannot tell when the user's file changes); None for one that writes ``update`` alone."""
+def user_step(algorithm) -> CompiledStep | None:
+    """The compiled step of a user's algorithm, made once per process and class from its one definition and not cached
+    on disk (numba cannot tell when the user's file changes); None for one that writes ``update`` alone."""
+    cls = type(algorithm)
     if not writes_one_definition(cls):
         return None
     if cls not in _USERS:
         key = "user_" + "".join(c if c.isalnum() else "_" for c in f"{cls.__qualname__}_{len(_USERS)}")
-        _USERS[cls] = compiled_step(cls, key, cache=False)
+        _USERS[cls] = compiled_step(algorithm, key, cache=False)
     return _USERS[cls]
 
 
