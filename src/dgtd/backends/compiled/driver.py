@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numpy as np
 from numba import get_num_threads, njit, prange
@@ -30,6 +31,7 @@ from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear, me
 from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
 from dgtd.backends.compiled.held import carry
 from dgtd.backends.compiled.sampling import (
+    Sampler,
     _sample_step,
     _step_edges,
     _step_observations,
@@ -62,56 +64,51 @@ def _learner(p, own, sums, inbox, out, work, x, feat, graph, up, up_row, b, i, a
     agent_step(p, own, sums, inbox, out, work, x, feat, b, i, agent_of[i], alpha, q)
 
 
-def _seeds(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, b0, b1):
+def _seeds(p, own, sums, buffers, first, alphas, sampler, feat, x, graph, space, b0, b1):
     """Seeds b0 .. b1 - 1 one after another, each its steps in order, each step its learners in order. No threads of
     its own (it releases the GIL: `Layouts` runs several calls at once over separate seeds, each with its own
-    ``space``, `_space`)."""
-    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
-    indptr, eid = graph[0], graph[2]
-    L, T = sums.shape[1], alphas.shape[0]
-    x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
+    ``space``, `_space`, and samples ``x`` in its rows)."""
+    L, T, q = sums.shape[1], alphas.shape[0], sums.shape[2]
     for b in range(b0, b1):
         arcs_up = 0  # summed here, stored once: seeds next to each other share a cache line of n_up
         for t in range(T):
-            arcs_up += _sample_step(sampler, b, 0, t, sampler[1], space)
+            arcs_up += _sample_step(sampler, b, 0, t, space)
             if NEEDS_DEGREES:
-                count_heard(up_t, 0, indptr, eid, degree, 0)
+                count_heard(space.up, 0, graph.indptr, graph.eid, space.degree, 0)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]  # read one buffer, write the other
-            inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0, graph[4])
+            inbox = Inbox(
+                sent, space.heard, space.n_heard, space.weights, space.degree, 0, space.scratch, 0, graph.arc_weights
+            )
             for i in range(L):
-                _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
-        sampler[20][b] += arcs_up  # n_up
+                _learner(p, own, sums, inbox, out, space.work, x, feat, graph, space.up, 0, b, i, alphas[t], q)
+        sampler.n_up[b] += arcs_up
 
 
-def _seeds_held(
-    p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, links, held, b0, b1
-):
-    """`_seeds` over a channel whose receivers hold copies (`dgtd.backends.compiled.held`): at each step the channel
-    first carries the messages (`carry`), then each awake learner steps, reading its neighbours' copies in rows
-    N + a; an asleep one keeps its state and reports its estimate (message 0, w, for every algorithm that sends)."""
-    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work, awake, late, rounding, value, chosen = (
-        space
-    )
-    indptr, eid, agent_of = graph[0], graph[2], graph[3]
-    L, T, M = sums.shape[1], alphas.shape[0], buffers.shape[1]
-    N = r_t.shape[1]
-    x = Samples(s_t, a_t, sn_t, r_t, 0, ratio, cont, gamma)
+def _seeds_held(p, own, sums, buffers, first, alphas, sampler, feat, x, graph, space, links, held, b0, b1):
+    """`_seeds` over a channel whose receivers hold copies (`dgtd.backends.compiled.held`; ``space`` a `HeldSpace`):
+    at each step the channel first carries the messages (`carry`), then each awake learner steps, reading its
+    neighbours' copies in rows N + a; an asleep one keeps its state and reports its estimate (message 0, w, for every
+    algorithm that sends)."""
+    L, T, M, q = sums.shape[1], alphas.shape[0], buffers.shape[1], sums.shape[2]
+    N = space.r.shape[1]
+    degree, up_t, awake = space.degree, space.up, space.awake
     for b in range(b0, b1):
         for t in range(T):
-            sampler[20][b] += _sample_step(sampler, b, 0, t, sampler[1], space)
+            sampler.n_up[b] += _sample_step(sampler, b, 0, t, space)
             sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
             step = held.step[b] + t
-            held.delivered[b] += carry(
-                links, held, b, step, sampler[1], up_t, sent, N, (awake, late, rounding, value, chosen)
-            )
+            scratch = (awake, space.late, space.rounding, space.value, space.chosen)
+            held.delivered[b] += carry(links, held, b, step, sampler.rng, up_t, sent, N, scratch)
             if NEEDS_DEGREES:
-                count_heard(up_t, 0, indptr, eid, degree, 0)
+                count_heard(up_t, 0, graph.indptr, graph.eid, degree, 0)
                 for a in range(links.src_row.shape[0]):  # a copy's row counts as its sender
                     degree[0, N + a] = degree[0, links.src_row[a]]
-            inbox = Inbox(sent, heard, n_heard, weights, degree, 0, scratch, 0, graph[4])
+            inbox = Inbox(
+                sent, space.heard, space.n_heard, space.weights, degree, 0, space.scratch, 0, graph.arc_weights
+            )
             for i in range(L):
-                if awake[agent_of[i]]:
-                    _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
+                if awake[graph.agent_of[i]]:
+                    _learner(p, own, sums, inbox, out, space.work, x, feat, graph, up_t, 0, b, i, alphas[t], q)
                 else:
                     for f in range(q):
                         sums[b, i, f] += sent[0, b, i, f]
@@ -121,224 +118,47 @@ def _seeds_held(
         held.step[b] += T
 
 
-def _chunk(
-    c,
-    n_chunks,
-    t,
-    p,
-    own,
-    sums,
-    buffers,
-    first,
-    q,
-    alphas,
-    fused,
-    rng,
-    markov,
-    current,
-    d_prob,
-    d_alias,
-    sa_prob,
-    sa_alias,
-    terminal,
-    R_sample,
-    sigma,
-    noise,
-    p_edge,
-    loss,
-    links,
-    s_blk,
-    a_blk,
-    sn_blk,
-    r_blk,
-    up_blk,
-    n_up,
-    obs_ids,
-    agent_ids,
-    edge_ids,
-    counted_arcs,
-    purpose,
-    Phi,
-    sparse,
-    ptr,
-    idx,
-    val,
-    ratio,
-    cont,
-    gamma,
-    indptr,
-    nbr,
-    eid,
-    agent_of,
-    arc_weights,
-    s_t,
-    a_t,
-    sn_t,
-    r_t,
-    up_t,
-    heard,
-    n_heard,
-    weights,
-    degree,
-    scratch,
-    work,
-):
+def _chunk(c, n_chunks, t, p, own, sums, buffers, first, alphas, sampler, feat, x, graph, space):
     """Chunk c of the agent layout at step t: its share of the B * N (seed, agent) pairs, then its share of the
     sampling of step t + 1 (`_agents`)."""
-    B, L, T = sums.shape[0], sums.shape[1], alphas.shape[0]
+    B, L, T, q = sums.shape[0], sums.shape[1], alphas.shape[0], sums.shape[2]
     sent, out = buffers[(first + t) % 2], buffers[(first + t + 1) % 2]
-    feat, graph = Features(Phi, sparse, ptr, idx, val), (indptr, nbr, eid, agent_of, arc_weights)
     now, nxt = (t % 2) * B, ((t + 1) % 2) * B  # rows of this step's samples and the next step's
     total = B * L
     for flat in range(c * total // n_chunks, (c + 1) * total // n_chunks):
         b, i = flat // L, flat % L
-        inbox = Inbox(sent, heard, n_heard, weights, degree, now + b, scratch, c, arc_weights)
-        x = Samples(s_t, a_t, sn_t, r_t, now + b, ratio, cont, gamma)
-        _learner(p, own, sums, inbox, out, work, x, feat, graph, up_t, now + b, b, i, alphas[t], q)
+        inbox = Inbox(
+            sent, space.heard, space.n_heard, space.weights, space.degree, now + b, space.scratch, c, graph.arc_weights
+        )
+        at = Samples(x.s, x.a, x.s_next, x.r, now + b, x.ratio, x.continuing, x.gamma)
+        _learner(p, own, sums, inbox, out, space.work, at, feat, graph, space.up, now + b, b, i, alphas[t], q)
     if t + 1 < T:  # the samples of step t + 1: every chunk draws its share of each seed's observations (the numbers
         # are keyed: any part can be drawn anywhere), and seed j's edges fall to chunk n_chunks - 1 - j % n_chunks
-        n_obs = s_t.shape[1]
+        n_obs = space.s.shape[1]
+        o0, o1 = c * n_obs // n_chunks, (c + 1) * n_obs // n_chunks
         for sb in range(B):
-            _step_observations(
-                sb,
-                nxt + sb,
-                t + 1,
-                fused,
-                rng,
-                markov,
-                current,
-                d_prob,
-                d_alias,
-                sa_prob,
-                sa_alias,
-                terminal,
-                R_sample,
-                sigma,
-                noise,
-                s_blk,
-                a_blk,
-                sn_blk,
-                r_blk,
-                s_t,
-                a_t,
-                sn_t,
-                r_t,
-                (obs_ids, agent_ids, edge_ids, counted_arcs, purpose),
-                c * n_obs // n_chunks,
-                (c + 1) * n_obs // n_chunks,
-            )
+            _step_observations(sampler, sb, nxt + sb, t + 1, space.s, space.a, space.s_next, space.r, o0, o1)
             if c == n_chunks - 1 - sb % n_chunks:
-                n_up[sb] += _step_edges(
-                    sb, nxt + sb, t + 1, fused, rng, p_edge, loss, links, up_blk, up_t, edge_ids, counted_arcs
-                )
+                sampler.n_up[sb] += _step_edges(sampler, sb, nxt + sb, t + 1, space.up)
                 if NEEDS_DEGREES:
-                    count_heard(up_t, nxt + sb, indptr, eid, degree, nxt + sb)
+                    count_heard(space.up, nxt + sb, graph.indptr, graph.eid, space.degree, nxt + sb)
 
 
-def _agents(p, own, sums, buffers, first, q, alphas, sampler, feat, ratio, cont, gamma, graph, space, n_chunks):
+def _agents(p, own, sums, buffers, first, alphas, sampler, feat, x, graph, space, n_chunks):
     """The agents of every seed spread over the cores at every step, in ``n_chunks`` chunks (`_chunk`, compiled on its
     own: the parallel part stays small and compiles in a moment). Samples are double-buffered too: while the agents
     update with step k's, the chunks also draw step k + 1's, each chunk its share of every seed's observations and
     rewards and one chunk a seed's edges (each number is keyed by what it is for, so any part can be drawn anywhere
-    and in any order), so that no core waits while another samples. numba hands a parallel loop arrays and numbers,
-    not tuples: they are unpacked first."""
-    (
-        fused,
-        rng,
-        markov,
-        current,
-        d_prob,
-        d_alias,
-        sa_prob,
-        sa_alias,
-        terminal,
-        R_sample,
-        sigma,
-        noise,
-        p_edge,
-        loss,
-        links,
-        s_blk,
-        a_blk,
-        sn_blk,
-        r_blk,
-        up_blk,
-        n_up,
-        ids,
-    ) = sampler
-    obs_ids, agent_ids, edge_ids, counted_arcs, purpose = ids
-    Phi, sparse, ptr, idx, val = feat
-    indptr, nbr, eid, agent_of, arc_weights = graph
-    s_t, a_t, sn_t, r_t, up_t, heard, n_heard, weights, degree, scratch, work = space
+    and in any order), so that no core waits while another samples. numba hands a parallel loop flat records (of
+    arrays and numbers) only: every argument here is one."""
     B, T = sums.shape[0], alphas.shape[0]
     for b in range(B if T > 0 else 0):  # step 0's samples
-        n_up[b] += _sample_step(sampler, b, b, 0, rng, space)
+        sampler.n_up[b] += _sample_step(sampler, b, b, 0, space)
         if NEEDS_DEGREES:
-            count_heard(up_t, b, indptr, eid, degree, b)
+            count_heard(space.up, b, graph.indptr, graph.eid, space.degree, b)
     for t in range(T):
         for c in prange(n_chunks):
-            _chunk(
-                c,
-                n_chunks,
-                t,
-                p,
-                own,
-                sums,
-                buffers,
-                first,
-                q,
-                alphas,
-                fused,
-                rng,
-                markov,
-                current,
-                d_prob,
-                d_alias,
-                sa_prob,
-                sa_alias,
-                terminal,
-                R_sample,
-                sigma,
-                noise,
-                p_edge,
-                loss,
-                links,
-                s_blk,
-                a_blk,
-                sn_blk,
-                r_blk,
-                up_blk,
-                n_up,
-                obs_ids,
-                agent_ids,
-                edge_ids,
-                counted_arcs,
-                purpose,
-                Phi,
-                sparse,
-                ptr,
-                idx,
-                val,
-                ratio,
-                cont,
-                gamma,
-                indptr,
-                nbr,
-                eid,
-                agent_of,
-                arc_weights,
-                s_t,
-                a_t,
-                sn_t,
-                r_t,
-                up_t,
-                heard,
-                n_heard,
-                weights,
-                degree,
-                scratch,
-                work,
-            )
+            _chunk(c, n_chunks, t, p, own, sums, buffers, first, alphas, sampler, feat, x, graph, space)
 
 
 def driver(compiled: CompiledStep) -> tuple:
@@ -436,12 +256,10 @@ class Advance:
         sums = copy(w_sum)
         self.sampler = sample_args(ctx, blk, B, channel)
         Phi, ratio = rows_of(ctx, blk)
-        self.args = (
+        self.args = Args(
             algorithm.params(),
             own,
             sums,
-            q,
-            N,
             self.sampler,
             Features(*feature_arrays(ctx, blk)),
             readonly(ratio),
@@ -470,7 +288,7 @@ class Advance:
                 ctx, compiled, self.args, self.buffers, self.alphas, self.blk, self.channel, self.t, t1, self.newest
             )
         else:
-            B, L, q = self.args[2].shape
+            B, L, q = self.args.sums.shape
             self.newest = _layouts(ctx, B, L, q, bool(self.messages)).run(
                 driver(compiled),
                 self.args,
@@ -487,23 +305,22 @@ class Advance:
 
     def finish(self):
         """(the new state, the channel's, the running sums) in the agents' own order, the sources settled."""
-        sampler, channel, state, q = self.sampler, self.channel, self.state, self.args[3]
+        sampler, channel, state, q = self.sampler, self.channel, self.state, self.args.sums.shape[2]
         T, order, messages = self.t, self.order, self.messages
         back = (lambda x: x) if order is None else (lambda x: np.ascontiguousarray(x[:, order[1]]))
         if isinstance(self.blk, Draws):
-            _, _, markov, current = sampler[:4]
-            self.blk.settle(current if markov else None)
+            self.blk.settle(sampler.current if sampler.markov else None)
         if channel_draws(self.ctx):  # the links' states as the kernel left them, and the steps (`_run_held`'s own)
             step = channel.step if self.holds else channel.step + T
-            channel = channel._replace(links=sampler[14].copy(), step=step)
-        own = self.args[1]
+            channel = channel._replace(links=sampler.links.copy(), step=step)
+        own = self.args.own
         final = dict(zip(self.own_names, own)) | dict(zip(messages, self.buffers[self.newest][:, :, : self.N]))
         new = state._make(back(final[f]) for f in state._fields)
-        sums = back(self.args[2])
+        sums = back(self.args.sums)
         if self.holds:  # counted as they were carried (`_run_held`)
             return new, channel, sums
         # every arc that delivers carries every message (`_step_edges` counted them)
-        return new, counted(channel, sampler[20], len(messages), len(messages) * q), sums
+        return new, counted(channel, sampler.n_up, len(messages), len(messages) * q), sums
 
 
 run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
@@ -516,9 +333,10 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None,
     from dgtd.backends.compiled.held import Held, Links
     from dgtd.channels.imperfect import held
 
-    p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
+    sums, graph, N = args.sums, args.graph, ctx.network.n_nodes
+    q = sums.shape[2]
     t1 = alphas.shape[0] if t1 is None else t1
-    sampler, alphas = _piece_of(sampler, blk, t0, t1), alphas[t0:t1]
+    sampler, alphas = _piece_of(args.sampler, blk, t0, t1), alphas[t0:t1]
     link = ctx.channel
     M, B, A, T = buffers.shape[1], sums.shape[0], ctx.arcs.n_arcs, alphas.shape[0]
     Q = M * q
@@ -546,37 +364,25 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None,
         channel.per_arc.copy(),
         np.zeros(B, np.int64),
     )
-    indptr, nbr, eid, agent_of, arc_weights = graph
-    graph = (indptr, N + eid, eid, agent_of, arc_weights)  # a neighbour's messages: its arc's copy, row N + a
+    graph = graph._replace(nbr=N + graph.eid)  # a neighbour's messages: its arc's copy, row N + a
     kernel = _held_driver(compiled)
-    n_obs, degree = sampler[3].shape[1], _max_degree(indptr)
+    n_obs, degree = sampler.current.shape[1], _max_degree(graph.indptr)
     threads = max(1, min(get_num_threads(), B)) if T * B * N >= THREADED_WORK else 1
     groups = np.linspace(0, B, threads + 1).astype(int)
 
     def run(b0, b1):
-        space = _space(1, 1, n_obs, N, A, degree, q, M, compiled.work)
-        space = (*space[:8], _private((1, N + A), np.int64), *space[9:])
-        space += (_private((N,), np.bool_), _private((A,), np.int64), _private((A, Q), np.float64))
-        space += (_private((Q,), np.float64), _private((Q,), np.bool_))
+        space = _space(1, 1, n_obs, N, A, degree, q, M, compiled.work)._replace(degree=_private((1, N + A), np.int64))
+        space = HeldSpace(
+            *space,
+            awake=_private((N,), np.bool_),
+            late=_private((A,), np.int64),
+            rounding=_private((A, Q), np.float64),
+            value=_private((Q,), np.float64),
+            chosen=_private((Q,), np.bool_),
+        )
+        x = _samples(args, space)
         kernel(
-            p,
-            own,
-            sums,
-            buffers,
-            first,
-            q,
-            alphas,
-            sampler,
-            feat,
-            ratio,
-            cont,
-            gamma,
-            graph,
-            space,
-            links,
-            state,
-            b0,
-            b1,
+            args.p, args.own, sums, buffers, first, alphas, sampler, args.feat, x, graph, space, links, state, b0, b1
         )
 
     if threads == 1:
@@ -620,7 +426,7 @@ def arc_weights_of(channel) -> np.ndarray:
     return np.ascontiguousarray(channel.arc_weights, dtype=np.float64)
 
 
-def _graph(ctx, messages: bool) -> tuple:
+def _graph(ctx, messages: bool) -> Graph:
     """(CSR indptr, neighbours, link ids, the agent of each row, each arc's weight where the channel weighs what is
     heard (`dgtd.channels.Lossy.reweight`), else nothing): in storage rows for an algorithm that sends, else the
     agents' own numbering (it reads no neighbours). A link id is the edge's id, or on a channel that draws events
@@ -630,9 +436,9 @@ def _graph(ctx, messages: bool) -> tuple:
         storage_graph(ctx) if messages else (*graph_arrays(ctx), np.arange(ctx.network.n_nodes, dtype=np.int64))
     )
     if not channel_draws(ctx):
-        return indptr, nbr, eid, agent_of, np.zeros(0)
+        return Graph(indptr, nbr, eid, agent_of, np.zeros(0))
     agent = np.repeat(agent_of, np.diff(indptr))  # the receiving agent of every CSR entry
-    return indptr, nbr, 2 * eid + (agent == ctx.arcs.dst[2 * eid + 1]), agent_of, arc_weights_of(ctx.channel)
+    return Graph(indptr, nbr, 2 * eid + (agent == ctx.arcs.dst[2 * eid + 1]), agent_of, arc_weights_of(ctx.channel))
 
 
 class Layouts:
@@ -701,81 +507,114 @@ class Layouts:
         return self.spaces[key][1]
 
     def _call(self, kernels, layout, args, buffers, first, alphas, blk, t0, t1, n_messages, n_work):
-        p, own, sums, q, N, sampler, feat, ratio, cont, gamma, graph = args
         _seeds, _agents = kernels
-        sampler = _piece_of(sampler, blk, t0, t1)
+        sampler, sums, graph, alphas = _piece_of(args.sampler, blk, t0, t1), args.sums, args.graph, alphas[t0:t1]
         # up_t holds a step's edges up, or on a lossy channel its arcs that deliver (2E: `_step_edges`)
-        B, n_obs, degree = sums.shape[0], sampler[3].shape[1], _max_degree(graph[0])
-        E = graph[2].shape[0] if sampler[13].shape[0] else graph[2].shape[0] // 2
+        B, N, q = sums.shape[0], buffers.shape[3], sums.shape[2]
+        n_obs, degree = sampler.current.shape[1], _max_degree(graph.indptr)
+        E = graph.eid.shape[0] if sampler.loss.shape[0] else graph.eid.shape[0] // 2
         if layout == "agents":
             chunks = 4 * get_num_threads()
             space = self._space("agents", 2 * B, chunks, n_obs, N, E, degree, q, n_messages, n_work)
-            _agents(
-                p, own, sums, buffers, first, q, alphas[t0:t1], sampler, feat, ratio, cont, gamma, graph, space, chunks
-            )
+            x = _samples(args, space)
+            _agents(args.p, args.own, sums, buffers, first, alphas, sampler, args.feat, x, graph, space, chunks)
             return
         threads = min(get_num_threads(), B)
         if threads <= 1 or (t1 - t0) * self.per_step < THREADED_WORK:
-            _seeds(
-                p,
-                own,
-                sums,
-                buffers,
-                first,
-                q,
-                alphas[t0:t1],
-                sampler,
-                feat,
-                ratio,
-                cont,
-                gamma,
-                graph,
-                self._space(0, 1, 1, n_obs, N, E, degree, q, n_messages, n_work),
-                0,
-                B,
-            )
+            space = self._space(0, 1, 1, n_obs, N, E, degree, q, n_messages, n_work)
+            x = _samples(args, space)
+            _seeds(args.p, args.own, sums, buffers, first, alphas, sampler, args.feat, x, graph, space, 0, B)
             return
         # seeds in small groups taken by whichever thread is free: a thread slowed by another process takes fewer.
         # Each seed's trajectory states, written at every step, get cache lines of their own.
-        current = sampler[3]
+        current = sampler.current
         states = _private(current.shape, np.int64)
         states[...] = current
-        sampler = (*sampler[:3], states, *sampler[4:])
+        sampler = sampler._replace(current=states)
         if not _POOL or _POOL[0]._max_workers != threads:
             _POOL[:] = [ThreadPoolExecutor(threads, thread_name_prefix="dgtd-seeds")]
         work = (t1 - t0) * self.per_step
         n_groups = min(B, GROUPS_PER_THREAD * threads, max(threads, work // JOB_WORK))
         groups = np.linspace(0, B, n_groups + 1).astype(int)
-        jobs = [
-            _POOL[0].submit(
-                _seeds,
-                p,
-                own,
-                sums,
-                buffers,
-                first,
-                q,
-                alphas[t0:t1],
-                sampler,
-                feat,
-                ratio,
-                cont,
-                gamma,
-                graph,
-                self._space(j, 1, 1, n_obs, N, E, degree, q, n_messages, n_work),
-                int(b0),
-                int(b1),
-            )
-            for j, (b0, b1) in enumerate(zip(groups[:-1], groups[1:]))
-        ]
+        jobs = []
+        for j, (b0, b1) in enumerate(zip(groups[:-1], groups[1:])):
+            space = self._space(j, 1, 1, n_obs, N, E, degree, q, n_messages, n_work)
+            kernel_args = (args.p, args.own, sums, buffers, first, alphas, sampler, args.feat, _samples(args, space))
+            jobs.append(_POOL[0].submit(_seeds, *kernel_args, graph, space, int(b0), int(b1)))
         for job in jobs:
             job.result()
         current[...] = states
 
 
+class Space(NamedTuple):
+    """The arrays a kernel works in (`_space`)."""
+
+    s: np.ndarray  # (steps, n_obs): rows of a step's samples
+    a: np.ndarray
+    s_next: np.ndarray
+    r: np.ndarray  # (steps, N)
+    up: np.ndarray  # (steps, E or 2E): the edges up, or the arcs that deliver
+    heard: np.ndarray  # (threads, degree): the neighbours heard
+    n_heard: np.ndarray  # (threads, 1): how many
+    weights: np.ndarray  # (threads, degree): their weights
+    degree: np.ndarray  # (steps, N): every agent's count of messages heard
+    scratch: np.ndarray  # (messages, threads, q): the inbox's aggregates
+    work: np.ndarray  # (work rows, threads, q): the step's work rows
+
+
+class HeldSpace(NamedTuple):
+    """`Space` and the arrays of a channel whose receivers hold copies (`dgtd.backends.compiled.held.carry`)."""
+
+    s: np.ndarray
+    a: np.ndarray
+    s_next: np.ndarray
+    r: np.ndarray
+    up: np.ndarray
+    heard: np.ndarray
+    n_heard: np.ndarray
+    weights: np.ndarray
+    degree: np.ndarray  # (1, N + A): a copy's row counts as its sender
+    scratch: np.ndarray
+    work: np.ndarray
+    awake: np.ndarray  # (N,)
+    late: np.ndarray  # (A,)
+    rounding: np.ndarray  # (A, Q)
+    value: np.ndarray  # (Q,)
+    chosen: np.ndarray  # (Q,)
+
+
+class Graph(NamedTuple):
+    """The network as the kernels read it (`_graph`)."""
+
+    indptr: np.ndarray  # CSR rows of each storage row's neighbours
+    nbr: np.ndarray  # each neighbour's row in the message buffers
+    eid: np.ndarray  # each entry's link id (edge, or arc where the channel draws per arc)
+    agent_of: np.ndarray  # the agent of each row
+    arc_weights: np.ndarray  # each arc's weight where the channel weighs what is heard, else empty
+
+
+class Args(NamedTuple):
+    """A block's arguments to the kernels besides the layout's own (`Advance`)."""
+
+    p: tuple  # the algorithm's `params`
+    own: np.ndarray  # (fields kept, B, L, q)
+    sums: np.ndarray  # (B, L, q): the running sums of w
+    sampler: Sampler
+    feat: Features
+    ratio: np.ndarray  # the rows' ratio table
+    continuing: np.ndarray  # the rows' continuing flags
+    gamma: float
+    graph: Graph
+
+
+def _samples(args: Args, space) -> Samples:
+    """The kernels' samples record: the step rows of ``space``, the rows' tables of ``args``."""
+    return Samples(space.s, space.a, space.s_next, space.r, 0, args.ratio, args.continuing, args.gamma)
+
+
 def _space(
     steps: int, threads: int, n_obs: int, N: int, E: int, degree: int, q: int, n_messages: int, n_work: int
-) -> tuple:
+) -> Space:
     """The arrays a kernel works in: ``steps`` rows of a step's samples (s, a, s' (n_obs), r (N), edges up (E)) and of
     every agent's count of messages heard (N); per thread, the neighbours heard (``degree`` at most), how many and
     their weights, the inbox's aggregates (messages, threads, q) and the step's work rows (work, threads, q). Each
@@ -783,7 +622,7 @@ def _space(
     every agent-step, and a line two threads write in turn moves between their cores at every write (measured: two
     threads over seeds ran at 1.3x one thread with the arrays of one next to the other's, against 1.8x apart)."""
     lines = lambda width, dtype: -(-width * np.dtype(dtype).itemsize // LINE) * LINE // np.dtype(dtype).itemsize  # noqa: E731
-    return (
+    return Space(
         _private((steps, n_obs), np.int64),
         _private((steps, n_obs), np.int64),
         _private((steps, n_obs), np.int64),
@@ -814,26 +653,18 @@ def _max_degree(indptr: np.ndarray) -> int:
     return max(1, int(np.diff(indptr).max(initial=0)))
 
 
-def _piece_of(sampler: tuple, blk, t0: int, t1: int) -> tuple:
+def _piece_of(sampler: Sampler, blk, t0: int, t1: int) -> Sampler:
     """The sampling arguments of steps t0 .. t1 - 1 of the block: the keyed streams from step t0 on, and a
     materialised block's arrays from step t0 on."""
     if t0 == 0:
         return sampler
-    rng = sampler[1].copy()
+    rng = sampler.rng.copy()
     rng[:, 1] += np.uint64(t0)
     if isinstance(blk, Draws):
-        return (sampler[0], rng, *sampler[2:])
-    s, a, sn, r, up = sampler[15:20]
-    return (
-        sampler[0],
-        rng,
-        *sampler[2:15],
-        s[t0:],
-        a[t0:],
-        sn[t0:],
-        r[t0:],
-        up[t0:] if up.shape[0] else up,
-        *sampler[20:],
+        return sampler._replace(rng=rng)
+    up = sampler.up[t0:] if sampler.up.shape[0] else sampler.up
+    return sampler._replace(
+        rng=rng, s=sampler.s[t0:], a=sampler.a[t0:], s_next=sampler.s_next[t0:], r=sampler.r[t0:], up=up
     )
 
 

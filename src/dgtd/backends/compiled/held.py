@@ -49,7 +49,7 @@ class Held(NamedTuple):
     delivered: np.ndarray  # (B,): how many arcs carried a message in the block
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def carry(links, held, b, t, rng, up_t, sent, N, scratch):
     """Step t of seed b (`dgtd.channels.Imperfect.deliver`): who is awake (into ``awake`` (N,)), what each arc carries
     and each receiver holds, written into the buffer rows N + a of ``sent``, and in up_t[0] the arcs heard (carried,

@@ -6,6 +6,8 @@ streams (`_step_samples`, `sample_args`; `dgtd.streams`).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
@@ -48,14 +50,16 @@ def _divmod(j, S, inv_S):
 
 
 @njit(cache=True, inline="always")
-def _transition(u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, terminal, S):
+def _transition(u_s, u_sa, sampler, current, b, o, S):
     """(s, a, s') of observation o of seed b from its two uniforms: s ~ d from u_s (i.i.d.) or the trajectory's
     current state (Markovian, which then moves to s'), and (a, s') from u_sa: the table's flat index a * S + s'.
     Where restarts are not samples (``terminal`` holds the S flags, else nothing), a trajectory that reaches a
-    terminal s' goes on from the restart's state, drawn from u_s (`dgtd.sources.model.next_current`)."""
-    s = current[b, o] if markov else _alias(d_prob, d_alias, u_s)
+    terminal s' goes on from the restart's state, drawn from u_s (`dgtd.sources.model.next_current`). ``current``
+    is the record's, passed apart: it is written, and a parallel loop may not write through a record."""
+    sa_prob, sa_alias, terminal = sampler.sa_prob, sampler.sa_alias, sampler.terminal
+    s = current[b, o] if sampler.markov else _alias(sampler.d_prob, sampler.d_alias, u_s)
     a, sn = _divmod(_alias_row(sa_prob, sa_alias, s, u_sa), S, 1.0 / S)
-    if markov:
+    if sampler.markov:
         current[b, o] = sn
         if terminal.shape[0] > 0 and terminal[sn]:
             current[b, o] = _divmod(_alias_row(sa_prob, sa_alias, sn, u_s), S, 1.0 / S)[1]
@@ -73,56 +77,27 @@ def _reward(mean, sigma, noise, u):
 
 
 @njit(cache=True, parallel=True)
-def _sample_kernel(
-    u_state,
-    u_reward,
-    u_edge,
-    markov,
-    current,
-    d_prob,
-    d_alias,
-    sa_prob,
-    sa_alias,
-    terminal,
-    R_sample,
-    sigma,
-    noise,
-    p_edge,
-    s_out,
-    a_out,
-    sn_out,
-    r_out,
-    up_out,
-):
-    """Samples of a block: each (seed, observation) pair runs its own trajectory, so they are spread over the cores."""
+def _sample_kernel(u_state, u_reward, u_edge, sampler):
+    """Samples of a block from its uniforms, into the block arrays of ``sampler`` (s, a, s_next, r, up): each
+    (seed, observation) pair runs its own trajectory, so they are spread over the cores."""
     T, B, n_obs, width = u_state.shape
-    N = R_sample.shape[0]
-    S = R_sample.shape[1]
+    # arrays taken out of the record first: numba 0.68 loses a parallel loop's stores through a record's field
+    s_out, a_out, sn_out, r_out, up_out = sampler.s, sampler.a, sampler.s_next, sampler.r, sampler.up
+    current = sampler.current
+    rewards, sigma, noise, p_edge = sampler.rewards, sampler.sigma, sampler.noise, sampler.p_edge
+    N, S = rewards.shape[0], rewards.shape[1]
     for flat in prange(B * n_obs):
         b = flat // n_obs
         o = flat % n_obs
         for t in range(T):
-            s, a, sn = _transition(
-                u_state[t, b, o, 0],
-                u_state[t, b, o, width - 1],
-                markov,
-                current,
-                b,
-                o,
-                d_prob,
-                d_alias,
-                sa_prob,
-                sa_alias,
-                terminal,
-                S,
-            )
+            s, a, sn = _transition(u_state[t, b, o, 0], u_state[t, b, o, width - 1], sampler, current, b, o, S)
             s_out[t, b, o] = s
             a_out[t, b, o] = a
             sn_out[t, b, o] = sn
             # Rewards of the agents that see this observation: agent o, or all agents on a shared trajectory.
             lo, hi = (o, o + 1) if n_obs == N else (0, N)
             for i in range(lo, hi):
-                r = R_sample[i, s, a, sn if R_sample.shape[3] > 1 else 0]  # (`Problem.reward_table`)
+                r = rewards[i, s, a, sn if rewards.shape[3] > 1 else 0]  # (`Problem.reward_table`)
                 r_out[t, b, i] = _reward(r, sigma, noise, u_reward[t, b, i]) if noise != 0 else r
     E = p_edge.shape[0]
     if up_out.shape[0] > 0:
@@ -148,213 +123,97 @@ def block_from_uniforms(problem, network, tables, U: dict, current, agents=None,
     s, a, sn = (np.empty((T, B, n_obs), np.int64) for _ in range(3))
     r = np.empty((T, B, N))
     up = np.empty((T, B, p.shape[0]), np.bool_) if "edge" in U else np.empty((0, 0, 0), np.bool_)
+    sampler = Sampler(
+        fused=False,
+        rng=np.zeros((B, 2), np.uint64),
+        markov=markov,
+        current=cur,
+        **_model(tables, problem, markov, table),
+        p_edge=frozen(p, np.float64),
+        **_no_loss(B),
+        s=s,
+        a=a,
+        s_next=sn,
+        r=r,
+        up=up,
+        n_up=np.zeros(B, np.int64),
+        **_ids(entities(*(np.zeros(0, np.int64),) * 4, shared=n_obs < N)),
+    )
     _sample_kernel(
         np.ascontiguousarray(U["state"]),
         U.get("reward", np.zeros((0, 0, 0))),
         U.get("edge", np.zeros((0, 0, 0))),
-        markov,
-        cur,
-        tables.d_prob,
-        tables.d_alias,
-        tables.sa_prob,
-        tables.sa_alias,
-        restart_flags(problem, markov),
-        np.ascontiguousarray(table),
-        float(problem.sigma),
-        NOISE_CODES[problem.reward_noise],
-        p,
-        s,
-        a,
-        sn,
-        r,
-        up,
+        sampler,
     )
     return Block(s, a, sn, r, up if "edge" in U else None), (cur if markov else None)
 
 
-@njit(cache=True, inline="always")
-def _step_samples(
-    b,
-    row,
-    t,
-    fused,
-    rng,
-    markov,
-    current,
-    d_prob,
-    d_alias,
-    sa_prob,
-    sa_alias,
-    terminal,
-    R_sample,
-    sigma,
-    noise,
-    p_edge,
-    loss,
-    links,
-    s_blk,
-    a_blk,
-    sn_blk,
-    r_blk,
-    up_blk,
-    s_t,
-    a_t,
-    sn_t,
-    r_t,
-    up_t,
-    ids,
-):
-    """Step t's samples of seed b into row ``row`` of the step arrays s_t, a_t, sn_t (observations), r_t (agents)
-    and up_t (edges, or arcs on a lossy channel); returns how many arcs deliver (those ``ids``' counts count).
+class Sampler(NamedTuple):
+    """What the compiled kernels draw or copy a step's samples from (`sample_args`): one flat record, as numba hands
+    a parallel loop records of arrays and numbers only."""
+
+    fused: bool  # draw from the keyed streams (a `Draws`), or copy a block's samples (s, a, s_next, r, up)
+    rng: np.ndarray  # (B, 2) uint64: each seed's key and the block's first step (`dgtd.streams`)
+    markov: bool  # trajectories (``current`` their states), or s ~ d at every step
+    current: np.ndarray  # (B, n_obs) int64
+    d_prob: np.ndarray  # alias tables of d (S,) and of (a, s') given s (S, A S') (`SamplerTables`)
+    d_alias: np.ndarray
+    sa_prob: np.ndarray
+    sa_alias: np.ndarray
+    terminal: np.ndarray  # (S,) bool where restarts are not samples (`restart_flags`), else empty
+    rewards: np.ndarray  # (N, S, A, S' or 1): `Problem.reward_table`
+    sigma: float
+    noise: int  # `NOISE_CODES`
+    p_edge: np.ndarray  # (E,) each edge's probability of being up; empty for a fixed graph
+    loss: np.ndarray  # (0 | 1 | 2, 2E): the arcs' loss (and burst) probabilities (`_step_edges`)
+    links: np.ndarray  # (B, 2E) uint8: 1 while an arc's burst chain is losing
+    s: np.ndarray  # a block's samples (T, B, n_obs), (T, B, N), (T, B, E), where not fused
+    a: np.ndarray
+    s_next: np.ndarray
+    r: np.ndarray
+    up: np.ndarray
+    n_up: np.ndarray  # (B,) int64: how many arcs delivered, as the kernels count them
+    obs_ids: np.ndarray  # the entities' ids in the whole network (`entity_ids`): empty where each index is its id
+    agent_ids: np.ndarray
+    edge_ids: np.ndarray
+    counted: np.ndarray  # (2E,) uint8: 1 for each arc the counts count; empty: every arc
+    purpose: int  # the states' stream: one trajectory for all agents or one each (`dgtd.streams`)
+
+
+@njit(cache=True)
+def _sample_step(sampler, b, row, t, space):
+    """Step t's samples of seed b into row ``row`` of the step arrays of ``space`` (s, a, s_next, r: observations
+    and agents; up: edges, or arcs on a lossy channel); returns how many arcs deliver (those ``counted`` counts).
 
     Fused: drawn here from seed b's keyed streams (``rng`` [b] = (its key, the block's first step): each number a
     function of the purpose, the observation, agent, edge or arc, and the step, as `dgtd.sources.model.Streams.draw`
     draws them) and turned into samples with the arithmetic of `block_from_uniforms`, so the NumPy reference sees
     the same samples. Otherwise copied from a block (samples from a simulator). The two halves,
     `_step_observations` and `_step_edges`, write disjoint arrays: a kernel may run them at the same time."""
-    _step_observations(
-        b,
-        row,
-        t,
-        fused,
-        rng,
-        markov,
-        current,
-        d_prob,
-        d_alias,
-        sa_prob,
-        sa_alias,
-        terminal,
-        R_sample,
-        sigma,
-        noise,
-        s_blk,
-        a_blk,
-        sn_blk,
-        r_blk,
-        s_t,
-        a_t,
-        sn_t,
-        r_t,
-        ids,
-        0,
-        s_t.shape[1],
-    )
-    return _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t, ids[2], ids[3])
+    _step_observations(sampler, b, row, t, space.s, space.a, space.s_next, space.r, 0, space.s.shape[1])
+    return _step_edges(sampler, b, row, t, space.up)
 
 
-@njit(cache=True, inline="always")
-def _sample_step(sampler, b, row, t, rng, space):
-    """Seed b's samples of step t into row ``row`` of the step's arrays (the first five of a driver's ``space``), from
-    the sampling arguments as `sample_args` lays them out and the seeds' keys and first step ``rng``; returns how
-    many arcs deliver (`_step_samples`)."""
-    (
-        fused,
-        _,
-        markov,
-        current,
-        d_prob,
-        d_alias,
-        sa_prob,
-        sa_alias,
-        terminal,
-        R_sample,
-        sigma,
-        noise,
-        p_edge,
-        loss,
-        links,
-        s_blk,
-        a_blk,
-        sn_blk,
-        r_blk,
-        up_blk,
-        _,
-        ids,
-    ) = sampler
-    s_t, a_t, sn_t, r_t, up_t = space[0], space[1], space[2], space[3], space[4]
-    return _step_samples(
-        b,
-        row,
-        t,
-        fused,
-        rng,
-        markov,
-        current,
-        d_prob,
-        d_alias,
-        sa_prob,
-        sa_alias,
-        terminal,
-        R_sample,
-        sigma,
-        noise,
-        p_edge,
-        loss,
-        links,
-        s_blk,
-        a_blk,
-        sn_blk,
-        r_blk,
-        up_blk,
-        s_t,
-        a_t,
-        sn_t,
-        r_t,
-        up_t,
-        ids,
-    )
-
-
-@njit(cache=True, inline="always")
-def _step_observations(
-    b,
-    row,
-    t,
-    fused,
-    rng,
-    markov,
-    current,
-    d_prob,
-    d_alias,
-    sa_prob,
-    sa_alias,
-    terminal,
-    R_sample,
-    sigma,
-    noise,
-    s_blk,
-    a_blk,
-    sn_blk,
-    r_blk,
-    s_t,
-    a_t,
-    sn_t,
-    r_t,
-    ids,
-    o0,
-    o1,
-):
-    """The states, actions, next states and rewards of `_step_samples` (seed b's state and reward streams), each
+@njit(cache=True)
+def _step_observations(sampler, b, row, t, s_t, a_t, sn_t, r_t, o0, o1):
+    """The states, actions, next states and rewards of `_sample_step` (seed b's state and reward streams), each
     drawn by its observation's and agent's ids in the whole network (`entity_ids`): those of observations o0 .. o1 - 1
     and their agents (every agent where they share one observation), so that several threads can draw a step's."""
-    obs_ids, agent_ids, purpose = ids[0], ids[1], ids[4]
+    obs_ids, agent_ids, R_sample, noise = sampler.obs_ids, sampler.agent_ids, sampler.rewards, sampler.noise
     n_obs = s_t.shape[1]
     N = r_t.shape[1]
     S = R_sample.shape[1]
     i0, i1 = (o0, o1) if n_obs == N else (0, N if o0 == 0 < o1 else 0)  # a shared observation's: with observation 0
-    if not fused:
+    if not sampler.fused:
         for o in range(o0, o1):
-            s_t[row, o], a_t[row, o], sn_t[row, o] = s_blk[t, b, o], a_blk[t, b, o], sn_blk[t, b, o]
+            s_t[row, o], a_t[row, o], sn_t[row, o] = sampler.s[t, b, o], sampler.a[t, b, o], sampler.s_next[t, b, o]
         for i in range(i0, i1):
-            r_t[row, i] = r_blk[t, b, i]
+            r_t[row, i] = sampler.r[t, b, i]
         return
-    key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
+    key, step = sampler.rng[b, 0], sampler.rng[b, 1] + np.uint64(t)
     for o in range(o0, o1):
-        u_s, u_sa = keyed_pair(key, purpose, step, o if obs_ids.shape[0] == 0 else obs_ids[o], 0)
-        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(
-            u_s, u_sa, markov, current, b, o, d_prob, d_alias, sa_prob, sa_alias, terminal, S
-        )
+        u_s, u_sa = keyed_pair(key, sampler.purpose, step, o if obs_ids.shape[0] == 0 else obs_ids[o], 0)
+        s_t[row, o], a_t[row, o], sn_t[row, o] = _transition(u_s, u_sa, sampler, sampler.current, b, o, S)
     u_even = u_odd = 0.0
     pair = -1
     for i in range(i0, i1):
@@ -367,25 +226,33 @@ def _step_observations(
             if agent >> 1 != pair:
                 pair = agent >> 1
                 u_even, u_odd = keyed_pair(key, REWARD, step, pair, 0)
-            r = _reward(r, sigma, noise, u_even if agent & 1 == 0 else u_odd)
+            r = _reward(r, sampler.sigma, noise, u_even if agent & 1 == 0 else u_odd)
         r_t[row, i] = r
 
 
-@njit(cache=True, inline="always")
-def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t, edge_ids, counted):
-    """Which links deliver at step t, for `_step_samples` (seed b's edge stream): into row ``row`` of up_t, each
+@njit(cache=True)
+def _step_edges(sampler, b, row, t, up_t):
+    """Which links deliver at step t, for `_sample_step` (seed b's edge stream): into row ``row`` of up_t, each
     edge up (E), or where the channel loses messages each arc that delivers (2E: its edge up and its message kept,
     from the pair of uniforms of each edge's two arcs at the step, as `dgtd.channels.Lossy` draws them). ``loss`` is
     empty on a perfect channel, else row 0 holds each arc's loss probability (i.i.d. losses) or, with bursts, the
     probability that its chain enters its losing state, and row 1 that it leaves it; ``links`` [b, a] is 1 while arc
     a's chain is losing. Each edge draws by its id ``edge_ids`` [e] in the whole network. Returns how many arcs
     deliver of those ``counted`` (two per edge up, without loss, in a whole network)."""
+    loss, links, edge_ids, counted, p_edge = (
+        sampler.loss,
+        sampler.links,
+        sampler.edge_ids,
+        sampler.counted,
+        sampler.p_edge,
+    )
     if loss.shape[0] == 0:
-        return _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t, edge_ids, counted)
+        return _edges_up(sampler, b, row, t, up_t)
     E = loss.shape[1] // 2
     bursty = loss.shape[0] == 2
+    fused = sampler.fused
     drawn = fused and p_edge.shape[0] == E  # random edges drawn here; a fixed graph draws nothing
-    key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
+    key, step = sampler.rng[b, 0], sampler.rng[b, 1] + np.uint64(t)
     n = 0
     u_even = u_odd = 0.0
     pair = -1
@@ -397,8 +264,8 @@ def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t, edge_i
                 pair = edge >> 1
                 u_even, u_odd = keyed_pair(key, EDGE_UP, step, pair, 0)
             up = (u_even if edge & 1 == 0 else u_odd) < p_edge[e]
-        elif not fused and up_blk.shape[0] > 0:
-            up = up_blk[t, b, e]
+        elif not fused and sampler.up.shape[0] > 0:
+            up = sampler.up[t, b, e]
         u0, u1 = keyed_pair(key, ARC_LOSS, step, edge, 0)
         for a in range(2 * e, 2 * e + 2):
             u = u0 if a == 2 * e else u1
@@ -414,12 +281,19 @@ def _step_edges(b, row, t, fused, rng, p_edge, loss, links, up_blk, up_t, edge_i
 
 
 @njit(cache=True, inline="always")
-def _edges_up(b, row, t, fused, rng, p_edge, up_blk, up_t, edge_ids, counted):
+def _edges_up(sampler, b, row, t, up_t):
     """Each edge up at step t into row ``row`` of up_t (a perfect channel's `_step_edges`); returns how many of
     their arcs ``counted`` counts (2 per edge up in a whole network)."""
     E = up_t.shape[1]
+    p_edge, edge_ids, counted, fused, up_blk = (
+        sampler.p_edge,
+        sampler.edge_ids,
+        sampler.counted,
+        sampler.fused,
+        sampler.up,
+    )
     if fused and p_edge.shape[0] == E:  # random edges drawn here; a fixed graph draws nothing
-        key, step = rng[b, 0], rng[b, 1] + np.uint64(t)
+        key, step = sampler.rng[b, 0], sampler.rng[b, 1] + np.uint64(t)
         if edge_ids.shape[0] == 0:  # the whole network: edges 2j and 2j + 1 from call j, a loop LLVM vectorises
             for j in range(E >> 1):
                 u0, u1 = keyed_pair(key, EDGE_UP, step, j, 0)
@@ -453,78 +327,87 @@ def channel_draws(ctx) -> bool:
     return getattr(ctx.channel, "loss", None) is not None
 
 
-def sample_args(ctx, blk, B: int, channel=None):
-    """The sampling arguments of the compiled driver: draw in the kernel from a `Draws`' streams, or copy a `Block`.
-    The tables a kernel only reads are handed over read-only and the samples it copies writable, whichever source
-    they come from: numba compiles a kernel once per array type, and a read-only array is another type."""
-    tables, network, problem = ctx.tables, ctx.network, ctx.problem
+def sample_args(ctx, blk, B: int, channel=None) -> Sampler:
+    """The compiled driver's `Sampler`: draw in the kernel from a `Draws`' streams, or copy a `Block`. The tables a
+    kernel only reads are handed over read-only and the samples it copies writable, whichever source they come from:
+    numba compiles a kernel once per array type, and a read-only array is another type."""
     none_i, none_f, none_b = np.zeros((0, 0, 0), np.int64), np.zeros((0, 0, 0)), np.zeros((0, 0, 0), np.bool_)
     p_edge = np.zeros(0)
+    samples: dict  # the block's arrays, of `Sampler`'s fields s .. up
     if isinstance(blk, Draws):
         src = blk.source
         markov = src.current is not None
         current = np.array(src.current, dtype=np.int64) if markov else np.zeros((B, src.n_obs), np.int64)
-        if not network.fixed:
-            p_edge = np.asarray(network.p, dtype=np.float64)
-        samples = (none_i, none_i, none_i, none_f, none_b)
+        if not ctx.network.fixed:
+            p_edge = np.asarray(ctx.network.p, dtype=np.float64)
+        samples = dict(s=none_i, a=none_i, s_next=none_i, r=none_f, up=none_b)
         fused, rng = True, src.streams.cursor()
     else:
         markov, current = False, np.zeros((B, blk.s.shape[2]), np.int64)
-        samples = (
-            writable(blk.s, np.int64),
-            writable(blk.a, np.int64),
-            writable(blk.s_next, np.int64),
-            writable(blk.r, np.float64),
-            writable(up_mask(blk), np.bool_),
+        samples = dict(
+            s=writable(blk.s, np.int64),
+            a=writable(blk.a, np.int64),
+            s_next=writable(blk.s_next, np.int64),
+            r=writable(blk.r, np.float64),
+            up=writable(up_mask(blk), np.bool_),
         )
         fused, rng = False, np.zeros((B, 2), np.uint64)
-    if tables is None:  # no model (a simulator's or a data file's samples): the drawing arguments go unread
-        empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
-        model = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros(0, np.bool_), np.zeros((1, 1, 1, 1)), 1.0, 0)
-    else:
-        model = (
-            tables.d_prob,
-            tables.d_alias,
-            tables.sa_prob,
-            tables.sa_alias,
-            restart_flags(problem, markov),
-            problem.reward_table,
-            float(problem.sigma),
-            NOISE_CODES[problem.reward_noise],
-        )
-    d_prob, d_alias, sa_prob, sa_alias, terminal, R, sigma, noise = model
-    model = (
-        frozen(d_prob, np.float64),
-        frozen(d_alias, np.int64),
-        frozen(sa_prob, np.float64),
-        frozen(sa_alias, np.int64),
-        frozen(terminal, np.bool_),
-        frozen(R, np.float64),
-        sigma,
-        noise,
-    )
-    loss, links = np.zeros((0, 0)), np.zeros((B, 0), np.uint8)
+    links = _no_loss(B)
     if channel_draws(ctx):  # the channel's events, keyed by the same seeds and steps as the samples
         lossy = ctx.channel
         if lossy.burst is None:
             loss = lossy.loss[None, :]
         else:
             loss = np.stack([lossy.enter, np.full(lossy.loss.shape, 1.0 / float(lossy.burst))])
-            links = np.array(channel.links, dtype=np.uint8, order="C")
+            links["links"] = np.array(channel.links, dtype=np.uint8, order="C")
+        links["loss"] = frozen(loss, np.float64)
         rng = channel_cursor(channel, rng, fused)
-    return (
-        fused,
-        rng,
-        markov,
-        current,
-        *model,
-        frozen(p_edge, np.float64),
-        frozen(loss, np.float64),
-        links,
-        *samples,
-        np.zeros(B, np.int64),
-        entity_ids(ctx),
+    return Sampler(
+        fused=fused,
+        rng=rng,
+        markov=markov,
+        current=current,
+        **_model(ctx.tables, ctx.problem, markov),
+        p_edge=frozen(p_edge, np.float64),
+        **links,
+        **samples,
+        n_up=np.zeros(B, np.int64),
+        **_ids(entity_ids(ctx)),
     )
+
+
+def _model(tables, problem, markov: bool, rewards=None) -> dict:
+    """The `Sampler`'s model fields (read-only): d's and the transitions' alias tables, the restarts' terminal flags,
+    the reward table (``rewards``: its rows of a rank's agents), sigma and the noise; a source without a model (a
+    simulator's or a data file's samples) leaves them unread."""
+    if tables is None:
+        empty_f, empty_i = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
+        arrays = (empty_f[0], empty_i[0], empty_f, empty_i, np.zeros(0, np.bool_), np.zeros((1, 1, 1, 1)))
+        sigma, noise = 1.0, 0
+    else:
+        rewards = problem.reward_table if rewards is None else rewards
+        arrays = (
+            tables.d_prob,
+            tables.d_alias,
+            tables.sa_prob,
+            tables.sa_alias,
+            restart_flags(problem, markov),
+            rewards,
+        )
+        sigma, noise = float(problem.sigma), NOISE_CODES[problem.reward_noise]
+    dtypes = (np.float64, np.int64, np.float64, np.int64, np.bool_, np.float64)
+    names = ("d_prob", "d_alias", "sa_prob", "sa_alias", "terminal", "rewards")
+    return {name: frozen(x, dtype) for name, x, dtype in zip(names, arrays, dtypes)} | dict(sigma=sigma, noise=noise)
+
+
+def _no_loss(B: int) -> dict:
+    """The `Sampler`'s channel fields where the kernels draw no losses."""
+    return dict(loss=frozen(np.zeros((0, 0)), np.float64), links=np.zeros((B, 0), np.uint8))
+
+
+def _ids(ids: tuple) -> dict:
+    """`entity_ids` as the `Sampler`'s fields."""
+    return dict(zip(("obs_ids", "agent_ids", "edge_ids", "counted", "purpose"), ids))
 
 
 def entity_ids(ctx) -> tuple:
