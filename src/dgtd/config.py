@@ -20,6 +20,7 @@ from types import SimpleNamespace
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
@@ -27,6 +28,8 @@ from dgtd.problems.model import with_restarts, with_reward_noise
 from dgtd.run.loop import RunSettings, check_count
 from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
+
+DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given
 
 
 @dataclass(frozen=True)
@@ -37,14 +40,43 @@ class ProblemConfig:
     the scenario's own keyword arguments; ``reward_noise`` and ``restarts`` (an episodic task's convention,
     `dgtd.problems.model.Problem`) change how a model's samples are drawn."""
 
-    scenario: str | None = None
-    problem_file: str | None = None
-    env: dict | None = None
-    data: str | None = None
-    gamma: float | None = None
-    params: dict | None = None
-    reward_noise: str | None = None
-    restarts: str | None = None
+    scenario: str | None = None  # the commands' argument SCENARIO
+    problem_file: str | None = field(
+        default=None,
+        metadata=option(
+            "An .npz with arrays P (S,S), R (N,S), Phi (S,q) and scalar gamma, instead of a scenario.",
+            flags=("--problem",),
+        ),
+    )
+    env: dict | None = None  # the fields of EnvSpec, each an option of its own (--env sets make)
+    data: str | None = field(
+        default=None,
+        metadata=option(
+            "Run on recorded transitions (.parquet, .csv, .npz; columns seed, step, agent, phi_j, next_phi_j (or "
+            "state, next_state), reward, and optionally ratio, terminal): one recording per seed.",
+            metavar="FILE",
+        ),
+    )
+    gamma: float | None = field(
+        default=None, metadata=option(f"Discount factor of an --env or --data run (default {DEFAULT_GAMMA}).")
+    )
+    params: dict | None = None  # a scenario's own keyword arguments: a table of an experiment file
+    reward_noise: str | None = field(
+        default=None,
+        metadata=option(
+            "How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in [0, sigma] with "
+            "that mean (bernoulli, uniform), or the reward of the sampled transition r(s, a, s') where the problem "
+            "gives rewards per transition (transition)."
+        ),
+    )
+    restarts: str | None = field(
+        default=None,
+        metadata=option(
+            "An episodic task's restart transition (terminal state to the next episode's start) is a sample, as dgtd "
+            "counts it (sampled, the default), or not, as RL-Glue based suites count it (skipped; d then weights the "
+            "non-terminal states only). See README, Episodic tasks."
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -60,16 +92,77 @@ class NetworkConfig:
     default), ``bits`` (per number sent, 64 by default: exact), ``top_k`` (the coordinates a message keeps, all by
     default) and ``error_feedback`` (CHOCO's public copies, off by default)."""
 
-    graph: str | None = None
-    edge_prob: float | None = None
-    loss: float | list | str | None = None
-    burst: float | None = None
-    reweight: bool | None = None
-    delay: int | None = None
-    wake: float | list | str | None = None
-    bits: int | None = None
-    top_k: int | None = None
-    error_feedback: bool | None = None
+    graph: str | None = field(
+        default=None,
+        metadata=option(
+            "ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the scenario's, else "
+            "ring)."
+        ),
+    )
+    edge_prob: float | None = field(
+        default=None, metadata=option("Probability that each edge of the graph is up at each step (1 = fixed graph).")
+    )
+    loss: float | list | str | None = field(
+        default=None,
+        metadata=option(
+            "Each message is lost with probability P; or agent i misses each message sent to it with probability Pi "
+            "(one per agent); or a file of 'i j p' lines (agent i misses j's messages with probability p). Default: "
+            "none lost. See docs/links.md.",
+            metavar="P|P1,...,PN|FILE",
+        ),
+    )
+    burst: float | None = field(
+        default=None,
+        metadata=option(
+            "Lost messages come in bursts of mean length L on each link (Gilbert-Elliott), with the same long-run "
+            "loss as --loss. Default: each message lost independently.",
+            metavar="L",
+        ),
+    )
+    reweight: bool | None = field(
+        default=None,
+        metadata=option(
+            "Each agent weighs what it hears from j by 1 / (1 - loss of j's messages to it): the Laplacian methods "
+            "(dgtd, pd-td) then converge to w* under any --loss. Default: no."
+        ),
+    )
+    delay: int | None = field(
+        default=None,
+        metadata=option(
+            "Each message arrives d steps late, d uniform in 0..D; a receiver uses the newest it holds from each "
+            "neighbour. Default: 0.",
+            metavar="D",
+        ),
+    )
+    wake: float | list | str | None = field(
+        default=None,
+        metadata=option(
+            "Each agent is awake at a step with probability Q (or Qi, one per agent); asleep, it neither updates "
+            "nor sends, and its neighbours use the last they heard. Default: 1.",
+            metavar="Q|Q1,...,QN",
+        ),
+    )
+    bits: int | None = field(
+        default=None,
+        metadata=option(
+            "Each number sent is rounded stochastically to B bits, the message's scale sent alongside. Default: 64 "
+            "(exact).",
+            metavar="B",
+        ),
+    )
+    top_k: int | None = field(
+        default=None,
+        metadata=option(
+            "Each message keeps its K largest coordinates (with their indices). Default: all.", metavar="K"
+        ),
+    )
+    error_feedback: bool | None = field(
+        default=None,
+        metadata=option(
+            "Send the compressed difference from a copy both ends keep (CHOCO-gossip), so that what is not sent now "
+            "is sent later. Default: no."
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -79,8 +172,11 @@ class AlgorithmConfig:
     `resolve`; the others keep the scenario's values. In an experiment file they sit beside ``name`` in
     [algorithm]; on the command line --alpha0, --beta, --schedule, --kappa and --rho set the five common ones."""
 
-    name: str | None = None
-    fields: dict = field(default_factory=dict)
+    name: str | None = field(
+        default=None,
+        metadata=option("Algorithm name (default: the scenario's, dgtd).", flags=("--algorithm",)),
+    )
+    fields: dict = field(default_factory=dict)  # each registered algorithm's field an option of its own
 
 
 def _optional(cls, name: str, doc: str):
@@ -88,7 +184,9 @@ def _optional(cls, name: str, doc: str):
     ``cls``'s default'): the configuration's section for ``cls`` without declaring its fields a second time."""
     hints = typing.get_type_hints(cls)
     section = make_dataclass(
-        name, [(f.name, hints[f.name] | None, field(default=None)) for f in fields(cls)], frozen=True
+        name,
+        [(f.name, hints[f.name] | None, field(default=None, metadata=f.metadata)) for f in fields(cls)],
+        frozen=True,
     )
     section.__module__, section.__doc__ = __name__, doc
     return section
@@ -121,12 +219,24 @@ class Output:
       in any case. Either way the previous run's files go first, so a directory never mixes two runs.
     """
 
-    out: str | None = None
-    progress: bool = True
-    plots: bool = True
-    checkpoint_every: int = 0
-    resume: bool = False
-    overwrite: bool = False
+    out: str | None = field(default=None, metadata=option("Results directory (default: runs/NAME)."))
+    progress: bool = field(default=True, metadata=option("A progress bar on stderr."))
+    plots: bool = field(default=True, metadata=option("Figures in the results directory."))
+    checkpoint_every: int = field(
+        default=0,
+        metadata=option(
+            "Save the whole run state every K iterations to OUT/checkpoint.npz (0: never); the same command again "
+            "continues from it."
+        ),
+    )
+    resume: bool = False  # set by --resume DIR, which names the results directory too
+    overwrite: bool = field(
+        default=False,
+        metadata=option(
+            "Replace the results or checkpoint of another run in OUT (refused without it), or start this run afresh "
+            "(without it, a run cut off after a checkpoint continues; a finished one is redone)."
+        ),
+    )
 
     def __post_init__(self):
         object.__setattr__(self, "checkpoint_every", check_count("checkpoint_every", self.checkpoint_every, 0))
@@ -160,6 +270,14 @@ SECTIONS = {
 ALGORITHM_FIELDS = ("alpha0", "beta", "schedule", "kappa", "rho")
 """The algorithm fields that have options of their own (--alpha0 ...) and flat names of their own."""
 FLAT_ALIASES = {"algorithm": ("algorithm", "name"), "sampling": ("sampling", "mode")}
+
+
+def algorithm_fields() -> tuple:
+    """The field names of the registered algorithms (each an option: `dgtd.cli.options.ALGORITHM_OPTIONS`); those not
+    in `ALGORITHM_FIELDS` are kept in the algorithm's params (``algorithm_params``)."""
+    from dgtd.algorithms import ALGORITHMS
+
+    return tuple(dict.fromkeys(f.name for cls in ALGORITHMS.values() for f in fields(cls)))
 
 
 def _flat_names() -> dict:
@@ -485,9 +603,6 @@ def make_channel(config: RunConfig, network):
     """The channel a resolved config's run uses, over its ``network`` (`resolve`'s)."""
     n = config.network
     return channel_for(n.loss, n.burst, network, n.reweight, {k: getattr(n, k) for k in LINK_FIELDS})
-
-
-DEFAULT_GAMMA = 0.9  # of an --env or --data run, when not given
 
 
 def _edge_prob(spec) -> float:

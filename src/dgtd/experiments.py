@@ -40,7 +40,7 @@ paths. A field that is not known, or has the wrong type, is an error naming it a
 from __future__ import annotations
 
 import tomllib
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from dgtd.algorithms.dgtd import DGTD
@@ -48,14 +48,18 @@ from dgtd.config import (
     FLAT,
     SECTIONS,
     RunConfig,
+    algorithm_fields,
     check_type,
     closest,
     field_types,
+    flat,
     unflat,
     with_flat,
 )
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option, option_of
 from dgtd.graphs.topologies import TOPOLOGIES
+from dgtd.scenarios.user import EnvSpec
 
 EXECUTORS = ("process", "ray")
 TABLE_FORMATS = ("auto", "parquet", "csv")
@@ -72,11 +76,22 @@ class SweepOptions:
     - ``format``: the sweep's table, 'parquet' (needs pyarrow), 'csv', or 'auto' (parquet when possible).
     """
 
-    executor: str = "process"
-    address: str | None = None
-    workers: int | None = None
-    resume: bool | None = None
-    format: str = "auto"
+    executor: str = field(
+        default="process", metadata=option("A pool of local processes, or Ray (pip install 'dgtd[ray]').")
+    )
+    address: str | None = field(
+        default=None,
+        metadata=option("Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1."),
+    )
+    workers: int | None = field(
+        default=None, metadata=option("Jobs at once (default: the local cores / the local Ray's CPUs).")
+    )
+    resume: bool | None = field(
+        default=None, metadata=option("Skip jobs already finished in OUT (default: on when OUT exists).")
+    )
+    format: str = field(
+        default="auto", metadata=option("The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.")
+    )
 
 
 @dataclass(frozen=True)
@@ -195,10 +210,14 @@ def load(path: str | Path) -> Experiment:
     return parse(data, str(path))
 
 
-ENV_FLAGS = {"env_make": "make", "features": "features", "split": "split"}
-"""Command-line options that set a field of the [env] table (--env, --features, --split)."""
 SCENARIO_FLAGS = ("agents", "policy")
 """Options that set the [env] field of their name in an env run, else the scenario's parameter (mpe-spread's)."""
+ENV_FLAGS = {
+    ("env_make" if f.name == "make" else f.name): f.name
+    for f in fields(EnvSpec)
+    if option_of(f) is not None and f.name not in SCENARIO_FLAGS
+}
+"""Command-line options that set a field of the [env] table (--env sets make; --features, --split, ...)."""
 
 
 def override(exp: Experiment, values: dict) -> Experiment:
@@ -207,7 +226,7 @@ def override(exp: Experiment, values: dict) -> Experiment:
     fields of the [env] table, and ``agents`` and ``policy`` set those of an env run, else the scenario's parameters
     of those names."""
     config = exp.config
-    run, sweep = {}, {}
+    run, sweep, own = {}, {}, {}
     env = {ENV_FLAGS[k]: v for k, v in values.items() if k in ENV_FLAGS}
     shared = {k: values[k] for k in SCENARIO_FLAGS if values.get(k) is not None}
     if (env and "make" in env) or config.problem.env is not None:
@@ -223,10 +242,14 @@ def override(exp: Experiment, values: dict) -> Experiment:
             sweep[key[6:]] = value
         elif key in FLAT:
             run[key] = value
+        elif key in algorithm_fields():  # a field of an algorithm without a flat name of its own (eta)
+            own[key] = value
         elif key in SWEEP_TYPES:
             sweep[key] = value
         else:
             raise _unknown(key, [*FLAT, *SWEEP_TYPES], "the command-line options")
+    if own:
+        run["algorithm_params"] = {**(run.get("algorithm_params") or flat(config)["algorithm_params"] or {}), **own}
     exp = replace(exp, config=with_flat(config, **run), sweep=replace(exp.sweep, **sweep))
     check_choices(exp)
     return exp

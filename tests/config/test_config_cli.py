@@ -90,3 +90,72 @@ def test_every_command_takes_its_run_options_from_the_one_table():
     compare = options("compare")
     assert {"iterations", "seed", "backend", "checkpoints", "restarts", "problem_file", "env_make"} <= set(compare)
     assert all(name in compare["algorithms"].help for name in ALGORITHMS)
+
+
+NOT_OPTIONS = {
+    ("problem", "scenario"): "the commands' argument SCENARIO",
+    ("problem", "params"): "a scenario's keyword arguments: a table of an experiment file",
+    ("problem", "env"): "the [env] table: each of its fields is an option (test below)",
+    ("algorithm", "fields"): "each registered algorithm's field is an option (test below)",
+    ("output", "resume"): "--resume DIR sets it with the directory",
+}
+COMMAND_ONLY = {"resume_dir", "ranks", "hosts"}  # `dgtd run`'s own: --resume DIR, --ranks R, --hosts FILE
+
+
+def test_every_config_field_has_its_option_and_every_option_its_field():
+    """The options are made from the fields (`dgtd.fields.option`): none is missing, none is extra."""
+    from dgtd.config import algorithm_fields
+    from dgtd.scenarios.user import EnvSpec
+
+    run = options("run")
+    names = {place: name for name, place in FLAT.items()}
+    expected = set()
+    for section, cls in SECTIONS.items():
+        for f in dataclasses.fields(cls):
+            if (section, f.name) not in NOT_OPTIONS:
+                expected.add(f.name if section == "output" else names[section, f.name])
+    expected |= {"env_make" if f.name == "make" else f.name for f in dataclasses.fields(EnvSpec) if f.name != "args"}
+    expected |= {f.name for cls in ALGORITHMS.values() for f in dataclasses.fields(cls)}
+    assert set(algorithm_fields()) >= {"alpha0", "kappa", "eta", "timescale", "box_scale", "boxes"}
+    assert expected - set(run) == set(), "fields without their option"
+    assert set(run) - expected == COMMAND_ONLY, "options without their field"
+
+
+def _main(capsys, *args) -> tuple[int, str]:
+    from dgtd.cli import main
+
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out + err
+
+
+def test_an_algorithms_own_field_on_the_command_line_reaches_its_config(capsys, tmp_path):
+    """--eta, --timescale, --box-scale and --boxes (fields without a flat name) set the algorithm's fields."""
+    import json
+
+    args = ["run", "paper-example-1", "-T", "200", "--backend", "numpy", "--no-plots", "--no-progress"]
+    code, text = _main(
+        capsys, *args, "--algorithm", "gtd2", "--eta", "0.5", "--timescale", "0.8", "--out", tmp_path / "a"
+    )
+    assert code == 0, text
+    spec = json.loads((tmp_path / "a" / "summary.json").read_text())["config"]
+    assert spec["algorithm_params"] == {"eta": 0.5, "timescale": 0.8}
+    code, text = _main(capsys, *args, "--boxes", "100,20,20,100", "--box-scale", "3", "--out", tmp_path / "b")
+    assert code == 0, text
+    spec = json.loads((tmp_path / "b" / "summary.json").read_text())["config"]
+    assert spec["algorithm_params"] == {"box_scale": 3.0, "boxes": [100.0, 20.0, 20.0, 100.0]}
+    code, text = _main(capsys, *args, "--algorithm", "td0", "--eta", "0.5", "--out", tmp_path / "c")
+    assert code == 2 and "has no parameter 'eta'" in text, text
+    code, text = _main(capsys, *args, "--boxes", "1,x", "--out", tmp_path / "d")
+    assert code == 2 and "numbers separated by commas" in text, text
+
+
+def test_an_env_field_on_the_command_line_sets_the_env_table():
+    from dgtd.experiments import Experiment, override
+
+    exp = override(Experiment(RunConfig()), {"env_make": "m:f", "radius": 2.5, "positions": "m:pos", "pilot_steps": 9})
+    assert exp.config.problem.env == {"make": "m:f", "radius": 2.5, "positions": "m:pos", "pilot_steps": 9}

@@ -53,6 +53,7 @@ import numpy as np
 
 from dgtd.algorithms.stepsizes import check_schedule
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option
 from dgtd.samples import Sample, namespace
 
 
@@ -100,9 +101,16 @@ class StepSizes:
     """The step sizes alpha_k (`dgtd.algorithms.stepsizes`): ``alpha0``, ``beta`` and the ``schedule``; and the
     defaults of every hook (`Algorithm`)."""
 
-    alpha0: float = 0.1
-    beta: float = 1.0
-    schedule: str = "sqrt"
+    alpha0: float = field(
+        default=0.1,
+        metadata=option(
+            "Step-size scale alpha0 (DGTD's 10 suits features of unit scale: lower it in proportion to |phi(s)|^2)."
+        ),
+    )
+    beta: float = field(default=1.0, metadata=option("Step-size offset beta in alpha0/sqrt(k+beta)."))
+    schedule: str = field(
+        default="sqrt", metadata=option("alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.")
+    )
 
     name: ClassVar[str]  # each algorithm's own
     messages: ClassVar[tuple[str, ...]] = ()

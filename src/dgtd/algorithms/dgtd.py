@@ -14,13 +14,14 @@ rounding, ~1e-16 relative); message counts count two.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from dgtd.algorithms.base import FixedPoint, StepSizes, check_nonnegative, clip, zeros
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option
 from dgtd.samples import Sample
 
 BOX_NAMES = ("theta", "v", "mu", "w")
@@ -61,10 +62,18 @@ class DGTD(StepSizes):
 
     alpha0: float = 10.0
     beta: float = 1000.0
-    kappa: float = 3.0
-    rho: float = 0.0
-    box_scale: float = 2.0
-    boxes: tuple[float, float, float, float] | None = None
+    kappa: float = field(default=3.0, metadata=option("Weight of the consensus term of the Lagrangian (section 5)."))
+    rho: float = field(default=0.0, metadata=option("Regulariser (rho/2)|mu|^2 - (rho/2)|w|^2 (0 = none)."))
+    box_scale: float = field(
+        default=2.0,
+        metadata=option(
+            "Projection boxes C = B_{c + beta_c}, beta_c = (box_scale - 1) c, c the bounds of Lemma 2 (section 6)."
+        ),
+    )
+    boxes: tuple[float, float, float, float] | None = field(
+        default=None,
+        metadata=option("The projection boxes' half-widths, instead of box_scale's.", metavar="THETA,V,MU,W"),
+    )
 
     name: ClassVar[str] = "dgtd"
     description: ClassVar[str] = "the paper's primal-dual distributed GTD (Algorithm 1)"

@@ -16,13 +16,14 @@ notation beta_k (`TwoTimescale.aux_step`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from dgtd.algorithms.base import StepSizes, check_nonnegative, td_error, zeros
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option
 
 
 class TwoTimescaleParams(NamedTuple):
@@ -48,8 +49,13 @@ class TwoTimescale(StepSizes):
       2009, section 5).
     """
 
-    eta: float = 1.0
-    timescale: float = 1.0
+    eta: float = field(
+        default=1.0, metadata=option("Auxiliary step ratio: beta_k = eta alpha0 (alpha_k / alpha0)^timescale.")
+    )
+    timescale: float = field(
+        default=1.0,
+        metadata=option("Exponent p in (0, 1] of the auxiliary step beta_k = eta alpha0 (alpha_k / alpha0)^p."),
+    )
 
     Params: ClassVar = TwoTimescaleParams
 

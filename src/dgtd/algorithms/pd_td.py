@@ -15,13 +15,14 @@ to each neighbour per step.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from dgtd.algorithms.base import StepSizes, check_nonnegative, zeros
 from dgtd.algorithms.td0 import TD0
+from dgtd.fields import option
 
 
 class PDTDState(NamedTuple):
@@ -38,7 +39,7 @@ class PDTD(StepSizes):
     """Primal-dual distributed TD. ``alpha0``, ``beta``, ``schedule``: alpha_k; ``eta`` >= 0 the consensus weight. The
     TD direction is TD(0)'s (`dgtd.algorithms.td0.TD0.terms`), each agent's own."""
 
-    eta: float = 1.0
+    eta: float = field(default=1.0, metadata=option("Weight of the consensus terms."))
 
     name: ClassVar[str] = "pd-td"
     description: ClassVar[str] = "Laplacian primal-dual distributed TD (Lim and Lee 2025)"

@@ -10,10 +10,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from dgtd.cli.options import LINK_OPTIONS, run_options
+from dgtd.cli.options import ALGORITHM_OPTIONS, LINK_OPTIONS, output_options, run_options, sweep_options
 from dgtd.config import CHOICES, Output
 from dgtd.errors import DgtdInputError, UserCodeError
-from dgtd.experiments import EXECUTORS, TABLE_FORMATS, SweepOptions
 
 DEBUG = {"on": False}  # set by `dgtd --debug`: the traceback of an error raised in a user's own code is printed
 
@@ -50,24 +49,7 @@ def _is_experiment_file(arg: str | None) -> bool:
 @cli.command()
 @click.argument("scenario", required=False, metavar="SCENARIO|EXPERIMENT.toml")
 @run_options()
-@click.option("--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/NAME).")
-@click.option("--progress/--no-progress", default=Output.progress, show_default=True)
-@click.option("--plots/--no-plots", default=Output.plots, show_default=True)
-@click.option(
-    "--overwrite/--no-overwrite",
-    default=Output.overwrite,
-    show_default=True,
-    help="Replace the results or checkpoint of another run in OUT (refused without it), or start this run afresh "
-    "(without it, a run cut off after a checkpoint continues; a finished one is redone).",
-)
-@click.option(
-    "--checkpoint-every",
-    type=int,
-    default=Output.checkpoint_every,
-    show_default=True,
-    help="Save the whole run state every K iterations to OUT/checkpoint.npz (0: never); the same command again "
-    "continues from it.",
-)
+@output_options()
 @click.option(
     "--resume",
     "resume_dir",
@@ -326,32 +308,22 @@ def final_table(result) -> str:
 
 @cli.command()
 @click.argument("scenario", required=False)
-@run_options("algorithm", "problem_file", "graph", "edge_prob", *LINK_OPTIONS, "kappa", "rho", "restarts")
-def solve(scenario, algorithm, problem_file, graph, edge_prob, kappa, rho, restarts, **links):
+@run_options("algorithm", *ALGORITHM_OPTIONS, "problem_file", "graph", "edge_prob", *LINK_OPTIONS, "restarts")
+def solve(scenario, problem_file, **given):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes), over the network and its links
     (--loss: where each method converges when messages are lost)."""
     from dgtd.channels import Arcs
     from dgtd.config import make_channel, resolve, unflat
+    from dgtd.experiments import Experiment, override
     from dgtd.problems import exact
     from dgtd.run.loop import mean_mixing
     from dgtd.run.results import plain, problem_fields
 
     if scenario is None and problem_file is None:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
-    config = unflat(
-        {
-            "scenario": scenario,
-            "algorithm": algorithm,
-            "problem_file": problem_file,
-            "graph": graph,
-            "edge_prob": edge_prob,
-            **links,
-            "kappa": kappa,
-            "rho": rho,
-            "restarts": restarts,
-        }
-    )
+    set_ = {k: v for k, v in given.items() if v is not None}
+    config = override(Experiment(unflat({"scenario": scenario, "problem_file": problem_file})), set_).config
     problem, network, algorithm, *_, resolved = resolve(config)
     m = exact.Moments(problem)
     channel = make_channel(resolved, network)
@@ -439,33 +411,7 @@ def bench(cases, algorithms, backends, repeats, scaling, out):
 @click.option(
     "--out", type=click.Path(file_okay=False), default=None, help="Sweep directory (default: runs/NAME of the file)."
 )
-@click.option(
-    "--executor",
-    type=click.Choice(EXECUTORS),
-    default=SweepOptions.executor,
-    show_default=True,
-    help="A pool of local processes, or Ray (pip install 'dgtd[ray]').",
-)
-@click.option(
-    "--address",
-    type=str,
-    default=None,
-    help="Ray cluster to use (e.g. ray://HEAD:10001, or auto); default: a local Ray on 127.0.0.1.",
-)
-@click.option(
-    "--workers", type=int, default=None, help="Jobs at once (default: the local cores / the local Ray's CPUs)."
-)
-@click.option(
-    "--resume/--no-resume", default=None, help="Skip jobs already finished in OUT (default: on when OUT exists)."
-)
-@click.option(
-    "--format",
-    "format",
-    type=click.Choice(TABLE_FORMATS),
-    default=SweepOptions.format,
-    show_default=True,
-    help="The table: Parquet (needs pyarrow), CSV, or Parquet when pyarrow is there.",
-)
+@sweep_options()
 @click.option("--progress/--no-progress", default=Output.progress, show_default=True)
 @click.option(
     "--overwrite/--no-overwrite",

@@ -58,27 +58,7 @@ def _names(text: str | None) -> tuple[str, ...]:
     *LINK_OPTIONS,
     *ENV_OPTIONS,
 )
-def compare(
-    scenario,
-    algorithms,
-    seeds,
-    seed,
-    iterations,
-    edge_prob,
-    sampling,
-    shared,
-    restarts,
-    tune,
-    tune_seeds,
-    backend,
-    checkpoints,
-    out,
-    progress,
-    plots,
-    overwrite,
-    problem_file,
-    **user,
-):
+def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots, overwrite, **given):
     """Run several algorithms on SCENARIO (or --problem FILE.npz, --env, --data, as `dgtd run`) with the same
     samples; write metrics.csv, summary.json and plots.
 
@@ -106,22 +86,8 @@ def compare(
     from dgtd.run.results import NotWritten
     from dgtd.scenarios.user import problem_scenario
 
-    config = unflat(
-        {
-            "scenario": scenario,
-            "problem_file": problem_file,
-            "edge_prob": edge_prob,
-            "iterations": iterations,
-            "seeds": seeds,
-            "seed": seed,
-            "sampling": sampling,
-            "shared": shared,
-            "restarts": restarts,
-            "backend": backend,
-            "checkpoints": checkpoints,
-        }
-    )
-    config = override(Experiment(config), {k: v for k, v in user.items() if v is not None}).config
+    given = {k: v for k, v in given.items() if v is not None}
+    config = override(Experiment(unflat({"scenario": scenario, "seeds": seeds})), given).config
     if all(getattr(config.problem, name) is None for name in PROBLEM_FIELDS):
         raise DgtdInputError(
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"

@@ -1,241 +1,31 @@
-"""Command-line options that set fields of the run's configuration (`dgtd.config.RunConfig`), by their flat names
-(`dgtd.config.FLAT`): one table, `RUN_OPTIONS`, from which `dgtd run`, `dgtd sweep`, `dgtd solve` and `dgtd compare`
-each take theirs, so that an option means the same everywhere. Defaults are the config's (None: the scenario's value,
-else the library's default, shown in the help) and choices `dgtd.config.CHOICES`; tests/config/test_config_cli.py
-checks both."""
+"""Command-line options made from the fields of the run's configuration (`dgtd.config.RunConfig`): each field
+declares its option with itself (`dgtd.fields.option`: its help, and its spelling where it is not --field-name), and
+this module makes them into one table, `RUN_OPTIONS`, by their flat names (`dgtd.config.FLAT`), from which `dgtd run`,
+`dgtd sweep`, `dgtd solve` and `dgtd compare` each take theirs, so that an option means the same everywhere. The
+options' type is the field's, their choices `dgtd.config.CHOICES`, their default None (the scenario's value, else the
+library's default, which the help shows); an algorithm's fields are options too, one per name over the registered
+algorithms (`ALGORITHM_OPTIONS`). tests/config/test_config_cli.py checks that every field has its option and every
+option its field."""
 
 from __future__ import annotations
 
+import typing
+from dataclasses import fields
+
 import click
 
-from dgtd.config import CHOICES, DEFAULT_GAMMA
+from dgtd.config import CHOICES, FLAT, SECTIONS, Output, field_types
+from dgtd.fields import option_of
 
 
-def shown(name: str) -> str:
-    """The default an option of the run's length (`dgtd.config.RunLength`) stands for. The option's own default is
-    None, the config's ('not given': an experiment file's value stays); `dgtd.run.loop.RunSettings`' applies."""
-    from dgtd.run.loop import RunSettings
-
-    return f"  [default: {getattr(RunSettings, name)}]"
-
-
-def _named(option_list) -> dict:
-    """{flat name: option decorator}: the name is the parameter's, as click derives it."""
-    out = {}
-    for option in option_list:
-
-        @option
-        def probe():  # a throw-away command, to read the parameter's name from
-            pass
-
-        out[probe.__click_params__[0].name] = option
-    return out
-
-
-def _run_options() -> dict:
-    return _named(
-        [
-            click.option("--algorithm", type=str, default=None, help="Algorithm name (default: the scenario's, dgtd)."),
-            click.option(
-                "--iterations", "-T", type=int, default=None, help="Number of iterations T (default: the scenario's)."
-            ),
-            click.option("--seeds", type=int, default=None, help="Independent runs, side by side." + shown("seeds")),
-            click.option(
-                "--seed",
-                type=int,
-                default=None,
-                help="Base seed; seed k draws from the keyed streams of key (seed, k)." + shown("seed"),
-            ),
-            click.option(
-                "--alpha0",
-                type=float,
-                default=None,
-                help="Step-size scale alpha0 (default: the scenario's; DGTD's own is 10, for features of unit "
-                "scale: lower it in proportion to |phi(s)|^2).",
-            ),
-            click.option(
-                "--beta",
-                type=float,
-                default=None,
-                help="Step-size offset beta in alpha0/sqrt(k+beta) (default: the scenario's; DGTD's own is 1000).",
-            ),
-            click.option(
-                "--schedule",
-                type=click.Choice(CHOICES["schedule"]),
-                default=None,
-                help="alpha0/sqrt(k+beta) (the paper's), alpha0/(k+beta), or constant alpha0.",
-            ),
-            click.option(
-                "--sampling",
-                type=click.Choice(CHOICES["sampling"]),
-                default=None,
-                help="i.i.d. s ~ d or Markovian trajectories.",
-            ),
-            click.option(
-                "--shared/--independent",
-                default=None,
-                help="All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).",
-            ),
-            click.option(
-                "--reward-noise",
-                type=click.Choice(CHOICES["reward_noise"]),
-                default=None,
-                help="How a sample's reward is drawn: its mean E[r | s, a] (none, the default), random in "
-                "[0, sigma] with that mean (bernoulli, uniform), or the reward of the sampled transition "
-                "r(s, a, s') where the problem gives rewards per transition (transition).",
-            ),
-            click.option(
-                "--restarts",
-                type=click.Choice(CHOICES["restarts"]),
-                default=None,
-                help="An episodic task's restart transition (terminal state to the next episode's start) is a sample, "
-                "as dgtd counts it (sampled, the default), or not, as RL-Glue based suites count it (skipped; d then "
-                "weights the non-terminal states only). See README, Episodic tasks.",
-            ),
-            click.option(
-                "--backend",
-                type=click.Choice(CHOICES["backend"]),
-                default=None,
-                help="The compiled kernels (numba), the NumPy reference, or JAX on its device (the extra dgtd[jax]; "
-                "perfect and lossy links): the same numbers." + shown("backend"),
-            ),
-            click.option(
-                "--asynchronous/--synchronous",
-                default=None,
-                help="Under mpiexec: ranks do not wait for each other's messages, each agent using the newest "
-                "received (their ages are recorded); synchronous (the default) gives one process's numbers.",
-            ),
-            click.option(
-                "--staleness",
-                type=int,
-                default=None,
-                help="With --asynchronous: a rank waits for a neighbour's message once the newest it has is more "
-                "than S steps old (default: never waits; 0: the synchronous numbers).",
-            ),
-            click.option(
-                "--checkpoints",
-                type=int,
-                default=None,
-                help="How many times to record metrics (at most once per iteration)." + shown("checkpoints"),
-            ),
-            click.option(
-                "--tail-fraction",
-                type=float,
-                default=None,
-                help="Final fraction of the run averaged for w_tail." + shown("tail_fraction"),
-            ),
-            click.option(
-                "--block-size",
-                type=int,
-                default=None,
-                help="Steps drawn and advanced per block (no effect on results)." + shown("block_size"),
-            ),
-            click.option(
-                "--problem",
-                "problem_file",
-                type=str,
-                default=None,
-                help="An .npz with arrays P (S,S), R (N,S), Phi (S,q) and scalar gamma, instead of a scenario.",
-            ),
-            click.option(
-                "--graph",
-                type=str,
-                default=None,
-                help="ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the "
-                "scenario's, else ring).",
-            ),
-            click.option(
-                "--edge-prob",
-                type=float,
-                default=None,
-                help="Probability that each edge of the graph is up at each step (1 = fixed graph).",
-            ),
-            click.option(
-                "--loss",
-                type=str,
-                default=None,
-                metavar="P|P1,...,PN|FILE",
-                help="Each message is lost with probability P; or agent i misses each message sent to it with "
-                "probability Pi (one per agent); or a file of 'i j p' lines (agent i misses j's messages with "
-                "probability p). Default: none lost. See docs/links.md.",
-            ),
-            click.option(
-                "--burst",
-                type=float,
-                default=None,
-                metavar="L",
-                help="Lost messages come in bursts of mean length L on each link (Gilbert-Elliott), with the same "
-                "long-run loss as --loss. Default: each message lost independently.",
-            ),
-            click.option(
-                "--reweight/--no-reweight",
-                default=None,
-                help="Each agent weighs what it hears from j by 1 / (1 - loss of j's messages to it): the Laplacian "
-                "methods (dgtd, pd-td) then converge to w* under any --loss. Default: no.",
-            ),
-            click.option(
-                "--delay",
-                type=int,
-                default=None,
-                metavar="D",
-                help="Each message arrives d steps late, d uniform in 0..D; a receiver uses the newest it holds from "
-                "each neighbour. Default: 0.",
-            ),
-            click.option(
-                "--wake",
-                type=str,
-                default=None,
-                metavar="Q|Q1,...,QN",
-                help="Each agent is awake at a step with probability Q (or Qi, one per agent); asleep, it neither "
-                "updates nor sends, and its neighbours use the last they heard. Default: 1.",
-            ),
-            click.option(
-                "--bits",
-                type=int,
-                default=None,
-                metavar="B",
-                help="Each number sent is rounded stochastically to B bits, the message's scale sent alongside. "
-                "Default: 64 (exact).",
-            ),
-            click.option(
-                "--top-k",
-                type=int,
-                default=None,
-                metavar="K",
-                help="Each message keeps its K largest coordinates (with their indices). Default: all.",
-            ),
-            click.option(
-                "--error-feedback/--no-error-feedback",
-                default=None,
-                help="Send the compressed difference from a copy both ends keep (CHOCO-gossip), so that what is "
-                "not sent now is sent later. Default: no.",
-            ),
-            click.option(
-                "--kappa",
-                type=float,
-                default=None,
-                help="Weight of the consensus term of the Lagrangian (section 5; default: the scenario's, DGTD's own "
-                "is 3).",
-            ),
-            click.option(
-                "--rho", type=float, default=None, help="Regulariser (rho/2)|mu|^2 - (rho/2)|w|^2 (0 = none)."
-            ),
-            *env_options(),
-        ]
-    )
-
-
-def run_options(*names: str):
-    """Decorate a command with the options of ``names`` from `RUN_OPTIONS` (all of them when none are named), in
-    the table's order."""
-
-    def decorate(f):
-        chosen = [option for name, option in RUN_OPTIONS.items() if not names or name in names]
-        for option in reversed(chosen):
-            f = option(f)
-        return f
-
-    return decorate
+def _numbers(ctx, param, value):
+    """A list option given as 'x,y,...' (e.g. --boxes 1,2,3,4)."""
+    if value is None:
+        return None
+    try:
+        return tuple(float(x) for x in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"give numbers separated by commas, e.g. 1,2.5,3; got {value!r}") from None
 
 
 def _split(ctx, param, value):
@@ -250,70 +40,190 @@ def _split(ctx, param, value):
         ) from None
 
 
-def env_options() -> list:
-    """The user's own simulator (--env ...) or recordings (--data FILE); see docs/environments.md."""
-    from dgtd.scenarios.user import FEATURES_HELP, EnvSpec
-
-    return [
-        click.option(
-            "--env",
-            "env_make",
-            type=str,
-            default=None,
-            metavar="MODULE:FUNCTION",
-            help="Run on your own simulator: a function returning a PettingZoo ParallelEnv or a Gymnasium env "
-            "(module.path:make_env, path/to/file.py:make_env, or gymnasium:ENV-ID). More fields in "
-            "an experiment file's [env] table.",
-        ),
-        click.option(
-            "--features",
-            type=str,
-            default=None,
-            help=f"The env's linear features: {FEATURES_HELP} (default {EnvSpec.features}).",
-        ),
-        click.option(
-            "--policy",
-            type=str,
-            default=None,
-            help=f"The env's policy: random, or module:function(agent, observation, space, rng) -> action "
-            f"(default {EnvSpec.policy}).",
-        ),
-        click.option(
-            "--agents",
-            type=int,
-            default=None,
-            help="Number of agents: of the scenario (mpe-spread), of your env's function, or the agents a "
-            "Gymnasium env's reward is split among.",
-        ),
-        click.option(
-            "--split",
-            type=str,
-            default=None,
-            callback=_split,
-            help="How a Gymnasium env's one reward is split: random (fresh shares at every step, averaging to "
-            "the reward) or the agents' shares, e.g. 0.5,0.3,0.2.",
-        ),
-        click.option(
-            "--data",
-            type=str,
-            default=None,
-            metavar="FILE",
-            help="Run on recorded transitions (.parquet, .csv, .npz; columns seed, step, agent, phi_j, "
-            "next_phi_j (or state, next_state), reward, and optionally ratio, terminal): one recording per "
-            "seed.",
-        ),
-        click.option(
-            "--gamma",
-            type=float,
-            default=None,
-            help=f"Discount factor of an --env or --data run (default {DEFAULT_GAMMA}).",
-        ),
-    ]
+CALLBACKS = {"split": _split, "boxes": _numbers}
+"""Options whose text is parsed here (a field of a list type); the others are parsed by the config's checks."""
 
 
-RUN_OPTIONS = _run_options()
-"""Flat field name (or [env] flag) -> its option: the one definition of every run option."""
-LINK_OPTIONS = ("loss", "burst", "reweight", "delay", "wake", "bits", "top_k", "error_feedback")
+def _kind(name: str, hint, choices=None):
+    """The click type of a field's option, from its type: a choice, an int, a float, a switch (bool) or text."""
+    choices = choices or CHOICES.get(name)
+    if choices:
+        return click.Choice(choices)
+    kinds = [t for t in typing.get_args(hint) or (hint,) if t is not type(None)]
+    if len(kinds) == 1 and kinds[0] in (int, float, bool):
+        return kinds[0]
+    return str  # text the config parses: a name, a file, a probability or a list of them
+
+
+def make_option(name: str, f, hint, help: str, default=None, show_default: bool = False, choices=None):
+    """The click option of field ``f`` (type ``hint``) under the flat ``name``; ``choices``: its valid values, where
+    they are not the run's (`CHOICES`)."""
+    spec = option_of(f)
+    kind = _kind(name, hint, choices)
+    dashed = "--" + name.replace("_", "-")
+    if kind is bool:
+        flags = spec["flags"] or (f"{dashed}/--no-{name.replace('_', '-')}",)
+        return click.option(*flags, name, default=default, show_default=show_default, help=help)
+    return click.option(
+        *(spec["flags"] or (dashed,)),
+        name,
+        type=kind,
+        default=default,
+        show_default=show_default,
+        metavar=spec["metavar"],
+        callback=CALLBACKS.get(name),
+        help=help,
+    )
+
+
+def shown(name: str) -> str:
+    """The default an option of the run's length (`dgtd.config.RunLength`) stands for. The option's own default is
+    None, the config's ('not given': an experiment file's value stays); `dgtd.run.loop.RunSettings`' applies."""
+    from dgtd.run.loop import RunSettings
+
+    return f"  [default: {getattr(RunSettings, name)}]"
+
+
+def _config_options() -> dict:
+    """{flat name: option} of every config field that has one, section by section."""
+    names = {place: name for name, place in FLAT.items()}
+    out = {}
+    for section, cls in SECTIONS.items():
+        if section == "output":
+            continue
+        hints = field_types(cls)
+        for f in fields(cls):
+            spec = option_of(f)
+            if spec is None:
+                continue
+            name = names[section, f.name]
+            help = spec["help"]
+            if section == "run" and "default" not in help.lower():
+                help += shown(f.name)
+            out[name] = make_option(name, f, hints[f.name], help)
+        if section == "problem":
+            out.update(_env_options())
+    return out
+
+
+ENV_MAKE = "env_make"  # --env's parameter: the [env] table's field make
+
+
+def _env_options() -> dict:
+    """The fields of a user's simulator (`dgtd.scenarios.user.EnvSpec`, the [env] table): --env (its make),
+    --features, --policy, ...; their defaults are EnvSpec's, which the help says."""
+    from dgtd.scenarios.user import EnvSpec
+
+    hints = field_types(EnvSpec)
+    return {
+        (ENV_MAKE if f.name == "make" else f.name): make_option(
+            ENV_MAKE if f.name == "make" else f.name, f, hints[f.name], option_of(f)["help"]
+        )
+        for f in fields(EnvSpec)
+        if option_of(f) is not None
+    }
+
+
+def _declared(cls, name: str):
+    """The field ``name`` of algorithm ``cls`` as first declared with its option (a subclass may change only its
+    default)."""
+    for klass in cls.__mro__:
+        f = getattr(klass, "__dataclass_fields__", {}).get(name)
+        if f is not None and option_of(f) is not None:
+            return f
+    return None
+
+
+def _value(x) -> str:
+    return f"{x:g}" if isinstance(x, float) else "none" if x is None else str(x)
+
+
+def _algorithm_options() -> dict:
+    """One option per field name of the registered algorithms (--alpha0, --kappa, --eta, ...): its help the field's
+    (each meaning, with the algorithms that have it, where they differ), then the algorithms' defaults."""
+    from dgtd.algorithms import ALGORITHMS
+
+    by_name: dict = {}
+    for algorithm, cls in ALGORITHMS.items():
+        for f in fields(cls):
+            if _declared(cls, f.name) is not None:
+                by_name.setdefault(f.name, []).append((algorithm, cls, f))
+    out = {}
+    for name, owners in by_name.items():
+        meanings: dict = {}
+        defaults: dict = {}
+        for algorithm, cls, f in owners:
+            meanings.setdefault(option_of(_declared(cls, name))["help"], []).append(algorithm)
+            defaults.setdefault(_value(f.default), []).append(algorithm)
+        everyone = len(owners) == len(ALGORITHMS)
+        if len(meanings) == 1:
+            (help,) = meanings
+            help += "" if everyone else f" Algorithms: {', '.join(algorithm for algorithm, _, _ in owners)}."
+        else:
+            help = " ".join(f"{', '.join(who)}: {text}" for text, who in meanings.items())
+        common = max(defaults, key=lambda v: len(defaults[v]))
+        rest = "; ".join(f"{', '.join(who)} {v}" for v, who in defaults.items() if v != common)
+        others = "" if not rest else ("the others " if everyone else f"{', '.join(defaults[common])} ")
+        help += f" Default: the scenario's, else {rest + '; ' if rest else ''}{others}{common}."
+        cls = owners[0][1]
+        out[name] = make_option(name, _declared(cls, name), field_types(cls)[name], help)
+    return out
+
+
+def output_options():
+    """Decorate a command with `Output`'s fields that are options (--out, --plots, ...), its defaults shown."""
+    hints = field_types(Output)
+    return _all(
+        make_option(f.name, f, hints[f.name], option_of(f)["help"], f.default, f.default is not None)
+        for f in fields(Output)
+        if option_of(f) is not None
+    )
+
+
+def sweep_options():
+    """Decorate `dgtd sweep` with the fields of `dgtd.experiments.SweepOptions` (--executor, --workers, ...), its
+    defaults shown, choices `dgtd.experiments.EXECUTORS` and `TABLE_FORMATS`."""
+    from dgtd.experiments import EXECUTORS, TABLE_FORMATS, SweepOptions
+
+    hints, choices = field_types(SweepOptions), {"executor": EXECUTORS, "format": TABLE_FORMATS}
+    return _all(
+        make_option(
+            f.name, f, hints[f.name], option_of(f)["help"], f.default, f.default is not None, choices.get(f.name)
+        )
+        for f in fields(SweepOptions)
+    )
+
+
+def run_options(*names: str):
+    """Decorate a command with the options of ``names`` from `RUN_OPTIONS` (all of them when none are named), in
+    the table's order."""
+    return _all(option for name, option in RUN_OPTIONS.items() if not names or name in names)
+
+
+def _all(options):
+    """One decorator of ``options``, in their order on the command's help."""
+    chosen = list(options)
+
+    def decorate(command):
+        for option in reversed(chosen):
+            command = option(command)
+        return command
+
+    return decorate
+
+
+def _options() -> dict:
+    config = _config_options()
+    at = list(config).index("algorithm") + 1  # an algorithm's fields after its name
+    items = list(config.items())
+    return dict(items[:at] + list(ALGORITHM_OPTIONS.items()) + items[at:])
+
+
+ALGORITHM_OPTIONS = _algorithm_options()
+"""Field name -> its option, over the registered algorithms' fields (a run sets those of the algorithm it runs)."""
+RUN_OPTIONS = _options()
+"""Flat field name (or [env] flag) -> its option: every run option, made from its field."""
+LINK_OPTIONS = tuple(f.name for f in fields(SECTIONS["network"]) if f.name not in ("graph", "edge_prob"))
 """The links' options (`dgtd.config.NetworkConfig`), which run, sweep, solve and compare all take."""
-ENV_OPTIONS = tuple(_named(env_options()))
+ENV_OPTIONS = (*_env_options(), "data", "gamma")
 """The options of a user's simulator or recordings (--env, --features, ..., --data, --gamma)."""

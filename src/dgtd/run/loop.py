@@ -12,6 +12,7 @@ from dgtd.algorithms.base import FixedPoint
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.channels import Arcs, ChannelState, Perfect
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option
 from dgtd.graphs.random import RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
@@ -42,15 +43,39 @@ class RunSettings:
       synchronous numbers) (`dgtd.backends.mailbox`); off, the ranks give one process's numbers bit for bit.
     """
 
-    iterations: int = 10_000
-    seeds: int = 1
-    seed: int = 0
-    checkpoints: int = 200
-    tail_fraction: float = 0.5
-    block_size: int = 4096
-    backend: str = "numba"
-    asynchronous: bool = False
-    staleness: int | None = None
+    iterations: int = field(
+        default=10_000,
+        metadata=option("Number of iterations T (default: the scenario's).", flags=("--iterations", "-T")),
+    )
+    seeds: int = field(default=1, metadata=option("Independent runs, side by side."))
+    seed: int = field(default=0, metadata=option("Base seed; seed k draws from the keyed streams of key (seed, k)."))
+    checkpoints: int = field(
+        default=200, metadata=option("How many times to record metrics (at most once per iteration).")
+    )
+    tail_fraction: float = field(default=0.5, metadata=option("Final fraction of the run averaged for w_tail."))
+    block_size: int = field(default=4096, metadata=option("Steps drawn and advanced per block (no effect on results)."))
+    backend: str = field(
+        default="numba",
+        metadata=option(
+            "The compiled kernels (numba), the NumPy reference, or JAX on its device (the extra dgtd[jax]; perfect "
+            "and lossy links): the same numbers."
+        ),
+    )
+    asynchronous: bool = field(
+        default=False,
+        metadata=option(
+            "Under mpiexec: ranks do not wait for each other's messages, each agent using the newest received (their "
+            "ages are recorded); synchronous (the default) gives one process's numbers.",
+            flags=("--asynchronous/--synchronous",),
+        ),
+    )
+    staleness: int | None = field(
+        default=None,
+        metadata=option(
+            "With --asynchronous: a rank waits for a neighbour's message once the newest it has is more than S steps "
+            "old (default: never waits; 0: the synchronous numbers)."
+        ),
+    )
 
     def __post_init__(self):
         for name in ("iterations", "seeds", "checkpoints", "block_size"):

@@ -17,7 +17,7 @@ import importlib
 import importlib.util
 import inspect
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
@@ -25,6 +25,7 @@ import numpy as np
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError, call_user, user_error
+from dgtd.fields import option
 from dgtd.problems import features as feature_maps
 from dgtd.sources.env import random_policy
 from dgtd.sources.model import Sampling
@@ -58,18 +59,73 @@ class EnvSpec:
     - ``reference_steps`` x ``reference_groups``: the independent transitions of the LSTD reference.
     """
 
-    make: str | None = None
-    args: dict | None = None
-    features: str = "fourier:3"
-    policy: str | dict = "random"
-    rewards: str | None = None
-    agents: int | None = None
-    split: str | list = "random"
-    positions: str | None = None
-    radius: float | None = None
-    reference_steps: int = 5_000
-    reference_groups: int = 8
-    pilot_steps: int = 2_000
+    make: str | None = field(
+        default=None,
+        metadata=option(
+            "Run on your own simulator: a function returning a PettingZoo ParallelEnv or a Gymnasium env "
+            "(module.path:make_env, path/to/file.py:make_env, or gymnasium:ENV-ID). More fields in an experiment "
+            "file's [env] table.",
+            flags=("--env",),
+            metavar="MODULE:FUNCTION",
+        ),
+    )
+    args: dict | None = None  # a table of an experiment file
+    features: str = field(
+        default="fourier:3", metadata=option(f"The env's linear features: {FEATURES_HELP} (default fourier:3).")
+    )
+    policy: str | dict = field(
+        default="random",
+        metadata=option(
+            "The env's policy: random, or module:function(agent, observation, space, rng) -> action (default "
+            "random; one per agent in the [env] table)."
+        ),
+    )
+    rewards: str | None = field(
+        default=None,
+        metadata=option(
+            "The env's local rewards: module:function(the step's rewards dict) -> (N,) (default: each agent's own).",
+            metavar="MODULE:FUNCTION",
+        ),
+    )
+    agents: int | None = field(
+        default=None,
+        metadata=option(
+            "Number of agents: of the scenario (mpe-spread), of your env's function, or the agents a Gymnasium "
+            "env's reward is split among."
+        ),
+    )
+    split: str | list = field(
+        default="random",
+        metadata=option(
+            "How a Gymnasium env's one reward is split: random (fresh shares at every step, averaging to the "
+            "reward) or the agents' shares, e.g. 0.5,0.3,0.2."
+        ),
+    )
+    positions: str | None = field(
+        default=None,
+        metadata=option(
+            "Link the env's agents by their positions: module:function(env) -> (N, dim), with --radius (default: "
+            "--graph and --edge-prob link them).",
+            metavar="MODULE:FUNCTION",
+        ),
+    )
+    radius: float | None = field(
+        default=None, metadata=option("With --positions: agents are linked while within this distance.")
+    )
+    reference_steps: int = field(
+        default=5_000,
+        metadata=option("Transitions per group of the env's LSTD reference (default 5000).", metavar="K"),
+    )
+    reference_groups: int = field(
+        default=8,
+        metadata=option("Independent groups of the env's LSTD reference, for its standard error (default 8)."),
+    )
+    pilot_steps: int = field(
+        default=2_000,
+        metadata=option(
+            "Steps an env is run first to find the range of its states, where its space is unbounded (default 2000)."
+        ),
+    )
 
 
 def load_callable(text: str, what: str):

@@ -10,11 +10,12 @@ and the compiled kernels see identical samples.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.fields import option
 from dgtd.problems.model import Problem
 from dgtd.samples import Block, Draws
 from dgtd.streams import (
@@ -41,8 +42,14 @@ class Sampling:
       reward); False is scenario 2 (each agent runs its own independent copy of the chain).
     """
 
-    mode: str = "iid"
-    shared: bool = False
+    mode: str = field(default="iid", metadata=option("i.i.d. s ~ d or Markovian trajectories.", flags=("--sampling",)))
+    shared: bool = field(
+        default=False,
+        metadata=option(
+            "All agents observe one state trajectory (scenario 1), or each its own copy (scenario 2).",
+            flags=("--shared/--independent",),
+        ),
+    )
 
     def __post_init__(self):
         if self.mode not in SAMPLING_MODES:
