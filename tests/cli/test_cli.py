@@ -251,3 +251,19 @@ def test_final_table_columns_line_up_however_long_the_vectors(capsys, tmp_path):
     for row in lines[2:5]:
         assert row.index("%") + 1 == header.index("err") + 3, (header, row)
         assert len(row) == len(header), (header, row)
+
+
+def test_compare_on_a_problem_file_says_which_steps_each_method_gets_and_why(capsys, tmp_path, problem_file):
+    """The baselines' steps on a user's problem come from a rule: the line names each alpha0, the rule (garnet's
+    tuned steps over the features' scale E|phi|^2) and --tune."""
+    from dgtd.problems.exact import Moments
+    from dgtd.scenarios.tuned import tuned_steps
+    from dgtd.scenarios.user import feature_scale
+
+    path, p = problem_file
+    args = ["compare", "--problem", str(path), "-a", "dgtd,td0", "-T", "300", "--seeds", "1", "--no-plots"]
+    code, out, err = cli(capsys, *args, "--no-progress", "--out", str(tmp_path / "c"))
+    assert code == 0, err
+    scale = feature_scale(Moments(p))
+    td0 = tuned_steps("garnet")["td0"]["alpha0"] / scale
+    assert f"td0 {td0:.3g}" in out and f"E|phi|^2 = {scale:.3g}" in out and "--tune" in out, out

@@ -469,3 +469,33 @@ def test_the_trajectory_report_measures_each_result_not_the_first():
     off_run = SimpleNamespace(w_star=w_star, w_tail=np.tile(1.1 * w_star, (1, 3, 1)))
     assert max(report(exact_run, None)[0]["trajectory_value_error"]) < 1e-12
     assert np.allclose(report(off_run, None)[0]["trajectory_value_error"], 0.1)
+
+
+def test_an_env_run_is_named_after_its_module_and_function_and_says_where_its_samples_come_from(run_cli, tmp_path):
+    """A factory called make is named chain.make, not make (a results folder runs/make says nothing); the header
+    says the samples are the simulator's, not 'iid sampling, independent states' (the Sampling's, unused here)."""
+    out = tmp_path / "e"
+    code, text, err = run_cli(
+        "run", "--env", env("make_chain"), "--agents", 2, "-T", 200, "--out", out, "--no-plots", "--no-progress"
+    )
+    assert code == 0, err
+    assert text.startswith("chain.make_chain: ")
+    assert "iid sampling" not in text and "independent states" not in text
+    assert "the simulator's samples" in text
+    from dgtd.scenarios.user import env_name
+
+    assert env_name("pkg.envs:make") == "envs.make" and env_name("gymnasium:CartPole-v1") == "CartPole-v1"
+    assert env_name("/a/b/robots.py:make") == "robots.make"
+
+
+def test_a_data_run_says_its_transitions_are_recorded_rows_not_independent(run_cli, tmp_path):
+    """The reference's transitions are every agent's recorded rows, correlated along trajectories: only its groups
+    (one per recording) are independent, and the header names the recording, not a sampling mode."""
+    record_parquet(tmp_path / "t.parquet", seeds=2, steps=2_000)
+    code, text, err = run_cli(
+        "run", "--data", tmp_path / "t.parquet", "-T", 500, "--out", tmp_path / "d", "--no-plots", "--no-progress"
+    )
+    assert code == 0, err
+    assert "independent transitions" not in text and "independent states" not in text and "iid sampling" not in text
+    assert "12,000 transitions (along trajectories) in 2 independent groups" in text, text  # 2 x 2000 x 3 rows
+    assert "the recording's samples" in text

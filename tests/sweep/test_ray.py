@@ -62,14 +62,19 @@ def reference(tmp_path_factory):
 
 
 def test_ray_sweep_equals_the_pool_and_listens_on_loopback_only(tmp_path, reference):
-    out, listen = tmp_path / "out", tmp_path / "listen.txt"
+    """... and leaves nothing in the system's temporary folder (Ray's session folder, by default $TMPDIR/ray)."""
+    out, listen, system_tmp = tmp_path / "out", tmp_path / "listen.txt", tmp_path / "system-tmp"
+    system_tmp.mkdir()
+    before = set(Path("/tmp").glob("dgtd-ray-*"))  # where a local Ray's folder goes when $TMPDIR's path is too long
     cmd = shlex.join(dgtd_cmd("sweep", sweep_file(tmp_path), "--out", out, "--executor", "ray", "--workers", "2"))
     # while the sweep runs, record every listening TCP socket of the namespace
     record = f"ss -ltnH >> {shlex.quote(str(listen))}"
     script = f"{cmd} & p=$!; while kill -0 $p 2>/dev/null; do {record}; sleep 0.3; done; wait $p"
-    r = subprocess.run(in_namespace(script), env=ray_env(), capture_output=True, text=True, timeout=600)
+    env = ray_env() | {"TMPDIR": str(system_tmp)}
+    r = subprocess.run(in_namespace(script), env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "12 jobs run" in r.stdout and "a local Ray on 127.0.0.1" in r.stdout
+    assert list(system_tmp.iterdir()) == [] and set(Path("/tmp").glob("dgtd-ray-*")) <= before
     assert_store_intact(out, 12)
     assert_same_table(table_of(out), table_of(reference))
     addresses = {line.split()[3].rsplit(":", 1)[0] for line in listen.read_text().splitlines() if line.strip()}

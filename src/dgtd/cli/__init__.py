@@ -154,9 +154,15 @@ def _run_job(job, t_start: float) -> None:
     if job.resolved.network.loss is not None:
         links += f"; {make_channel(job.resolved, network).describe()}"
     click.echo(problem_line(problem, links))
+    if job.resolved.problem.data is not None:  # the source's own samples: the run's Sampling is not used
+        samples = "the recording's samples"
+    elif job.resolved.problem.env is not None:
+        samples = "the simulator's samples"
+    else:
+        samples = f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states"
     click.echo(
-        f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), "
-        f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states, {settings.backend} backend"
+        f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samples}, "
+        f"{settings.backend} backend"
     )
     if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
         click.echo(scenario_of(job.resolved).description)
@@ -267,7 +273,8 @@ def final_table(result) -> str:
         rows.insert(
             0,
             f"w* is estimated (no model): LSTD with ridge {est['ridge']:.2g} on {est['transitions']:,} "
-            f"independent transitions in {est['groups']} groups; its standard error is "
+            f"transitions (along trajectories) in {est['groups']} independent groups; its "
+            "standard error is "
             f"{est['value_stderr_relative']:.2%} of |Phi w*|_d in values ({est['w_star_stderr_relative']:.2%}"
             " of |w*|_inf in weights)"
             + (

@@ -105,6 +105,10 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
         f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
         f"{', step sizes tuned first' if tune else ''}"
     )
+    if not tune:
+        steps = ", ".join(f"{name} {config.alpha0:.3g}" for name, config in configs.items())
+        origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
+        click.echo(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
     record = {
         **spec_record(resolved),
         "algorithms": list(cs.algorithms),

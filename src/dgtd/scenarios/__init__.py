@@ -47,6 +47,8 @@ class Scenario:
     """Algorithm name -> settings (e.g. {"alpha0": 1.0}) used when `dgtd compare` runs it on this scenario
     (`dgtd.scenarios.tuned.TUNED_STEPS`); for the scenario's own algorithm they override ``algorithm``'s only in
     comparisons (`dgtd.run.compare.configs_for`)."""
+    compare_note: str = "tuned on this task (dgtd.scenarios.tuned; docs/benchmarks.md)"
+    """Where ``compare_settings`` come from, as `dgtd compare` says it."""
 
 
 PAPER_EXAMPLE_1_P = np.array([[0.1, 0.5, 0.2, 0.2], [0.5, 0.0, 0.1, 0.4], [0.0, 0.9, 0.1, 0.0], [0.2, 0.1, 0.1, 0.6]])

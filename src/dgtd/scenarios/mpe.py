@@ -95,6 +95,7 @@ def mpe_spread(
         REFERENCE_SEED_OFFSET,
         TRAJECTORY_SEED_OFFSET,
         TrajectoryReport,
+        compare_note,
         compare_steps,
         mean_proximity_network,
         scaled_dgtd,
@@ -132,4 +133,5 @@ def mpe_spread(
             steps=100,
         ),
         compare_settings=compare_steps(reference.moments),
+        compare_note=compare_note(reference.moments),
     )

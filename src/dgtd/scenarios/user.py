@@ -56,7 +56,7 @@ class EnvSpec:
       shares that sum to 1); a ParallelEnv's function gets it as its N / n_agents / num_agents / agents argument;
     - ``positions`` ("module:function" (env) -> (N, dim)) with ``radius``: agents are linked while within radius of
       each other; without them, the run's --graph and --edge-prob link them;
-    - ``reference_steps`` x ``reference_groups``: the independent transitions of the LSTD reference.
+    - ``reference_steps`` x ``reference_groups``: the transitions of the LSTD reference (each group an independent run).
     """
 
     make: str | None = field(
@@ -175,6 +175,16 @@ def _gymnasium_make(env_id: str, **kwargs):
         raise DgtdInputError(f"gymnasium cannot make {env_id!r}: {e}") from None
 
 
+def env_name(make: str) -> str:
+    """A simulator's name, from its --env: its module's (or file's) last part and its function, as chain.make (a
+    factory is often called make: alone it would name nothing), or a Gymnasium env's id."""
+    where, _, function = str(make).rpartition(":")
+    if not where or where == "gymnasium":
+        return function or "env"
+    module = Path(where).stem if where.endswith(".py") else where.rpartition(".")[2]
+    return f"{module}.{function}"
+
+
 def env_factory(spec: EnvSpec):
     """(make, probe, label): ``make()`` returns a fresh ParallelEnv (a Gymnasium env wrapped in `SplitReward`);
     ``probe`` is the one made to check it."""
@@ -196,7 +206,7 @@ def env_factory(spec: EnvSpec):
         return call_user(f"--env {spec.make}: making the environment", function, **kwargs)
 
     probe = make_raw()
-    label = spec.make.rpartition(":")[2].rpartition(".")[2] or "env"
+    label = env_name(spec.make)
     if hasattr(probe, "possible_agents"):
         n = len(probe.possible_agents)
         if spec.agents is not None and spec.agents != n:
@@ -389,6 +399,11 @@ def compare_steps(moments) -> dict:
     }
 
 
+def compare_note(moments) -> str:
+    """Where `compare_steps` come from, in words."""
+    return f"garnet's tuned steps divided by the features' scale E|phi|^2 = {feature_scale(moments):.3g}"
+
+
 def scaled_dgtd(reference, base_graph) -> DGTD:
     """DGTD with its default alpha0 divided by `feature_scale`, and at most `graph_step_cap`."""
     return DGTD(alpha0=min(DGTD().alpha0 / feature_scale(reference.moments), graph_step_cap(base_graph)))
@@ -408,6 +423,7 @@ def problem_scenario(problem, network, algorithm, sampling, iterations: int):
         iterations=iterations,
         description=f"problem file {problem.name}",
         compare_settings=compare_steps(Moments(problem)),
+        compare_note=compare_note(Moments(problem)),
     )
 
 
@@ -444,7 +460,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
             seed_offset=offset,
             n_features=width,
             reward_map=reward_map,
-            name=spec.make.rpartition(":")[2],
+            name=env_name(spec.make),
             **links,
         )
 
@@ -482,6 +498,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
         source=lambda seed, seed_ids: source(features, seed, seed_ids, width=q),
         report=TrajectoryReport(lambda: source(features, 0, [0], TRAJECTORY_SEED_OFFSET, q)),
         compare_settings=compare_steps(reference.moments),
+        compare_note=compare_note(reference.moments),
     )
 
 
@@ -509,6 +526,7 @@ def data_scenario(path: str, gamma: float, network_for):
         source=lambda seed, seed_ids: DataSource(data, seed_ids, seed, network),
         data=data,
         compare_settings=compare_steps(reference.moments),
+        compare_note=compare_note(reference.moments),
     )
 
 

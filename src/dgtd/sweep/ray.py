@@ -16,7 +16,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import shutil
 import sys
+import tempfile
 from concurrent.futures import Executor, Future
 
 from dgtd.errors import DgtdInputError
@@ -75,6 +77,7 @@ class RayExecutor(Executor):
         self.options = {"num_cpus": num_cpus_per_task, "max_retries": max_retries}
         self._remote: dict = {}
         self._refs: list = []
+        self._session: str | None = None  # a local Ray's folder, removed at shutdown
         if address is not None:
             try:
                 with _stderr_dropped():  # Ray's core logs a line per attempt while a cluster refuses it
@@ -85,11 +88,13 @@ class RayExecutor(Executor):
             os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
             # "local": a new instance of our own, even where a `ray start` cluster runs on this machine (without it,
             # init() joins the latest one, or hangs on one that stopped uncleanly)
+            self._session = _session_folder()
             self.ray.init(
                 address="local",
                 num_cpus=num_cpus,
                 include_dashboard=False,
                 _node_ip_address="127.0.0.1",
+                _temp_dir=self._session,
                 logging_level=logging.WARNING,
                 log_to_driver=False,
             )
@@ -108,3 +113,18 @@ class RayExecutor(Executor):
                 for ref in running:
                     self.ray.cancel(ref, force=True)
             self.ray.shutdown()
+        if self._session is not None:
+            shutil.rmtree(self._session, ignore_errors=True)
+            self._session = None
+
+
+SOCKET_PATH_MAX = 107  # bytes of a Unix socket's path; Ray's deepest is <folder>/session_<date>_<pid>/sockets/...
+
+
+def _session_folder() -> str:
+    """A folder of our own for a local Ray's session (Ray leaves $TMPDIR/ray/session_* behind otherwise), where its
+    sockets' paths fit: under the temporary folder, or /tmp where that folder's path is too long."""
+    root = tempfile.gettempdir()
+    if len(root) + 80 > SOCKET_PATH_MAX and os.path.isdir("/tmp"):
+        root = "/tmp"
+    return tempfile.mkdtemp(prefix="dgtd-ray-", dir=root)
