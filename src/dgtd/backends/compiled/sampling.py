@@ -190,12 +190,24 @@ def _sample_step(sampler, b, row, t, space):
     draws them) and turned into samples with the arithmetic of `block_from_uniforms`, so the NumPy reference sees
     the same samples. Otherwise copied from a block (samples from a simulator). The two halves,
     `_step_observations` and `_step_edges`, write disjoint arrays: a kernel may run them at the same time."""
-    _step_observations(sampler, b, row, t, space.s, space.a, space.s_next, space.r, 0, space.s.shape[1])
-    return _step_edges(sampler, b, row, t, space.up)
+    _observations(sampler, b, row, t, space.s, space.a, space.s_next, space.r, 0, space.s.shape[1])
+    return _edges(sampler, b, row, t, space.up)
 
 
 @njit(cache=True)
 def _step_observations(sampler, b, row, t, s_t, a_t, sn_t, r_t, o0, o1):
+    """`_observations`, compiled once for the agent layout's chunks (`_sample_step` inlines it: one call a step)."""
+    _observations(sampler, b, row, t, s_t, a_t, sn_t, r_t, o0, o1)
+
+
+@njit(cache=True)
+def _step_edges(sampler, b, row, t, up_t):
+    """`_edges`, compiled once for the agent layout's chunks."""
+    return _edges(sampler, b, row, t, up_t)
+
+
+@njit(cache=True, inline="always")
+def _observations(sampler, b, row, t, s_t, a_t, sn_t, r_t, o0, o1):
     """The states, actions, next states and rewards of `_sample_step` (seed b's state and reward streams), each
     drawn by its observation's and agent's ids in the whole network (`entity_ids`): those of observations o0 .. o1 - 1
     and their agents (every agent where they share one observation), so that several threads can draw a step's."""
@@ -230,8 +242,8 @@ def _step_observations(sampler, b, row, t, s_t, a_t, sn_t, r_t, o0, o1):
         r_t[row, i] = r
 
 
-@njit(cache=True)
-def _step_edges(sampler, b, row, t, up_t):
+@njit(cache=True, inline="always")
+def _edges(sampler, b, row, t, up_t):
     """Which links deliver at step t, for `_sample_step` (seed b's edge stream): into row ``row`` of up_t, each
     edge up (E), or where the channel loses messages each arc that delivers (2E: its edge up and its message kept,
     from the pair of uniforms of each edge's two arcs at the step, as `dgtd.channels.Lossy` draws them). ``loss`` is
