@@ -562,25 +562,12 @@ class Space(NamedTuple):
     work: np.ndarray  # (work rows, threads, q): the step's work rows
 
 
-class HeldSpace(NamedTuple):
-    """`Space` and the arrays of a channel whose receivers hold copies (`dgtd.backends.compiled.held.carry`)."""
-
-    s: np.ndarray
-    a: np.ndarray
-    s_next: np.ndarray
-    r: np.ndarray
-    up: np.ndarray
-    heard: np.ndarray
-    n_heard: np.ndarray
-    weights: np.ndarray
-    degree: np.ndarray  # (1, N + A): a copy's row counts as its sender
-    scratch: np.ndarray
-    work: np.ndarray
-    awake: np.ndarray  # (N,)
-    late: np.ndarray  # (A,)
-    rounding: np.ndarray  # (A, Q)
-    value: np.ndarray  # (Q,)
-    chosen: np.ndarray  # (Q,)
+HeldSpace = NamedTuple(  # type: ignore[misc]
+    "HeldSpace", [(name, np.ndarray) for name in (*Space._fields, "awake", "late", "rounding", "value", "chosen")]
+)
+HeldSpace.__doc__ = """`Space` (its degree (1, N + A): a copy's row counts as its sender's) and the arrays of a channel
+whose receivers hold copies (`dgtd.backends.compiled.held.carry`): awake (N,), late (A,), rounding (A, Q), value and
+chosen (Q,)."""
 
 
 class Graph(NamedTuple):
