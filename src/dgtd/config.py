@@ -170,7 +170,8 @@ class AlgorithmConfig:
     """``name``, a key of `dgtd.algorithms.ALGORITHMS` (default: the scenario's), and ``fields`` to set on its
     config: any field of that dataclass (alpha0, beta, schedule, kappa, rho, box_scale, ...), checked against it by
     `resolve`; the others keep the scenario's values. In an experiment file they sit beside ``name`` in
-    [algorithm]; on the command line --alpha0, --beta, --schedule, --kappa and --rho set the five common ones."""
+    [algorithm]; on the command line every registered algorithm's field is an option (--alpha0, --kappa, --eta, ...:
+    `dgtd.cli.options.ALGORITHM_OPTIONS`)."""
 
     name: str | None = field(
         default=None,
