@@ -210,12 +210,15 @@ def load(path: str | Path) -> Experiment:
     return parse(data, str(path))
 
 
+def env_flag(field_name: str) -> str:
+    """The option's parameter name of a field of the [env] table: its own, but env_make for make (--env)."""
+    return "env_make" if field_name == "make" else field_name
+
+
 SCENARIO_FLAGS = ("agents", "policy")
 """Options that set the [env] field of their name in an env run, else the scenario's parameter (mpe-spread's)."""
 ENV_FLAGS = {
-    ("env_make" if f.name == "make" else f.name): f.name
-    for f in fields(EnvSpec)
-    if option_of(f) is not None and f.name not in SCENARIO_FLAGS
+    env_flag(f.name): f.name for f in fields(EnvSpec) if option_of(f) is not None and f.name not in SCENARIO_FLAGS
 }
 """Command-line options that set a field of the [env] table (--env sets make; --features, --split, ...)."""
 

@@ -316,7 +316,8 @@ def final_table(result) -> str:
 @cli.command()
 @click.argument("scenario", required=False)
 @run_options("algorithm", *ALGORITHM_OPTIONS, "problem_file", "graph", "edge_prob", *LINK_OPTIONS, "restarts")
-def solve(scenario, problem_file, **given):
+@click.pass_context
+def solve(ctx, scenario, problem_file, **_):
     """Print the exact solution of a problem as JSON: w*, d, the values, and the fixed point of its algorithm (DGTD's:
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes), over the network and its links
     (--loss: where each method converges when messages are lost)."""
@@ -329,8 +330,8 @@ def solve(scenario, problem_file, **given):
 
     if scenario is None and problem_file is None:
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
-    set_ = {k: v for k, v in given.items() if v is not None}
-    config = override(Experiment(unflat({"scenario": scenario, "problem_file": problem_file})), set_).config
+    flags = given_flags(ctx, exclude=("scenario", "problem_file"))
+    config = override(Experiment(unflat({"scenario": scenario, "problem_file": problem_file})), flags).config
     problem, network, algorithm, *_, resolved = resolve(config)
     m = exact.Moments(problem)
     channel = make_channel(resolved, network)

@@ -18,26 +18,24 @@ from dgtd.config import CHOICES, FLAT, SECTIONS, Output, field_types
 from dgtd.fields import option_of
 
 
+def _floats(value: str, wanted: str) -> list[float]:
+    """'x,y,...' as numbers, or a one-line refusal that says what was ``wanted``."""
+    try:
+        return [float(x) for x in value.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"give {wanted}; got {value!r}") from None
+
+
 def _numbers(ctx, param, value):
     """A list option given as 'x,y,...' (e.g. --boxes 1,2,3,4)."""
-    if value is None:
-        return None
-    try:
-        return tuple(float(x) for x in value.split(","))
-    except ValueError:
-        raise click.BadParameter(f"give numbers separated by commas, e.g. 1,2.5,3; got {value!r}") from None
+    return None if value is None else tuple(_floats(value, "numbers separated by commas, e.g. 1,2.5,3"))
 
 
 def _split(ctx, param, value):
     """--split: 'random' or shares 'w_1,...,w_N' (a list)."""
     if value is None or value == "random":
         return value
-    try:
-        return [float(x) for x in value.split(",")]
-    except ValueError:
-        raise click.BadParameter(
-            f"give 'random' or the agents' shares separated by commas, e.g. 0.5,0.3,0.2; got {value!r}"
-        ) from None
+    return _floats(value, "'random' or the agents' shares separated by commas, e.g. 0.5,0.3,0.2")
 
 
 CALLBACKS = {"split": _split, "boxes": _numbers}
@@ -106,22 +104,18 @@ def _config_options() -> dict:
     return out
 
 
-ENV_MAKE = "env_make"  # --env's parameter: the [env] table's field make
-
-
 def _env_options() -> dict:
     """The fields of a user's simulator (`dgtd.scenarios.user.EnvSpec`, the [env] table): --env (its make),
     --features, --policy, ...; their defaults are EnvSpec's, which the help says."""
+    from dgtd.experiments import env_flag
     from dgtd.scenarios.user import EnvSpec
 
-    hints = field_types(EnvSpec)
-    return {
-        (ENV_MAKE if f.name == "make" else f.name): make_option(
-            ENV_MAKE if f.name == "make" else f.name, f, hints[f.name], option_of(f)["help"]
-        )
-        for f in fields(EnvSpec)
-        if option_of(f) is not None
-    }
+    hints, out = field_types(EnvSpec), {}
+    for f in fields(EnvSpec):
+        if option_of(f) is not None:
+            name = env_flag(f.name)
+            out[name] = make_option(name, f, hints[f.name], option_of(f)["help"])
+    return out
 
 
 def _declared(cls, name: str):
