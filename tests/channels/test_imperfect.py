@@ -270,3 +270,68 @@ def test_bad_link_parameters_are_one_line(bad, words):
 def test_bad_wake_is_one_line(wake, words):
     with pytest.raises(DgtdInputError, match=words):
         wake_per_agent(wake, 5)
+
+
+def _newest_arrived(channel, arcs, steps, sent_of_step, seeds=2, seed=3):
+    """The definition of late delivery, kept slow on purpose: every message posted is kept with its step and the
+    step it arrives at; an arc's copy is the newest arrived (by the step it was sent) at or before each step."""
+    state = channel.init(seeds, arcs, seed=seed)
+    rng = np.random.default_rng(1)
+    held = []
+    for t in range(steps):
+        up = rng.random((seeds, 5)) < 0.8
+        inbox, state = channel.deliver(state, arcs, sent_of_step(t), up)
+        held.append((inbox.received["w"].copy(), inbox.heard.copy()))
+    return held
+
+
+@pytest.mark.parametrize("D", [1, 4, 13])
+def test_late_messages_are_the_newest_arrived_of_everything_in_flight(D):
+    """The channel keeps one message per arc and arrival step (the newest sent), read when it falls due; checked
+    against every message sent, kept with its send and arrival steps, over 300 steps with loss and sleep."""
+    from dgtd.streams import DELAY
+
+    net, arcs = ring5()
+    channel = imperfect(loss=0.2, delay=D, wake=WAKE)
+    got = _newest_arrived(channel, arcs, 300, lambda t: {"w": np.full((2, 5, 1), float(t)) + np.arange(5)[:, None]})
+    # replay: what each arc carried each step, from the same draws (a channel with no delay sends at once)
+    at_once = _newest_arrived(imperfect(loss=0.2, wake=WAKE), arcs, 300, lambda t: {"w": np.full((2, 5, 1), float(t))})
+    sent_at = [np.where(h == 1, r[..., 0], -1.0) for r, h in at_once]  # (B, A): the step an arc carried, or -1
+    from dgtd.channels.lossy import arc_uniforms
+
+    keys = channel.init(2, arcs, seed=3).keys
+    copies = np.full((2, arcs.n_arcs), -1.0)
+    src = np.broadcast_to(np.arange(5)[arcs.src], (2, arcs.n_arcs))
+    in_flight = []  # (arrives, sent, b, a)
+    for t in range(300):
+        carried = sent_at[t] == t
+        late = np.minimum(np.floor(arc_uniforms(keys, DELAY, t, arcs) * (D + 1)).astype(int), D)
+        in_flight += [(t + late[b, a], t, b, a) for b, a in zip(*np.nonzero(carried))]
+        for arrives, sent, b, a in in_flight:
+            if arrives == t and sent > copies[b, a]:
+                copies[b, a] = sent
+        in_flight = [m for m in in_flight if m[0] > t]
+        received, heard = got[t]
+        assert_array_equal(received[..., 0][heard == 1], (copies + src)[heard == 1])
+        assert_array_equal(heard == 1, (copies >= 0) & (heard == 1))
+
+
+def test_a_step_of_late_messages_costs_the_same_at_any_delay():
+    """Memory a step allocates (tracemalloc's peak, which counts NumPy's buffers) at D = 5 000 within twice that at
+    D = 5: the messages in flight are updated where they are, not copied with their D + 1 slots each step."""
+    import tracemalloc
+
+    def peak(D):
+        net, arcs = ring5()
+        channel = imperfect(delay=D)
+        state = channel.init(4, arcs, seed=3)
+        sent = {"w": np.ones((4, 5, 3))}
+        for _ in range(3):
+            _, state = channel.deliver(state, arcs, sent, None)
+        tracemalloc.start()
+        _, state = channel.deliver(state, arcs, sent, None)
+        top = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return top
+
+    assert peak(5000) < 2 * peak(5)

@@ -158,30 +158,49 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     assert code == 2 and "is not a directory" in err
 
 
-@pytest.mark.parametrize("old", [1, 2, 3])
-def test_checkpoint_of_another_format_is_refused(tmp_path, old):
-    """A checkpoint written by another file format (1 kept a second running sum for the tail average, 2 no channel
-    state, 3 sequential random streams' states) is refused with one line that says which dgtd wrote it, not
-    misread."""
+def _rewritten(path, old, snap):
+    """Checkpoint ``path`` of ``snap`` as file format ``old`` wrote it."""
     import io
 
-    from dgtd.errors import DgtdInputError
-    from dgtd.run import checkpoint
-
-    path = tmp_path / "c.npz"
-    save_checkpoint(path, {"k": 1, "sums": {"all": np.zeros(3)}}, {"spec": "x"})
+    save_checkpoint(path, snap, {"spec": "x"})
     with np.load(path) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays.pop("__meta__")))
     assert meta["written_by"].startswith("dgtd ")
     meta["format"] = old
-    del meta["written_by"]  # as the older formats were written
+    if old < 4:
+        del meta["written_by"]  # as the older formats were written
     buf = io.BytesIO()
     np.savez(buf, __meta__=np.array(json.dumps(meta)), **arrays)
     path.write_bytes(buf.getvalue())
-    assert checkpoint.FORMAT == 4
+
+
+@pytest.mark.parametrize("old", [1, 2, 3])
+def test_checkpoint_of_another_format_is_refused(tmp_path, old):
+    """A checkpoint written by another file format (1 kept a second running sum for the tail average, 2 no channel
+    state, 3 sequential random streams' states) is refused with one line that says which dgtd wrote it, not
+    misread."""
+    from dgtd.errors import DgtdInputError
+    from dgtd.run import checkpoint
+
+    path = tmp_path / "c.npz"
+    _rewritten(path, old, {"k": 1, "sums": {"all": np.zeros(3)}})
+    assert checkpoint.FORMAT == 5
     who = "with sequential random streams" if old == 3 else "before the channels"
-    with pytest.raises(DgtdInputError, match=f"written by dgtd {who} \\(format {old}\\); this dgtd \\(format 4, keyed"):
+    with pytest.raises(DgtdInputError, match=f"written by dgtd {who} \\(format {old}\\); this dgtd \\(format 5, keyed"):
+        load_checkpoint(path)
+
+
+def test_a_format_4_checkpoint_continues_unless_messages_are_in_flight(tmp_path):
+    """Format 4 kept late messages in the slot of the step they were sent at, 5 in that of the step they arrive at:
+    a format-4 checkpoint of a run without --delay reads as before, one with messages in flight is refused."""
+    from dgtd.errors import DgtdInputError
+
+    path = tmp_path / "c.npz"
+    _rewritten(path, 4, {"k": 1, "sums": {"all": np.zeros(3)}, "channel": {"pending": np.zeros((1, 2, 0, 0))}})
+    assert load_checkpoint(path)[0]["k"] == 1
+    _rewritten(path, 4, {"k": 1, "sums": {"all": np.zeros(3)}, "channel": {"pending": np.zeros((1, 2, 3, 1))}})
+    with pytest.raises(DgtdInputError, match="format 4.*late messages by arrival"):
         load_checkpoint(path)
 
 

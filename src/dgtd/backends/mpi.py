@@ -387,6 +387,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         P.exchange(ghosts)  # each ghost holds its owner's messages at the block start, until newer ones arrive
         mail = Mailbox(P, ghosts, len(alphas), staleness, WATCHDOG.beat)
     halo = P.halo
+    channel_state = channel_state.copy()  # (the channel updates its messages in flight in place)
     mine, around = _split(channel_state, P.arcs.n_arcs) if halo is not None else (_counting(channel_state), None)
     zeros: dict = {}  # the messages on the halo's arcs: their values are not used, made once a block
     for t in range(len(alphas)):

@@ -17,7 +17,7 @@ def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, 
     """Advance ``ctx.algorithm`` over the len(alphas) steps of ``blk``: returns (state, channel state, w_sum), new
     values all."""
     algorithm, channel = ctx.algorithm, ctx.channel
-    w_sum = w_sum.copy()
+    w_sum, channel_state = w_sum.copy(), channel_state.copy()
     Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
     for t in range(len(alphas)):
         w_sum += algorithm.estimate(state)

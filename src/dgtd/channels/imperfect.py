@@ -78,7 +78,9 @@ class Imperfect:
         return self.lossy.init(seeds, arcs, seed)
 
     def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
-        """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up."""
+        """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up. The
+        messages in flight (``pending``, ``due``, ``posted``) are updated in ``state``'s own arrays; a caller that
+        keeps the old state passes a copy (`ChannelState.copy`)."""
         x = np.concatenate(list(sent.values()), axis=-1)  # (B, N, Q): every message side by side
         B, N, Q = x.shape
         state = held(state, arcs.n_arcs, Q, self.delay)
@@ -106,18 +108,19 @@ class Imperfect:
         if not self.delay:
             copies[sends] = value[sends]
             since = np.where(sends, t[:, None], since)
-        else:
-            pending, due, posted = pending.copy(), due.copy(), posted.copy()
-            slot = int(t[0]) % (self.delay + 1)
-            pending[:, :, slot][sends] = value[sends]
-            due[:, :, slot] = np.where(sends, t[:, None] + late, -1)
-            posted[:, :, slot] = np.where(sends, t[:, None], -1)
-            for s in range(self.delay + 1):  # the newest arrived: whichever order the slots are read in
-                arrived = (due[:, :, s] >= 0) & (due[:, :, s] <= t[:, None])
-                newer = arrived & (posted[:, :, s] > since)
-                copies[newer] = pending[:, :, s][newer]
-                since = np.where(newer, posted[:, :, s], since)
-                due[:, :, s] = np.where(arrived, -1, due[:, :, s])
+        else:  # in place: copying the D + 1 slots each step made a step cost O(D)
+            arrives = t[:, None] + late
+            b, a = np.nonzero(sends)
+            s = arrives[b, a] % (self.delay + 1)  # one slot per arrival step: D + 1 cover those in flight
+            pending[b, a, s] = value[b, a]  # the newest sent of those arriving together: only it can be read
+            due[b, a, s], posted[b, a, s] = arrives[b, a], t[b]
+            now = step % (self.delay + 1)
+            arrived = due[:, :, now] == t[:, None]
+            newer = arrived & (posted[:, :, now] > since)
+            copies[newer] = pending[:, :, now][newer]
+            since = np.where(newer, posted[:, :, now], since)
+            due[:, :, now] = np.where(arrived, -1, due[:, :, now])
+            posted[:, :, now] = np.where(arrived, -1, posted[:, :, now])
         heard = (carried & (since >= 0)).astype(np.float64)
         received, start = {}, 0
         for name, m in sent.items():

@@ -106,11 +106,13 @@ class Lossy:
     def arcs_up(self, state: ChannelState, arcs: Arcs, up: np.ndarray | None, B: int):
         """(the arcs that carry a message at this step (B, 2E): their edge up (B, E; None: every edge) and their
         message kept; the links' new states), from one uniform per arc."""
-        u = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs)
         links = state.links
-        if self.burst is None:
-            kept = u >= arcs.of_arcs(self.loss)
+        if self.burst is None and not self.loss.any():  # nothing lost: the draws, keyed, change nothing else
+            kept = np.ones((B, arcs.n_arcs), bool)
+        elif self.burst is None:
+            kept = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs) >= arcs.of_arcs(self.loss)
         else:
+            u = arc_uniforms(state.keys, ARC_LOSS, int(state.step[0]), arcs)
             losing = np.where(links == 1, u >= 1.0 / float(self.burst), u < arcs.of_arcs(self.enter))
             links, kept = losing.astype(np.uint8), ~losing
         return arcs.up(up, B) & kept, links

@@ -22,8 +22,9 @@ class ChannelState(NamedTuple):
     A channel whose receivers keep copies of what they heard (`dgtd.channels.Imperfect`: late, asleep or compressed
     messages) also carries, else holds empty arrays: ``copies`` (B, 2E, Q), what each arc's receiver holds of its
     sender's messages (the Q numbers of all its messages side by side); ``since`` (B, 2E), the step that copy was
-    sent at (-1: nothing heard yet); the messages in flight, ``pending`` (B, 2E, D + 1, Q), each in slot (step sent)
-    mod (D + 1) with the step it arrives at, ``due``, and was sent at, ``posted`` (B, 2E, D + 1; -1: none); and
+    sent at (-1: nothing heard yet); the messages in flight, ``pending`` (B, 2E, D + 1, Q), each in slot (step it
+    arrives) mod (D + 1), the newest sent of those arriving at one step, with the step it arrives at, ``due``, and
+    was sent at, ``posted`` (B, 2E, D + 1; -1: none); and
     ``per_arc`` (B, 2E), how many times each arc delivered."""
 
     messages: np.ndarray
@@ -37,6 +38,10 @@ class ChannelState(NamedTuple):
     posted: np.ndarray = np.zeros((0, 0, 0), np.int64)
     step: np.ndarray = np.zeros(0, np.int64)
     per_arc: np.ndarray = np.zeros((0, 0))
+
+    def copy(self) -> ChannelState:
+        """A state of its own: `dgtd.channels.Imperfect.deliver` updates the messages in flight in place."""
+        return ChannelState(*(np.array(x) for x in self))
 
 
 # the fields of a channel's state that hold one entry per arc (their axis 1)

@@ -27,9 +27,11 @@ from dgtd.errors import DgtdInputError
 from dgtd.files import read_npz
 from dgtd.run.results import atomic_write
 
-# 4: keyed random streams (a source's and a channel's state is the step they are at); 3: sequential PCG64 streams
-# and the channel's state (message and bit counts); 2 counted messages in the loop; 1 kept a second sum
-FORMAT = 4
+# 5: late messages kept in the slot of the step they arrive at (4 kept them in that of the step they were sent at:
+# a format-4 checkpoint with messages in flight cannot continue, one without can); 4: keyed random streams (a
+# source's and a channel's state is the step they are at); 3: sequential PCG64 streams and the channel's state
+# (message and bit counts); 2 counted messages in the loop; 1 kept a second sum
+FORMAT = 5
 _WRITTEN_BY = {1: "dgtd before the channels", 2: "dgtd before the channels", 3: "dgtd with sequential random streams"}
 
 
@@ -133,13 +135,20 @@ def _read(path: Path, what: str) -> tuple[dict, dict]:
         meta = json.loads(str(arrays.pop("__meta__")))
     except ValueError:
         raise DgtdInputError(f"{what} {path} is damaged (its description is not JSON); {FIX}") from None
-    if meta.get("format") != FORMAT:
+    snap = _join(meta.get("snapshot", {}), arrays)
+    if meta.get("format") != FORMAT and not (meta.get("format") == 4 and not _in_flight(snap)):
         who = meta.get("written_by") or _WRITTEN_BY.get(meta.get("format"), f"checkpoint format {meta.get('format')}")
         raise DgtdInputError(
             f"{what} {path} was written by {who} (format {meta.get('format')}); this dgtd (format {FORMAT}, keyed "
-            f"random streams) cannot continue it with the same numbers: {FIX}"
+            f"random streams, late messages by arrival) cannot continue it with the same numbers: {FIX}"
         )
-    return meta, _join(meta["snapshot"], arrays)
+    return meta, snap
+
+
+def _in_flight(snap) -> bool:
+    """Whether a snapshot holds slots for late messages (a run with --delay)."""
+    channel = snap.get("channel") if isinstance(snap, dict) else None
+    return bool(isinstance(channel, dict) and np.size(channel.get("pending", ())))
 
 
 # The arrays of a snapshot that hold rows of agents, on which axis, and of arcs (their channel's per-arc fields)

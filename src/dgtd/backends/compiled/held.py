@@ -82,7 +82,7 @@ def carry(links, held, b, t, rng, up_t, sent, N, scratch):
                 rounding[a, f] = u0
                 if f + 1 < Q:
                     rounding[a, f + 1] = u1
-    slot = t % (D + 1)
+    now = t % (D + 1)
     n = 0
     for a in range(A):
         sends = up_t[0, a] and awake[links.src[a]]
@@ -100,22 +100,19 @@ def carry(links, held, b, t, rng, up_t, sent, N, scratch):
                 for f in range(Q):
                     held.copies[b, a, f] = value[f]
                 held.since[b, a] = t
-            else:
+            else:  # one slot per arrival step, the newest sent kept
+                s = (t + late[a]) % (D + 1)
                 for f in range(Q):
-                    held.pending[b, a, slot, f] = value[f]
-                held.due[b, a, slot] = t + late[a]
-                held.posted[b, a, slot] = t
-        elif D > 0:
-            held.due[b, a, slot] = -1
-            held.posted[b, a, slot] = -1
-        for s in range(D + 1 if D > 0 else 0):  # the newest arrived
-            arrived = held.due[b, a, s] >= 0 and held.due[b, a, s] <= t
-            if arrived and held.posted[b, a, s] > held.since[b, a]:
+                    held.pending[b, a, s, f] = value[f]
+                held.due[b, a, s] = t + late[a]
+                held.posted[b, a, s] = t
+        if D > 0 and held.due[b, a, now] == t:  # what arrives now
+            if held.posted[b, a, now] > held.since[b, a]:
                 for f in range(Q):
-                    held.copies[b, a, f] = held.pending[b, a, s, f]
-                held.since[b, a] = held.posted[b, a, s]
-            if arrived:
-                held.due[b, a, s] = -1
+                    held.copies[b, a, f] = held.pending[b, a, now, f]
+                held.since[b, a] = held.posted[b, a, now]
+            held.due[b, a, now] = -1
+            held.posted[b, a, now] = -1
         up_t[0, a] = up_t[0, a] and held.since[b, a] >= 0
         for m in range(M):
             for f in range(q):
