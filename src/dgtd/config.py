@@ -214,6 +214,7 @@ class Output:
     - ``progress``, ``plots``: progress bar on stderr; figures in the results directory.
     - ``checkpoint_every``: save the whole run state every K iterations (0: never), for ``resume``.
     - ``resume``: continue the run saved in ``out`` from its last checkpoint.
+    - ``log``: where else the metrics go: ``tensorboard``, ``mlflow`` or both (`dgtd.run.logs`).
     - ``overwrite``: replace the results of another run (another configuration) in ``out``; without it that is
       refused. Rerunning the same configuration into its own directory needs no flag: a run cut off after a
       checkpoint continues from it (as ``resume`` would), a finished one runs afresh; ``overwrite`` starts afresh
@@ -230,6 +231,15 @@ class Output:
             "continues from it."
         ),
     )
+    log: str | None = field(
+        default=None,
+        metadata=option(
+            "Also log every metric at every checkpoint, one run per seed, to tensorboard (event files in "
+            "OUT/tensorboard), mlflow (the local store OUT/mlflow.db) or both (tensorboard,mlflow); extras "
+            "dgtd[tensorboard], dgtd[mlflow].",
+            metavar="tensorboard,mlflow",
+        ),
+    )
     resume: bool = False  # set by --resume DIR, which names the results directory too
     overwrite: bool = field(
         default=False,
@@ -241,6 +251,10 @@ class Output:
 
     def __post_init__(self):
         object.__setattr__(self, "checkpoint_every", check_count("checkpoint_every", self.checkpoint_every, 0))
+        if self.log is not None:
+            from dgtd.run.logs import log_kinds
+
+            object.__setattr__(self, "log", ",".join(log_kinds(self.log)) or None)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from dgtd.config import PROBLEM_FIELDS, RunConfig, make_channel, make_source, re
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint, save_checkpoint
+from dgtd.run.logs import remove_logs
 from dgtd.run.owner import Owner
 from dgtd.run.results import atomic_write, first_difference, refuse_other_results
 
@@ -133,6 +134,12 @@ class PreparedRun:
         write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
         names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz", *also]
         names += ["message_ages.csv"] if "message_ages" in result.info else []
+        if self.config.output.log:
+            from dgtd.run.logs import log_kinds, write_logs
+            from dgtd.run.results import metrics_rows
+
+            rows = metrics_rows(result, self.algorithm.name)
+            names += write_logs(self.out, log_kinds(self.config.output.log), rows, self.record)
         remove_checkpoint(self.out / CHECKPOINT)  # the numbers are complete: nothing is left to resume
         if plots:
             try:
@@ -311,4 +318,5 @@ def clear_previous_run(out: Path, record: dict, overwrite: bool) -> None:
         refuse_other_results(out, record, "run")
     for name in RUN_FILES:
         (out / name).unlink(missing_ok=True)
+    remove_logs(out)
     drop_shards(out / CHECKPOINT)  # a spread run's other ranks' shards of its checkpoint
