@@ -61,3 +61,41 @@ def small_problem(rng):
 @pytest.fixture
 def off_policy_problem(rng):
     return random_mdp_problem(5, (2, 3), 3, rng, gamma=0.8, off_policy=True)
+
+
+# A line at least every HEARTBEAT seconds while one test runs long (a first test compiles the kernels it runs, which
+# on a slow or busy machine takes minutes in which no test finishes): written to a copy of the terminal taken before
+# any test's output is captured, so that no test's captured output holds it.
+HEARTBEAT = 45.0
+_TERMINAL: list[int] = []
+
+
+def pytest_sessionstart(session):
+    _TERMINAL.append(os.dup(1))
+
+
+def pytest_sessionfinish(session):
+    while _TERMINAL:
+        os.close(_TERMINAL.pop())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    import threading
+    import time
+
+    done = threading.Event()
+
+    def beat():
+        start = time.monotonic()
+        while not done.wait(HEARTBEAT) and _TERMINAL:
+            seconds = time.monotonic() - start
+            line = f"\n[{item.nodeid} still running after {seconds:.0f} s: a first test compiles its kernels]\n"
+            os.write(_TERMINAL[0], line.encode())
+
+    if _TERMINAL:
+        threading.Thread(target=beat, daemon=True).start()
+    try:
+        yield
+    finally:
+        done.set()
