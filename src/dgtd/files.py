@@ -19,7 +19,8 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 
 
-def _present(path: Path, what: str, fix: str) -> Path:
+def present(path: Path, what: str, fix: str) -> Path:
+    """``path``, or a one-line refusal naming the file by its role (``what``) where it is a folder or missing."""
     path = Path(path)
     if path.is_dir():
         raise DgtdInputError(f"{what} {path} is a directory, not a file; {fix}")
@@ -42,7 +43,7 @@ def open_npz(path):
 
 def read_npz(path, what: str, fix: str, required=()) -> dict:
     """The arrays of an .npz file (read whole, without Python objects), with the arrays ``required`` present."""
-    path = _present(path, what, fix)
+    path = present(path, what, fix)
     try:
         with open_npz(path) as data:
             arrays = {k: data[k] for k in data.files}
@@ -62,7 +63,7 @@ def read_npz(path, what: str, fix: str, required=()) -> dict:
 
 def read_json(path, what: str, fix: str, required=()) -> dict:
     """A JSON object from a file, with the keys ``required`` present."""
-    path = _present(path, what, fix)
+    path = present(path, what, fix)
     try:
         data = json.loads(path.read_text())
     except (ValueError, UnicodeDecodeError) as e:
@@ -77,7 +78,7 @@ def read_json(path, what: str, fix: str, required=()) -> dict:
 
 def read_csv(path, what: str, fix: str, required=()) -> list[dict]:
     """The rows of a CSV file with a header, as dicts, with the columns ``required`` present and filled."""
-    path = _present(path, what, fix)
+    path = present(path, what, fix)
     try:
         with open(path, newline="") as f:
             reader = csv.DictReader(f)

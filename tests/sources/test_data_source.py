@@ -62,6 +62,8 @@ def test_dgtd_on_the_recordings_reaches_the_reference(recorded):
         (lambda c: c.update(agent=c["agent"].astype(float) + 0.5), "column agent must hold integers"),
         (lambda c: c.update(phi_0=np.full(len(c["phi_0"]), np.nan)), "column phi_0 must hold finite numbers"),
         (lambda c: c.pop("next_phi_1"), "next_phi_0 .. next_phi_2"),
+        (lambda c: c.update(action=c["agent"]), "has column(s) action that dgtd does not read"),
+        (lambda c: c.update(state=c["agent"], next_state=c["agent"]), "state, next_state that dgtd does not read"),
     ],
 )
 def test_a_bad_transitions_file_is_one_line(tmp_path, change, words):
@@ -223,3 +225,8 @@ def test_a_run_on_recordings_draws_the_links_of_its_network(recorded):
     sent = {p: r.info["messages"].sum() for p, r in runs.items()}
     assert abs(sent[0.5] / sent[1.0] - 0.5) < 0.01, sent
     assert runs[0.5].metrics["value_error_tail"][-1].max() < 0.03
+
+
+def test_a_folder_given_as_the_transitions_file_is_named_so(tmp_path):
+    with pytest.raises(DgtdInputError, match="is a directory, not a file"):
+        TransitionFile(tmp_path)

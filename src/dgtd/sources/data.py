@@ -9,6 +9,8 @@ A table (Parquet, CSV or .npz of columns) holds one row per agent and step:
 - ``reward``: the agent's own reward; optional ``ratio`` (importance ratio, 1 if absent) and ``terminal`` (1 where
   the transition ended an episode: its TD target is the reward alone).
 
+A column of any other name is refused (nothing the file holds is dropped unread).
+
 Every episode must hold every agent at every step from 0 on. With a ``seed`` column, recording k (in the order of
 their ids) is seed k of a run, its episodes one after another, and the reference is LSTD with one group per
 recording. With episodes only, there is one dataset and no independent recordings: seed k replays every episode in
@@ -28,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.errors import DgtdInputError
-from dgtd.files import open_npz
+from dgtd.files import open_npz, present
 from dgtd.samples import Block, SampleTable
 from dgtd.streams import EDGE_UP, ORDER, seed_key, seed_keys, singles, uniforms
 
@@ -100,6 +102,14 @@ def _header(path: Path) -> list[str]:
             f"transitions file {path}: the feature columns must be phi_0 .. phi_{q - 1} and "
             f"next_phi_0 .. next_phi_{q - 1}"
         )
+    read = {*KEYS, "reward", "ratio", "terminal", *(STATES if states == STATES else ())}
+    unread = [c for c in names if c not in read and not (states != STATES and c.startswith(("phi_", "next_phi_")))]
+    if unread:  # read to the last column: nothing the file holds is silently dropped
+        raise DgtdInputError(
+            f"transitions file {path} has column(s) {', '.join(unread)} that dgtd does not read; remove them (it "
+            "reads seed, episode, step, agent, reward, ratio, terminal and either state, next_state or phi_j, "
+            "next_phi_j)"
+        )
     return names
 
 
@@ -150,8 +160,7 @@ class TransitionFile:
 
     def __init__(self, path):
         self.path = path = Path(path)
-        if not path.is_file():
-            raise DgtdInputError(f"transitions file {path} is missing; {FIX}")
+        present(path, "transitions file", FIX)
         names = _header(path)
         self.tabular = "phi_0" not in names
         self.by_seed = "seed" in names  # independent recordings; else one dataset of episodes
