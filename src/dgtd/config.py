@@ -16,6 +16,7 @@ import types
 import typing
 from dataclasses import asdict, dataclass, field, fields, make_dataclass, replace
 from functools import lru_cache
+from pathlib import Path
 from types import SimpleNamespace
 
 from dgtd.algorithms.dgtd import DGTD
@@ -835,10 +836,17 @@ def build_algorithm(spec, default):
     return replace(algorithm, **over)
 
 
+def input_files(config: RunConfig) -> dict:
+    """{role: path} of the files a run reads its inputs from (the problem, the recording, the graph's edge list, the
+    links' loss), each by its role's name, as ``ROLE_sha256`` in its record."""
+    files = {"problem": config.problem.problem_file, "data": config.problem.data}
+    for role in ("graph", "loss"):  # a name or numbers, or a file
+        value = getattr(config.network, role)
+        files[role] = value if isinstance(value, str) and Path(value).is_file() else None
+    return {role: path for role, path in files.items() if path is not None}
+
+
 def spec_record(config: RunConfig) -> dict:
-    """The resolved config as JSON-ready data (`flat`: what summary.json and a checkpoint record), with the problem
-    file's SHA-256 when there is one."""
-    d = flat(config)
-    if config.problem.problem_file is not None:
-        d["problem_sha256"] = file_digest(config.problem.problem_file)
-    return d
+    """The resolved config as JSON-ready data (`flat`: what summary.json and a checkpoint record), with the SHA-256
+    of every file it reads its inputs from (`input_files`), so that a checkpoint is not continued on changed inputs."""
+    return flat(config) | {f"{role}_sha256": file_digest(path) for role, path in input_files(config).items()}

@@ -254,3 +254,28 @@ def test_a_problem_file_changed_under_a_checkpoint_is_said_so_by_every_command_t
         assert "--overwrite" in err and "--resume" not in err and "config.toml" not in err, err
     code, _, err = run_cli(*command, "--overwrite")
     assert code == 0, err
+
+
+@pytest.mark.parametrize("role", ["graph", "loss"])
+def test_a_graph_or_loss_file_changed_under_a_checkpoint_is_refused_naming_it(tmp_path, run_cli, role):
+    """A graph's edge list or a loss file that changed since the checkpoint (the same path) would continue the run on
+    another network: the same command and --resume say which file changed and how to go on, and --overwrite runs."""
+    graph, loss = tmp_path / "g.txt", tmp_path / "loss.txt"
+    graph.write_text("0 1\n1 2\n2 3\n3 4\n4 0\n")
+    loss.write_text("0 1 0.2\n")
+    out = tmp_path / "run"
+    command = ("run", "paper-example-1", "--graph", graph, "--loss", loss, "-T", "50", "--no-plots", "--no-progress")
+    command += ("--out", out, "--backend", "numpy")
+    code, _, err = run_cli(*command)
+    assert code == 0, err
+    record = json.loads((out / "summary.json").read_text())["config"]
+    assert len(record["graph_sha256"]) == 64 and len(record["loss_sha256"]) == 64
+    (out / "summary.json").unlink()
+    save_checkpoint(out / "checkpoint.npz", {"k": 25}, record)
+    (graph if role == "graph" else loss).write_text("0 1\n1 2\n2 3\n3 4\n4 0\n0 2\n" if role == "graph" else "1 0 0.3\n")
+    for again in (command, ("run", "--resume", out)):
+        code, said, err = run_cli(*again)
+        what = graph if role == "graph" else loss
+        assert code == 2 and f"the {role} file {what} changed since the checkpoint" in err, err
+    code, _, err = run_cli(*command, "--overwrite")
+    assert code == 0, err

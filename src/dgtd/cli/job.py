@@ -13,7 +13,16 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from dgtd.config import PROBLEM_FIELDS, RunConfig, make_channel, make_source, resolve, scenario_of, spec_record
+from dgtd.config import (
+    PROBLEM_FIELDS,
+    RunConfig,
+    input_files,
+    make_channel,
+    make_source,
+    resolve,
+    scenario_of,
+    spec_record,
+)
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint, save_checkpoint
@@ -265,9 +274,10 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
     if output.resume or (ckpt.exists() and not output.overwrite):
         snapshot, saved = load_checkpoint(ckpt)
         diff = first_difference(saved, record)
-        if diff.startswith("problem_sha256") and not first_difference(*(_without_file(c) for c in (saved, record))):
+        if diff.split(" ")[0].endswith("_sha256") and not first_difference(*map(_without_files, (saved, record))):
+            role = diff.split(" ")[0].removesuffix("_sha256")
             raise DgtdInputError(
-                f"the problem file {record.get('problem_file', '')} changed since the checkpoint in {out} "
+                f"the {role} file {input_files(run.config)[role]} changed since the checkpoint in {out} "
                 "was written (its SHA-256 differs): put the file back as it was to continue the run, or pass "
                 "--overwrite to start it afresh on the file as it is"
             )
@@ -285,9 +295,9 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
     return run
 
 
-def _without_file(record: dict) -> dict:
-    """A run's config record but for its problem file's digest."""
-    return {key: value for key, value in record.items() if key != "problem_sha256"}
+def _without_files(record: dict) -> dict:
+    """A run's config record but for its input files' digests."""
+    return {key: value for key, value in record.items() if not key.endswith("_sha256")}
 
 
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's

@@ -140,4 +140,6 @@ def save_problem(path: str, problem: Problem) -> None:
 
 
 def file_digest(path: str) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """The SHA-256 of a file, read in pieces (a recording may be larger than memory)."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
