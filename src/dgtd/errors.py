@@ -25,3 +25,19 @@ def call_user(what: str, function, *args, **kwargs):
         raise
     except Exception as e:  # noqa: BLE001  (anything the user's code raises is theirs to see)
         raise user_error(what, e) from e
+
+
+def user_numbers(what: str, value):
+    """What a user's code (``what``) returned, as a float64 array; a one-line refusal where it is not real numbers
+    (text, None, complex numbers: NumPy would raise deep in dgtd, or drop the imaginary part)."""
+    import numpy as np
+
+    try:
+        kind = np.asarray(value).dtype.kind
+    except (TypeError, ValueError):  # ragged lists
+        kind = "O"
+    if kind not in "biuf":
+        text = " ".join(repr(value).split())  # one line
+        shown = text if len(text) <= 60 else text[:57] + "..."
+        raise DgtdInputError(f"{what} returned {shown}, not real numbers")
+    return np.asarray(value, dtype=np.float64)

@@ -272,7 +272,8 @@ def test_a_graph_or_loss_file_changed_under_a_checkpoint_is_refused_naming_it(tm
     assert len(record["graph_sha256"]) == 64 and len(record["loss_sha256"]) == 64
     (out / "summary.json").unlink()
     save_checkpoint(out / "checkpoint.npz", {"k": 25}, record)
-    (graph if role == "graph" else loss).write_text("0 1\n1 2\n2 3\n3 4\n4 0\n0 2\n" if role == "graph" else "1 0 0.3\n")
+    changed = "0 1\n1 2\n2 3\n3 4\n4 0\n0 2\n" if role == "graph" else "1 0 0.3\n"
+    (graph if role == "graph" else loss).write_text(changed)
     for again in (command, ("run", "--resume", out)):
         code, said, err = run_cli(*again)
         what = graph if role == "graph" else loss

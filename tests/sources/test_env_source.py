@@ -160,3 +160,33 @@ def test_mpe_spread_runs_from_the_command_line_and_says_its_reference_is_estimat
     ref = summary["reference"]
     assert ref["estimated"] and ref["transitions"] == 32_000 and 0 < ref["value_stderr_relative"] < 0.05
     assert len(summary["w_star"]) == 7 and summary["stationary_distribution"] is None
+
+
+@pytest.mark.parametrize("returned", ["ab", None, np.ones((20, 1)) * 1j])
+def test_features_that_are_not_real_numbers_are_one_line(returned):
+    """Text, None or complex numbers from the user's features: one line naming them, not a NumPy traceback (text)
+    or a silently dropped imaginary part (complex)."""
+    src = EnvSource(Chain, lambda s: returned, 0, [0], network=random_edges(topologies.path(3), 1.0))
+    src.start()
+    with pytest.raises(DgtdInputError, match="the features .*<lambda> returned .*, not real numbers"):
+        src.next_block(10)
+
+
+@pytest.mark.parametrize(
+    "where, words",
+    [
+        (lambda env: "here", "returned 'here', not real numbers"),
+        (lambda env: np.zeros((2, 2)), "positions of 3 agents, one row each: got shape \\(2, 2\\)"),
+        (lambda env: np.full((3, 2), np.nan), "NaN or infinite"),
+    ],
+)
+def test_positions_that_are_not_one_finite_row_per_agent_are_one_line(where, words):
+    """A user's positions(env) feeds the proximity links: text, a row missing or NaN (no link would ever be up,
+    silently) are refused in one line."""
+    from dgtd.graphs.proximity import ProximityNetwork
+
+    proximity = ProximityNetwork(3, 1.0)
+    src = EnvSource(Chain, lambda s: s, 0, [0], positions=where, proximity=proximity)
+    src.start()
+    with pytest.raises(DgtdInputError, match=words):
+        src.next_block(3)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from dgtd.algorithms.dgtd import DGTD
-from dgtd.errors import DgtdInputError, call_user, user_error
+from dgtd.errors import DgtdInputError, call_user, user_error, user_numbers
 from dgtd.fields import option
 from dgtd.problems import features as feature_maps
 from dgtd.sources.env import random_policy
@@ -347,9 +347,8 @@ def build_features(text: str, probe, pilot_states):
     if rest:
         function = load_callable(text, "--features")
         states = pilot_states(8)
-        phi = np.asarray(
-            call_user(f"--features {text} on states of shape {states.shape}", function, states), dtype=np.float64
-        )
+        what = f"--features {text} on states of shape {states.shape}"
+        phi = user_numbers(what, call_user(what, function, states))
         if phi.ndim != 2 or phi.shape[0] != len(states):
             raise DgtdInputError(
                 f"--features {text} returned shape {phi.shape} for {len(states)} states; it must return "

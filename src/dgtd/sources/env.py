@@ -27,7 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from dgtd.errors import DgtdInputError, call_user, user_error
+from dgtd.errors import DgtdInputError, call_user, user_error, user_numbers
 from dgtd.samples import Block, SampleTable
 from dgtd.streams import EDGE_UP, SIMULATOR, entity_seed, seed_key, singles
 
@@ -179,8 +179,7 @@ class EnvSource:
                     for a in env.agents
                 }
                 if self.positions is not None:
-                    where = call_user(f"positions {named(self.positions)}", self.positions, env)
-                    up[t, b] = self.proximity.masks(np.asarray(where, dtype=np.float64))
+                    up[t, b] = self.proximity.masks(self._positions(env))
                 else:
                     key = np.uint64(self.keys[b])
                     up[t, b] = singles(key, EDGE_UP, self.step + t, np.arange(E)) < self.network.p
@@ -208,7 +207,8 @@ class EnvSource:
                 "the environment returned NaN or infinite states (its state() or observations); "
                 "check the env, or wrap it to clip them"
             )
-        phi = np.asarray(call_user(f"the features {named(self.features)}", self.features, rows), dtype=np.float64)
+        what = f"the features {named(self.features)}"
+        phi = user_numbers(what, call_user(what, self.features, rows))
         if self.n_features is not None and phi.ndim == 2 and phi.shape[1] != self.n_features:
             raise DgtdInputError(
                 f"the features came out {phi.shape[1]} wide, not {self.n_features} as on the first "
@@ -270,6 +270,19 @@ class EnvSource:
                 f"the step's rewards came out as {r!r}; each of the {len(self.agents)} agents needs a finite reward"
             )
         return r
+
+    def _positions(self, env) -> np.ndarray:
+        """The agents' positions (N, dim) from the user's positions(env), checked: one finite row per agent."""
+        what = f"positions {named(self.positions)}"
+        where = user_numbers(what, call_user(what, self.positions, env))
+        n = self.proximity.n_nodes
+        if where.ndim != 2 or where.shape[0] != n:
+            raise DgtdInputError(
+                f"{what} must return the positions of {n} agents, one row each: got shape {where.shape}"
+            )
+        if not np.isfinite(where).all():
+            raise DgtdInputError(f"{what} returned NaN or infinite positions: no link could be measured from them")
+        return where
 
     resumable = False  # a simulator's state cannot be saved: runs on environments take no checkpoints
 
