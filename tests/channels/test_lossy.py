@@ -17,7 +17,8 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 
 COMMUNICATING = [name for name, cls in ALGORITHMS.items() if cls.messages]
-TRACKING = ("td-tracking", "tdc-tracking")  # gradient tracking: its tracker's sum needs doubly stochastic mixing
+TRACKING = [n for n, cls in ALGORITHMS.items() if "z" in cls.messages]  # gradient tracking: its tracker's
+# sum needs doubly stochastic mixing
 PER_AGENT = [0.1, 0.5, 0.0, 0.8, 0.3]
 
 

@@ -26,8 +26,8 @@ pytestmark = [
 
 MPIEXEC = str(Path(sys.executable).parent / "mpiexec")
 DGTD = [sys.executable, "-m", "dgtd.cli"]
-SPREAD = ["dgtd", "pd-td", "consensus-td0", "td-tracking", "tdc-tracking", "local"]  # every algorithm that can
-CENTRALISED = ["td0", "gtd2", "tdc"]  # one learner: every rank runs it whole
+SPREAD = ["dgtd", "pd-td", "consensus-td0", "consensus-tdrc", "td-tracking", "tdc-tracking", "local"]  # every algorithm that can
+CENTRALISED = ["td0", "gtd2", "tdc", "tdrc"]  # one learner: every rank runs it whole
 
 
 def env(**extra) -> dict:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 
 from dgtd.algorithms.consensus_td0 import ConsensusTD0
+from dgtd.algorithms.consensus_tdrc import ConsensusTDRC
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.algorithms.gtd2 import GTD2
 from dgtd.algorithms.local import Local
@@ -20,9 +21,16 @@ from dgtd.algorithms.td0 import TD0
 from dgtd.algorithms.td_tracking import TDTracking
 from dgtd.algorithms.tdc import TDC
 from dgtd.algorithms.tdc_tracking import TDCTracking
+from dgtd.algorithms.tdrc import TDRC
 from dgtd.errors import DgtdInputError
 
-ALGORITHMS = {cls.name: cls for cls in (DGTD, GTD2, TDC, TD0, ConsensusTD0, PDTD, TDTracking, TDCTracking, Local)}
+ALGORITHMS = {
+    cls.name: cls
+    for cls in (
+        *(DGTD, GTD2, TDC, TDRC, TD0, ConsensusTD0, PDTD),
+        *(TDTracking, TDCTracking, ConsensusTDRC, Local),
+    )
+}
 
 
 def make_algorithm(name: str, **fields):
@@ -44,6 +52,7 @@ def make_algorithm(name: str, **fields):
 __all__ = [
     "ALGORITHMS",
     "ConsensusTD0",
+    "ConsensusTDRC",
     "DGTD",
     "GTD2",
     "Local",
@@ -51,6 +60,7 @@ __all__ = [
     "TD0",
     "TDC",
     "TDCTracking",
+    "TDRC",
     "TDTracking",
     "make_algorithm",
 ]

@@ -36,6 +36,8 @@ TUNED_STEPS: dict[str, dict[str, dict]] = {
     "pd-td": _alpha0(0.3, 0.02, 1.0, 1.0, 1.0, 1.0),
     "td-tracking": _alpha0(0.3, 0.02, 0.3, 1.0, 1.0, 1.0),
     "tdc-tracking": _alpha0(0.3, 0.02, 3.0, 0.1, 0.1, 3.0),
+    "tdrc": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0),
+    "consensus-tdrc": _alpha0(0.3, 0.02, 3.0, 0.1, 0.1, 3.0),
     "local": _alpha0(1.0, 0.02, 10.0, 0.3, 0.1, 3.0),
 }
 
