@@ -26,7 +26,8 @@ pytestmark = [
 
 MPIEXEC = str(Path(sys.executable).parent / "mpiexec")
 DGTD = [sys.executable, "-m", "dgtd.cli"]
-SPREAD = ["dgtd", "pd-td", "consensus-td0", "consensus-tdrc", "td-tracking", "tdc-tracking", "local"]  # every algorithm that can
+# every algorithm whose agents spread over the ranks
+SPREAD = ["dgtd", "pd-td", "consensus-td0", "consensus-tdrc", "td-tracking", "tdc-tracking", "local"]
 CENTRALISED = ["td0", "gtd2", "tdc", "tdrc"]  # one learner: every rank runs it whole
 
 

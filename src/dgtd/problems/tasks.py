@@ -133,6 +133,21 @@ def boyan(n_agents: int = 10, seed: int = 0, n_states: int = 14, gamma: float = 
     )
 
 
+def random_walk(n_agents: int = 10, seed: int = 0, n_states: int = 20, gamma: float = 0.9) -> Problem:
+    """An on-policy random walk on a chain of ``n_states`` states with tabular (one-hot) features: from each state one
+    step left or right with probability 1/2 (staying put at either end), gamma 0.9. The mean reward rises from 0 at
+    the left end to 1 at the right; agent i's is it perturbed within [0, 1] (`split_rewards`). Where TD(0) is at its
+    best (on-policy, tabular) and the gradient-TD family was slowest: the task on which a method's on-policy pace
+    is measured."""
+    S = n_states
+    P = np.zeros((S, S))
+    for s in range(S):
+        P[s, max(s - 1, 0)] += 0.5
+        P[s, min(s + 1, S - 1)] += 0.5
+    R = split_rewards(np.linspace(0.0, 1.0, S), n_agents, np.random.default_rng(seed), low=0.0, high=1.0)
+    return make_problem(P, R, np.eye(S), gamma, name="random-walk")
+
+
 def _normalise(x: np.ndarray) -> np.ndarray:
     return x / x.sum(axis=-1, keepdims=True)
 

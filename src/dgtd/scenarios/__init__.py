@@ -187,6 +187,18 @@ def random_mdp_off_scenario(edge_prob: float = 0.8, seed: int = 0) -> Scenario:
     )
 
 
+def random_walk_scenario(edge_prob: float = 0.8) -> Scenario:
+    """An on-policy random walk on 20 states with tabular features, 10 agents; DGTD's default step sizes."""
+    return _task(
+        tasks.random_walk(n_agents=10),
+        edge_prob,
+        DGTD(),
+        100_000,
+        "random walk (20 states, tabular features, on-policy), 10 agents on a ring with link failures",
+        tuned_steps("random-walk"),
+    )
+
+
 def garnet_scenario(
     edge_prob: float = 0.8,
     n_states: int = 30,
@@ -224,6 +236,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "random-mdp": random_mdp_scenario,
     "random-mdp-off": random_mdp_off_scenario,
     "garnet": garnet_scenario,
+    "random-walk": random_walk_scenario,
     "mpe-spread": mpe_spread_scenario,
 }
 

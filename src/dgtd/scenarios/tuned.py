@@ -13,7 +13,16 @@ garnet's, whose steps it takes (not tuned on it). Every algorithm has an entry f
 
 from __future__ import annotations
 
-TASKS = ("paper-example-1", "paper-example-2", "baird", "boyan", "random-mdp", "random-mdp-off", "garnet")
+TASKS = (
+    "paper-example-1",
+    "paper-example-2",
+    "baird",
+    "boyan",
+    "random-mdp",
+    "random-mdp-off",
+    "garnet",
+    "random-walk",
+)
 
 
 def _alpha0(*values: float) -> dict:
@@ -26,19 +35,20 @@ def _alpha0(*values: float) -> dict:
 TUNED_STEPS: dict[str, dict[str, dict]] = {
     "dgtd": {
         "paper-example-1": {"alpha0": 10.0, "beta": 1000.0, "kappa": 3.0},
-        **{task: {} for task in TASKS if task != "paper-example-1"},
+        "random-walk": {"alpha0": 30.0},
+        **{task: {} for task in TASKS if task not in ("paper-example-1", "random-walk")},
     },
-    #                          paper-example-1, baird, boyan, random-mdp, random-mdp-off, garnet
-    "gtd2": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0),
-    "tdc": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0),
-    "td0": _alpha0(0.3, 0.02, 1.0, 3.0, 3.0, 1.0),
-    "consensus-td0": _alpha0(0.3, 0.02, 1.0, 1.0, 1.0, 1.0),
-    "pd-td": _alpha0(0.3, 0.02, 1.0, 1.0, 1.0, 1.0),
-    "td-tracking": _alpha0(0.3, 0.02, 0.3, 1.0, 1.0, 1.0),
-    "tdc-tracking": _alpha0(0.3, 0.02, 3.0, 0.1, 0.1, 3.0),
-    "tdrc": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0),
-    "consensus-tdrc": _alpha0(0.3, 0.02, 3.0, 0.1, 0.1, 3.0),
-    "local": _alpha0(1.0, 0.02, 10.0, 0.3, 0.1, 3.0),
+    #                          paper-example-1, baird, boyan, random-mdp, random-mdp-off, garnet, random-walk
+    "gtd2": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0, 30.0),
+    "tdc": _alpha0(1.0, 0.02, 30.0, 0.3, 0.3, 3.0, 30.0),
+    "td0": _alpha0(0.3, 0.02, 1.0, 3.0, 3.0, 1.0, 3.0),
+    "consensus-td0": _alpha0(0.3, 0.02, 1.0, 1.0, 1.0, 1.0, 3.0),
+    "pd-td": _alpha0(0.3, 0.02, 1.0, 1.0, 1.0, 1.0, 3.0),
+    "td-tracking": _alpha0(0.3, 0.02, 0.3, 1.0, 1.0, 1.0, 3.0),
+    "tdc-tracking": _alpha0(0.3, 0.02, 3.0, 0.1, 0.1, 3.0, 10.0),
+    "tdrc": _alpha0(0.3, 0.02, 0.3, 0.3, 0.3, 1.0, 3.0),
+    "consensus-tdrc": _alpha0(0.3, 0.02, 0.3, 0.3, 0.3, 1.0, 3.0),
+    "local": _alpha0(1.0, 0.02, 10.0, 0.3, 0.1, 3.0, 10.0),
 }
 
 
