@@ -50,6 +50,7 @@ TASKS = {
     "random-mdp": 100_000,
     "random-mdp-off": 100_000,
     "garnet": 100_000,
+    "random-walk": 100_000,
 }
 THRESHOLDS = (0.10, 0.01)
 OUTPUTS = ("last", "tail")
