@@ -24,7 +24,8 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.algorithms.base import zeros
-from dgtd.algorithms.tdrc import TDRC
+from dgtd.algorithms.tdc import TDC
+from dgtd.algorithms.tdrc import Penalised, penalised
 
 
 class ConsensusTDRCState(NamedTuple):
@@ -33,13 +34,16 @@ class ConsensusTDRCState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class ConsensusTDRC(TDRC):
-    """TDRC with Metropolis consensus on w; fields as `dgtd.algorithms.tdrc.TDRC` (one step size, ``penalty``)."""
+class ConsensusTDRC(Penalised):
+    """TDRC with Metropolis consensus on w; fields as `dgtd.algorithms.tdrc.TDRC` (one step size, ``penalty``), its
+    directions TDC's (`dgtd.algorithms.tdc.TDC.terms`), each agent's own."""
 
     name: ClassVar[str] = "consensus-tdrc"
     description: ClassVar[str] = "distributed TDRC with Metropolis consensus (TDRC's direction, Doan et al.'s mixing)"
     color: ClassVar[str] = "#7f7f7f"
-    centralised: ClassVar[bool] = False
+    reads: ClassVar = TDC.reads
+    coefficients = staticmethod(TDC.coefficients)
+    terms = staticmethod(TDC.terms)
     messages: ClassVar[tuple[str, ...]] = ("w",)
     mixing: ClassVar[str] = "metropolis"  # W(k) x = x - inbox.metropolis(x)
 
@@ -58,4 +62,4 @@ class ConsensusTDRC(TDRC):
         (Lw,) = heard
         d_w, d_theta = d
         alpha, beta = steps
-        return theta + beta * (d_theta - p.penalty * theta), w - Lw + alpha * d_w
+        return penalised(theta, d_theta, beta, p.penalty), w - Lw + alpha * d_w

@@ -17,7 +17,7 @@ notation beta_k (`TwoTimescale.aux_step`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -57,7 +57,7 @@ class TwoTimescale(StepSizes):
         metadata=option("Exponent p in (0, 1] of the auxiliary step beta_k = eta alpha0 (alpha_k / alpha0)^p."),
     )
 
-    Params: ClassVar = TwoTimescaleParams
+    Params: ClassVar[Any] = TwoTimescaleParams
 
     def __post_init__(self):
         super().__post_init__()

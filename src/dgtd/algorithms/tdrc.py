@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple
 
 from dgtd.algorithms.base import check_nonnegative
+from dgtd.algorithms.gtd2 import TwoTimescale
 from dgtd.algorithms.tdc import TDC
 from dgtd.fields import option
 
@@ -36,9 +37,9 @@ class TDRCParams(NamedTuple):
 
 
 @dataclass(frozen=True)
-class TDRC(TDC):
-    """Centralised TDRC on the average reward: TDC (`dgtd.algorithms.tdc.TDC`) whose auxiliary step carries the l2
-    penalty ``penalty`` on theta; one step size (eta 1, timescale 1), as the paper runs it."""
+class Penalised(TwoTimescale):
+    """The step sizes of TDRC and of the methods built on its direction: one step size (eta 1, timescale 1), as the
+    paper runs it, and ``penalty``, its l2 penalty on theta."""
 
     timescale: float = 1.0
     penalty: float = field(
@@ -46,14 +47,26 @@ class TDRC(TDC):
         metadata=option("L2 penalty on the auxiliary vector theta (Ghiassian et al. 2020's beta; 0 is TDC)."),
     )
 
-    name: ClassVar[str] = "tdrc"
-    description: ClassVar[str] = "centralised TDRC, TDC with regularised corrections (Ghiassian et al. 2020)"
-    color: ClassVar[str] = "#bcbd22"
     Params: ClassVar = TDRCParams
 
     def __post_init__(self):
         super().__post_init__()
         check_nonnegative("penalty (TDRC's l2 penalty on theta)", self.penalty)
+
+
+def penalised(theta, d_theta, beta, penalty):
+    """theta's TDRC step: theta + beta_k (d_theta - penalty theta)."""
+    return theta + beta * (d_theta - penalty * theta)
+
+
+@dataclass(frozen=True)
+class TDRC(Penalised, TDC):
+    """Centralised TDRC on the average reward: TDC (`dgtd.algorithms.tdc.TDC`) whose auxiliary step carries the l2
+    penalty ``penalty`` on theta (`Penalised`)."""
+
+    name: ClassVar[str] = "tdrc"
+    description: ClassVar[str] = "centralised TDRC, TDC with regularised corrections (Ghiassian et al. 2020)"
+    color: ClassVar[str] = "#bcbd22"
 
     @staticmethod
     def feature(p, x, heard, d, steps):
@@ -61,4 +74,4 @@ class TDRC(TDC):
         w, theta = x
         d_w, d_theta = d
         alpha, beta = steps
-        return w + alpha * d_w, theta + beta * (d_theta - p.penalty * theta)
+        return w + alpha * d_w, penalised(theta, d_theta, beta, p.penalty)
