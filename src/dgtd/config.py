@@ -529,6 +529,8 @@ def resolve(config: RunConfig):
     wake = _loss(spec.wake)  # a probability or a list, as a loss is written
     channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # checked here, with its network
     algorithm = build_algorithm(spec, algorithm)
+    if steps_from_the_problem(spec, algorithm):
+        algorithm = algorithm.from_the_problem(exact_moments(problem), network)[0]
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
     )
@@ -799,6 +801,19 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
         raise DgtdInputError(f"scenario {name!r} needs parameter(s) {', '.join(missing)} under params")
     rest = {k: _plain(v) for k, v in kwargs.items() if k != "edge_prob"}
     return kwargs, rest or None, kwargs.get("edge_prob")
+
+
+def steps_from_the_problem(spec, algorithm) -> bool:
+    """Whether DGTD's steps come from the problem (`dgtd.algorithms.dgtd.DGTD.from_the_problem`): on a user's problem
+    file, where no step option is given. Named tasks keep their tuned steps and the paper's examples the paper's."""
+    given = any(getattr(spec, k) is not None for k in ("alpha0", "beta", "schedule"))
+    return spec.problem_file is not None and algorithm.name == "dgtd" and not given
+
+
+def exact_moments(problem):
+    from dgtd.problems.exact import Moments
+
+    return Moments(problem)
 
 
 def build_algorithm(spec, default):

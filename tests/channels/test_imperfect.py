@@ -338,3 +338,23 @@ def test_a_step_of_late_messages_costs_the_same_at_any_delay():
         return top
 
     assert peak(5000) < 2 * peak(5)
+
+
+def test_the_run_header_names_the_links_models_without_loss_too(tmp_path, run_cli):
+    """`dgtd run --bits 4 --error-feedback` (no --loss): the header's network line says what the links do; it named
+    the channel only where messages were lost."""
+    code, text, err = run_cli(
+        "run",
+        "paper-example-1",
+        "-T",
+        "50",
+        "--bits",
+        "4",
+        "--error-feedback",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "r",
+    )
+    assert code == 0, err
+    assert "4 bits a number, with error feedback" in text.splitlines()[0]

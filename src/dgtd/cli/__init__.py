@@ -141,7 +141,7 @@ def _run_job(job, t_start: float) -> None:
     import time
 
     from dgtd.cli.job import CONFIG
-    from dgtd.config import make_channel, scenario_of
+    from dgtd.config import exact_moments, make_channel, scenario_of, steps_from_the_problem, view
 
     t_prepared = time.perf_counter()
     if job.finished:
@@ -151,8 +151,9 @@ def _run_job(job, t_start: float) -> None:
     links = network.describe()
     if job.resolved.problem.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
-    if job.resolved.network.loss is not None:
-        links += f"; {make_channel(job.resolved, network).describe()}"
+    channel = make_channel(job.resolved, network)
+    if channel.name != "perfect":  # lost, late, asleep or compressed messages
+        links += f"; {channel.describe()}"
     click.echo(problem_line(problem, links))
     if job.resolved.problem.data is not None:  # the source's own samples: the run's Sampling is not used
         samples = "the recording's samples"
@@ -166,6 +167,13 @@ def _run_job(job, t_start: float) -> None:
     )
     if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
         click.echo(scenario_of(job.resolved).description)
+    if steps_from_the_problem(view(job.config), algorithm):  # say which step was chosen, and why
+        from dataclasses import replace
+
+        default = replace(algorithm, beta=type(algorithm)().beta)
+        note = default.from_the_problem(exact_moments(problem), network)[1]
+        if note:
+            click.echo(note)
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()

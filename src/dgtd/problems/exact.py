@@ -410,3 +410,39 @@ def lemma_bounds(m: Moments, L, max_degree: int) -> Bounds:
         c_mu = L_pinv_inf * phi_inf**2 * 2.0 * p.sigma * S**2 * np.sqrt(N / (xi * lam))
     c_v = 2.0 * max_degree * c_w
     return Bounds(float(c_theta), float(c_v), float(c_mu), float(c_w))
+
+
+def dgtd_mean_dynamics(m: Moments, lam: float, kappa: float, rho: float = 0.0) -> np.ndarray:
+    """G(lambda): DGTD's mean update along an eigenvector of the mean Laplacian of eigenvalue ``lam`` is -alpha G
+    (theta, v, mu, w) + const (Algorithm 1's lines 7-8 in expectation, `dgtd.algorithms.dgtd.gradient`):
+    [[M, 0, 0, A], [0, I, 0, -lam I], [0, 0, rho I, -lam I], [-A^T, lam I, lam I, (kappa lam + rho) I]]."""
+    A, M = m.A, m.M
+    q = A.shape[0]
+    eye, zero = np.eye(q), np.zeros((q, q))
+    return np.block(
+        [
+            [M, zero, zero, A],
+            [zero, eye, zero, -lam * eye],
+            [zero, zero, rho * eye, -lam * eye],
+            [-A.T, lam * eye, lam * eye, (kappa * lam + rho) * eye],
+        ]
+    )
+
+
+def fastest_contracting_step(m: Moments, L, kappa: float, rho: float = 0.0) -> float:
+    """min over the eigenvalues nu of DGTD's mean dynamics (`dgtd_mean_dynamics`, over the mean Laplacian's
+    eigenvalues) with Re(nu) > 0 of Re(nu) / |nu|^2: half the largest step at which every such mode still contracts
+    (|1 - alpha nu| < 1 exactly for alpha < 2 Re(nu) / |nu|^2), and the step at which the least damped of them (the
+    smallest Re(nu) / |nu|^2) contracts fastest. Up to DENSE_N agents every eigenvalue of L; beyond, 16 points
+    spread over [0, its largest]."""
+    if L.shape[0] <= DENSE_N:
+        lams = np.unique(np.round(np.linalg.eigvalsh(L.toarray() if issparse(L) else np.asarray(L)), 12))
+    else:  # up to Gershgorin's bound
+        lams = np.linspace(0.0, float(np.asarray(abs(L).sum(axis=1)).max()), 16)
+    best = np.inf
+    for lam in lams:
+        nu = np.linalg.eigvals(dgtd_mean_dynamics(m, float(lam), kappa, rho))
+        nu = nu[nu.real > 1e-12]  # the modes that contract (0: directions the dynamics leave alone)
+        if nu.size:
+            best = min(best, float((nu.real / np.abs(nu) ** 2).min()))
+    return best
