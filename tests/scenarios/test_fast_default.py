@@ -1,5 +1,6 @@
-"""DGTD's default step sizes (10 / sqrt(k + 1000), kappa 3), what `dgtd run` uses without step-size options, and the
-rate of its tail average (docs/benchmarks.md has the time-to-accuracy table behind the choice)."""
+"""DGTD's default step sizes (10 / sqrt(k + 1000), kappa 3; on a problem file the offset from the problem), what
+`dgtd run` uses without step-size options, and the rate of its tail average (docs/benchmarks.md has the
+time-to-accuracy table behind the choice)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import numpy as np
 import pytest
 
 from dgtd.algorithms import DGTD
+from dgtd.graphs import topologies
+from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.run.loop import RunSettings, run
 from dgtd.scenarios import get_scenario
@@ -17,9 +20,13 @@ from dgtd.scenarios import get_scenario
 def test_dgtd_run_uses_the_fast_defaults_and_the_paper_example_keeps_the_papers(run_cli, tmp_path):
     from dgtd.problems.io import save_problem
 
-    save_problem(tmp_path / "p.npz", get_scenario("garnet").problem)
+    garnet = get_scenario("garnet").problem
+    save_problem(tmp_path / "p.npz", garnet)
+    # a problem file's offset comes from the problem (`DGTD.from_the_problem`), on its default network (ring, p = 1)
+    derived = DGTD().from_the_problem(exact.Moments(garnet), random_edges(topologies.ring(10), 1.0))[0].beta
+    assert derived > 1000.0
     for args, expected in (
-        ((("--problem", tmp_path / "p.npz")), (10.0, 1000.0, 3.0)),
+        ((("--problem", tmp_path / "p.npz")), (10.0, derived, 3.0)),
         (("boyan",), (10.0, 1000.0, 3.0)),
         (("paper-example-1",), (10.0, 100.0, 1.0)),
     ):
