@@ -71,3 +71,27 @@ def test_a_problem_file_run_takes_its_steps_from_the_problem_and_says_so(tmp_pat
     assert "alpha_k = 10/sqrt(k+5170)" in text and "steps from the problem: the offset beta 5170" in text
     code, text, err = run_cli(*command, "--beta", "1000", "--out", tmp_path / "b")
     assert code == 0 and "alpha_k = 10/sqrt(k+1000)" in text and "steps from the problem" not in text
+
+
+def test_dgtd_compare_on_a_problem_file_says_where_dgtds_offset_comes_from(tmp_path, run_cli):
+    """`dgtd compare --problem FILE` runs DGTD at the offset `dgtd run` takes from the problem, and says so beside
+    its alpha0 (it printed the other methods' origin, garnet's steps, for it too)."""
+    p = chain()
+    np.savez(tmp_path / "chain.npz", P=p.P, R=p.R, Phi=p.Phi, gamma=p.gamma)
+    code, text, err = run_cli(
+        "compare",
+        "--problem",
+        tmp_path / "chain.npz",
+        "-a",
+        "dgtd,td0",
+        "-T",
+        "200",
+        "--seeds",
+        "1",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "c",
+    )
+    assert code == 0, err
+    assert "dgtd 10 (offset 5170 from the problem)" in text

@@ -106,7 +106,9 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
         f"{', step sizes tuned first' if tune else ''}"
     )
     if not tune:
-        steps = ", ".join(f"{name} {config.alpha0:.3g}" for name, config in configs.items())
+        steps = ", ".join(
+            f"{name} {config.alpha0:.3g}{_offset(name, config, resolved)}" for name, config in configs.items()
+        )
         origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
         click.echo(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
     record = {
@@ -210,3 +212,11 @@ def table(results: dict, used: dict) -> str:
             f"{float(np.max(r.info['bits'])):>12.3g}  {d}"
         )
     return "\n".join(rows)
+
+
+def _offset(name: str, config, resolved) -> str:
+    """DGTD's offset where it comes from the problem (`dgtd.algorithms.dgtd.DGTD.from_the_problem`), as `dgtd run`
+    takes it."""
+    if name == "dgtd" and config.beta != type(config)().beta and resolved.problem.problem_file is not None:
+        return f" (offset {config.beta:g} from the problem)"
+    return ""
