@@ -435,6 +435,7 @@ def fastest_contracting_step(m: Moments, L, kappa: float, rho: float = 0.0) -> f
     (|1 - alpha nu| < 1 exactly for alpha < 2 Re(nu) / |nu|^2), and the step at which the least damped of them (the
     smallest Re(nu) / |nu|^2) contracts fastest. Up to DENSE_N agents every eigenvalue of L; beyond, 16 points
     spread over [0, its largest]."""
+    lams: np.ndarray
     if L.shape[0] <= DENSE_N:
         lams = np.unique(np.round(np.linalg.eigvalsh(L.toarray() if issparse(L) else np.asarray(L)), 12))
     else:  # up to Gershgorin's bound
