@@ -107,7 +107,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     )
     if not tune:
         steps = ", ".join(
-            f"{name} {config.alpha0:.3g}{_offset(name, config, resolved)}" for name, config in configs.items()
+            f"{name} {algorithm.alpha0:.3g}{_offset(algorithm, config)}" for name, algorithm in configs.items()
         )
         origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
         click.echo(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
@@ -214,9 +214,9 @@ def table(results: dict, used: dict) -> str:
     return "\n".join(rows)
 
 
-def _offset(name: str, config, resolved) -> str:
-    """DGTD's offset where it comes from the problem (`dgtd.algorithms.dgtd.DGTD.from_the_problem`), as `dgtd run`
-    takes it."""
-    if name == "dgtd" and config.beta != type(config)().beta and resolved.problem.problem_file is not None:
-        return f" (offset {config.beta:g} from the problem)"
-    return ""
+def _offset(algorithm, config) -> str:
+    """DGTD's offset where it comes from the problem (`dgtd.config.steps_from_the_problem`, the rule `dgtd run`
+    follows), said beside its alpha0; ``config``: the comparison's, before it was resolved."""
+    from dgtd.config import steps_from_the_problem, view
+
+    return f" (offset {algorithm.beta:g} from the problem)" if steps_from_the_problem(view(config), algorithm) else ""
