@@ -529,8 +529,8 @@ def resolve(config: RunConfig):
     wake = _loss(spec.wake)  # a probability or a list, as a loss is written
     channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # checked here, with its network
     algorithm = build_algorithm(spec, algorithm)
-    if steps_from_the_problem(spec, algorithm):
-        algorithm = algorithm.from_the_problem(exact_moments(problem), network)[0]
+    if steps_from_the_problem(spec):
+        algorithm = problem_steps(spec, problem, network)[0]
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
     )
@@ -803,11 +803,23 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
     return kwargs, rest or None, kwargs.get("edge_prob")
 
 
-def steps_from_the_problem(spec, algorithm) -> bool:
-    """Whether DGTD's steps come from the problem (`dgtd.algorithms.dgtd.DGTD.from_the_problem`): on a user's problem
-    file, where no step option is given. Named tasks keep their tuned steps and the paper's examples the paper's."""
+def steps_from_the_problem(spec) -> bool:
+    """Whether the algorithm's first step comes from the problem (`dgtd.algorithms.mean_dynamics`): on a user's
+    problem file, where no step option is given. Named tasks keep their tuned steps and the paper's examples the
+    paper's."""
     given = any(getattr(spec, k) is not None for k in ("alpha0", "beta", "schedule"))
-    return spec.problem_file is not None and algorithm.name == "dgtd" and not given
+    return spec.problem_file is not None and not given
+
+
+def problem_start(spec):
+    """The algorithm a problem-file run starts from, before its steps come from the problem."""
+    return build_algorithm(spec, DGTD())
+
+
+def problem_steps(spec, problem, network) -> tuple:
+    """(the algorithm of a problem-file run with its steps from the problem, the header's line saying so or ""):
+    `dgtd.algorithms.base.StepSizes.from_the_problem` of `problem_start`."""
+    return problem_start(spec).from_the_problem(exact_moments(problem), network)
 
 
 def exact_moments(problem):

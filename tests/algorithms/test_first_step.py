@@ -1,17 +1,23 @@
-"""DGTD's first step from the problem (`dgtd.algorithms.dgtd.DGTD.first_step`, `from_the_problem`): half the largest
-step at which every mode of its mean dynamics contracts, checked against the dynamics themselves, and a user's
-problem file whose default steps swing run without the swing."""
+"""Every method's first step from the problem (`dgtd.algorithms.mean_dynamics`, `StepSizes.from_the_problem`): the
+mean dynamics built from each algorithm's one definition, checked against a sum over every transition of its own
+``directions`` and, for DGTD, against the closed form of Algorithm 1 in expectation; half the largest step at which
+every mode contracts, checked against the dynamics themselves; and a user's problem file whose default steps swing
+running without the swing."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import dgtd
-from dgtd.algorithms import DGTD
+from dgtd.algorithms import ALGORITHMS, DGTD, make_algorithm
+from dgtd.algorithms import mean_dynamics as md
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
 from dgtd.problems.model import make_problem
+from dgtd.samples import Sample
+from dgtd.scenarios import get_scenario
 
 
 def chain(n_states=10, n_agents=6):
@@ -26,23 +32,107 @@ def chain(n_states=10, n_agents=6):
     return make_problem(P, R, np.stack([np.ones(S), x, np.cos(np.pi * x)], 1), 0.9, name="chain")
 
 
-def test_the_step_is_half_the_largest_at_which_every_mode_contracts():
-    """The mean iteration x <- (I - alpha G) x over every Laplacian mode: at the rule's alpha and up to 1.9 times it
-    every mode contracts (max |1 - alpha nu| < 1); at twice it one mode no longer does (factor 1)."""
-    p = chain()
-    m = exact.Moments(p)
-    L = random_edges(topologies.ring(6), 1.0).mean_laplacian()
-    alpha = exact.fastest_contracting_step(m, L, 3.0)
+def closed_form_step(m, L, kappa):
+    """min Re(nu) / |nu|^2 over the modes of DGTD's G(lam) with Re(nu) > 0, over the Laplacian's eigenvalues."""
+    best = np.inf
+    for lam in np.linalg.eigvalsh(L):
+        nu = np.linalg.eigvals(exact.dgtd_mean_dynamics(m, lam, kappa))
+        nu = nu[nu.real > 1e-12]
+        best = min(best, float((nu.real / np.abs(nu) ** 2).min()))
+    return best
 
-    def worst(a):
-        factors = []
-        for lam in np.linalg.eigvalsh(L):
-            nu = np.linalg.eigvals(exact.dgtd_mean_dynamics(m, lam, 3.0))
-            factors.append(np.abs(1 - a * nu[nu.real > 1e-12]).max())
-        return max(factors)
 
-    assert worst(alpha) < 1 and worst(1.9 * alpha) < 1 and worst(2.0 * alpha) > 1 - 1e-9
-    assert 0.1 < alpha < 0.2  # measured 0.139, against the default first step 10 / sqrt(1001) = 0.316
+def brute_force_map(algorithm, m, alpha, lam):
+    """J(alpha, lam) from first principles: every unit state, every transition (s, a, s') as a one-agent `Sample`
+    through the algorithm's own ``directions``, weighted by d(s) P_sample(s, a, s'), then its ``feature``."""
+    problem = m.problem
+    fields = type(algorithm.init(1, 1, 1))._fields
+    q, n = problem.n_features, len(fields)
+    p = algorithm.params()
+    c = problem.continuing
+    columns = []
+    for unit in np.eye(n * q):
+        x = tuple(unit[f * q : (f + 1) * q][None, None, :] for f in range(n))
+        state = type(algorithm.init(1, 1, 1))(*x)
+        mean = None
+        for s, a, t in zip(*np.nonzero(problem.P_sample)):
+            weight = m.d[s] * problem.P_sample[s, a, t]
+            gamma = problem.gamma * c[s] * c[t]
+            sample = Sample(
+                problem.Phi[s][None, None],
+                problem.Phi[t][None, None],
+                np.zeros((1, 1)),
+                np.full((1, 1), problem.ratio[s, a]),
+                np.full((1, 1), gamma),
+            )
+            d = algorithm.directions(state, sample)
+            mean = [weight * v for v in d] if mean is None else [u + weight * v for u, v in zip(mean, d)]
+        heard = tuple(lam * v for v in algorithm.transmit(x))
+        new = algorithm.feature(p, x, heard, tuple(mean), algorithm.steps(p, alpha))
+        columns.append(np.concatenate([np.broadcast_to(v, (1, 1, q))[0, 0] for v in new]))
+    return np.stack(columns, axis=1)
+
+
+@pytest.mark.parametrize("task", ["chain", "baird", "boyan"])
+@pytest.mark.parametrize("name", list(ALGORITHMS))
+def test_the_mean_map_is_the_sum_of_the_algorithms_own_directions_over_every_transition(name, task):
+    """On-policy (the chain), off-policy (Baird's ratios) and episodic (Boyan's terminal state): J equals the sum
+    over every transition of the algorithm's own `directions`, to rounding (1e-12)."""
+    problem = chain() if task == "chain" else get_scenario(task).problem
+    m = exact.Moments(problem)
+    algorithm = make_algorithm(name)
+    mean_map = md.MeanMap(algorithm, m)
+    for alpha, lam in ((0.3, 0.0), (0.05, 0.7)):
+        assert np.abs(mean_map(alpha, lam) - brute_force_map(algorithm, m, alpha, lam)).max() < 1e-12
+
+
+def test_dgtds_mean_map_is_algorithm_1_in_expectation_and_its_step_the_closed_forms():
+    """DGTD's J(alpha, lam) = I - alpha G(lam) (`exact.dgtd_mean_dynamics`) on the chain and on Baird (1e-13); its
+    first step is min Re(nu) / |nu|^2 over the modes of G (1e-12 relative): on a ring of 6, 0.139."""
+    for problem, L in ((chain(), random_edges(topologies.ring(6), 1.0)), (get_scenario("baird").problem, None)):
+        net = L or get_scenario("baird").network
+        m = exact.Moments(problem)
+        mean_map = md.MeanMap(DGTD(), m)
+        q = problem.n_features
+        for lam in np.linalg.eigvalsh(net.mean_laplacian()):
+            G = exact.dgtd_mean_dynamics(m, lam, 3.0)
+            assert np.abs(mean_map(0.2, lam) - (np.eye(4 * q) - 0.2 * G)).max() < 1e-13
+        alpha, why = md.first_step(DGTD(), m, net)
+        expected = closed_form_step(m, net.mean_laplacian(), 3.0)
+        assert abs(alpha - expected) < 1e-12 * expected and why.startswith("half the largest")
+    assert abs(md.first_step(DGTD(), exact.Moments(chain()), random_edges(topologies.ring(6), 1.0))[0] - 0.139) < 1e-3
+
+
+@pytest.mark.parametrize("name", list(ALGORITHMS))
+def test_every_methods_step_is_half_the_largest_at_which_every_mode_contracts(name):
+    """For every method on the chain (ring of 6, links up with probability 0.6): at its first step and 1.9 times it
+    every moving mode of its mean map contracts for every mixing eigenvalue; where the rule is half the largest
+    such step, at 2.1 times it one mode does not; where it is the per-sample cap, twice the cap still contracts."""
+    algorithm = make_algorithm(name)
+    m = exact.Moments(chain())
+    net = random_edges(topologies.ring(6), 0.6)
+    alpha, why = md.first_step(algorithm, m, net)
+    mean_map = md.MeanMap(algorithm, m)
+    lams = md.mixing_eigenvalues(algorithm, net)
+
+    def contracts(a):
+        return all(md.contracts(mean_map, a, float(lam)) for lam in lams)
+
+    assert alpha is not None and contracts(alpha) and contracts(1.9 * alpha)
+    if why.startswith("half"):
+        assert not contracts(2.1 * alpha)
+    else:
+        largest = float((m.problem.Phi**2).sum(axis=1).max())  # 3: features [1, 1, -1] at the chain's end
+        assert contracts(2.0 * alpha) and max(algorithm.steps(algorithm.params(), alpha)) * largest <= 1.0 + 1e-9
+
+
+def test_where_no_step_contracts_the_steps_are_kept_and_the_header_says_so():
+    """TD(0) on Baird's counterexample: a mode of its mean dynamics grows at every step (it diverges), so no step
+    comes from the problem; the note says so."""
+    sc = get_scenario("baird")
+    algorithm = make_algorithm("td0", alpha0=0.1)
+    derived, note = algorithm.from_the_problem(exact.Moments(sc.problem), sc.network)
+    assert derived is algorithm and "no step makes every mode of its mean dynamics contract" in note
 
 
 def test_a_problem_whose_default_steps_swing_runs_without_the_swing():
@@ -73,25 +163,57 @@ def test_a_problem_file_run_takes_its_steps_from_the_problem_and_says_so(tmp_pat
     assert code == 0 and "alpha_k = 10/sqrt(k+1000)" in text and "steps from the problem" not in text
 
 
-def test_dgtd_compare_on_a_problem_file_says_where_dgtds_offset_comes_from(tmp_path, run_cli):
-    """`dgtd compare --problem FILE` runs DGTD at the offset `dgtd run` takes from the problem, and says so beside
-    its alpha0 (it printed the other methods' origin, garnet's steps, for it too)."""
+def test_a_problem_file_run_of_any_method_takes_its_first_step_from_the_problem(tmp_path, run_cli):
+    """TDC on the chain from DGTD's steps (10 / sqrt(k + 1000)): its auxiliary step (timescale 2/3) would exceed
+    1 / max |phi(s)|^2 = 1/3 at the first steps, so the offset is raised until it does not, and the header says so."""
     p = chain()
     np.savez(tmp_path / "chain.npz", P=p.P, R=p.R, Phi=p.Phi, gamma=p.gamma)
     code, text, err = run_cli(
+        "run",
+        "--problem",
+        tmp_path / "chain.npz",
+        "--algorithm",
+        "tdc",
+        "-T",
+        "200",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "a",
+    )
+    assert code == 0, err
+    derived, _ = make_algorithm("tdc", alpha0=10.0, beta=1000.0).from_the_problem(
+        exact.Moments(p), random_edges(topologies.ring(6), 1.0)
+    )
+    assert derived.beta > 1000.0 and f"steps from the problem: the offset beta {derived.beta:g} (not 1000)" in text
+    assert f"beta {derived.beta}" in text  # the algorithm's line
+
+
+def test_dgtd_compare_on_a_problem_file_takes_every_methods_first_step_from_the_problem(tmp_path, run_cli):
+    """`dgtd compare --problem FILE` says each method's whole schedule and where it comes from: garnet's tuned alpha0
+    over E|phi|^2, each first step at most what the method's mean dynamics allow (DGTD's offset 5170, as `dgtd
+    run` takes; TDC's raised as its auxiliary step needs)."""
+    p = chain()
+    np.savez(tmp_path / "chain.npz", P=p.P, R=p.R, Phi=p.Phi, gamma=p.gamma)
+    command = (
         "compare",
         "--problem",
         tmp_path / "chain.npz",
         "-a",
-        "dgtd,td0",
+        "dgtd,td0,tdc",
         "-T",
         "200",
         "--seeds",
         "1",
         "--no-plots",
         "--no-progress",
-        "--out",
-        tmp_path / "c",
     )
+    code, text, err = run_cli(*command, "--out", tmp_path / "c")
     assert code == 0, err
-    assert "dgtd 10 (offset 5170 from the problem)" in text
+    assert "dgtd 10/sqrt(k+5170)" in text and "every first step at most what the method's mean dynamics allow" in text
+    m, net = exact.Moments(p), random_edges(topologies.ring(6), 1.0)
+    for name in ("td0", "tdc"):
+        alpha0 = float(text.split(f"{name} ")[1].split("/")[0])
+        beta = float(text.split(f"{name} {alpha0:.4g}/sqrt(k+")[1].split(")")[0])
+        algorithm = make_algorithm(name, alpha0=alpha0, beta=beta)
+        assert md.first_of(algorithm) <= md.first_step(algorithm, m, net)[0] * 1.001, name

@@ -19,6 +19,8 @@ Hooks, with the defaults of `StepSizes`, through which the run loop treats every
   the errors are measured against (w* for every agent by default), with what it reports of that point;
 - ``prepare(moments, network, fixed) -> (algorithm, report)``: the algorithm as it runs on this problem (DGTD's
   projection boxes), and what to report of that;
+- ``from_the_problem(moments, network) -> (algorithm, note)``: its first step from its mean dynamics on a model
+  (`dgtd.algorithms.mean_dynamics`), where no step option is given;
 - ``diagnostics(state, moments, mean_laplacian) -> dict``: numbers reported after a run (DGTD's KKT residuals);
 - ``describe() -> str``: one line for the command line.
 
@@ -190,6 +192,13 @@ class StepSizes:
         from dgtd.problems import exact
 
         return FixedPoint(exact.weighted_w_star(moments, mean_laplacian, w_star)[None, :])
+
+    def from_the_problem(self, moments, network) -> tuple:
+        """(this algorithm with its first step at most what its mean dynamics on the model allow, the header's line
+        saying so or ""): `dgtd.algorithms.mean_dynamics.from_the_problem`, one rule for every method."""
+        from dgtd.algorithms.mean_dynamics import from_the_problem
+
+        return from_the_problem(self, moments, network)
 
     def prepare(self, moments, network, fixed: FixedPoint) -> tuple:
         return self, {}

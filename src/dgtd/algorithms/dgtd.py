@@ -20,6 +20,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.algorithms.base import FixedPoint, StepSizes, check_nonnegative, clip, zeros
+from dgtd.algorithms.stepsizes import describe as describe_steps
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option
 from dgtd.samples import Sample
@@ -169,34 +170,6 @@ class DGTD(StepSizes):
             },
         )
 
-    def first_step(self, moments, network) -> tuple[float, str]:
-        """(the largest first step alpha_1 the problem suggests, why): half the largest step at which every mode of the
-        mean dynamics contracts (`dgtd.problems.exact.fastest_contracting_step`), and at most 1 / max_s |phi(s)|^2,
-        beyond which a single sample overshoots along its own features (docs/benchmarks.md)."""
-        from dgtd.problems import exact
-
-        mean = exact.fastest_contracting_step(moments, network.mean_laplacian(), self.kappa, self.rho)
-        sample = 1.0 / float((moments.problem.Phi**2).sum(axis=1).max())
-        if sample < mean:
-            return sample, f"1 / max |phi(s)|^2 = {sample:.3g}, below the mean dynamics' {mean:.3g}"
-        why = "half the largest at which every mode of the mean dynamics contracts"
-        return mean, f"{why} (1 / max |phi|^2: {sample:.3g})"
-
-    def from_the_problem(self, moments, network) -> tuple[DGTD, str]:
-        """(DGTD with the offset beta raised so that its first step alpha0 / sqrt(1 + beta) is at most `first_step`'s,
-        alpha0 and so the late steps unchanged; the header's line saying so). Measured on a 6-agent chain of features
-        [1, x, cos(pi x)] whose default first step (0.316) swung its errors to 118 times |w*| and its consensus
-        error to 8e6 before they settled: its first step 0.139 from the problem (beta 5 170) does not swing, and ends
-        nearer w* (docs/benchmarks.md)."""
-        alpha_1, why = self.first_step(moments, network)
-        if self.schedule != "sqrt" or self.alpha0 / np.sqrt(1.0 + self.beta) <= alpha_1:
-            return self, ""
-        beta = float(f"{(self.alpha0 / alpha_1) ** 2 - 1.0:.3g}")
-        return replace(self, beta=beta), (
-            f"steps from the problem: the offset beta {beta:g} (not {self.beta:g}) makes the first step "
-            f"{self.alpha0 / np.sqrt(1.0 + beta):.3g}, {why}; --beta or --alpha0 set them yourself"
-        )
-
     def prepare(self, moments, network, fixed: FixedPoint) -> tuple:
         """DGTD projecting onto the boxes it resolves here (`resolve_boxes`), and the boxes it uses."""
         saddle = (fixed.report["theta_star"], fixed.report["v_star"], fixed.report["mu_star"], fixed.w)
@@ -215,8 +188,7 @@ class DGTD(StepSizes):
 
     def describe(self) -> str:
         return (
-            f"Algorithm 1: alpha_k = {self.alpha0:.4g}/{'sqrt(k+' if self.schedule == 'sqrt' else '(k+'}"
-            f"{self.beta:g}){'' if self.schedule != 'constant' else ' (constant)'}, kappa {self.kappa:g}, "
+            f"Algorithm 1: alpha_k = {describe_steps(self.schedule, self.alpha0, self.beta)}, kappa {self.kappa:g}, "
             f"rho {self.rho:g}"
         )
 

@@ -26,3 +26,10 @@ def step_sizes(schedule: str, alpha0: float, beta: float, k0: int, k1: int) -> n
     if schedule == "harmonic":
         return alpha0 / (k + beta)
     return np.full(k.shape, float(alpha0))
+
+
+def describe(schedule: str, alpha0: float, beta: float) -> str:
+    """alpha_k in words: "10/sqrt(k+1000)", "1/(k+10)" or "0.1 (constant)"."""
+    if schedule == "constant":
+        return f"{alpha0:.4g} (constant)"
+    return f"{alpha0:.4g}/{'sqrt(k+' if schedule == 'sqrt' else '(k+'}{beta:g})"

@@ -141,7 +141,7 @@ def _run_job(job, t_start: float) -> None:
     import time
 
     from dgtd.cli.job import CONFIG
-    from dgtd.config import exact_moments, make_channel, scenario_of, steps_from_the_problem, view
+    from dgtd.config import make_channel, problem_steps, scenario_of, steps_from_the_problem, view
 
     t_prepared = time.perf_counter()
     if job.finished:
@@ -167,11 +167,8 @@ def _run_job(job, t_start: float) -> None:
     )
     if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
         click.echo(scenario_of(job.resolved).description)
-    if steps_from_the_problem(view(job.config), algorithm):  # say which step was chosen, and why
-        from dataclasses import replace
-
-        default = replace(algorithm, beta=type(algorithm)().beta)
-        note = default.from_the_problem(exact_moments(problem), network)[1]
+    if steps_from_the_problem(view(job.config)):  # say which step was chosen, and why
+        note = problem_steps(view(job.config), problem, network)[1]
         if note:
             click.echo(note)
     if job.snapshot is not None:

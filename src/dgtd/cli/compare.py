@@ -67,8 +67,19 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     an interrupt, the same command again runs only the algorithms that had not finished."""
     from tqdm import tqdm
 
+    from dgtd.algorithms.stepsizes import describe as describe_steps
     from dgtd.cli import problem_line
-    from dgtd.config import PROBLEM_FIELDS, make_channel, resolve, scenario_of, spec_record, unflat
+    from dgtd.config import (
+        PROBLEM_FIELDS,
+        make_channel,
+        problem_start,
+        resolve,
+        scenario_of,
+        spec_record,
+        steps_from_the_problem,
+        unflat,
+        view,
+    )
     from dgtd.errors import DgtdInputError
     from dgtd.experiments import Experiment, absolute_paths, override
     from dgtd.run.compare import (
@@ -93,7 +104,8 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
         )
     p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(config))
-    sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations)
+    start = problem_start(view(config)) if steps_from_the_problem(view(config)) else None
+    sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations, start)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
     out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
@@ -106,11 +118,13 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
         f"{', step sizes tuned first' if tune else ''}"
     )
     if not tune:
-        steps = ", ".join(
-            f"{name} {algorithm.alpha0:.3g}{_offset(algorithm, config)}" for name, algorithm in configs.items()
-        )
         origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
-        click.echo(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
+        if config.problem.problem_file is not None:  # each method's offset is its own: say the whole schedule
+            steps = ", ".join(f"{name} {describe_steps(a.schedule, a.alpha0, a.beta)}" for name, a in configs.items())
+            click.echo(f"alpha_k: {steps} ({origin}); --tune picks each alpha0 from x (1/10 .. 10) on separate seeds")
+        else:
+            steps = ", ".join(f"{name} {a.alpha0:.3g}" for name, a in configs.items())
+            click.echo(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
     record = {
         **spec_record(resolved),
         "algorithms": list(cs.algorithms),
@@ -212,11 +226,3 @@ def table(results: dict, used: dict) -> str:
             f"{float(np.max(r.info['bits'])):>12.3g}  {d}"
         )
     return "\n".join(rows)
-
-
-def _offset(algorithm, config) -> str:
-    """DGTD's offset where it comes from the problem (`dgtd.config.steps_from_the_problem`, the rule `dgtd run`
-    follows), said beside its alpha0; ``config``: the comparison's, before it was resolved."""
-    from dgtd.config import steps_from_the_problem, view
-
-    return f" (offset {algorithm.beta:g} from the problem)" if steps_from_the_problem(view(config), algorithm) else ""

@@ -427,23 +427,3 @@ def dgtd_mean_dynamics(m: Moments, lam: float, kappa: float, rho: float = 0.0) -
             [-A.T, lam * eye, lam * eye, (kappa * lam + rho) * eye],
         ]
     )
-
-
-def fastest_contracting_step(m: Moments, L, kappa: float, rho: float = 0.0) -> float:
-    """min over the eigenvalues nu of DGTD's mean dynamics (`dgtd_mean_dynamics`, over the mean Laplacian's
-    eigenvalues) with Re(nu) > 0 of Re(nu) / |nu|^2: half the largest step at which every such mode still contracts
-    (|1 - alpha nu| < 1 exactly for alpha < 2 Re(nu) / |nu|^2), and the step at which the least damped of them (the
-    smallest Re(nu) / |nu|^2) contracts fastest. Up to DENSE_N agents every eigenvalue of L; beyond, 16 points
-    spread over [0, its largest]."""
-    lams: np.ndarray
-    if L.shape[0] <= DENSE_N:
-        lams = np.unique(np.round(np.linalg.eigvalsh(L.toarray() if issparse(L) else np.asarray(L)), 12))
-    else:  # up to Gershgorin's bound
-        lams = np.linspace(0.0, float(np.asarray(abs(L).sum(axis=1)).max()), 16)
-    best = np.inf
-    for lam in lams:
-        nu = np.linalg.eigvals(dgtd_mean_dynamics(m, float(lam), kappa, rho))
-        nu = nu[nu.real > 1e-12]  # the modes that contract (0: directions the dynamics leave alone)
-        if nu.size:
-            best = min(best, float((nu.real / np.abs(nu) ** 2).min()))
-    return best

@@ -67,16 +67,15 @@ class CompareSettings:
 def configs_for(scenario, names) -> dict:
     """Each algorithm's config on a scenario: the scenario's own algorithm as the scenario sets it; another takes the
     scenario's step-size schedule and offset (beta); then ``scenario.compare_settings[name]``, the steps tuned on
-    the task (`dgtd.scenarios.tuned`), applies."""
+    the task (`dgtd.scenarios.tuned`) or a problem file's (`dgtd.scenarios.user.problem_compare_steps`), applies."""
     out = {}
     for name in names:
         fields = scenario.compare_settings.get(name, {})
         if name == scenario.algorithm.name:
             out[name] = replace(scenario.algorithm, **fields)
         else:
-            out[name] = make_algorithm(
-                name, schedule=scenario.algorithm.schedule, beta=scenario.algorithm.beta, **fields
-            )
+            steps = {"schedule": scenario.algorithm.schedule, "beta": scenario.algorithm.beta}
+            out[name] = make_algorithm(name, **{**steps, **fields})
     return out
 
 

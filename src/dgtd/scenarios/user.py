@@ -408,12 +408,42 @@ def scaled_dgtd(reference, base_graph) -> DGTD:
     return DGTD(alpha0=min(DGTD().alpha0 / feature_scale(reference.moments), graph_step_cap(base_graph)))
 
 
-def problem_scenario(problem, network, algorithm, sampling, iterations: int):
+def problem_compare_steps(moments, network, start, derive: bool) -> tuple[dict, str]:
+    """({algorithm: fields}, where they come from, in words) of `dgtd compare` on a user's problem file: garnet's
+    tuned alpha0 divided by `feature_scale` (the late steps, as `compare_steps`) on the schedule and offset of
+    ``start`` (the algorithm the run starts from: DGTD's defaults, or the step options given); with ``derive`` (no
+    step option given) each method's first step at most what its own mean dynamics allow, the rule `dgtd run`
+    takes (`dgtd.algorithms.mean_dynamics`), its offset raised to meet it."""
+    from dgtd.algorithms import make_algorithm
+
+    settings, none = {}, []
+    for name, fields in compare_steps(moments).items():
+        algorithm = make_algorithm(name, alpha0=fields["alpha0"], beta=start.beta, schedule=start.schedule)
+        if derive:
+            derived, note = algorithm.from_the_problem(moments, network)
+            if note and derived is algorithm:  # its mean dynamics contract at no step
+                none.append(name)
+            algorithm = derived
+        settings[name] = {"alpha0": algorithm.alpha0, "beta": algorithm.beta}
+    note = compare_note(moments)
+    if derive:
+        note += (
+            "; every first step at most what the method's mean dynamics allow (half the largest step at which "
+            "every mode contracts, and 1 / max |phi(s)|^2), its offset raised to meet it, as dgtd run does"
+        )
+    if none:
+        note += f"; no step contracts the mean dynamics of {', '.join(none)} here: their steps are kept"
+    return settings, note
+
+
+def problem_scenario(problem, network, algorithm, sampling, iterations: int, start=None):
     """The `Scenario` of a user's problem file (`dgtd compare --problem`): the run's network, algorithm and length,
-    and every algorithm compared at garnet's tuned steps scaled to the problem's features (`compare_steps`)."""
+    and every algorithm compared at `problem_compare_steps` from ``start`` (the algorithm before its steps came
+    from the problem; None: they did not)."""
     from dgtd.problems.exact import Moments
     from dgtd.scenarios import Scenario
 
+    settings, note = problem_compare_steps(Moments(problem), network, start or algorithm, start is not None)
     return Scenario(
         problem=problem,
         network=network,
@@ -421,8 +451,8 @@ def problem_scenario(problem, network, algorithm, sampling, iterations: int):
         sampling=sampling,
         iterations=iterations,
         description=f"problem file {problem.name}",
-        compare_settings=compare_steps(Moments(problem)),
-        compare_note=compare_note(Moments(problem)),
+        compare_settings=settings,
+        compare_note=note,
     )
 
 

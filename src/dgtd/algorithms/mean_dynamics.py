@@ -1,0 +1,220 @@
+"""Every algorithm's mean dynamics on a model, from its one definition (`dgtd.algorithms.base`), and the first step
+they allow: the rule behind the steps `dgtd run` and `dgtd compare` take from a user's problem file.
+
+On a model the expected step of every algorithm here is affine in its state: the directions are linear in the
+products phi^T x it reads, and ``feature`` is linear in the state, what it heard and the directions. Along an
+eigenvector of the mean mixing matrix (the mean Laplacian E[L(k)], or E[I - W(k)] of Metropolis mixing: what an
+agent hears is then ``lam`` times what it sends) the mean step is x <- J(alpha, lam) x + const. `mean_map` builds
+J exactly: the expected directions by summing ``coefficients`` and ``terms`` over every transition (s, a, s') of
+the behaviour chain with its probability d(s) beta(a|s) P(s, a, s'), for the unit vectors of every state field, and
+``feature`` of those. For DGTD it equals I - alpha G(lam) of Algorithm 1 in expectation
+(`dgtd.problems.exact.dgtd_mean_dynamics`, the closed form the tests check it against).
+
+`first_step` is then the same rule for every method: half the largest first step at which every mode of the mean
+dynamics contracts (|nu| < 1 for every eigenvalue nu of J other than the modes J leaves alone, nu = 1), for every
+mixing eigenvalue; and at most the step at which a single sample overshoots along its own features (the largest of
+the step sizes it derives from alpha times max_s |phi(s)|^2 at most 1). For a method whose every mode is
+I - alpha nu (DGTD, TD(0), TDRC) half the largest contracting step is min Re(nu) / |nu|^2 over its modes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from dgtd.algorithms.base import discount
+from dgtd.algorithms.stepsizes import step_sizes
+from dgtd.samples import Sample
+
+SPREAD = 24  # beyond this many distinct mixing eigenvalues, this many points spread over their range
+BISECTIONS = 16  # halvings of the bracket of the largest contracting step, where it has no closed form
+LEFT_ALONE = 1e-9  # |nu - 1| below this: a mode the dynamics leave alone (an invariant, as sum z - g of tracking)
+
+
+def transitions(moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, Sample]:
+    """(s, s', probabilities (T,), a `Sample` (1, T, 1) of unit features and rewards 0) of every transition
+    (s, a, s') of the behaviour chain with positive probability d(s) beta(a|s) P(s, a, s'): its importance ratio and
+    discount gamma(s, s'), which an algorithm's coefficients read."""
+    problem = moments.problem
+    weight = moments.d[:, None, None] * problem.P_sample
+    s, a, s_next = np.nonzero(weight > 0)
+    c = problem.continuing
+    gamma = (problem.gamma * c[s] * c[s_next])[None]
+    one = np.ones((1, s.size, 1))
+    return s, s_next, weight[s, a, s_next], Sample(one, one, np.zeros((1, s.size)), problem.ratio[s, a][None], gamma)
+
+
+def expected_directions(algorithm, moments) -> dict:
+    """{(direction, field): K (q, q)}: E[d] = sum over fields of K x_field, exactly.
+
+    Per transition an algorithm's coefficients are linear in the products it ``reads`` (rewards 0) and its
+    ``terms`` are a phi(s) + b phi(s') per feature with a, b linear in the coefficients (what the compiled driver
+    relies on too); so read k (phi_k^T x_f, phi_k = phi(s) or phi(s')) adds sum over (s, s') of its weight times
+    (a phi(s) + b phi(s')) phi_k^T: Phi^T of an S x S matrix of weights times Phi."""
+    p = algorithm.params()
+    s, s_next, weight, unit = transitions(moments)
+    Phi = moments.problem.Phi
+    S = Phi.shape[0]
+    zero = np.zeros_like(unit.phi)
+    K: dict = {}
+    for k, (src, field) in enumerate(algorithm.reads):
+        dots = tuple(np.full(unit.r.shape, float(j == k)) for j in range(len(algorithm.reads)))
+        c = tuple(np.asarray(v)[..., None] for v in algorithm.coefficients(p, dots, unit.r, unit.ratio, unit.gamma))
+        g = discount(unit)
+        along_s = algorithm.terms(p, unit.phi, zero, c, g)  # a of each direction (1, T, 1)
+        along_next = algorithm.terms(p, zero, unit.phi, c, g)  # b
+        for out, (a, b) in enumerate(zip(along_s, along_next)):
+            pairs = []
+            for coef, at in ((a, s), (b, s_next)):
+                W = np.zeros((S, S))  # W[at, read's state]: the weight of phi(at) phi(read's state)^T
+                read = s if src == "phi" else s_next
+                np.add.at(W, (at, read), weight * np.broadcast_to(np.asarray(coef), (1, s.size, 1))[0, :, 0])
+                pairs.append(W)
+            K[out, field] = K.get((out, field), 0.0) + Phi.T @ (pairs[0] + pairs[1]) @ Phi
+    return K
+
+
+class MeanMap:
+    """J(alpha, lam) of ``algorithm`` on ``moments`` (the module's docstring): the expected directions
+    (`expected_directions`) are summed once; each J is one ``feature`` of them over the unit vectors of the state."""
+
+    def __init__(self, algorithm, moments):
+        self.algorithm = algorithm
+        q = moments.problem.n_features
+        self.fields = type(algorithm.init(1, 1, 1))._fields
+        n = len(self.fields)
+        eye = np.eye(n * q).reshape(n * q, n, q)
+        self.probes = tuple(eye[:, f, None, :] for f in range(n))  # (P, 1, q) each: every unit vector
+        K = expected_directions(algorithm, moments)
+        outputs = 1 + max((out for out, _ in K), default=-1)
+        x = dict(zip(self.fields, self.probes))
+        self.directions = tuple(
+            sum((x[f] @ K[out, f].T for (o, f) in K if o == out), np.zeros_like(self.probes[0]))
+            for out in range(outputs)
+        )
+
+    def __call__(self, alpha: float, lam: float) -> np.ndarray:
+        a = self.algorithm
+        p = a.params()
+        heard = tuple(lam * m for m in a.transmit(self.probes))
+        new = a.feature(p, self.probes, heard, self.directions, a.steps(p, alpha))
+        return np.concatenate([np.broadcast_to(x, self.probes[0].shape)[:, 0, :] for x in new], axis=1).T
+
+
+def mixing_eigenvalues(algorithm, network) -> np.ndarray:
+    """The eigenvalues of the mean mixing the algorithm applies to what it hears over perfect links: E[L(k)], or the
+    Metropolis E[I - W(k)] (`dgtd.channels.lossy.mean_metropolis`); [0] for one that does not communicate. Beyond
+    `SPREAD` distinct ones, `SPREAD` points spread over their range and the smallest non-zero one."""
+    if not algorithm.messages:
+        return np.zeros(1)
+    if algorithm.mixing == "metropolis":
+        from dgtd.channels import lossy
+        from dgtd.channels.arcs import Arcs
+
+        arcs = Arcs.of(network.base.edges, network.n_nodes)
+        mixing = lossy.mean_metropolis(network, np.zeros(arcs.n_arcs), arcs)
+    else:
+        mixing = network.mean_laplacian()
+    lams = np.unique(np.round(np.linalg.eigvalsh(mixing), 12))
+    if lams.size <= SPREAD:
+        return lams
+    return np.unique(np.concatenate([np.linspace(0.0, lams[-1], SPREAD), lams[lams > 1e-12][:1]]))
+
+
+def contracts(mean_map: MeanMap, alpha: float, lam: float) -> bool:
+    """Whether every mode of J(alpha, lam) that moves (`LEFT_ALONE`) contracts."""
+    nu = np.linalg.eigvals(mean_map(alpha, lam))
+    nu = nu[np.abs(nu - 1.0) > LEFT_ALONE]
+    return not nu.size or bool(np.abs(nu).max() < 1.0)
+
+
+def largest_contracting_step(mean_map: MeanMap, lam: float, hi: float) -> float:
+    """The largest alpha up to ``hi`` below which every moving mode of J(alpha, lam) contracts (0: none does).
+
+    Where J(alpha) = c I + alpha J1 (DGTD, TD(0), TDRC, the consensus methods: c = 1 or 1 - lam) it is exact from
+    the eigenvalues mu of J1: |c + alpha mu| < 1 up to the larger root of |mu|^2 a^2 + 2 c Re(mu) a + c^2 - 1; else
+    (two timescales, tracking) by bisection, assuming the steps that contract form an interval from 0."""
+    J0 = mean_map(0.0, lam)
+    J1 = mean_map(1.0, lam) - J0
+    c = J0[0, 0]
+    if np.allclose(J0, c * np.eye(len(J0)), rtol=0, atol=1e-12) and np.allclose(mean_map(2.0, lam), J0 + 2 * J1):
+        mu = np.linalg.eigvals(J1)
+        if c == 1.0:
+            mu = mu[np.abs(mu) > LEFT_ALONE]
+        size = np.abs(mu) ** 2
+        root = np.where(
+            size > 0,
+            (-c * mu.real + np.sqrt(np.maximum((c * mu.real) ** 2 - size * (c**2 - 1.0), 0.0)))
+            / np.maximum(size, 1e-300),
+            np.inf if abs(c) < 1.0 else 0.0,
+        )
+        return float(min(np.clip(root, 0.0, None).min(initial=np.inf), hi))
+    if contracts(mean_map, hi, lam):
+        return hi
+    lo = 0.0
+    if not contracts(mean_map, hi * 2.0**-BISECTIONS, lam):
+        return lo
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if contracts(mean_map, mid, lam) else (lo, mid)
+    return lo
+
+
+def sample_cap(algorithm, moments) -> float:
+    """The largest alpha at which no step size it derives (``steps``) exceeds 1 / max_s |phi(s)|^2."""
+    p = algorithm.params()
+    largest = float((moments.problem.Phi**2).sum(axis=1).max())
+    lo, hi = 0.0, 1.0 / largest
+    while max(algorithm.steps(p, hi)) * largest <= 1.0 and hi < 1e12:  # a slower auxiliary step: a larger alpha
+        lo, hi = hi, 2.0 * hi
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if max(algorithm.steps(p, mid)) * largest <= 1.0 else (lo, mid)
+    return lo
+
+
+def first_step(algorithm, moments, network) -> tuple[float | None, str]:
+    """(the largest first step alpha_1 the problem suggests, or None where no step contracts; why, in words): the
+    rule of the module's docstring."""
+    cap = sample_cap(algorithm, moments)
+    mean_map = MeanMap(algorithm, moments)
+    largest = min(
+        largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in mixing_eigenvalues(algorithm, network)
+    )
+    if largest <= 0.0:
+        return None, "no step makes every mode of its mean dynamics contract here"
+    if largest >= 2.0 * cap:
+        return (
+            cap,
+            "1 / max |phi(s)|^2, where one sample overshoots (every mode of the mean dynamics contracts at twice it)",
+        )
+    return (
+        0.5 * largest,
+        f"half the largest at which every mode of its mean dynamics contracts (1 / max |phi|^2: {cap:.3g})",
+    )
+
+
+def first_of(algorithm) -> float:
+    """alpha_0 of the algorithm's schedule (k = 0)."""
+    return float(step_sizes(algorithm.schedule, algorithm.alpha0, algorithm.beta, 0, 1)[0])
+
+
+def from_the_problem(algorithm, moments, network) -> tuple:
+    """(the algorithm with its first step at most `first_step`'s, the header's line saying so, or "" where it was).
+    The offset beta is raised (alpha0, and so the late steps, kept); a constant step is lowered to it."""
+    alpha_1, why = first_step(algorithm, moments, network)
+    first = first_of(algorithm)
+    if alpha_1 is None:
+        return algorithm, f"steps from the problem: none, {why}; the steps given are kept"
+    if first <= alpha_1:
+        return algorithm, ""
+    if algorithm.schedule == "constant":
+        derived = replace(algorithm, alpha0=float(f"{alpha_1:.3g}"))
+        change = f"the constant step {derived.alpha0:g} (not {algorithm.alpha0:g})"
+    else:
+        power = 2.0 if algorithm.schedule == "sqrt" else 1.0
+        beta = float(f"{(algorithm.alpha0 / alpha_1) ** power:.3g}")
+        derived = replace(algorithm, beta=beta)
+        change = f"the offset beta {beta:g} (not {algorithm.beta:g}) makes the first step {first_of(derived):.3g}"
+    return derived, f"steps from the problem: {change}, {why}; --beta or --alpha0 set them yourself"
