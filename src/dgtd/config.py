@@ -724,8 +724,10 @@ def scenario_of(config):
             "env": asdict(env_spec(spec.env)) if spec.env is not None else None,
             "data": spec.data,
             "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma,
-            "graph": spec.graph,
-            "edge_prob": spec.edge_prob,
+            # as `_scenario` reads them (None: a ring, every link up), so that a config and its resolved copy, which
+            # names those defaults, share one scenario and its reference is estimated once
+            "graph": spec.graph or "ring",
+            "edge_prob": 1.0 if spec.edge_prob is None else spec.edge_prob,
         }
         if spec.data is not None:
             from pathlib import Path
@@ -748,7 +750,7 @@ def _scenario(key: str):
         return get_scenario(d.pop("scenario"), **d)
 
     def network_for(n_agents: int):
-        return _network(d["graph"] or "ring", n_agents, 1.0 if d["edge_prob"] is None else d["edge_prob"])
+        return _network(d["graph"], n_agents, d["edge_prob"])
 
     if d["env"] is not None:
         return env_scenario(EnvSpec(**d["env"]), d["gamma"], network_for)

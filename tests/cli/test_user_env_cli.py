@@ -499,3 +499,20 @@ def test_a_data_run_says_its_transitions_are_recorded_rows_not_independent(run_c
     assert "independent transitions" not in text and "independent states" not in text and "iid sampling" not in text
     assert "12,000 transitions (along trajectories) in 2 independent groups" in text, text  # 2 x 2000 x 3 rows
     assert "the recording's samples" in text
+
+
+def test_a_run_on_an_env_estimates_its_reference_once(run_cli, tmp_path, monkeypatch):
+    """The reference (LSTD over 8 x 5,000 transitions) was estimated twice per `dgtd run --env`: once for the
+    config's scenario, once more for the resolved config's, whose key named the default graph ("ring", p = 1) that
+    the first left out."""
+    import dgtd.sources.env
+    from dgtd.config import _scenario
+
+    calls = []
+    estimate = dgtd.sources.env.reference_from_env
+    monkeypatch.setattr(dgtd.sources.env, "reference_from_env", lambda *a, **k: calls.append(1) or estimate(*a, **k))
+    _scenario.cache_clear()
+    args = ("--env", env("make_chain"), "--features", "one-hot", "--agents", 4, "-T", 200, "--no-plots")
+    code, _, err = run_cli("run", *args, "--no-progress", "--out", tmp_path / "a")
+    assert code == 0, err
+    assert len(calls) == 1

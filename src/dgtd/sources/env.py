@@ -167,6 +167,9 @@ class EnvSource:
         cont_next = np.ones((T, B))
         up = np.empty((T, B, E), bool)
         for b, (env, gen, spaces) in enumerate(zip(self.envs, self.gens, self.spaces)):
+            if self.positions is None:  # the links' draws do not depend on the env: all T steps at once
+                steps = (self.step + np.arange(T, dtype=np.uint64))[:, None]
+                up[:, b] = singles(np.uint64(self.keys[b]), EDGE_UP, steps, np.arange(E)) < self.network.p
             for t in range(T):
                 obs = env._dgtd_last_obs
                 actions = {
@@ -180,9 +183,6 @@ class EnvSource:
                 }
                 if self.positions is not None:
                     up[t, b] = self.proximity.masks(self._positions(env))
-                else:
-                    key = np.uint64(self.keys[b])
-                    up[t, b] = singles(key, EDGE_UP, self.step + t, np.arange(E)) < self.network.p
                 obs, rewards, terms, truncs, _ = call_user(f"the env's step() ({self.name})", env.step, actions)
                 env._dgtd_last_obs = obs
                 states[t, b] = self.current[b]
