@@ -21,6 +21,10 @@ from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 
 SENDING = [name for name in ALGORITHMS if ALGORITHMS[name].messages]
+# The agent layout compiles a kernel of its own per algorithm (10-15 s each on a fresh machine): the default suite
+# checks DGTD's and TDC tracking's (the most state, two messages), `pytest -m slow` every other's.
+DEFAULT_LAYOUT = ("dgtd", "tdc-tracking")
+SENDING_LAYOUTS = [name if name in DEFAULT_LAYOUT else pytest.param(name, marks=pytest.mark.slow) for name in SENDING]
 
 
 def model_case(problem, sampling=Sampling(), edge_prob=0.6):
@@ -98,7 +102,7 @@ def test_the_compiled_step_gives_the_reference_numbers(name, case, cases, monkey
 
 
 @pytest.mark.parametrize("case", ["iid-noise", "sparse-tabular", "recorded"])
-@pytest.mark.parametrize("name", SENDING)
+@pytest.mark.parametrize("name", SENDING_LAYOUTS)
 def test_the_agent_layout_gives_the_seed_layouts_numbers_bit_for_bit(name, case, cases, monkeypatch):
     """The agents of a seed spread over the cores, their samples drawn a step ahead: the same numbers to the bit."""
     _, seeds = both(cases[case], name, "seeds", monkeypatch)
