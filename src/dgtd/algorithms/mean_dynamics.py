@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.sparse import coo_matrix
 
 from dgtd.algorithms.base import discount
 from dgtd.algorithms.stepsizes import step_sizes
@@ -64,15 +65,19 @@ def expected_directions(algorithm, moments) -> dict:
         g = discount(unit)
         along_s = algorithm.terms(p, unit.phi, zero, c, g)  # a of each direction (1, T, 1)
         along_next = algorithm.terms(p, zero, unit.phi, c, g)  # b
+        read = s if src == "phi" else s_next
         for out, (a, b) in enumerate(zip(along_s, along_next)):
-            pairs = []
-            for coef, at in ((a, s), (b, s_next)):
-                W = np.zeros((S, S))  # W[at, read's state]: the weight of phi(at) phi(read's state)^T
-                read = s if src == "phi" else s_next
-                np.add.at(W, (at, read), weight * np.broadcast_to(np.asarray(coef), (1, s.size, 1))[0, :, 0])
-                pairs.append(W)
-            K[out, field] = K.get((out, field), 0.0) + Phi.T @ (pairs[0] + pairs[1]) @ Phi
+            # W[u, v]: the weight of phi(u) phi(v)^T, v the read's state (sparse: a user's chain may be large)
+            at = np.concatenate([s, s_next])
+            value = weight * np.concatenate([per_transition(a, s.size), per_transition(b, s.size)]).reshape(2, -1)
+            W = coo_matrix((value.ravel(), (at, np.concatenate([read, read]))), shape=(S, S)).tocsr()
+            K[out, field] = K.get((out, field), 0.0) + Phi.T @ (W @ Phi)
     return K
+
+
+def per_transition(x, size: int) -> np.ndarray:
+    """A coefficient of every transition, (size,), from what ``terms`` returned (an array (1, T, 1), or a float)."""
+    return np.broadcast_to(np.asarray(x, dtype=np.float64), (1, size, 1))[0, :, 0]
 
 
 class MeanMap:
@@ -184,14 +189,14 @@ def first_step(algorithm, moments, network) -> tuple[float | None, str]:
     )
     if largest <= 0.0:
         return None, "no step makes every mode of its mean dynamics contract here"
+    over = 1.0 / float((moments.problem.Phi**2).sum(axis=1).max())
     if largest >= 2.0 * cap:
-        return (
-            cap,
-            "1 / max |phi(s)|^2, where one sample overshoots (every mode of the mean dynamics contracts at twice it)",
+        return cap, (
+            f"its step sizes at most 1 / max |phi(s)|^2 = {over:.3g}, where one sample overshoots (every mode of its "
+            "mean dynamics contracts at twice that)"
         )
-    return (
-        0.5 * largest,
-        f"half the largest at which every mode of its mean dynamics contracts (1 / max |phi|^2: {cap:.3g})",
+    return 0.5 * largest, (
+        f"half the largest at which every mode of its mean dynamics contracts (1 / max |phi(s)|^2: {over:.3g})"
     )
 
 
