@@ -80,7 +80,8 @@ def run(ctx, scenario, resume_dir, ranks, hosts, **_):
     Defaults: without step-size options DGTD runs with alpha_k = 10/sqrt(k+1000)
     and kappa = 3, the fastest found on the benchmark tasks; paper-example-1 and -2
     keep the paper's own settings, and the random-MDP tasks a smaller alpha0 for
-    their larger features.
+    their larger features. On a --problem file the first step of any method
+    comes from its mean dynamics on the model (the header says which and why).
 
     \b
     What it reports for every agent i, against the exact solution w*:
