@@ -51,3 +51,15 @@ def assert_same_run(ref, fast, rtol: float, metrics_atol: float) -> None:
         assert_allclose(fast.metrics[key], ref.metrics[key], rtol=rtol, atol=metrics_atol)
     for key in ref.info["counts"]:
         assert_array_equal(fast.info["counts"][key], ref.info["counts"][key])
+
+
+# The compiled agent layout compiles kernels of its own per algorithm (10-15 s each on a fresh machine): the default
+# suite runs it for DGTD and TDC tracking (the most state, two messages), `pytest -m slow` for every other method.
+DEFAULT_AGENT_LAYOUT = ("dgtd", "tdc-tracking")
+
+
+def agent_layout_param(*values):
+    """A test parameter (a method's name first) running the agent layout: slow beyond `DEFAULT_AGENT_LAYOUT`."""
+    import pytest
+
+    return pytest.param(*values, marks=() if values[0] in DEFAULT_AGENT_LAYOUT else (pytest.mark.slow,))

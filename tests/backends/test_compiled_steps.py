@@ -9,6 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import agent_layout_param
 from numpy.testing import assert_array_equal
 
 from dgtd.algorithms import ALGORITHMS, make_algorithm
@@ -21,10 +22,7 @@ from dgtd.run.loop import RunSettings, run
 from dgtd.sources.model import Sampling
 
 SENDING = [name for name in ALGORITHMS if ALGORITHMS[name].messages]
-# The agent layout compiles a kernel of its own per algorithm (10-15 s each on a fresh machine): the default suite
-# checks DGTD's and TDC tracking's (the most state, two messages), `pytest -m slow` every other's.
-DEFAULT_LAYOUT = ("dgtd", "tdc-tracking")
-SENDING_LAYOUTS = [name if name in DEFAULT_LAYOUT else pytest.param(name, marks=pytest.mark.slow) for name in SENDING]
+SENDING_LAYOUTS = [agent_layout_param(name) for name in SENDING]  # the agent layout: some slow
 
 
 def model_case(problem, sampling=Sampling(), edge_prob=0.6):

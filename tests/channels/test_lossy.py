@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import agent_layout_param
 from numpy.testing import assert_allclose, assert_array_equal
 
 import dgtd
@@ -102,8 +103,10 @@ def test_a_loss_of_zero_is_the_perfect_channel_bit_for_bit(name):
         assert_array_equal(a.info["counts"]["messages"], b.info["counts"]["messages"])
 
 
-@pytest.mark.parametrize("layout", ["seeds", "agents"])
-@pytest.mark.parametrize("name", COMMUNICATING)
+@pytest.mark.parametrize(
+    "name, layout",
+    [(name, "seeds") for name in COMMUNICATING] + [agent_layout_param(name, "agents") for name in COMMUNICATING],
+)
 def test_the_compiled_kernels_lose_what_the_reference_loses(name, layout, monkeypatch):
     """In both layouts of the compiled driver (seeds side by side, or each seed's agents over the cores), in blocks
     of an odd length."""
