@@ -259,8 +259,11 @@ def test_bursts_keep_the_fixed_point_of_their_loss_rate():
 LAPLACIAN_METHODS = [n for n in COMMUNICATING if ALGORITHMS[n].mixing == "laplacian"]
 
 
-@pytest.mark.parametrize("layout", ["seeds", "agents"])
-@pytest.mark.parametrize("name", LAPLACIAN_METHODS)
+@pytest.mark.parametrize(
+    "name, layout",
+    [(name, "seeds") for name in LAPLACIAN_METHODS]
+    + [agent_layout_param(name, "agents") for name in LAPLACIAN_METHODS],
+)
 def test_reweighted_hearing_is_the_same_on_both_backends(name, layout, monkeypatch):
     from dgtd.backends.compiled import driver
 

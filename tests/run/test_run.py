@@ -7,6 +7,7 @@ import sys
 import numpy as np
 import pytest
 from conftest import cli_env
+from helpers import agent_layout_param
 from numpy.testing import assert_allclose, assert_array_equal
 
 from dgtd.algorithms import ALGORITHMS
@@ -192,8 +193,12 @@ def test_settings_validation():
         dataclasses.replace(DGTD(), kappa=-1.0)
 
 
-@pytest.mark.parametrize("name", [name for name, cls in ALGORITHMS.items() if cls.messages])  # every one that talks
-@pytest.mark.parametrize("layout", ["seeds", "agents"])
+TALKING = [name for name, cls in ALGORITHMS.items() if cls.messages]
+
+
+@pytest.mark.parametrize(
+    "name, layout", [(name, "seeds") for name in TALKING] + [agent_layout_param(name, "agents") for name in TALKING]
+)
 def test_numba_relabelled_rows_match_numpy(layout, name, monkeypatch):
     """Large graphs are stored in reverse Cuthill-McKee order inside the compiled driver (lowered here to 8 agents):
     samples, rewards, messages and results must still belong to the right agents."""
