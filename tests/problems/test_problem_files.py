@@ -127,11 +127,14 @@ def _mrp_arrays() -> dict:
         ("P", np.array([[0.3, 0.7], [0.6, 0.4]], complex), "P in .* holds complex numbers"),
         ("gamma", np.array("0.9"), "gamma in .* holds text"),
         ("Phi", np.array([["1"], ["0.5"]]), "Phi in .* holds text"),
+        ("gamma", np.array(True), r"gamma in .* is a boolean \(True\), not a number"),
+        ("sigma", np.array(False), r"sigma in .* is a boolean \(False\), not a number"),
     ],
 )
 def test_a_problem_file_of_numbers_that_are_not_real_is_refused_naming_the_dtype(tmp_path, name, value, words):
-    """Complex numbers (their imaginary parts would be dropped) and text ("0.9", which float() would read) are
-    refused in one line that names the array and what it holds, not run."""
+    """Complex numbers (their imaginary parts would be dropped), text ("0.9", which float() would read) and a
+    boolean discount or reward bound (True read as gamma 1.0, and refused as that) are refused in one line that
+    names the array and what it holds, not run."""
     from dgtd.errors import DgtdInputError
 
     path = write(tmp_path, **{**_mrp_arrays(), name: value})

@@ -36,6 +36,9 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
     for k in ("gamma", "sigma", "signed_rewards"):
         if k in arrays and np.asarray(arrays[k]).size != 1:
             raise DgtdInputError(f"{k} in {path} must be a scalar, got shape {np.asarray(arrays[k]).shape}")
+    for k in ("gamma", "sigma"):  # a flag read as 1.0 or 0.0 would be refused (or run) as that number
+        if k in arrays and np.asarray(arrays[k]).dtype.kind == "b":
+            raise DgtdInputError(f"{k} in {path} is a boolean ({np.asarray(arrays[k]).item()}), not a number")
     sigma = float(arrays["sigma"]) if "sigma" in arrays else None
     try:
         gamma = float(np.asarray(arrays["gamma"]).reshape(()))
