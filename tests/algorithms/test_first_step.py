@@ -217,3 +217,23 @@ def test_dgtd_compare_on_a_problem_file_takes_every_methods_first_step_from_the_
         beta = float(text.split(f"{name} {alpha0:.4g}/sqrt(k+")[1].split(")")[0])
         algorithm = make_algorithm(name, alpha0=alpha0, beta=beta)
         assert md.first_of(algorithm) <= md.first_step(algorithm, m, net)[0] * 1.001, name
+
+
+def test_a_problem_file_run_builds_its_mean_dynamics_once(tmp_path, run_cli, monkeypatch):
+    """`dgtd run --problem` asks for the first step when it resolves the run and again for its header: the mean
+    dynamics (seconds on a model of hundreds of features) were built twice."""
+    built = []
+    original = md.MeanMap.__init__
+
+    def counted(self, *args):
+        built.append(1)
+        original(self, *args)
+
+    monkeypatch.setattr(md.MeanMap, "__init__", counted)
+    p = chain(n_states=11)  # a model no other test asks about
+    np.savez(tmp_path / "chain.npz", P=p.P, R=p.R, Phi=p.Phi, gamma=p.gamma)
+    code, text, err = run_cli(
+        "run", "--problem", tmp_path / "chain.npz", "-T", "100", "--no-plots", "--no-progress", "--out", tmp_path / "a"
+    )
+    assert code == 0, err
+    assert "steps from the problem" in text and len(built) == 1

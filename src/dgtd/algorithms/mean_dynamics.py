@@ -181,12 +181,35 @@ def sample_cap(algorithm, moments) -> float:
 
 def first_step(algorithm, moments, network) -> tuple[float | None, str]:
     """(the largest first step alpha_1 the problem suggests, or None where no step contracts; why, in words): the
-    rule of the module's docstring."""
+    rule of the module's docstring. Kept for the same algorithm, model and mixing (`dgtd run` asks when it resolves
+    the run and again for its header: on a model of hundreds of features the eigenvalues take seconds)."""
+    lams = mixing_eigenvalues(algorithm, network)
+    key = (algorithm, _digest(moments.problem, lams))
+    if key not in _FIRST_STEPS:
+        if len(_FIRST_STEPS) >= 8:
+            _FIRST_STEPS.pop(next(iter(_FIRST_STEPS)))
+        _FIRST_STEPS[key] = _first_step(algorithm, moments, lams)
+    return _FIRST_STEPS[key]
+
+
+_FIRST_STEPS: dict = {}
+
+
+def _digest(problem, lams: np.ndarray) -> str:
+    """What the rule reads of a model and its mixing, as one SHA-256."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for x in (problem.P_sample, problem.ratio, problem.Phi, problem.continuing, problem.gamma, lams):
+        h.update(np.ascontiguousarray(x, dtype=np.float64).tobytes() + str(np.shape(x)).encode())
+    h.update(str(getattr(problem, "restarts", "")).encode())  # sets d on an episodic task
+    return h.hexdigest()
+
+
+def _first_step(algorithm, moments, lams: np.ndarray) -> tuple[float | None, str]:
     cap = sample_cap(algorithm, moments)
     mean_map = MeanMap(algorithm, moments)
-    largest = min(
-        largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in mixing_eigenvalues(algorithm, network)
-    )
+    largest = min(largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in lams)
     if largest <= 0.0:
         return None, "no step makes every mode of its mean dynamics contract here"
     over = 1.0 / float((moments.problem.Phi**2).sum(axis=1).max())
