@@ -530,7 +530,7 @@ def resolve(config: RunConfig):
     channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # checked here, with its network
     algorithm = build_algorithm(spec, algorithm)
     if steps_from_the_problem(spec):
-        algorithm = problem_steps(spec, problem, network)[0]
+        algorithm = algorithm.from_the_problem(moments_of(problem), network)[0]
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
     )
@@ -807,21 +807,29 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
 
 def steps_from_the_problem(spec) -> bool:
     """Whether the algorithm's first step comes from the problem (`dgtd.algorithms.mean_dynamics`): on a user's
-    problem file, where no step option is given. Named tasks keep their tuned steps and the paper's examples the
-    paper's."""
+    problem file, simulator or recording, where no step option is given. Named tasks keep their tuned steps and
+    the paper's examples the paper's."""
     given = any(getattr(spec, k) is not None for k in ("alpha0", "beta", "schedule"))
-    return spec.problem_file is not None and not given
+    return any(getattr(spec, k) is not None for k in ("problem_file", "env", "data")) and not given
 
 
-def problem_start(spec):
-    """The algorithm a problem-file run starts from, before its steps come from the problem."""
-    return build_algorithm(spec, DGTD())
+def problem_start(config):
+    """The algorithm a run on a user's problem starts from, before its steps come from the problem: DGTD's defaults
+    on a problem file, the scenario's (alpha0 scaled to the features) on a simulator or a recording."""
+    spec = view(config)
+    return build_algorithm(spec, DGTD() if spec.problem_file is not None else scenario_of(config).algorithm)
 
 
-def problem_steps(spec, problem, network) -> tuple:
-    """(the algorithm of a problem-file run with its steps from the problem, the header's line saying so or ""):
-    `dgtd.algorithms.base.StepSizes.from_the_problem` of `problem_start`."""
-    return problem_start(spec).from_the_problem(exact_moments(problem), network)
+def problem_steps(config, problem, network) -> tuple:
+    """(the algorithm of a run on a user's problem with its steps from the problem, the header's line saying so or
+    ""): `dgtd.algorithms.base.StepSizes.from_the_problem` of `problem_start`."""
+    return problem_start(config).from_the_problem(moments_of(problem), network)
+
+
+def moments_of(problem):
+    """The moments the steps are derived from: the model's, or an estimated reference's."""
+    estimated = getattr(problem, "moments", None)
+    return estimated if estimated is not None else exact_moments(problem)
 
 
 def exact_moments(problem):

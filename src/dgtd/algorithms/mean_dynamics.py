@@ -33,17 +33,29 @@ BISECTIONS = 16  # halvings of the bracket of the largest contracting step, wher
 LEFT_ALONE = 1e-9  # |nu - 1| below this: a mode the dynamics leave alone (an invariant, as sum z - g of tracking)
 
 
-def transitions(moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, Sample]:
-    """(s, s', probabilities (T,), a `Sample` (1, T, 1) of unit features and rewards 0) of every transition
-    (s, a, s') of the behaviour chain with positive probability d(s) beta(a|s) P(s, a, s'): its importance ratio and
-    discount gamma(s, s'), which an algorithm's coefficients read."""
+def transitions(moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Sample]:
+    """(rows (R, q) of features, the row of each transition's s and of its s' (T,), its probability (T,), a `Sample`
+    (1, T, 1) of unit features and rewards 0 with its importance ratio and discount gamma(s, s'), which an
+    algorithm's coefficients read).
+
+    On a model: every transition (s, a, s') of the behaviour chain with positive probability d(s) beta(a|s)
+    P(s, a, s'), the rows its features Phi. Without one (a simulator's or a recording's estimated reference): the
+    transitions its reference kept (`dgtd.problems.reference.MomentSums.kept_transitions`), each of weight 1 / T:
+    the mean dynamics of that sample, an estimate as its w* is."""
+    if not moments.model:
+        phi, phi_next, discount, ratio = moments.problem.sums.kept_transitions()
+        T = len(phi)
+        one = np.ones((1, T, 1))
+        sample = Sample(one, one, np.zeros((1, T)), ratio[None], discount[None])
+        return np.concatenate([phi, phi_next]), np.arange(T), T + np.arange(T), np.full(T, 1.0 / T), sample
     problem = moments.problem
     weight = moments.d[:, None, None] * problem.P_sample
     s, a, s_next = np.nonzero(weight > 0)
     c = problem.continuing
     gamma = (problem.gamma * c[s] * c[s_next])[None]
     one = np.ones((1, s.size, 1))
-    return s, s_next, weight[s, a, s_next], Sample(one, one, np.zeros((1, s.size)), problem.ratio[s, a][None], gamma)
+    sample = Sample(one, one, np.zeros((1, s.size)), problem.ratio[s, a][None], gamma)
+    return problem.Phi, s, s_next, weight[s, a, s_next], sample
 
 
 def expected_directions(algorithm, moments) -> dict:
@@ -52,10 +64,9 @@ def expected_directions(algorithm, moments) -> dict:
     Per transition an algorithm's coefficients are linear in the products it ``reads`` (rewards 0) and its
     ``terms`` are a phi(s) + b phi(s') per feature with a, b linear in the coefficients (what the compiled driver
     relies on too); so read k (phi_k^T x_f, phi_k = phi(s) or phi(s')) adds sum over (s, s') of its weight times
-    (a phi(s) + b phi(s')) phi_k^T: Phi^T of an S x S matrix of weights times Phi."""
+    (a phi(s) + b phi(s')) phi_k^T: Phi^T of a (sparse) matrix of weights over pairs of rows times Phi."""
     p = algorithm.params()
-    s, s_next, weight, unit = transitions(moments)
-    Phi = moments.problem.Phi
+    Phi, s, s_next, weight, unit = transitions(moments)
     S = Phi.shape[0]
     zero = np.zeros_like(unit.phi)
     K: dict = {}
@@ -67,7 +78,7 @@ def expected_directions(algorithm, moments) -> dict:
         along_next = algorithm.terms(p, zero, unit.phi, c, g)  # b
         read = s if src == "phi" else s_next
         for out, (a, b) in enumerate(zip(along_s, along_next)):
-            # W[u, v]: the weight of phi(u) phi(v)^T, v the read's state (sparse: a user's chain may be large)
+            # W[u, v]: the weight of phi(u) phi(v)^T, v the read's row (sparse: a user's chain may be large)
             at = np.concatenate([s, s_next])
             value = weight * np.concatenate([per_transition(a, s.size), per_transition(b, s.size)]).reshape(2, -1)
             W = coo_matrix((value.ravel(), (at, np.concatenate([read, read]))), shape=(S, S)).tocsr()
@@ -169,7 +180,7 @@ def largest_contracting_step(mean_map: MeanMap, lam: float, hi: float) -> float:
 def sample_cap(algorithm, moments) -> float:
     """The largest alpha at which no step size it derives (``steps``) exceeds 1 / max_s |phi(s)|^2."""
     p = algorithm.params()
-    largest = float((moments.problem.Phi**2).sum(axis=1).max())
+    largest = float((transitions(moments)[0] ** 2).sum(axis=1).max())
     lo, hi = 0.0, 1.0 / largest
     while max(algorithm.steps(p, hi)) * largest <= 1.0 and hi < 1e12:  # a slower auxiliary step: a larger alpha
         lo, hi = hi, 2.0 * hi
@@ -184,7 +195,7 @@ def first_step(algorithm, moments, network) -> tuple[float | None, str]:
     rule of the module's docstring. Kept for the same algorithm, model and mixing (`dgtd run` asks when it resolves
     the run and again for its header: on a model of hundreds of features the eigenvalues take seconds)."""
     lams = mixing_eigenvalues(algorithm, network)
-    key = (algorithm, _digest(moments.problem, lams))
+    key = (algorithm, _digest(transitions(moments), lams))
     if key not in _FIRST_STEPS:
         if len(_FIRST_STEPS) >= 8:
             _FIRST_STEPS.pop(next(iter(_FIRST_STEPS)))
@@ -195,14 +206,14 @@ def first_step(algorithm, moments, network) -> tuple[float | None, str]:
 _FIRST_STEPS: dict = {}
 
 
-def _digest(problem, lams: np.ndarray) -> str:
-    """What the rule reads of a model and its mixing, as one SHA-256."""
+def _digest(transitions: tuple, lams: np.ndarray) -> str:
+    """What the rule reads of a model (or a reference's sample) and its mixing, as one SHA-256."""
     import hashlib
 
+    rows, s, s_next, weight, sample = transitions
     h = hashlib.sha256()
-    for x in (problem.P_sample, problem.ratio, problem.Phi, problem.continuing, problem.gamma, lams):
+    for x in (rows, s, s_next, weight, sample.ratio, sample.gamma, lams):
         h.update(np.ascontiguousarray(x, dtype=np.float64).tobytes() + str(np.shape(x)).encode())
-    h.update(str(getattr(problem, "restarts", "")).encode())  # sets d on an episodic task
     return h.hexdigest()
 
 
@@ -212,7 +223,7 @@ def _first_step(algorithm, moments, lams: np.ndarray) -> tuple[float | None, str
     largest = min(largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in lams)
     if largest <= 0.0:
         return None, "no step makes every mode of its mean dynamics contract here"
-    over = 1.0 / float((moments.problem.Phi**2).sum(axis=1).max())
+    over = 1.0 / float((transitions(moments)[0] ** 2).sum(axis=1).max())
     if largest >= 2.0 * cap:
         return cap, (
             f"its step sizes at most 1 / max |phi(s)|^2 = {over:.3g}, where one sample overshoots (every mode of its "

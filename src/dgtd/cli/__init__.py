@@ -80,8 +80,8 @@ def run(ctx, scenario, resume_dir, ranks, hosts, **_):
     Defaults: without step-size options DGTD runs with alpha_k = 10/sqrt(k+1000)
     and kappa = 3, the fastest found on the benchmark tasks; paper-example-1 and -2
     keep the paper's own settings, and the random-MDP tasks a smaller alpha0 for
-    their larger features. On a --problem file the first step of any method
-    comes from its mean dynamics on the model (the header says which and why).
+    their larger features. On --problem, --env or --data the first step of any
+    method comes from its mean dynamics (the header says which and why).
 
     \b
     What it reports for every agent i, against the exact solution w*:
@@ -169,7 +169,7 @@ def _run_job(job, t_start: float) -> None:
     if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
         click.echo(scenario_of(job.resolved).description)
     if steps_from_the_problem(view(job.config)):  # say which step was chosen, and why
-        note = problem_steps(view(job.config), problem, network)[1]
+        note = problem_steps(job.config, problem, network)[1]
         if note:
             click.echo(note)
     if job.snapshot is not None:

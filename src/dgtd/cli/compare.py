@@ -104,7 +104,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
         )
     p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(config))
-    start = problem_start(view(config)) if steps_from_the_problem(view(config)) else None
+    start = problem_start(config) if steps_from_the_problem(view(config)) and config.problem.problem_file else None
     sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations, start)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)

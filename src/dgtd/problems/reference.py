@@ -27,6 +27,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 
+KEPT = 2_500  # transitions kept of each group beside its sums (20 000 over the 8 groups of a reference)
 RIDGE = 1e-6  # lambda = RIDGE x the largest |diagonal entry| of A: negligible unless a feature is barely seen
 
 
@@ -41,9 +42,12 @@ class MomentSums:
     A: np.ndarray = field(init=False)
     b: np.ndarray = field(init=False)
 
+    kept: list = field(init=False)  # [(phi, phi', discount, ratio)]: the first `KEPT` transitions added
+
     def __post_init__(self):
         q, N = self.n_features, self.n_agents
         self.M, self.A, self.b = np.zeros((q, q)), np.zeros((q, q)), np.zeros((N, q))
+        self.kept = []
 
     def add(
         self,
@@ -60,6 +64,11 @@ class MomentSums:
                 "a transition has NaN or infinite features or rewards; check the states and the features"
             )
         rho = np.ones(len(phi)) if ratio is None else np.asarray(ratio, np.float64)
+        room = KEPT - sum(len(x[0]) for x in self.kept)
+        if room > 0:
+            take = slice(0, room)
+            gamma = np.broadcast_to(np.asarray(discount, np.float64), (len(phi),))
+            self.kept.append((phi[take].copy(), phi_next[take].copy(), gamma[take].copy(), rho[take].copy()))
         self.M += phi.T @ phi
         self.A += (phi * rho[:, None]).T @ (phi - np.asarray(discount)[:, None] * phi_next)
         self.b += ((phi * rho[:, None]).T @ np.asarray(r, np.float64)).T
@@ -68,7 +77,13 @@ class MomentSums:
     def merged(self, other: MomentSums) -> MomentSums:
         both = MomentSums(self.n_agents, self.n_features, self.count + other.count)
         both.M, both.A, both.b = self.M + other.M, self.A + other.A, self.b + other.b
+        both.kept = self.kept + other.kept
         return both
+
+    def kept_transitions(self) -> tuple[np.ndarray, ...]:
+        """(phi, phi' (K, q), discount, ratio (K,)) of the transitions kept (`KEPT` of each group's first): a sample
+        of the batch on which each method's mean dynamics are estimated (`dgtd.algorithms.mean_dynamics`)."""
+        return tuple(np.concatenate(parts) for parts in zip(*self.kept))
 
 
 @dataclass
