@@ -237,3 +237,15 @@ def test_a_problem_file_run_builds_its_mean_dynamics_once(tmp_path, run_cli, mon
     )
     assert code == 0, err
     assert "steps from the problem" in text and len(built) == 1
+
+
+def test_mean_dynamics_too_large_to_analyse_keep_the_steps_given_and_say_so():
+    """A problem of 400 one-hot features: DGTD's mean map is 1 600 x 1 600 for each of the ring's 4 distinct
+    Laplacian eigenvalues, beyond `LARGEST` (its eigenvalues would take tens of seconds at every start): the steps
+    given are kept, and the note says why."""
+    rng = np.random.default_rng(3)
+    S = 400
+    P = rng.random((S, S)) + 0.05
+    p = make_problem(P / P.sum(axis=1, keepdims=True), rng.random((6, S)), np.eye(S), 0.9)
+    derived, note = DGTD().from_the_problem(exact.Moments(p), random_edges(topologies.ring(6), 1.0))
+    assert derived == DGTD() and "too large to analyse" in note and "the steps given are kept" in note
