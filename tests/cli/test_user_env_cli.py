@@ -556,3 +556,13 @@ def test_the_mean_dynamics_of_an_envs_kept_transitions_estimate_the_models(name)
     algorithm = make_algorithm(name)
     estimated, exactly = md.MeanMap(algorithm, reference.moments)(0.5, 0.0), md.MeanMap(algorithm, model)(0.5, 0.0)
     assert np.abs(estimated - exactly).max() <= 0.05 * np.abs(exactly - np.eye(len(exactly))).max()
+
+
+def test_compare_on_an_env_takes_every_methods_first_step_from_its_estimated_mean_dynamics(run_cli, tmp_path):
+    """`dgtd compare --env` as `dgtd compare --problem`: every method's schedule printed, DGTD at the offset `dgtd run
+    --env` takes (3 230 on the test chain), the others' from their own mean dynamics, and the rule said."""
+    args = ("--env", env("make_chain"), "--features", "one-hot", "--agents", 4, "-T", 200, "--seeds", 1)
+    code, text, err = run_cli("compare", *args, "-a", "dgtd,td0,tdc", "--no-plots", "--no-progress", "--out", tmp_path)
+    assert code == 0, err
+    assert "alpha_k: dgtd 7.906/sqrt(k+3230), td0 1/sqrt(k+1000), tdc 3/sqrt(k+1000)" in text
+    assert "every first step at most what the method's mean dynamics allow" in text

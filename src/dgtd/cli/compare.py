@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -95,7 +96,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     )
     from dgtd.run.owner import Owner
     from dgtd.run.results import NotWritten
-    from dgtd.scenarios.user import problem_scenario
+    from dgtd.scenarios.user import problem_compare_steps, problem_scenario
 
     given = {k: v for k, v in given.items() if v is not None}
     config = override(Experiment(unflat({"scenario": scenario, "seeds": seeds})), given).config
@@ -104,8 +105,13 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
         )
     p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(config))
-    start = problem_start(config) if steps_from_the_problem(view(config)) and config.problem.problem_file else None
-    sc = scenario_of(resolved) or problem_scenario(p, network, algorithm, samp, settings.iterations, start)
+    start = problem_start(config) if steps_from_the_problem(view(config)) else None
+    sc = scenario_of(resolved)
+    if sc is None:
+        sc = problem_scenario(p, network, algorithm, samp, settings.iterations, start)
+    elif start is not None:  # a simulator or a recording: every method's first step from its estimated mean dynamics
+        steps_of, note = problem_compare_steps(p.moments, network, start, derive=True)
+        sc = replace(sc, algorithm=algorithm, compare_settings=steps_of, compare_note=note)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
     out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
@@ -119,7 +125,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     )
     if not tune:
         origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
-        if config.problem.problem_file is not None:  # each method's offset is its own: say the whole schedule
+        if start is not None:  # each method's offset is its own: say the whole schedule
             steps = ", ".join(f"{name} {describe_steps(a.schedule, a.alpha0, a.beta)}" for name, a in configs.items())
             click.echo(f"alpha_k: {steps} ({origin}); --tune picks each alpha0 from x (1/10 .. 10) on separate seeds")
         else:
