@@ -409,7 +409,8 @@ def scaled_dgtd(reference, base_graph) -> DGTD:
 
 
 def problem_compare_steps(moments, network, start, derive: bool) -> tuple[dict, str]:
-    """({algorithm: fields}, where they come from, in words) of `dgtd compare` on a user's problem file: garnet's
+    """({algorithm: fields}, where they come from, in words) of `dgtd compare` on a user's problem file, simulator
+    or recording (``moments`` the model's, or the estimated reference's): garnet's
     tuned alpha0 divided by `feature_scale` (the late steps, as `compare_steps`) on the schedule and offset of
     ``start`` (the algorithm the run starts from: DGTD's defaults, or the step options given); with ``derive`` (no
     step option given) each method's first step at most what its own mean dynamics allow, the rule `dgtd run`
@@ -421,7 +422,7 @@ def problem_compare_steps(moments, network, start, derive: bool) -> tuple[dict, 
         algorithm = make_algorithm(name, alpha0=fields["alpha0"], beta=start.beta, schedule=start.schedule)
         if derive:
             derived, note = algorithm.from_the_problem(moments, network)
-            if note and derived is algorithm:  # its mean dynamics contract at no step
+            if note and derived is algorithm:  # no step contracts its mean dynamics, or they are too large
                 none.append(name)
             algorithm = derived
         settings[name] = {"alpha0": algorithm.alpha0, "beta": algorithm.beta}
@@ -432,7 +433,10 @@ def problem_compare_steps(moments, network, start, derive: bool) -> tuple[dict, 
             "every mode contracts, and 1 / max |phi(s)|^2), its offset raised to meet it, as dgtd run does"
         )
     if none:
-        note += f"; no step contracts the mean dynamics of {', '.join(none)} here: their steps are kept"
+        note += (
+            f"; no first step comes from the mean dynamics of {', '.join(none)} here (none contracts them, or they "
+            "are too large to analyse): their steps are kept"
+        )
     return settings, note
 
 
