@@ -1,14 +1,16 @@
 """Every algorithm's mean dynamics on a model, from its one definition (`dgtd.algorithms.base`), and the first step
-they allow: the rule behind the steps `dgtd run` and `dgtd compare` take from a user's problem file.
+they allow: the rule behind the steps `dgtd run` and `dgtd compare` take from a user's problem file, simulator or
+recording.
 
 On a model the expected step of every algorithm here is affine in its state: the directions are linear in the
 products phi^T x it reads, and ``feature`` is linear in the state, what it heard and the directions. Along an
 eigenvector of the mean mixing matrix (the mean Laplacian E[L(k)], or E[I - W(k)] of Metropolis mixing: what an
-agent hears is then ``lam`` times what it sends) the mean step is x <- J(alpha, lam) x + const. `mean_map` builds
+agent hears is then ``lam`` times what it sends) the mean step is x <- J(alpha, lam) x + const. `MeanMap` builds
 J exactly: the expected directions by summing ``coefficients`` and ``terms`` over every transition (s, a, s') of
 the behaviour chain with its probability d(s) beta(a|s) P(s, a, s'), for the unit vectors of every state field, and
 ``feature`` of those. For DGTD it equals I - alpha G(lam) of Algorithm 1 in expectation
-(`dgtd.problems.exact.dgtd_mean_dynamics`, the closed form the tests check it against).
+(`dgtd.problems.exact.dgtd_mean_dynamics`, the closed form the tests check it against). Without a model (an
+estimated reference) the sum runs over the transitions the reference kept, each of the same weight: an estimate.
 
 `first_step` is then the same rule for every method: half the largest first step at which every mode of the mean
 dynamics contracts (|nu| < 1 for every eigenvalue nu of J other than the modes J leaves alone, nu = 1), for every
