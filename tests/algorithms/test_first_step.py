@@ -81,7 +81,7 @@ def test_the_mean_map_is_the_sum_of_the_algorithms_own_directions_over_every_tra
     problem = chain() if task == "chain" else get_scenario(task).problem
     m = exact.Moments(problem)
     algorithm = make_algorithm(name)
-    mean_map = md.MeanMap(algorithm, m)
+    mean_map = md.MeanMap(algorithm, md.transitions(m))
     for alpha, lam in ((0.3, 0.0), (0.05, 0.7)):
         assert np.abs(mean_map(alpha, lam) - brute_force_map(algorithm, m, alpha, lam)).max() < 1e-12
 
@@ -92,7 +92,7 @@ def test_dgtds_mean_map_is_algorithm_1_in_expectation_and_its_step_the_closed_fo
     for problem, L in ((chain(), random_edges(topologies.ring(6), 1.0)), (get_scenario("baird").problem, None)):
         net = L or get_scenario("baird").network
         m = exact.Moments(problem)
-        mean_map = md.MeanMap(DGTD(), m)
+        mean_map = md.MeanMap(DGTD(), md.transitions(m))
         q = problem.n_features
         for lam in np.linalg.eigvalsh(net.mean_laplacian()):
             G = exact.dgtd_mean_dynamics(m, lam, 3.0)
@@ -112,7 +112,7 @@ def test_every_methods_step_is_half_the_largest_at_which_every_mode_contracts(na
     m = exact.Moments(chain())
     net = random_edges(topologies.ring(6), 0.6)
     alpha, why = md.first_step(algorithm, m, net)
-    mean_map = md.MeanMap(algorithm, m)
+    mean_map = md.MeanMap(algorithm, md.transitions(m))
     lams = md.mixing_eigenvalues(algorithm, net)
 
     def contracts(a):

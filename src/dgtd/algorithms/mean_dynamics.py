@@ -61,15 +61,16 @@ def transitions(moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     return problem.Phi, s, s_next, weight[s, a, s_next], sample
 
 
-def expected_directions(algorithm, moments) -> dict:
+def expected_directions(algorithm, known: tuple) -> dict:
     """{(direction, field): K (q, q)}: E[d] = sum over fields of K x_field, exactly.
 
     Per transition an algorithm's coefficients are linear in the products it ``reads`` (rewards 0) and its
     ``terms`` are a phi(s) + b phi(s') per feature with a, b linear in the coefficients (what the compiled driver
     relies on too); so read k (phi_k^T x_f, phi_k = phi(s) or phi(s')) adds sum over (s, s') of its weight times
-    (a phi(s) + b phi(s')) phi_k^T: Phi^T of a (sparse) matrix of weights over pairs of rows times Phi."""
+    (a phi(s) + b phi(s')) phi_k^T: Phi^T of a (sparse) matrix of weights over pairs of rows times Phi. ``known``:
+    the `transitions` of a model or a reference."""
     p = algorithm.params()
-    Phi, s, s_next, weight, unit = transitions(moments)
+    Phi, s, s_next, weight, unit = known
     S = Phi.shape[0]
     zero = np.zeros_like(unit.phi)
     K: dict = {}
@@ -95,17 +96,18 @@ def per_transition(x, size: int) -> np.ndarray:
 
 
 class MeanMap:
-    """J(alpha, lam) of ``algorithm`` on ``moments`` (the module's docstring): the expected directions
-    (`expected_directions`) are summed once; each J is one ``feature`` of them over the unit vectors of the state."""
+    """J(alpha, lam) of ``algorithm`` on the `transitions` ``known`` of a model or a reference (the module's
+    docstring): the expected directions (`expected_directions`) are summed once; each J is one ``feature`` of them
+    over the unit vectors of the state."""
 
-    def __init__(self, algorithm, moments):
+    def __init__(self, algorithm, known: tuple):
         self.algorithm = algorithm
-        q = moments.problem.n_features
+        q = known[0].shape[1]
         self.fields = type(algorithm.init(1, 1, 1))._fields
         n = len(self.fields)
         eye = np.eye(n * q).reshape(n * q, n, q)
         self.probes = tuple(eye[:, f, None, :] for f in range(n))  # (P, 1, q) each: every unit vector
-        K = expected_directions(algorithm, moments)
+        K = expected_directions(algorithm, known)
         outputs = 1 + max((out for out, _ in K), default=-1)
         x = dict(zip(self.fields, self.probes))
         self.directions = tuple(
@@ -180,10 +182,9 @@ def largest_contracting_step(mean_map: MeanMap, lam: float, hi: float) -> float:
     return lo
 
 
-def sample_cap(algorithm, moments) -> float:
-    """The largest alpha at which no step size it derives (``steps``) exceeds 1 / max_s |phi(s)|^2."""
+def sample_cap(algorithm, largest: float) -> float:
+    """The largest alpha at which no step size it derives (``steps``) exceeds 1 / ``largest``, max_s |phi(s)|^2."""
     p = algorithm.params()
-    largest = float((transitions(moments)[0] ** 2).sum(axis=1).max())
     lo, hi = 0.0, 1.0 / largest
     while max(algorithm.steps(p, hi)) * largest <= 1.0 and hi < 1e12:  # a slower auxiliary step: a larger alpha
         lo, hi = hi, 2.0 * hi
@@ -204,11 +205,12 @@ def first_step(algorithm, moments, network) -> tuple[float | None, str]:
             f"its mean dynamics ({size} x {size}, for each of {len(lams)} mixing eigenvalues) are too large to "
             "analyse at the start of a run"
         )
-    key = (algorithm, _digest(transitions(moments), lams))
+    known = transitions(moments)
+    key = (algorithm, _digest(known, lams))
     if key not in _FIRST_STEPS:
         if len(_FIRST_STEPS) >= 8:
             _FIRST_STEPS.pop(next(iter(_FIRST_STEPS)))
-        _FIRST_STEPS[key] = _first_step(algorithm, moments, lams)
+        _FIRST_STEPS[key] = _first_step(algorithm, known, lams)
     return _FIRST_STEPS[key]
 
 
@@ -226,13 +228,14 @@ def _digest(transitions: tuple, lams: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def _first_step(algorithm, moments, lams: np.ndarray) -> tuple[float | None, str]:
-    cap = sample_cap(algorithm, moments)
-    mean_map = MeanMap(algorithm, moments)
+def _first_step(algorithm, known: tuple, lams: np.ndarray) -> tuple[float | None, str]:
+    largest_phi = float((known[0] ** 2).sum(axis=1).max())  # max_s |phi(s)|^2
+    cap = sample_cap(algorithm, largest_phi)
+    mean_map = MeanMap(algorithm, known)
     largest = min(largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in lams)
     if largest <= 0.0:
         return None, "no step makes every mode of its mean dynamics contract here"
-    over = 1.0 / float((transitions(moments)[0] ** 2).sum(axis=1).max())
+    over = 1.0 / largest_phi
     if largest >= 2.0 * cap:
         return cap, (
             f"its step sizes at most 1 / max |phi(s)|^2 = {over:.3g}, where one sample overshoots (every mode of its "

@@ -73,6 +73,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     from dgtd.config import (
         PROBLEM_FIELDS,
         make_channel,
+        moments_of,
         problem_start,
         resolve,
         scenario_of,
@@ -110,7 +111,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     if sc is None:
         sc = problem_scenario(p, network, algorithm, samp, settings.iterations, start)
     elif start is not None:  # a simulator or a recording: every method's first step from its estimated mean dynamics
-        steps_of, note = problem_compare_steps(p.moments, network, start, derive=True)
+        steps_of, note = problem_compare_steps(moments_of(p), network, start, derive=True)
         sc = replace(sc, algorithm=algorithm, compare_settings=steps_of, compare_note=note)
     cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
