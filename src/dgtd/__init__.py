@@ -18,7 +18,8 @@ The names a user needs, each documented where it is defined::
   `ALGORITHMS`, and `check_algorithm`, which checks a user's own on every backend;
 - problems: `make_problem`, `from_mdp`, `load_problem`, `save_problem`, `tasks`, `exact`;
 - graphs: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`;
-- channels, which turn what agents send into what they hear: `Perfect`, `Inbox`, `Arcs`;
+- channels, which turn what agents send into what they hear: `Perfect`, `Lossy`, `Imperfect`, `Inbox`, `Arcs`, and
+  `Channel`, the protocol a link model of one's own follows;
 - results: `read_results`.
 
 Names load on first use, so ``import dgtd`` stays quick (the compiled kernels load only when a run needs them).
@@ -86,6 +87,9 @@ _EXPORTS = {
     "from_networkx": "dgtd.graphs.topologies",
     "random_edges": "dgtd.graphs.random",
     "Perfect": "dgtd.channels",
+    "Lossy": "dgtd.channels",
+    "Imperfect": "dgtd.channels",
+    "Channel": "dgtd.channels",
     "Inbox": "dgtd.channels",
     "Arcs": "dgtd.channels",
     "read_results": "dgtd.run.results",

@@ -295,8 +295,8 @@ def test_a_simulators_kernel_is_loaded_before_the_first_step_not_inside_it(monke
 
     real, lengths = loop.kernel_for, []
 
-    def recording(backend, name):
-        kernel = real(backend, name)
+    def recording(backend, name, channel=None):
+        kernel = real(backend, name, channel)
         return lambda ctx, state, channel, sums, alpha, block: (
             lengths.append(len(alpha)),
             kernel(ctx, state, channel, sums, alpha, block),

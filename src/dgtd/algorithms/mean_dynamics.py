@@ -125,16 +125,14 @@ class MeanMap:
 
 def mixing_eigenvalues(algorithm, network) -> np.ndarray:
     """The eigenvalues of the mean mixing the algorithm applies to what it hears over perfect links: E[L(k)], or the
-    Metropolis E[I - W(k)] (`dgtd.channels.lossy.mean_metropolis`); [0] for one that does not communicate. Beyond
+    Metropolis E[I - W(k)] (`dgtd.channels.perfect.mean_metropolis`); [0] for one that does not communicate. Beyond
     `SPREAD` distinct ones, `SPREAD` points spread over their range and the smallest non-zero one."""
     if not algorithm.messages:
         return np.zeros(1)
     if algorithm.mixing == "metropolis":
-        from dgtd.channels import lossy
-        from dgtd.channels.arcs import Arcs
+        from dgtd.channels.perfect import mean_metropolis
 
-        arcs = Arcs.of(network.base.edges, network.n_nodes)
-        mixing = lossy.mean_metropolis(network, np.zeros(arcs.n_arcs), arcs)
+        mixing = mean_metropolis(network)
     else:
         mixing = network.mean_laplacian()
     lams = np.unique(np.round(np.linalg.eigvalsh(mixing), 12))

@@ -5,8 +5,9 @@ compiled once per run and block length, on a GPU where JAX has one, else on the 
 The contract is `dgtd.backends.reference.run_block`'s, and so are the numbers (to rounding: tested to 1e-12): the
 samples are the same block of the seeds' keyed streams, drawn on the host, and the links that deliver at each step
 are the channel's own (`deliver`, run on the host for the block's steps, which also counts the messages and bits),
-so a seed gives the same samples and the same links on every backend. Perfect and lossy links run here (losses, bursts,
-reweighting); late, asleep and compressed messages are refused in one line (`check_supported`).
+so a seed gives the same samples and the same links on every backend. Every channel whose receivers hold no copies
+runs here (`dgtd.channels.base.Channel.holds`: the perfect and lossy links, with losses, bursts and reweighting);
+late, asleep and compressed messages are refused in one line (`check_supported`).
 """
 
 from __future__ import annotations
@@ -18,8 +19,6 @@ import numpy as np
 from dgtd.channels import Inbox
 from dgtd.errors import DgtdInputError
 from dgtd.samples import Block, Sample
-
-CHANNELS = ("perfect", "lossy")  # the link models this backend runs
 
 
 def available() -> bool:
@@ -36,8 +35,7 @@ def check_supported(channel) -> None:
         raise DgtdInputError(
             "--backend jax needs JAX: pip install 'dgtd[jax]' (or jax[cuda12] for a GPU), or use --backend numba"
         )
-    name = getattr(channel, "name", "perfect")
-    if name not in CHANNELS:
+    if channel.holds:
         raise DgtdInputError(
             f"--backend jax runs perfect and lossy links (--loss, --burst, --reweight), not {channel.describe()}: "
             "use --backend numba or numpy for late, asleep or compressed messages"
@@ -57,6 +55,8 @@ def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, 
     weights = None
     for t in range(T):
         inbox, channel_state = channel.deliver(channel_state, arcs, shapes, None if blk.up is None else blk.up[t])
+        if inbox.received or inbox.awake is not None:  # values or sleepers beyond what the JAX step reads
+            raise DgtdInputError(f"--backend jax runs links that deliver what was sent, not {channel.describe()}")
         heard[t], weights = inbox.heard, inbox.weights
     if T == 0:
         return state, channel_state, w_sum

@@ -37,7 +37,7 @@ import numpy as np
 
 from dgtd.backends.mailbox import AGES, Mailbox
 from dgtd.channels import Arcs
-from dgtd.channels.perfect import per_arc_fields
+from dgtd.channels.base import per_arc_fields
 from dgtd.errors import DgtdInputError
 
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_RANK")  # what mpiexec (MPICH's, Open MPI's) sets in its ranks
@@ -124,7 +124,7 @@ def check_supported(algorithm, channel, n_agents: int, backend: str, asynchronou
             "asynchronous ranks run the NumPy reference (their messages arrive between the steps of a kernel): "
             f"give --backend numpy with --asynchronous, not --backend {backend}"
         )
-    if asynchronous and getattr(channel, "name", "perfect") not in ("perfect", "lossy"):
+    if asynchronous and channel.holds:
         raise DgtdInputError(
             "late, asleep or compressed messages (--delay, --wake, --bits, --top-k) run across ranks synchronously, "
             "not with --asynchronous (whose messages are as late as the machine makes them): leave one out"
@@ -288,7 +288,16 @@ def partition(ctx) -> Partition:
 
 def kernel(ctx, backend: str, staleness):
     """The run's kernel on this rank: the compiled driver over its share (`compiled_block`) or the NumPy reference
-    (`run_block`), synchronous, or asynchronous where ``staleness`` is not False (None: unbounded)."""
+    (`run_block`), synchronous, or asynchronous where ``staleness`` is not False (None: unbounded). A run the compiled
+    backend does not run (`dgtd.backends.compiled.fallback`) takes the reference, with a one-line notice."""
+    if backend != "numpy":
+        from dgtd.backends.compiled import fallback
+
+        if reason := fallback(ctx.algorithm, ctx.channel):
+            import warnings
+
+            warnings.warn(reason, stacklevel=3)
+            backend = "numpy"
     ctx.__dict__.setdefault("_mpi", {})["compiled"] = backend != "numpy"
     if staleness is not False:
         return asynchronous(staleness)

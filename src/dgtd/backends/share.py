@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from dgtd.backends.compiled.sampling import entities
-from dgtd.channels import Arcs, Imperfect, Lossy
+from dgtd.channels import Arcs
 from dgtd.graphs.random import RandomEdges
 from dgtd.graphs.topologies import Graph
 
@@ -82,7 +82,7 @@ class Share:
             tables=ctx.tables,
             arcs=arcs,
             tail_start=ctx.tail_start,
-            channel=_channel(ctx.channel, arc_ids, rows),
+            channel=ctx.channel.share(arc_ids, rows),  # each arc's and agent's own links
             Phi=ctx.Phi,
             gamma=ctx.gamma,
             ratio=ctx.ratio,
@@ -98,14 +98,3 @@ class Share:
             _numba_cache={"order": None},
         )
         return cls(share, rows, edges, arc_ids, row[local], counted)
-
-
-def _channel(channel, arc_ids: np.ndarray, rows: np.ndarray):
-    """The channel over the share's arcs (``arc_ids``) and agents (``rows``): each one's loss, weight and wake."""
-    if isinstance(channel, Lossy):
-        return Lossy(channel.loss[arc_ids], channel.burst, channel.reweight)
-    if isinstance(channel, Imperfect):
-        lossy = _channel(channel.lossy, arc_ids, rows)
-        wake = None if channel.wake is None else channel.wake[rows]
-        return Imperfect(lossy, channel.delay, wake, channel.bits, channel.top_k, channel.error_feedback)
-    return channel

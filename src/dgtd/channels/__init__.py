@@ -11,15 +11,32 @@ one and not the other.
 - `Lossy`: each message on arc j -> i is lost with the arc's own probability (`dgtd.channels.lossy`).
 - `Imperfect`: `Lossy`'s links with late, asleep and compressed messages (`dgtd.channels.imperfect`).
 
-Each channel has this plain NumPy definition and a compiled twin in `dgtd.backends.compiled.channel`, tested equal.
+Each follows `Channel` (`dgtd.channels.base`): its parameters, its own state, ``init`` / ``deliver``, its part over
+an MPI rank's arcs (``share``) and its mean mixing, in its one file, with a compiled twin registered under its name
+in `dgtd.backends.compiled.channel.TWINS`, tested equal. A link model of one's own that follows `Channel` runs on
+``--backend numpy`` (`dgtd.run(..., channel=...)`).
 """
 
 from dgtd.channels.arcs import Arcs
-from dgtd.channels.imperfect import Imperfect
+from dgtd.channels.base import Channel, counted, per_arc_fields
+from dgtd.channels.imperfect import HeldState, Imperfect
 from dgtd.channels.inbox import Inbox
-from dgtd.channels.lossy import Lossy
-from dgtd.channels.perfect import ChannelState, Perfect
+from dgtd.channels.lossy import LinkState, Lossy
+from dgtd.channels.perfect import Counts, Perfect
 
 CHANNELS = {cls.name: cls for cls in (Perfect, Lossy, Imperfect)}
 
-__all__ = ["Arcs", "CHANNELS", "ChannelState", "Imperfect", "Inbox", "Lossy", "Perfect"]
+__all__ = [
+    "Arcs",
+    "CHANNELS",
+    "Channel",
+    "Counts",
+    "HeldState",
+    "Imperfect",
+    "Inbox",
+    "LinkState",
+    "Lossy",
+    "Perfect",
+    "counted",
+    "per_arc_fields",
+]

@@ -27,16 +27,40 @@ method's fixed point.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from dgtd.channels.arcs import Arcs
+from dgtd.channels.base import BITS_PER_NUMBER, copied
 from dgtd.channels.inbox import Inbox
 from dgtd.channels.lossy import Lossy, arc_uniforms
-from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
 from dgtd.errors import DgtdInputError
 from dgtd.streams import DELAY, ROUNDING, WAKE, singles, uniforms
+
+
+class HeldState(NamedTuple):
+    """`Imperfect`'s state, per seed: `dgtd.channels.lossy.LinkState`'s fields, and what the receivers hold (empty
+    until the first step tells how many numbers a message has): ``copies`` (B, 2E, Q), what each arc's receiver holds
+    of its sender's messages (the Q numbers of all its messages side by side); ``since`` (B, 2E), the step that copy
+    was sent at (-1: nothing heard yet); the messages in flight, ``pending`` (B, 2E, D + 1, Q), each in slot (step it
+    arrives) mod (D + 1), the newest sent of those arriving at one step, with the step it arrives at, ``due``, and
+    was sent at, ``posted`` (B, 2E, D + 1; -1: none); and ``per_arc`` (B, 2E), how many times each arc delivered."""
+
+    messages: np.ndarray
+    bits: np.ndarray
+    keys: np.ndarray
+    step: np.ndarray
+    links: np.ndarray
+    copies: np.ndarray = np.zeros((0, 0, 0))
+    since: np.ndarray = np.zeros((0, 0), np.int64)
+    pending: np.ndarray = np.zeros((0, 0, 0, 0))
+    due: np.ndarray = np.zeros((0, 0, 0), np.int64)
+    posted: np.ndarray = np.zeros((0, 0, 0), np.int64)
+    per_arc: np.ndarray = np.zeros((0, 0))
+
+    def copy(self):
+        return copied(self)
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +76,8 @@ class Imperfect:
     top_k: int | None = None
     error_feedback: bool = False
     name: ClassVar[str] = "imperfect"
+    draws: ClassVar[bool] = True
+    holds: ClassVar[bool] = True
 
     def __post_init__(self):
         check_links(self.delay, self.wake, self.bits, self.top_k, self.error_feedback)
@@ -73,14 +99,14 @@ class Imperfect:
         the largest coordinates, a choice that depends on the values, and its fixed point is not computed."""
         return self.top_k is None or self.error_feedback
 
-    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
+    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> HeldState:
         """`Lossy.init`'s state, the copies left empty until the first step tells how many numbers a message has."""
-        return self.lossy.init(seeds, arcs, seed)
+        return HeldState(**self.lossy.init(seeds, arcs, seed)._asdict())
 
-    def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
+    def deliver(self, state: HeldState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up. The
         messages in flight (``pending``, ``due``, ``posted``) are updated in ``state``'s own arrays; a caller that
-        keeps the old state passes a copy (`ChannelState.copy`)."""
+        keeps the old state passes a copy (`HeldState.copy`)."""
         x = np.concatenate(list(sent.values()), axis=-1)  # (B, N, Q): every message side by side
         B, N, Q = x.shape
         state = held(state, arcs.n_arcs, Q, self.delay)
@@ -130,19 +156,29 @@ class Imperfect:
         bits = sum(self.vector_bits(m.shape[-1]) for m in sent.values())
         weights = arcs.of_arcs(self.arc_weights) if self.reweight else None
         inbox = Inbox(arcs, sent, heard, received, weights, awake if self.wake is not None else None)
-        return inbox, ChannelState(
+        return inbox, HeldState(
             state.messages + delivered * len(sent),
             state.bits + delivered * bits,
             keys,
+            t + 1,
             links,
             copies,
             since,
             pending,
             due,
             posted,
-            t + 1,
             state.per_arc + sends,
         )
+
+    def share(self, arc_ids: np.ndarray, agents: np.ndarray) -> Imperfect:
+        """Each of the arcs ``arc_ids``' own links and each of ``agents``' own probability of being awake."""
+        wake = None if self.wake is None else self.wake[agents]
+        lossy = self.lossy.share(arc_ids, agents)
+        return Imperfect(lossy, self.delay, wake, self.bits, self.top_k, self.error_feedback)
+
+    def mean_mixing(self, network, arcs: Arcs, mixing: str):
+        """The links' (`Lossy.mean_mixing`): neither delay, sleep nor compression moves it (docs/links.md)."""
+        return self.lossy.mean_mixing(network, arcs, mixing)
 
     def compress(self, v: np.ndarray, rounding: np.ndarray | None, widths: list[int]) -> np.ndarray:
         """What an arc carries of v (B, 2E, Q), message by message (``widths``: each one's numbers): its top-k
@@ -200,7 +236,7 @@ def compress_vector(v: np.ndarray, u: np.ndarray | None, channel: Imperfect) -> 
     return np.where(keep & (s > 0), rounded, 0.0)
 
 
-def held(state: ChannelState, n_arcs: int, Q: int, delay: int) -> ChannelState:
+def held(state: HeldState, n_arcs: int, Q: int, delay: int) -> HeldState:
     """``state`` with the receivers' copies made (nothing heard yet) where it has none."""
     B = state.messages.shape[0]
     if state.copies.shape == (B, n_arcs, Q):

@@ -16,13 +16,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from dgtd.channels.arcs import Arcs
+from dgtd.channels.base import copied, counted
 from dgtd.channels.inbox import Inbox
-from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
 from dgtd.errors import DgtdInputError
 from dgtd.streams import ARC_BURST_START, ARC_LOSS, seed_keys, uniforms
 
@@ -35,6 +35,21 @@ def arc_uniforms(keys: np.ndarray, purpose: int, step: int, arcs: Arcs) -> np.nd
         return np.stack([u0, u1], axis=-1).reshape(keys.shape[0], arcs.n_arcs)
     u0, u1 = uniforms(keys[:, None], purpose, step, arcs.ids // 2)
     return np.where(arcs.ids % 2 == 0, u0, u1)
+
+
+class LinkState(NamedTuple):
+    """`Lossy`'s state, per seed: the counts of messages and bits it delivered (B,), the seed's key (B,) its draws
+    are keyed by (`dgtd.streams`), the step (B,) it is at, and each arc's state where links have one (B, 2E: 1 while
+    a bursty link is in its losing state; else B, 0)."""
+
+    messages: np.ndarray
+    bits: np.ndarray
+    keys: np.ndarray
+    step: np.ndarray
+    links: np.ndarray
+
+    def copy(self):
+        return copied(self)
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +67,8 @@ class Lossy:
     burst: float | None = None
     reweight: bool = False
     name: ClassVar[str] = "lossy"
+    draws: ClassVar[bool] = True
+    holds: ClassVar[bool] = False
 
     def __post_init__(self):
         if self.burst is None:
@@ -78,34 +95,41 @@ class Lossy:
         assert self.burst is not None, "only links with bursts enter a losing state"
         return np.minimum(self.loss / (float(self.burst) * (1.0 - self.loss)), 1.0)
 
-    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> ChannelState:
+    def init(self, seeds: int, arcs: Arcs, seed: int = 0) -> LinkState:
         """Counts at zero, seed k's key (k = 0 .. seeds - 1 of base seed ``seed``), step 0, and with bursts each arc's
         chain drawn from its stationary law."""
         keys = seed_keys(seed, range(seeds))
         links = np.zeros((seeds, 0), np.uint8)
         if self.burst is not None:
             links = (arc_uniforms(keys, ARC_BURST_START, 0, arcs) < arcs.of_arcs(self.loss)).astype(np.uint8)
-        return ChannelState(np.zeros(seeds), np.zeros(seeds), keys, links, step=np.zeros(seeds, np.int64))
+        return LinkState(np.zeros(seeds), np.zeros(seeds), keys, np.zeros(seeds, np.int64), links)
 
-    def deliver(self, state: ChannelState, arcs: Arcs, sent: dict, up: np.ndarray | None):
+    def deliver(self, state: LinkState, arcs: Arcs, sent: dict, up: np.ndarray | None):
         """(the step's `Inbox`, the new state): arcs of the edges up (B, E) (None: every edge) that keep the message."""
         B = next(iter(sent.values())).shape[0] if sent else state.messages.shape[0]
         kept, links = self.arcs_up(state, arcs, up, B)
         heard = kept.astype(np.float64)
-        arrived = heard.sum(axis=1)
-        numbers = sum(x.shape[-1] for x in sent.values())
         weights = arcs.of_arcs(self.arc_weights) if self.reweight else None
-        return Inbox(arcs, sent, heard, weights=weights), ChannelState(
-            state.messages + arrived * len(sent),
-            state.bits + arrived * numbers * BITS_PER_NUMBER,
-            state.keys,
-            links,
-            step=state.step + 1,
-        )
+        state = counted(state, heard.sum(axis=1), sent)
+        return Inbox(arcs, sent, heard, weights=weights), state._replace(links=links, step=state.step + 1)
 
-    def arcs_up(self, state: ChannelState, arcs: Arcs, up: np.ndarray | None, B: int):
+    def share(self, arc_ids: np.ndarray, agents: np.ndarray) -> Lossy:
+        """Each of the arcs ``arc_ids``' own loss probability (`dgtd.channels.base.Channel.share`)."""
+        return Lossy(self.loss[arc_ids], self.burst, self.reweight)
+
+    def mean_mixing(self, network, arcs: Arcs, mixing: str):
+        """E[L(k)] of what is heard (`mean_laplacian`), or of its Metropolis mixing (`mean_metropolis`); with
+        ``reweight`` the network's own mean Laplacian (E[c_ij heard_ij] = p_e: symmetric again)."""
+        if mixing == "metropolis":
+            return mean_metropolis(network, self.loss, arcs)
+        if self.reweight:
+            return network.mean_laplacian()
+        return mean_laplacian(network, self.loss, arcs)
+
+    def arcs_up(self, state, arcs: Arcs, up: np.ndarray | None, B: int):
         """(the arcs that carry a message at this step (B, 2E): their edge up (B, E; None: every edge) and their
-        message kept; the links' new states), from one uniform per arc."""
+        message kept; the links' new states), from one uniform per arc; ``state`` a `LinkState`, or any state with
+        its keys, step and links (`dgtd.channels.Imperfect`'s)."""
         links = state.links
         if self.burst is None and not self.loss.any():  # nothing lost: the draws, keyed, change nothing else
             kept = np.ones((B, arcs.n_arcs), bool)

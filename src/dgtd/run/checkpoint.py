@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dgtd.channels.perfect import ChannelState, per_arc_fields
+from dgtd.channels.base import per_arc_fields
 from dgtd.errors import DgtdInputError
 from dgtd.files import read_npz
 from dgtd.run.results import atomic_write
@@ -208,7 +208,7 @@ def _rows_of(snap: dict):
         elif value is not None:
             yield (name,), axis, "agents"
     if "channel" in snap:  # the per-arc fields it holds (the others are empty placeholders)
-        yield from ((("channel", name), 1, "arcs") for name in per_arc_fields(ChannelState(**snap["channel"])))
+        yield from ((("channel", name), 1, "arcs") for name in per_arc_fields(snap["channel"]))
     if np.ndim(x := snap.get("per_arc", ())) >= 2 and x.shape[0] and x.shape[1]:
         yield ("per_arc",), 1, "arcs"
     if isinstance(snap.get("source"), dict) and snap["source"].get("current") is not None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dgtd.channels.perfect import per_arc_fields
+from dgtd.channels.base import per_arc_fields
 from dgtd.problems.exact import ordered_consensus_error, ordered_sum
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from dgtd.algorithms.base import FixedPoint
 from dgtd.algorithms.stepsizes import step_sizes
-from dgtd.channels import Arcs, ChannelState, Perfect
+from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option
 from dgtd.graphs.random import RandomEdges
@@ -249,28 +249,23 @@ FIXED_POINT_NONLINEAR = (
 
 
 def fixed_point_unknown(network, channel, algorithm) -> bool:
-    """Whether a lossy run's fixed point is beyond what `mean_mixing` computes (more than DENSE_N agents, or a
-    network without edge probabilities, such as a simulator's proximity links)."""
-    lossy = getattr(channel, "loss", None) is not None and bool(algorithm.messages)
-    return lossy and (network.n_nodes > exact.DENSE_N or not hasattr(network, "p"))
+    """Whether the fixed point of a run over links that draw their own events (a lossy channel's) is beyond what
+    `mean_mixing` computes (more than DENSE_N agents, or a network without edge probabilities, such as a simulator's
+    proximity links)."""
+    own_mixing = channel.draws and bool(algorithm.messages)
+    return own_mixing and (network.n_nodes > exact.DENSE_N or not hasattr(network, "p"))
 
 
 def mean_mixing(network, channel, arcs: Arcs, algorithm):
     """E of the mixing Laplacian ``algorithm`` applies to what it hears over ``channel``: the network's mean
-    Laplacian (symmetric: each link up both ways at once), or where messages are lost (`dgtd.channels.lossy`) the
-    mean of what is heard, by its ``mixing`` (asymmetric where a link loses more one way than the other). Its
-    fixed point follows from it (`dgtd.problems.exact.weighted_w_star`)."""
+    Laplacian (symmetric: each link up both ways at once) or, for an algorithm that communicates, the channel's
+    (`dgtd.channels.base.Channel.mean_mixing`: the mean of what is heard, by the algorithm's ``mixing``; asymmetric
+    where a link loses more one way than the other). Its fixed point follows from it
+    (`dgtd.problems.exact.weighted_w_star`)."""
     sparse = network.n_nodes > exact.DENSE_N  # O(N + |E|) memory for many agents
-    loss = getattr(channel, "loss", None)
-    if loss is None or not algorithm.messages or not hasattr(network, "p") or sparse:
+    if not algorithm.messages or not hasattr(network, "p") or sparse:
         return network.mean_laplacian(sparse=sparse)  # (under loss beyond DENSE_N agents: `fixed_point_unknown`)
-    from dgtd.channels import lossy
-
-    if algorithm.mixing == "metropolis":
-        return lossy.mean_metropolis(network, loss, arcs)
-    if channel.reweight:  # E[c_ij heard_ij] = p_e: the network's own mean Laplacian, symmetric
-        return network.mean_laplacian()
-    return lossy.mean_laplacian(network, loss, arcs)
+    return channel.mean_mixing(network, arcs, algorithm.mixing)
 
 
 def run(
@@ -345,7 +340,7 @@ def run(
         source = mpi.local_source(ctx, source)  # each rank draws the numbers of its agents and their neighbours only
         layout = mpi.Ranks(ctx)  # ... and holds their rows only
     else:
-        kernel = kernel_for(settings.backend, algorithm)
+        kernel = kernel_for(settings.backend, algorithm, ctx.channel)
         layout = Whole(ctx)
     algorithm = ctx.algorithm
     state = algorithm.init(B, N if layout.agents is None else len(layout.agents), q)
@@ -404,8 +399,8 @@ def run(
         w_trace = None if resume["w_trace"] is None or not layout.root else np.array(resume["w_trace"])
         sum_trace = None if resume.get("sum_trace") is None else np.array(resume["sum_trace"])
         messages, bits = np.array(resume["messages"], dtype=np.float64), np.array(resume["bits"], dtype=np.float64)
-        saved = resume["channel"]  # (a checkpoint of a run without channel events holds no keys)
-        channel = ChannelState(**{name: np.array(saved[name]) for name in ChannelState._fields if name in saved})
+        saved = resume["channel"]  # the fields of the channel's own state (older checkpoints hold every channel's)
+        channel = channel._make(np.array(saved[name]) if name in saved else x for name, x in channel._asdict().items())
         per_arc = np.array(resume.get("per_arc", per_arc), dtype=np.float64)
         diverged_at = np.array(resume.get("diverged_at", diverged_at), dtype=np.int64)
         counts = {name: np.array(v) for name, v in resume.get("counts", counts).items()}
@@ -445,7 +440,7 @@ def run(
         sums = {"all": w_sum}
         live = diverged_at < 0
         messages, bits = np.where(live, channel.messages, messages), np.where(live, channel.bits, bits)
-        if channel.per_arc.size:
+        if ctx.channel.holds and channel.per_arc.size:
             per_arc = np.where(live[:, None], channel.per_arc, per_arc if per_arc.size else channel.per_arc)
         if progress is not None:
             progress(k1 - k)
@@ -535,7 +530,7 @@ def run(
     state = state._make(layout.whole(x) for x in state)
     w_sum, tail_sum = layout.whole(sums["all"]), None if tail_base is None else layout.whole(tail_base)
     err_last, err_avg = layout.whole(err_last, axis=2), layout.whole(err_avg, axis=2)
-    if getattr(ctx.channel, "name", "") == "imperfect":  # (on every rank: a collective)
+    if ctx.channel.holds:  # a channel whose receivers hold copies counts each arc's deliveries (a collective)
         per_arc = layout.whole_arcs(per_arc, ctx.arcs.n_arcs)
     if layout.root:
         report = {**fixed.report, **report, **algorithm.diagnostics(state, moments, L_mean)}
@@ -645,9 +640,10 @@ def snapshot(k, c, state, sums, metrics, err_last, err_avg, w_trace, source_stat
     }
 
 
-def kernel_for(backend: str, algorithm):
-    """The block kernel of ``algorithm`` on ``backend`` (`dgtd.backends.reference.run_block` contract): the compiled
-    driver where the algorithm has a compiled step; else the reference, with a one-line notice."""
+def kernel_for(backend: str, algorithm, channel=None):
+    """The block kernel of ``algorithm`` over ``channel`` on ``backend`` (`dgtd.backends.reference.run_block`
+    contract): the compiled driver where the algorithm has a compiled step and the channel a compiled twin; else the
+    reference, with a one-line notice."""
     from dgtd.backends.reference import run_block
 
     if backend == "numpy":
@@ -656,17 +652,13 @@ def kernel_for(backend: str, algorithm):
         from dgtd.backends import jax as on_jax
 
         return on_jax.run_block
+    from dgtd.backends.compiled import fallback
     from dgtd.backends.compiled import run_block as compiled
-    from dgtd.backends.compiled import step_of
 
-    if step_of(algorithm) is None:
+    if reason := fallback(algorithm, channel):
         import warnings
 
-        warnings.warn(
-            f"algorithm {algorithm.name!r} writes update alone, not the one definition the compiled backend runs "
-            "(dgtd.algorithms.base): it runs on the NumPy reference backend",
-            stacklevel=3,
-        )
+        warnings.warn(reason, stacklevel=3)
         return run_block
     return compiled
 

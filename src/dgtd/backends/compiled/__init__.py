@@ -1,7 +1,8 @@
 """The compiled backend (numba): one driver for every algorithm (`dgtd.backends.compiled.driver`) and each
 algorithm's per-agent step, made from its one definition (`dgtd.backends.compiled.step.compiled_step`), by name in
 `STEPS` (a user's algorithm in that form gets one too: `step_of`); an algorithm that writes only ``update`` runs on
-the reference backend.
+the reference backend. Each link model of `dgtd.channels` has its compiled twin, registered by name in `TWINS`; a
+channel without one runs on the reference backend too (`fallback`).
 
 The driver has the contract of `dgtd.backends.reference.run_block`: ``block(ctx, state, channel, w_sum, alphas, blk)
 -> (state, channel, w_sum)``, the same samples and the same arithmetic, so the two agree to rounding (tested for every
@@ -67,8 +68,13 @@ _refresh_cache()
 from dgtd.algorithms import ALGORITHMS  # noqa: E402
 from dgtd.backends.compiled.driver import run_block  # noqa: E402
 from dgtd.backends.compiled.step import CompiledStep, compiled_step, user_step  # noqa: E402
+from dgtd.channels import Imperfect, Lossy, Perfect  # noqa: E402
 
 STEPS = {name: compiled_step(cls(), name.replace("-", "_")) for name, cls in ALGORITHMS.items()}
+
+# Each link model's compiled twin, tested equal to it: the perfect and lossy links' hearing (`channel`) and draws per
+# arc (`sampling`), and the copies the receivers of imperfect links hold (`held`), all driven by `driver`
+TWINS = {cls.name: cls for cls in (Perfect, Lossy, Imperfect)}
 
 
 def step_of(algorithm) -> CompiledStep | None:
@@ -80,4 +86,20 @@ def step_of(algorithm) -> CompiledStep | None:
     return user_step(algorithm)
 
 
-__all__ = ["STEPS", "run_block", "step_of"]
+def fallback(algorithm, channel) -> str | None:
+    """Why a run of ``algorithm`` over ``channel`` takes the NumPy reference backend instead (one line), or None
+    where this backend runs it."""
+    if step_of(algorithm) is None:
+        return (
+            f"algorithm {algorithm.name!r} writes update alone, not the one definition the compiled backend runs "
+            "(dgtd.algorithms.base): it runs on the NumPy reference backend"
+        )
+    if channel is not None and TWINS.get(channel.name) is not type(channel):
+        return (
+            f"channel {channel.name!r} has no compiled twin (dgtd.backends.compiled.TWINS): it runs on the NumPy "
+            "reference backend"
+        )
+    return None
+
+
+__all__ = ["STEPS", "TWINS", "fallback", "run_block", "step_of"]

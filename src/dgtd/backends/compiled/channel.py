@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from dgtd.backends.compiled.simd import neighbour_sums, weighted_sums
-from dgtd.channels.perfect import BITS_PER_NUMBER, ChannelState
+from dgtd.channels.base import BITS_PER_NUMBER
 
 
 class Inbox(NamedTuple):
@@ -101,7 +101,7 @@ def total(inbox, m, b, i):
             out[m, at, f] += x[m, b, j, f]
 
 
-def counted(state: ChannelState, arcs: np.ndarray, messages: int, numbers: int) -> ChannelState:
+def counted(state, arcs: np.ndarray, messages: int, numbers: int):
     """The channel's counts after ``arcs`` (B,) arcs delivered ``messages`` messages of ``numbers`` numbers in all
     (what `dgtd.channels.Perfect.deliver` adds step by step: the same integers, so the same floats)."""
     arcs = arcs.astype(np.float64)

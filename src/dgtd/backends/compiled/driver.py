@@ -239,7 +239,7 @@ class Advance:
         messages = self.messages = tuple(algorithm.messages)
         B, L, q = w_sum.shape
         N = self.N = ctx.network.n_nodes
-        self.holds = bool(messages) and getattr(ctx.channel, "name", "") == "imperfect"
+        self.holds = bool(messages) and ctx.channel.holds
         A = ctx.arcs.n_arcs if self.holds else 0  # rows N + a of the buffers hold arc a's copies (`_seeds_held`)
         order = self.order = storage_order(ctx) if messages else None  # agents in rows near their neighbours
         rows = (lambda x: x) if order is None else (lambda x: x[:, order[0]])

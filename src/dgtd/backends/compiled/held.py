@@ -37,7 +37,7 @@ class Links(NamedTuple):
 
 
 class Held(NamedTuple):
-    """The channel's state per seed (`dgtd.channels.ChannelState`'s fields of the same names) and scratch."""
+    """The channel's state per seed (`dgtd.channels.HeldState`'s fields of the same names) and scratch."""
 
     copies: np.ndarray  # (B, 2E, Q)
     since: np.ndarray  # (B, 2E)

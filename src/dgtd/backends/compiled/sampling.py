@@ -335,8 +335,9 @@ def up_mask(blk: Block):
 
 
 def channel_draws(ctx) -> bool:
-    """Whether the run's channel draws events per arc (a lossy one), which the kernels then draw in `_step_edges`."""
-    return getattr(ctx.channel, "loss", None) is not None
+    """Whether the run's channel draws events per arc (a lossy one: `dgtd.channels.base.Channel.draws`), which the
+    kernels then draw in `_step_edges`."""
+    return ctx.channel.draws
 
 
 def sample_args(ctx, blk, B: int, channel=None) -> Sampler:
