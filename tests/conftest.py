@@ -63,39 +63,67 @@ def off_policy_problem(rng):
     return random_mdp_problem(5, (2, 3), 3, rng, gamma=0.8, off_policy=True)
 
 
-# A line at least every HEARTBEAT seconds while one test runs long (a first test compiles the kernels it runs, which
-# on a slow or busy machine takes minutes in which no test finishes): written to a copy of the terminal taken before
-# any test's output is captured, so that no test's captured output holds it.
+# A line at least every HEARTBEAT seconds while no test finishes (a first test compiles the kernels it runs, which on
+# a slow or busy machine takes minutes): which tests are running, and for how long. It is written by the process that
+# reports the tests (the one process, or pytest-xdist's controller, which hears every worker's tests start and end)
+# to a copy of the terminal taken before any test's output is captured, so that no test's captured output holds it.
 HEARTBEAT = 45.0
-_TERMINAL: list[int] = []
+
+
+class _Heartbeat:
+    def __init__(self, terminal: int):
+        import threading
+        import time
+
+        self.terminal, self.clock = terminal, time.monotonic
+        self.running: dict[str, float] = {}  # test -> when it started
+        self.quiet_since = self.clock()
+        self.lock, self.done = threading.Lock(), threading.Event()
+        threading.Thread(target=self.beat, daemon=True).start()
+
+    def started(self, nodeid: str) -> None:
+        with self.lock:
+            self.running[nodeid] = self.clock()
+
+    def finished(self, nodeid: str) -> None:
+        with self.lock:
+            self.running.pop(nodeid, None)
+            self.quiet_since = self.clock()
+
+    def beat(self) -> None:
+        while not self.done.wait(1.0):
+            with self.lock:
+                now = self.clock()
+                if now - self.quiet_since < HEARTBEAT or not self.running:
+                    continue
+                self.quiet_since = now
+                lines = [f"[{test} still running after {now - t:.0f} s: a first test compiles its kernels]"
+                         for test, t in self.running.items()]  # fmt: skip
+            os.write(self.terminal, ("\n" + "\n".join(lines) + "\n").encode())
+
+    def stop(self) -> None:
+        self.done.set()
+        os.close(self.terminal)
+
+
+_HEARTBEAT: list[_Heartbeat] = []
 
 
 def pytest_sessionstart(session):
-    _TERMINAL.append(os.dup(1))
+    if not hasattr(session.config, "workerinput"):  # not a pytest-xdist worker (its output goes nowhere)
+        _HEARTBEAT.append(_Heartbeat(os.dup(1)))
 
 
 def pytest_sessionfinish(session):
-    while _TERMINAL:
-        os.close(_TERMINAL.pop())
+    while _HEARTBEAT:
+        _HEARTBEAT.pop().stop()
 
 
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_protocol(item, nextitem):
-    import threading
-    import time
+def pytest_runtest_logstart(nodeid, location):
+    for heart in _HEARTBEAT:
+        heart.started(nodeid)
 
-    done = threading.Event()
 
-    def beat():
-        start = time.monotonic()
-        while not done.wait(HEARTBEAT) and _TERMINAL:
-            seconds = time.monotonic() - start
-            line = f"\n[{item.nodeid} still running after {seconds:.0f} s: a first test compiles its kernels]\n"
-            os.write(_TERMINAL[0], line.encode())
-
-    if _TERMINAL:
-        threading.Thread(target=beat, daemon=True).start()
-    try:
-        yield
-    finally:
-        done.set()
+def pytest_runtest_logfinish(nodeid, location):
+    for heart in _HEARTBEAT:
+        heart.finished(nodeid)
