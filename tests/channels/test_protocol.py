@@ -156,3 +156,16 @@ def test_no_module_outside_the_channels_names_a_link_model():
                 names = [c.value for c in [node.left, *node.comparators] if isinstance(c, ast.Constant)]
             named += [f"{where}:{node.lineno} {n}" for n in names if n in LINK_MODELS - {"perfect"}]
     assert not named, named
+
+
+def test_beyond_the_agents_whose_fixed_point_is_solved_a_link_model_s_own_is_said_unknown():
+    """Past `dgtd.problems.exact.DENSE_N` agents the mean mixing is not formed densely: the perfect links' fixed point
+    is still w* (their mixing is symmetric), but any other link model's, a user's included, is said not computed
+    rather than taken to be w*."""
+    from dgtd.run.loop import fixed_point_unknown
+
+    net = random_edges(topologies.ring(exact.DENSE_N + 1), 0.5)
+    alg = make_algorithm("dgtd")
+    assert not fixed_point_unknown(net, Perfect(), alg)
+    assert fixed_point_unknown(net, Downhill(), alg) and fixed_point_unknown(net, Lossy(np.zeros(2 * net.n_edges)), alg)
+    assert not fixed_point_unknown(ring5()[0], Downhill(), alg)

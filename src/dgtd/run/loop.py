@@ -249,10 +249,10 @@ FIXED_POINT_NONLINEAR = (
 
 
 def fixed_point_unknown(network, channel, algorithm) -> bool:
-    """Whether the fixed point of a run over links that draw their own events (a lossy channel's) is beyond what
-    `mean_mixing` computes (more than DENSE_N agents, or a network without edge probabilities, such as a simulator's
-    proximity links)."""
-    own_mixing = channel.draws and bool(algorithm.messages)
+    """Whether the fixed point of a run over links other than the perfect ones (whose mean mixing is the channel's
+    own) is beyond what `mean_mixing` computes (more than DENSE_N agents, or a network without edge probabilities,
+    such as a simulator's proximity links)."""
+    own_mixing = not isinstance(channel, Perfect) and bool(algorithm.messages)
     return own_mixing and (network.n_nodes > exact.DENSE_N or not hasattr(network, "p"))
 
 
