@@ -13,7 +13,7 @@ one and not the other.
 
 Each follows `Channel` (`dgtd.channels.base`): its parameters, its own state, ``init`` / ``deliver``, its part over
 an MPI rank's arcs (``share``) and its mean mixing, in its one file, with a compiled twin registered under its name
-in `dgtd.backends.compiled.channel.TWINS`, tested equal. A link model of one's own that follows `Channel` runs on
+in `dgtd.backends.compiled.TWINS`, tested equal. A link model of one's own that follows `Channel` runs on
 ``--backend numpy`` (`dgtd.run(..., channel=...)`).
 """
 

@@ -11,8 +11,8 @@ Beside its NumPy definition a link model has:
 - its MPI part, ``share``: the channel over a rank's arcs and agents (each one's own parameters, as the whole
   network's run has them), which draws the numbers the whole network draws for them (`dgtd.streams`);
 - its compiled part, a twin in `dgtd.backends.compiled` registered under its name there
-  (`dgtd.backends.compiled.channel.TWINS`), tested equal; a channel without one runs on ``--backend numpy``, and the
-  others refuse it in one line;
+  (`dgtd.backends.compiled.TWINS`), tested equal; the compiled backend hands a channel without one to the NumPy
+  reference with a one-line notice (JAX runs any whose receivers hold no copies);
 - its mean mixing, ``mean_mixing``: E of the Laplacian an algorithm mixes with over what it hears, whose left null
   vector weighs the agents' rewards at the fixed point (`dgtd.problems.exact.weighted_w_star`).
 """
