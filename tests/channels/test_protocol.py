@@ -89,7 +89,8 @@ class Downhill:
     def deliver(self, state, arcs, sent, up):
         B = state.messages.shape[0]
         heard = (arcs.up(up, B) & (arcs.arc_ids % 2 == 0)).astype(np.float64)
-        return Inbox(arcs, sent, heard), counted(state, heard.sum(axis=1), sent)
+        numbers = sum(x.shape[-1] for x in sent.values())
+        return Inbox(arcs, sent, heard), counted(state, heard.sum(axis=1), len(sent), numbers)
 
     def share(self, arc_ids, agents):
         return self

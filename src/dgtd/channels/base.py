@@ -72,9 +72,10 @@ def per_arc_fields(state) -> dict:
     return {name: x for name, x in fields.items() if np.ndim(x) >= 2 and np.shape(x)[0] == B and np.shape(x)[1]}
 
 
-def counted(state, arrived: np.ndarray, sent: dict, bits: int | None = None):
-    """``state`` with the messages and bits of ``arrived`` (B,) arcs that each delivered every message of ``sent``
-    added (``bits`` per arc: all of them in full by default)."""
-    numbers = sum(x.shape[-1] for x in sent.values())  # coordinates per arc, all messages together
-    per_arc = numbers * BITS_PER_NUMBER if bits is None else bits
-    return state._replace(messages=state.messages + arrived * len(sent), bits=state.bits + arrived * per_arc)
+def counted(state, arrived: np.ndarray, messages: int, numbers: int):
+    """``state`` with the counts of ``arrived`` (B,) arcs added, each of which delivered ``messages`` messages of
+    ``numbers`` numbers in all, in full (whole numbers: the same floats in any order; the compiled driver adds a
+    block's at once, the NumPy channels a step's)."""
+    return state._replace(
+        messages=state.messages + arrived * messages, bits=state.bits + arrived * (numbers * BITS_PER_NUMBER)
+    )

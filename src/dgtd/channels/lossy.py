@@ -110,7 +110,7 @@ class Lossy:
         kept, links = self.arcs_up(state, arcs, up, B)
         heard = kept.astype(np.float64)
         weights = arcs.of_arcs(self.arc_weights) if self.reweight else None
-        state = counted(state, heard.sum(axis=1), sent)
+        state = counted(state, heard.sum(axis=1), len(sent), sum(x.shape[-1] for x in sent.values()))
         return Inbox(arcs, sent, heard, weights=weights), state._replace(links=links, step=state.step + 1)
 
     def share(self, arc_ids: np.ndarray, agents: np.ndarray) -> Lossy:

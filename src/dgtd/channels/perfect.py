@@ -38,7 +38,8 @@ class Perfect:
         """(the step's `Inbox`, the new state) from what every agent sent (name -> (B, N, q)) and the edges up (B, E)
         (None: every edge)."""
         inbox = self.inbox(arcs, sent, up)
-        return inbox, counted(state, inbox.heard.sum(axis=1), sent)
+        numbers = sum(x.shape[-1] for x in sent.values())  # coordinates per arc, all messages together
+        return inbox, counted(state, inbox.heard.sum(axis=1), len(sent), numbers)
 
     def share(self, arc_ids: np.ndarray, agents: np.ndarray) -> Perfect:
         return self

@@ -1,5 +1,5 @@
 """The compiled twin of `dgtd.channels.Perfect`: which neighbours an agent heard at a step, the aggregates of what
-they sent (`dgtd.channels.Inbox`'s), and the channel's counts. Tested equal to the NumPy definition.
+they sent (`dgtd.channels.Inbox`'s); the counts are `dgtd.channels.counted`'s. Tested equal to the NumPy definition.
 
 Inside the driver (`dgtd.backends.compiled.driver`) an agent's inbox is an `Inbox` of plain arrays: the messages every
 agent sent at step k, the storage rows of the neighbours heard (row ``at`` of ``heard``, ``count`` of them) and
@@ -15,7 +15,6 @@ import numpy as np
 from numba import njit
 
 from dgtd.backends.compiled.simd import neighbour_sums, weighted_sums
-from dgtd.channels.base import BITS_PER_NUMBER
 
 
 class Inbox(NamedTuple):
@@ -99,10 +98,3 @@ def total(inbox, m, b, i):
         j = inbox.heard[at, n]
         for f in range(q):
             out[m, at, f] += x[m, b, j, f]
-
-
-def counted(state, arcs: np.ndarray, messages: int, numbers: int):
-    """The channel's counts after ``arcs`` (B,) arcs delivered ``messages`` messages of ``numbers`` numbers in all
-    (what `dgtd.channels.Perfect.deliver` adds step by step: the same integers, so the same floats)."""
-    arcs = arcs.astype(np.float64)
-    return state._replace(messages=state.messages + arcs * messages, bits=state.bits + arcs * numbers * BITS_PER_NUMBER)

@@ -27,7 +27,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from dgtd.backends.compiled.cache import load_quickly
-from dgtd.backends.compiled.channel import Inbox, count_heard, counted, hear, metropolis_weights
+from dgtd.backends.compiled.channel import Inbox, count_heard, hear, metropolis_weights
 from dgtd.backends.compiled.graph import graph_arrays, per_run, storage_graph, storage_order
 from dgtd.backends.compiled.held import carry
 from dgtd.backends.compiled.sampling import (
@@ -40,6 +40,7 @@ from dgtd.backends.compiled.sampling import (
     sample_args,
 )
 from dgtd.backends.compiled.step import CompiledStep, Features, Samples
+from dgtd.channels import counted
 from dgtd.samples import Block, Draws, SampleTable
 
 # The kernels below are templates: `driver` compiles a copy of each per algorithm, with the algorithm's step in
@@ -320,7 +321,7 @@ class Advance:
         if self.holds:  # counted as they were carried (`_run_held`)
             return new, channel, sums
         # every arc that delivers carries every message (`_step_edges` counted them)
-        return new, counted(channel, sampler.n_up, len(messages), len(messages) * q), sums
+        return new, counted(channel, sampler.n_up.astype(np.float64), len(messages), len(messages) * q), sums
 
 
 run_block.draws_samples = True  # type: ignore[attr-defined]  # the run loop may hand it `Draws`, not a `Block`
