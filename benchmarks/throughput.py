@@ -109,10 +109,10 @@ def since_process_start():
     ticks = os.sysconf("SC_CLK_TCK")
     start = int(open("/proc/self/stat").read().rsplit(")", 1)[1].split()[19]) / ticks
     return float(open("/proc/uptime").read().split()[0]) - start
-import dgtd.run.loop as loop
-kernel_of = loop.kernel_for
-def first_call_reports(backend, algorithm):
-    kernel = kernel_of(backend, algorithm)
+import dgtd.run.layout as layout
+kernel_of = layout.kernel_for
+def first_call_reports(backend, algorithm, channel=None):
+    kernel = kernel_of(backend, algorithm, channel)
     def wrapped(*args, **kw):
         out = kernel(*args, **kw)
         if not getattr(wrapped, "done", False):  # the first block's compiled code has loaded and run
@@ -121,7 +121,7 @@ def first_call_reports(backend, algorithm):
         return out
     wrapped.draws_samples = getattr(kernel, "draws_samples", False)
     return wrapped
-loop.kernel_for = first_call_reports
+layout.kernel_for = first_call_reports
 from dgtd.cli import main
 main(["run", "paper-example-1", "-T", "1", "--no-progress", "--no-plots", "--out", "/tmp/dgtd-startup"])
 """

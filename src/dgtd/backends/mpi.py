@@ -507,6 +507,31 @@ class Ranks:
             self.arc_ids = np.concatenate([P.arcs.arc_ids, *halo])
             self.counted = np.arange(len(self.arc_ids)) < P.arcs.n_arcs
 
+    @classmethod
+    def of(cls, ctx, backend: str, asynchronous: bool, staleness: int | None, resume: dict | None = None) -> Ranks:
+        """The layout of a run spread over the ranks, with its ``kernel`` (`kernel`: synchronous, or asynchronous
+        with ``staleness``) and, for asynchronous ranks, the message ages counted from ``resume``'s (a collective)."""
+        kernel_ = kernel(ctx, backend, staleness if asynchronous else False)
+        if asynchronous:
+            message_ages(restore=NO_AGES if resume is None else resume["message_ages"])
+        layout = cls(ctx)
+        layout.kernel, layout.asynchronous, layout.ctx = kernel_, asynchronous, ctx
+        return layout
+
+    block_budget = 1 << 28  # a rank sets its share's driver up at each block: longer blocks (N / R agents a step)
+
+    def local(self, source):
+        """``source`` drawing only this rank's numbers, where it can (`local_source`)."""
+        return local_source(self.ctx, source)
+
+    def message_ages(self, restore: dict | None = None) -> dict:
+        """The ages of the messages used, over the ranks (asynchronous ranks; a collective), else none."""
+        return message_ages(restore) if self.asynchronous else {}
+
+    def worst(self, x: np.ndarray) -> np.ndarray:
+        """The worst agent's value (B,) of a per-agent quantity (B, own), over every rank."""
+        return self.max(x.max(-1))
+
     def rows(self, x: np.ndarray) -> np.ndarray:
         """This rank's rows of a quantity of every agent (N, ...); one row for all (1, ...) stays."""
         return x[self.agents] if np.ndim(x) >= 2 and x.shape[0] == self.n_agents else x

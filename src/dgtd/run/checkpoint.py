@@ -1,4 +1,4 @@
-"""Checkpoints of a long run on disk: one .npz holding a loop snapshot (`dgtd.run.loop.snapshot`) exactly, or, for
+"""Checkpoints of a long run on disk: one .npz holding a run's snapshot (`dgtd.run.state.snapshot`) exactly, or, for
 agents spread over the ranks of an MPI job, a shard a rank.
 
 Arrays are stored as binary .npz entries, so every float comes back bit for bit; everything else (step,
@@ -25,7 +25,8 @@ import numpy as np
 from dgtd.channels.base import per_arc_fields
 from dgtd.errors import DgtdInputError
 from dgtd.files import read_npz
-from dgtd.run.results import atomic_write
+from dgtd.run.atomic import atomic_write
+from dgtd.run.state import AGENT_AXES, ARC_FIELDS
 
 # 5: late messages kept in the slot of the step they arrive at (4 kept them in that of the step they were sent at:
 # a format-4 checkpoint with messages in flight cannot continue, one without can); 4: keyed random streams (a
@@ -151,10 +152,6 @@ def _in_flight(snap) -> bool:
     return bool(isinstance(channel, dict) and np.size(channel.get("pending", ())))
 
 
-# The arrays of a snapshot that hold rows of agents, on which axis, and of arcs (their channel's per-arc fields)
-AGENT_AXES = {"state": 1, "sums": 1, "tail_base": 1, "sum_trace": 2, "agent_error_last": 2, "agent_error_avg": 2}
-
-
 def assemble(resume: dict, n_agents: int, n_arcs: int, agents=None, arcs=None, trajectories=None) -> dict:
     """``resume`` with its agents' rows those of ``agents``, its arcs' those of ``arcs`` and its trajectories' states
     those of the agents ``trajectories`` (ids in the whole network; None: every agent's, every arc's, in order),
@@ -200,17 +197,20 @@ def assemble(resume: dict, n_agents: int, n_arcs: int, agents=None, arcs=None, t
 
 
 def _rows_of(snap: dict):
-    """(keys, axis, kind) of every array of ``snap`` holding agents' or arcs' rows."""
+    """(keys, axis, kind) of every array of ``snap`` holding agents' or arcs' rows, as `dgtd.run.state.RunState`
+    declares them."""
     for name, axis in AGENT_AXES.items():
         value = snap.get(name)
         if isinstance(value, dict):
             yield from (((name, f), axis, "agents") for f in value)
         elif value is not None:
             yield (name,), axis, "agents"
-    if "channel" in snap:  # the per-arc fields it holds (the others are empty placeholders)
-        yield from ((("channel", name), 1, "arcs") for name in per_arc_fields(snap["channel"]))
-    if np.ndim(x := snap.get("per_arc", ())) >= 2 and x.shape[0] and x.shape[1]:
-        yield ("per_arc",), 1, "arcs"
+    for name in ARC_FIELDS:
+        value = snap.get(name)
+        if isinstance(value, dict):  # a channel's state: the per-arc fields it holds (the others empty placeholders)
+            yield from (((name, f), 1, "arcs") for f in per_arc_fields(value))
+        elif np.ndim(value) >= 2 and value.shape[0] and value.shape[1]:
+            yield (name,), 1, "arcs"
     if isinstance(snap.get("source"), dict) and snap["source"].get("current") is not None:
         yield ("source", "current"), 1, "source"
 

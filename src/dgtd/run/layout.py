@@ -1,13 +1,17 @@
-"""Where a run's agents are held: all in this process (`Whole`), or spread over the ranks of an MPI job
-(`dgtd.backends.mpi.Ranks`, the same methods). The run loop holds the rows ``agents`` of every per-agent array and
-the arcs ``arc_ids`` of the channel's state, and combines what it holds through these methods, so that its metrics
-and checkpoints are the same numbers however the agents are laid out."""
+"""Where a run's agents are held, and what the run loop asks of it: all in this process (`Whole`), or spread over
+the ranks of an MPI job (`dgtd.backends.mpi.Ranks`, the same methods; `layout_for` chooses). The run loop holds the
+rows ``agents`` of every per-agent array and the arcs ``arc_ids`` of the channel's state, steps them with the
+layout's ``kernel``, draws its samples from the layout's share of the source (`local`), and combines what it holds
+through these methods (the worst agent, ordered sums, whether any seed diverged, every agent's rows on the process
+that writes), so that its metrics and checkpoints are the same numbers however the agents are laid out. The run loop
+never names the MPI runtime: this module does, once."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from dgtd.channels.base import per_arc_fields
 from dgtd.problems.exact import ordered_consensus_error, ordered_sum
 
 
@@ -17,20 +21,31 @@ class Whole:
     them in."""
 
     agents = arc_ids = None
-    root = True
+    root = True  # this process writes the results
+    asynchronous = False
+    block_budget = 1 << 24  # numbers a block of a kernel that draws its own samples may touch (`block_steps`)
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, backend: str):
         from dgtd.backends.compiled.graph import storage_order
 
         order = storage_order(ctx)
         self.order = None if order is None else order[0]
         self.arcs = ctx.arcs
+        self.kernel = kernel_for(backend, ctx.algorithm, ctx.channel)
+
+    def local(self, source):
+        """The source of the samples of the agents held here: all of them."""
+        return source
 
     def rows(self, x: np.ndarray) -> np.ndarray:
         return x
 
     def max(self, x: np.ndarray) -> np.ndarray:
         return x
+
+    def worst(self, x: np.ndarray) -> np.ndarray:
+        """The worst agent's value (B,) of a per-agent quantity (B, n)."""
+        return self.max(x.max(-1))
 
     def any(self, x: np.ndarray) -> np.ndarray:
         return x
@@ -58,7 +73,44 @@ class Whole:
     def shard(self) -> dict:
         return {}
 
+    def message_ages(self, restore: dict | None = None) -> dict:
+        """The ages of the messages used (asynchronous ranks only): none here."""
+        return {}
 
-def reported(channel_state, layout):
-    """A channel's state with the per-arc entries of the arcs whose receivers ``layout`` holds (what it saves)."""
-    return channel_state._replace(**{name: layout.reported(x) for name, x in per_arc_fields(channel_state).items()})
+
+def layout_for(ctx, settings, resume: dict | None = None):
+    """The run's layout: its agents spread over the ranks of an mpiexec job where the algorithm spreads
+    (`dgtd.backends.mpi.Ranks`, asynchronous where ``settings`` say so; ``resume`` a snapshot whose message ages it
+    continues), else `Whole`. What the layout cannot run is refused first, in one line the same on every rank."""
+    from dgtd.backends import mpi
+
+    algorithm = ctx.algorithm
+    mpi.check_supported(algorithm, ctx.channel, ctx.n_agents, settings.backend, settings.asynchronous)
+    if settings.backend == "jax":
+        from dgtd.backends import jax as on_jax
+
+        on_jax.check_supported(ctx.channel)
+    if mpi.spreads(algorithm):
+        return mpi.Ranks.of(ctx, settings.backend, settings.asynchronous, settings.staleness, resume)
+    return Whole(ctx, settings.backend)
+
+
+def kernel_for(backend: str, algorithm, channel=None):
+    """The block kernel of ``algorithm`` over ``channel`` on ``backend`` (`dgtd.backends.reference.run_block`
+    contract): the compiled driver where the algorithm has a compiled step and the channel a compiled twin; else the
+    reference, with a one-line notice."""
+    from dgtd.backends.reference import run_block
+
+    if backend == "numpy":
+        return run_block
+    if backend == "jax":
+        from dgtd.backends import jax as on_jax
+
+        return on_jax.run_block
+    from dgtd.backends.compiled import fallback
+    from dgtd.backends.compiled import run_block as compiled
+
+    if reason := fallback(algorithm, channel):
+        warnings.warn(reason, stacklevel=4)
+        return run_block
+    return compiled

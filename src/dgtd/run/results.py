@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,32 +12,8 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.files import read_json
 from dgtd.problems import exact
+from dgtd.run.atomic import atomic_write, atomic_write_json, file_mode, json_bytes, json_ready  # noqa: F401
 from dgtd.run.loop import RunResult
-
-
-def file_mode() -> int:
-    """The mode a new file gets under the user's umask (what open() would give it): a temporary file is made 0600."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a crash or Ctrl-C leaves either the old file or the new one, never half;
-    the file gets the mode the user's umask gives new files."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fchmod(f.fileno(), file_mode())
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def first_difference(a: dict, b: dict) -> str:
@@ -68,27 +41,6 @@ def refuse_other_results(out: Path, record: dict, what: str, ignore=()) -> None:
             f"{out} holds the results of another {what} ({diff}); choose another --out, or pass "
             "--overwrite to replace them"
         )
-
-
-def json_ready(obj):
-    """``obj`` with NaN and infinities (a diverged seed's numbers) as null, which standard JSON allows."""
-    if isinstance(obj, float):
-        return obj if obj == obj and abs(obj) != float("inf") else None
-    if isinstance(obj, dict):
-        return {k: json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_ready(v) for v in obj]
-    return obj
-
-
-def json_bytes(obj) -> bytes:
-    """Standard JSON (no NaN), as a file holds it."""
-    return (json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n").encode()
-
-
-def atomic_write_json(path: Path, obj) -> None:
-    """Standard JSON (no NaN), written atomically."""
-    atomic_write(path, json_bytes(obj))
 
 
 def reference(result: RunResult) -> np.ndarray:

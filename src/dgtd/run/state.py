@@ -1,0 +1,138 @@
+"""A run's state between blocks: one record (`RunState`) whose fields are declared once, each with what it holds:
+rows of agents on an axis, entries of arcs, or numbers of the whole run. From that declaration alone a checkpoint's
+snapshot is written (`snapshot`) and read back (`restore`), the shards of spread ranks are put together
+(`dgtd.run.checkpoint.assemble`, through `AGENT_AXES` and `ARC_FIELDS`), and the final rows are gathered on the
+process that writes the results (`gathered`): no list of keys is kept by hand anywhere else."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import numpy as np
+
+from dgtd.channels.base import per_arc_fields
+
+AGENTS, ARCS, WHOLE = "agents", "arcs", "whole"
+
+
+def held(rows: str = WHOLE, axis: int = 0, *, gathered: bool = False, root_only: bool = False, default=None):
+    """A `RunState` field: what its arrays hold (``rows`` of agents or arcs on ``axis``, or numbers of the whole run),
+    whether the end of the run gathers it whole on the writing process, whether that process alone holds it."""
+    return field(default=default, metadata=dict(rows=rows, axis=axis, gathered=gathered, root_only=root_only))
+
+
+@dataclass
+class RunState:
+    """Everything a run carries from block to block, as a checkpoint saves it: a run continued from it gives the
+    numbers of an uninterrupted run bit for bit. C checkpoints, B seeds; ``n`` the estimates held here (a rank's
+    agents, every agent, or 1 for a centralised learner)."""
+
+    k: int = held(default=0)  # the steps taken
+    c: int = held(default=0)  # the checkpoints recorded
+    seconds: float = held(default=0.0)  # seconds spent before this process took the run up (a resumed run's)
+    state: Any = held(AGENTS, 1, gathered=True)  # the algorithm's state (a NamedTuple of (B, n, q) arrays)
+    sums: dict = held(AGENTS, 1, gathered=True)  # {"all": the running sum of the estimates w_k (B, n, q)}
+    tail_base: np.ndarray | None = held(AGENTS, 1, gathered=True)  # that sum when the tail began
+    metrics: dict = held()  # (C, B) each, `dgtd.run.measure.METRICS`
+    counts: dict = held()  # (C, B) each, `dgtd.run.measure.COUNTS`
+    agent_error_last: np.ndarray | None = held(AGENTS, 2, gathered=True)  # (C, B, n)
+    agent_error_avg: np.ndarray | None = held(AGENTS, 2, gathered=True)
+    w_trace: np.ndarray | None = held(root_only=True)  # (C, B, N, q), where small enough
+    sum_trace: np.ndarray | None = held(AGENTS, 2)  # the running sum at each checkpoint, for the tail averages
+    messages: np.ndarray | None = held()  # (B,) delivered so far, frozen once a seed diverges
+    bits: np.ndarray | None = held()
+    per_arc: np.ndarray | None = held(ARCS, 1, gathered=True)  # (B, arcs) deliveries, where the channel counts them
+    diverged_at: np.ndarray | None = held()  # (B,) the step a seed diverged at, -1 while it has not
+    channel: Any = held(ARCS, 1)  # the channel's state (`dgtd.channels.base.Channel.init`)
+    source: dict | None = held()  # the source's stream state, taken at a save
+    message_ages: dict | None = held()  # asynchronous ranks' counts of message ages, taken at a save
+
+    @property
+    def w_sum(self) -> np.ndarray:
+        return self.sums["all"]
+
+
+AGENT_AXES = {f.name: f.metadata["axis"] for f in fields(RunState) if f.metadata["rows"] == AGENTS}
+ARC_FIELDS = tuple(f.name for f in fields(RunState) if f.metadata["rows"] == ARCS)
+
+
+def _is_record(x) -> bool:
+    return isinstance(x, tuple) and hasattr(x, "_fields")
+
+
+def _copy(x):
+    if _is_record(x):
+        return {name: np.array(v) for name, v in x._asdict().items()}
+    if isinstance(x, dict):
+        return {name: (_copy(v) if isinstance(v, np.ndarray) else v) for name, v in x.items()}
+    if isinstance(x, np.ndarray):
+        return x.copy()
+    return x
+
+
+def snapshot(rs: RunState, layout, seconds: float) -> dict:
+    """The run's state as a checkpoint holds it (copies): every field that holds something, the per-arc entries of
+    the arcs ``layout`` reports, and the ids of the rows held here (a rank's shard); ``seconds`` spent so far."""
+    snap = dict(layout.shard())
+    for f in fields(RunState):
+        x = getattr(rs, f.name)
+        if x is None:
+            continue
+        if f.metadata["rows"] == ARCS:
+            x = _reported(x, layout)
+        snap[f.name] = _copy(x)
+    snap["seconds"] = float(seconds)
+    return snap
+
+
+def _reported(x, layout):
+    """The entries of the arcs into the agents ``layout`` holds, of a channel's state or a per-arc array."""
+    if _is_record(x):
+        return x._replace(**{name: layout.reported(v) for name, v in per_arc_fields(x).items()})
+    return layout.reported(x) if x.size else x
+
+
+def restore(initial: RunState, snap: dict) -> RunState:
+    """``initial`` with every field a snapshot holds put back, as the type ``initial`` has it (a record's fields by
+    name, an array in its dtype); a field the snapshot lacks (an older checkpoint's) keeps its initial value, and one
+    held by the writing process alone stays absent elsewhere."""
+    values = {}
+    for f in fields(RunState):
+        x, init = snap.get(f.name), getattr(initial, f.name)
+        if x is None or (f.metadata["root_only"] and init is None):
+            continue
+        values[f.name] = _as(init, x)
+    return replace(initial, **values)
+
+
+def _as(init, x):
+    if _is_record(init):
+        return init._make(np.array(x[name]) if name in x else v for name, v in init._asdict().items())
+    if isinstance(init, np.ndarray):
+        return np.array(x, dtype=init.dtype)
+    if isinstance(init, bool | int | float):
+        return type(init)(x)
+    if isinstance(init, dict) and all(isinstance(v, np.ndarray) for v in x.values()):
+        return {name: np.array(v) for name, v in x.items()}
+    return x
+
+
+def gathered(rs: RunState, layout, n_arcs: int, holds: bool) -> RunState:
+    """The state with every field declared ``gathered`` whole on the process that writes the results (a collective
+    where the agents are spread): agents' rows on their axis; the per-arc counts where the channel keeps them
+    (``holds``)."""
+    values = {}
+    for f in fields(RunState):
+        x = getattr(rs, f.name)
+        if not f.metadata["gathered"] or x is None:
+            continue
+        if f.metadata["rows"] == ARCS:
+            values[f.name] = layout.whole_arcs(x, n_arcs) if holds else x
+        elif _is_record(x):
+            values[f.name] = x._make(layout.whole(v, f.metadata["axis"]) for v in x)
+        elif isinstance(x, dict):
+            values[f.name] = {name: layout.whole(v, f.metadata["axis"]) for name, v in x.items()}
+        else:
+            values[f.name] = layout.whole(x, f.metadata["axis"])
+    return replace(rs, **values)
