@@ -83,7 +83,7 @@ def main() -> None:
     args = ap.parse_args()
     prepared = {}
     for name, spec in ENVS.items():
-        problem, network, algorithm, samp, settings, resolved = resolve(spec)
+        problem, network, algorithm, samp, settings, resolved, channel = resolve(spec)
         sc = scenario_of(resolved)
         prepared[name] = (problem, network, algorithm, samp, sc.source)
         whole_run(problem, network, algorithm, samp, sc.source, BLOCK)  # the kernels compiled and loaded

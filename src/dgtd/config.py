@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, field, fields, make_dataclass, replac
 from functools import lru_cache
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any, NamedTuple
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
@@ -26,7 +27,7 @@ from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
 from dgtd.problems.model import with_restarts, with_reward_noise
-from dgtd.run.loop import RunSettings, check_count
+from dgtd.run.settings import RunSettings, check_count
 from dgtd.scenarios import get_scenario
 from dgtd.sources.model import Sampling
 
@@ -445,9 +446,22 @@ def _network(graph: str, n_agents: int, edge_prob: float):
 PROBLEM_FIELDS = ("scenario", "problem_file", "env", "data")
 
 
-def resolve(config: RunConfig):
-    """(problem, network, algorithm, sampling, settings, resolved config) for a config: every field checked, each
-    None given the scenario's value, the library's objects built."""
+class ResolvedRun(NamedTuple):
+    """A run's configuration resolved once (`resolve`): the library's objects every command and the Python API run
+    with, and the fully resolved config (every None given its value) that reproduces them."""
+
+    problem: Any
+    network: Any
+    algorithm: Any
+    sampling: Sampling
+    settings: RunSettings
+    config: RunConfig
+    channel: Any  # the links' model over ``network`` (`dgtd.channels`), built once
+
+
+def resolve(config: RunConfig) -> ResolvedRun:
+    """A config resolved (`ResolvedRun`): every field checked, each None given the scenario's value, the library's
+    objects built, the channel once."""
     spec = view(config)
     if spec.env is not None and not spec.env.get("make"):
         raise DgtdInputError(
@@ -527,7 +541,7 @@ def resolve(config: RunConfig):
         network = _network(graph, problem.n_agents, edge_prob)
     loss = _loss(spec.loss)
     wake = _loss(spec.wake)  # a probability or a list, as a loss is written
-    channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # checked here, with its network
+    channel = channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # built once, here
     algorithm = build_algorithm(spec, algorithm)
     if steps_from_the_problem(spec):
         algorithm = algorithm.from_the_problem(moments_of(problem), network)[0]
@@ -562,7 +576,7 @@ def resolve(config: RunConfig):
         }
         or None,
     )
-    return problem, network, algorithm, sampling, settings, unflat(resolved, config.output)
+    return ResolvedRun(problem, network, algorithm, sampling, settings, unflat(resolved, config.output), channel)
 
 
 def view(config) -> SimpleNamespace:

@@ -118,3 +118,8 @@ class Draws:
         self.source.streams.step += self.T
         if current is not None:
             self.source.current = current
+
+
+def discount(sample: Sample):
+    """The step's discount gamma(s, s'), shaped to multiply (B, n, q) features: (B, n, 1), or (1,) for a float."""
+    return namespace(sample.phi).asarray(sample.gamma)[..., None]

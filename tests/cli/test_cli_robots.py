@@ -52,7 +52,7 @@ def test_run_paper_example_2_writes_maps_pictures_and_summary(tmp_path, capsys):
     assert sc["reference"]["transitions"] >= 10_000_000
     # the recorded config reproduces the run's settings (the scenario's own values are accepted back)
     cfg = {k: v for k, v in summary["config"].items() if k in FLAT}
-    assert resolve(unflat(dict(**cfg)))[4].iterations == 3000
+    assert resolve(unflat(dict(**cfg))).settings.iterations == 3000
     # `dgtd plot` draws every figure the run drew again, from the saved files alone (the robots' paths and links
     # at the recorded steps are saved beside the numbers, in scenario.npz)
     figures = ("maps.png", "reference.png", "snapshots.png", "patrol.gif", "curves.png", "errors.png", "iterates.png")
@@ -86,13 +86,13 @@ def test_flags_that_cannot_apply_to_a_simulated_world_are_refused(flags, word, c
 
 def test_make_source_gives_every_run_the_same_fresh_robots():
     spec = unflat(dict(scenario="paper-example-2", seeds=2))
-    *_, settings, resolved = resolve(spec)
+    _, _, _, _, settings, resolved, _ = resolve(spec)
     a, b = make_source(resolved, settings), make_source(resolved, settings)
     assert isinstance(a, PatrolSource) and a is not b
     a.start()
     b.start()
     assert np.array_equal(a.next_block(50).up, b.next_block(50).up)
-    assert make_source(resolve(unflat(dict(scenario="paper-example-1")))[5], settings) is None
+    assert make_source(resolve(unflat(dict(scenario="paper-example-1"))).config, settings) is None
 
 
 def test_solve_paper_example_2(capsys):

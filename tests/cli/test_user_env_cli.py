@@ -25,7 +25,7 @@ def test_a_scenarios_source_is_built_with_the_runs_parameters(monkeypatch):
         return replace(sc, source=lambda seed, ids: ("source of size", size))
 
     monkeypatch.setitem(scenarios.SCENARIOS, "toy", toy)
-    *_, settings, resolved = resolve(unflat(dict(scenario="toy", params={"size": 7}, iterations=10)))
+    _, _, _, _, settings, resolved, _ = resolve(unflat(dict(scenario="toy", params={"size": 7}, iterations=10)))
     assert make_source(resolved, settings) == ("source of size", 7)
 
 
@@ -318,7 +318,7 @@ def test_a_sweep_job_on_an_env_runs_on_the_envs_samples():
 
     spec = {"env": {"make": env("make_chain"), "features": "one-hot"}, "gamma": chain.GAMMA, "iterations": 2000}
     job = run_job(spec)
-    problem, network, algorithm, sampling, settings, resolved = resolve(unflat(dict(**spec)))
+    problem, network, algorithm, sampling, settings, resolved, channel = resolve(unflat(dict(**spec)))
     direct = run(problem, network, algorithm, sampling, settings, source=make_source(resolved, settings))
     np.testing.assert_array_equal(job["metrics"]["value_error_tail"], direct.metrics["value_error_tail"])
 
@@ -462,7 +462,7 @@ def test_the_trajectory_report_measures_each_result_not_the_first():
 
     from dgtd.config import scenario_of
 
-    *_, resolved = resolve(unflat(dict(env={"make": env("make_chain"), "features": "one-hot"}, gamma=0.8)))
+    resolved = resolve(unflat(dict(env={"make": env("make_chain"), "features": "one-hot"}, gamma=0.8))).config
     report = scenario_of(resolved).report
     w_star = scenario_of(resolved).problem.w_star
     exact_run = SimpleNamespace(w_star=w_star, w_tail=np.tile(w_star, (1, 3, 1)))

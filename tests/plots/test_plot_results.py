@@ -17,7 +17,7 @@ def _png(path) -> bool:
 
 
 def test_a_run_directory_reads_back_exactly(tmp_path, run_cli):
-    problem, network, algorithm, samp, settings, resolved = resolve(
+    problem, network, algorithm, samp, settings, resolved, channel = resolve(
         unflat(dict(scenario="paper-example-1", iterations=2000, seeds=3, checkpoints=12, backend="numpy"))
     )
     result = run(problem, network, algorithm, samp, settings)

@@ -65,7 +65,7 @@ def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, 
             block_size=300,
         )
     )
-    problem, network, algorithm, samp, settings, resolved = resolve(spec)
+    problem, network, algorithm, samp, settings, resolved, channel = resolve(spec)
     channel = make_channel(resolved, network)
     run = functools.partial(run_loop, channel=channel)
     whole = run(problem, network, algorithm, samp, settings)
@@ -142,7 +142,7 @@ def test_resume_refuses_another_config(tmp_path, run_cli):
     )
     assert code == 0, err
     # leave a checkpoint behind as a killed run would
-    problem, network, algorithm, samp, settings, resolved = resolve(
+    problem, network, algorithm, samp, settings, resolved, channel = resolve(
         unflat(dict(scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5))
     )
     snaps = []
@@ -212,7 +212,7 @@ def test_the_same_command_again_resumes_its_checkpoint(tmp_path, run_cli):
     code, _, err = run_cli(*command, "--out", tmp_path / "whole")
     assert code == 0, err
     out = tmp_path / "cut"
-    problem, network, algorithm, samp, settings, resolved = resolve(
+    problem, network, algorithm, samp, settings, resolved, channel = resolve(
         unflat(dict(scenario="paper-example-1", iterations=2000, backend="numpy", checkpoints=5))
     )
     snaps = []

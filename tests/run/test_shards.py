@@ -92,7 +92,7 @@ def lossy_markov_run():
             block_size=250,
         )
     )
-    problem, network, algorithm, samp, settings, resolved = resolve(spec)
+    problem, network, algorithm, samp, settings, resolved, channel = resolve(spec)
     run = functools.partial(
         run_loop, problem, network, algorithm, samp, settings, channel=make_channel(resolved, network)
     )

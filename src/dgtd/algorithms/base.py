@@ -56,7 +56,7 @@ import numpy as np
 from dgtd.algorithms.stepsizes import check_schedule
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option
-from dgtd.samples import Sample, namespace
+from dgtd.samples import Sample, discount, namespace  # noqa: F401  (discount: algorithms read it here)
 
 
 @dataclass(frozen=True)
@@ -230,11 +230,6 @@ def clip(x, bound):
 def dot(x, y, xp=np):
     """x_n^T y_n over the last axis of (B, n, q) arrays, broadcasting n = 1 against n = N."""
     return xp.einsum("bnq,bnq->bn", *xp.broadcast_arrays(x, y))
-
-
-def discount(sample: Sample):
-    """The step's discount gamma(s, s'), shaped to multiply (B, n, q) features: (B, n, 1), or (1,) for a float."""
-    return namespace(sample.phi).asarray(sample.gamma)[..., None]
 
 
 def agent_mean(x, n_agents: int, xp=np):

@@ -26,9 +26,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.sparse import coo_matrix
 
-from dgtd.algorithms.base import discount
 from dgtd.algorithms.stepsizes import step_sizes
-from dgtd.samples import Sample
+from dgtd.samples import Sample, discount
 
 SPREAD = 24  # beyond this many distinct mixing eigenvalues, this many points spread over their range
 BISECTIONS = 16  # halvings of the bracket of the largest contracting step, where it has no closed form

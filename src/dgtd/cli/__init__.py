@@ -10,9 +10,17 @@ from pathlib import Path
 import click
 import numpy as np
 
-from dgtd.cli.options import ALGORITHM_OPTIONS, LINK_OPTIONS, output_options, run_options, sweep_options
+from dgtd.cli.options import (
+    ALGORITHM_OPTIONS,
+    LINK_OPTIONS,
+    output_options,
+    problem_line,
+    run_options,
+    sweep_options,
+)
 from dgtd.config import CHOICES, Output
 from dgtd.errors import DgtdInputError, UserCodeError
+from dgtd.run import runtime
 
 DEBUG = {"on": False}  # set by `dgtd --debug`: the traceback of an error raised in a user's own code is printed
 
@@ -142,7 +150,7 @@ def _run_job(job, t_start: float) -> None:
     import time
 
     from dgtd.cli.job import CONFIG
-    from dgtd.config import make_channel, problem_steps, scenario_of, steps_from_the_problem, view
+    from dgtd.config import problem_steps, scenario_of, steps_from_the_problem, view
 
     t_prepared = time.perf_counter()
     if job.finished:
@@ -152,7 +160,7 @@ def _run_job(job, t_start: float) -> None:
     links = network.describe()
     if job.resolved.problem.scenario is not None and scenario_of(job.resolved).source is not None:
         links = "set by the scenario's own simulation (see its report)"
-    channel = make_channel(job.resolved, network)
+    channel = job.channel
     if channel.name != "perfect":  # lost, late, asleep or compressed messages
         links += f"; {channel.describe()}"
     click.echo(problem_line(problem, links))
@@ -175,9 +183,7 @@ def _run_job(job, t_start: float) -> None:
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
-    from dgtd.backends import mpi
-
-    if mpi.rank() != 0:  # rank 0 writes the results and reports them
+    if not runtime.writes():  # one process writes the results and reports them
         return
     t_ran = time.perf_counter()
     if job.config.output.plots:
@@ -219,17 +225,6 @@ def _run_job(job, t_start: float) -> None:
 
 
 PROBLEM_FLAGS = {"scenario", "problem_file", "env_make", "data"}
-
-
-def problem_line(problem, links: str) -> str:
-    """What a run is on, in one line: the problem (a model's states, or an estimated reference) and its network."""
-    from dgtd.problems.model import Problem
-
-    states = f"{problem.n_states} states" if isinstance(problem, Problem) else "no model (an estimated reference)"
-    return (
-        f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
-        f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}"
-    )
 
 
 def _vec(x, n=4) -> str:
@@ -328,7 +323,7 @@ def solve(ctx, scenario, problem_file, **_):
     the saddle point theta*, v* = 0, mu*, its KKT residuals and projection boxes), over the network and its links
     (--loss: where each method converges when messages are lost)."""
     from dgtd.channels import Arcs
-    from dgtd.config import make_channel, resolve, unflat
+    from dgtd.config import resolve, unflat
     from dgtd.experiments import Experiment, override
     from dgtd.problems import exact
     from dgtd.run.loop import mean_mixing
@@ -338,9 +333,8 @@ def solve(ctx, scenario, problem_file, **_):
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
     flags = given_flags(ctx, exclude=("scenario", "problem_file"))
     config = override(Experiment(unflat({"scenario": scenario, "problem_file": problem_file})), flags).config
-    problem, network, algorithm, *_, resolved = resolve(config)
+    problem, network, algorithm, _, _, _, channel = resolve(config)
     m = exact.Moments(problem)
-    channel = make_channel(resolved, network)
     L = mean_mixing(network, channel, Arcs.of(network.base.edges, network.n_nodes), algorithm)
     w = exact.w_star(m)
     fixed = algorithm.fixed_point(m, L, w)
@@ -505,10 +499,8 @@ def _note(message, category, filename, lineno, file=None, line=None) -> None:
 
 def _quiet_ranks() -> None:
     """In an mpiexec job, every rank but 0 prints nothing: the job says each thing once, from rank 0 (a rank's
-    watchdog writes its own line directly: `dgtd.backends.mpi.Watchdog`)."""
-    from dgtd.backends import mpi
-
-    if mpi.launched() and mpi.rank() != 0:
+    watchdog writes its own line directly)."""
+    if not runtime.speaks():
         import os
 
         sys.stdout = sys.stderr = open(os.devnull, "w")  # noqa: SIM115  (for the life of the process)
@@ -517,13 +509,7 @@ def _quiet_ranks() -> None:
 def _only_run_spreads(argv) -> None:
     """Under mpiexec with more than one rank, `dgtd run` alone spreads its agents over the ranks; any other command
     would run once on every rank and write the same files from each."""
-    from dgtd.backends import mpi
-
-    command = next((a for a in argv if not a.startswith("-")), None)
-    if mpi.launched() and mpi.spread() and command not in (None, "run"):
-        raise DgtdInputError(
-            f"under mpiexec only `dgtd run` spreads a run's agents over the ranks; run `dgtd {command}` in one process"
-        )
+    runtime.check_command(next((a for a in argv if not a.startswith("-")), None))
 
 
 def main(argv=None) -> None:
@@ -557,10 +543,8 @@ def main(argv=None) -> None:
         said = cause.args[0] if isinstance(cause, KeyboardInterrupt) and cause.args else None
         line = f"dgtd: {said or 'interrupted; files already written are complete'}"
         click.echo(line, err=True)
-        from dgtd.backends import mpi
-
         sys.stdout.flush(), sys.stderr.flush()
-        mpi.abort(130, line)  # the other ranks of an mpiexec job stop too, rather than wait for this one
+        runtime.stop_job(130, line)  # the other ranks of an mpiexec job stop too, rather than wait for this one
         sys.exit(130)
     except (MemoryError, OSError) as e:
         click.echo(f"dgtd: error: {e}", err=True)

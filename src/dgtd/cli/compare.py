@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.cli.options import ENV_OPTIONS, LINK_OPTIONS, run_options
+from dgtd.cli.options import ENV_OPTIONS, LINK_OPTIONS, problem_line, run_options
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -69,10 +69,8 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     from tqdm import tqdm
 
     from dgtd.algorithms.stepsizes import describe as describe_steps
-    from dgtd.cli import problem_line
     from dgtd.config import (
         PROBLEM_FIELDS,
-        make_channel,
         moments_of,
         problem_start,
         resolve,
@@ -105,7 +103,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
         raise DgtdInputError(
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
         )
-    p, network, algorithm, samp, settings, resolved = resolve(absolute_paths(config))
+    p, network, algorithm, samp, settings, resolved, channel = resolve(absolute_paths(config))
     start = problem_start(config) if steps_from_the_problem(view(config)) else None
     sc = scenario_of(resolved)
     if sc is None:
@@ -168,7 +166,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
                 done=(results, used, tables),
                 on_finished=lambda *part: save_part(out, *part, record),
                 kernel_ready=lambda seconds: bar.unpause(),  # the compilation is not in the ETA
-                channel=make_channel(resolved, network),
+                channel=channel,
             )
         except KeyboardInterrupt:
             bar.close()

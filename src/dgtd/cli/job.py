@@ -8,7 +8,6 @@ the results (`dgtd.run.results.write_results`) when it ends, after which the che
 from __future__ import annotations
 
 import json
-import os
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -17,7 +16,6 @@ from dgtd.config import (
     PROBLEM_FIELDS,
     RunConfig,
     input_files,
-    make_channel,
     make_source,
     resolve,
     scenario_of,
@@ -25,7 +23,8 @@ from dgtd.config import (
 )
 from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
-from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint, save_checkpoint
+from dgtd.run import runtime
+from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint
 from dgtd.run.logs import remove_logs
 from dgtd.run.owner import Owner
 from dgtd.run.results import atomic_write, first_difference, refuse_other_results
@@ -47,6 +46,7 @@ class PreparedRun:
     resolved: object
     out: Path
     record: dict
+    channel: object  # the links' model, built once (`dgtd.config.resolve`)
     snapshot: dict | None = None
     finished: bool = False
     source: object = None
@@ -97,17 +97,12 @@ class PreparedRun:
         def advance(n: int) -> None:
             bars[0].update(n)
 
-        from dgtd.backends import mpi
-
         every = self.config.output.checkpoint_every
         ckpt = self.out / CHECKPOINT
         self.source = make_source(self.resolved, self.settings)  # None: samples from the model; else a simulator's
-        if mpi.spreads(self.algorithm):  # a rank that waits too long for the others ends with one line
-            again = "run the same command again to continue from it" if every else "rerun"
-            mpi.WATCHDOG.start(float(os.environ.get("DGTD_MPI_TIMEOUT", mpi.TIMEOUT)), again)
-        # one copy of the run's files: rank 0's, or where the agents are spread, a shard of the checkpoint a rank
-        comm = mpi.world() if mpi.spreads(self.algorithm) else None
-        saving = mpi.rank() == 0 or comm is not None
+        runtime.watch(self.algorithm, every)
+        # one copy of the run's files: the writing process's, or where the agents are spread, a shard of it a rank
+        saver = runtime.checkpoint_saver(self.algorithm, ckpt, self.record)
         try:
             return run_loop(
                 self.problem,
@@ -118,10 +113,10 @@ class PreparedRun:
                 progress=advance,
                 source=self.source,
                 checkpoint_every=every,
-                on_checkpoint=(lambda snap: save_checkpoint(ckpt, snap, self.record, comm)) if saving else None,
+                on_checkpoint=saver,
                 resume=self.snapshot,
                 kernel_ready=start_bar,
-                channel=make_channel(self.resolved, self.network),
+                channel=self.channel,
             )
         finally:
             for bar in bars:
@@ -188,8 +183,6 @@ def execute(config: RunConfig):
     """Run ``config`` as ``dgtd run`` does, into its output directory (config.toml, the results, and figures if
     ``config.output.plots``), and return the `dgtd.run.loop.RunResult`. With ``output.resume`` it continues the run
     saved there; a finished one is read back (`dgtd.run.results.read_results`)."""
-    from dgtd.backends import mpi
-
     job = prepare(config)
     try:
         if job.finished:
@@ -197,7 +190,7 @@ def execute(config: RunConfig):
 
             return read_results(job.out)
         result = job.run()
-        if mpi.rank() == 0:
+        if runtime.writes():
             job.save(result)
         return result
     finally:
@@ -216,50 +209,33 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
             "name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
             "module:make_env, --data FILE, or an experiment file"
         )
-    from dgtd.backends import mpi
-
-    if mpi.launched() and config.run.backend is None and config.run.asynchronous:  # ranks that do not wait run
-        config = replace(config, run=replace(config.run, backend="numpy"))  # the reference (`mpi.check_supported`)
-    problem, network, algorithm, sampling, settings, resolved = resolve(absolute_paths(config))
+    if runtime.in_job() and config.run.backend is None and config.run.asynchronous:  # ranks that do not wait run
+        config = replace(config, run=replace(config.run, backend="numpy"))  # the reference (`runtime.check_supported`)
+    problem, network, algorithm, sampling, settings, resolved, channel = resolve(absolute_paths(config))
     out = Path(config.output.out) if config.output.out else Path("runs") / problem.name
     out = out.resolve()
     record = json.loads(json.dumps(spec_record(resolved)))
-    channel = make_channel(resolved, network)  # what the ranks cannot run, said before anything starts
-    mpi.check_supported(algorithm, channel, problem.n_agents, settings.backend, settings.asynchronous)
-    if mpi.rank() != 0:  # rank 0 claims the directory and writes; the others read what they resume from
-        run = PreparedRun(config, problem, network, algorithm, sampling, settings, resolved, out, record)
-        said = mpi.world().bcast(None, root=0)
-        if said is not None:
-            raise DgtdInputError(said)
-        if (out / CHECKPOINT).exists() and (config.output.resume or not config.output.overwrite):
-            run.snapshot = load_checkpoint(out / CHECKPOINT)[0]  # as rank 0 found it (it has not cleared it)
-        run.finished = config.output.resume and run.snapshot is None
-        return run
-    try:
-        run = PreparedRun(
-            config,
-            problem,
-            network,
-            algorithm,
-            sampling,
-            settings,
-            resolved,
-            out,
-            record,
-            owner=Owner(out, "run", config.output.overwrite),
-        )
+    runtime.check_supported(  # what the ranks cannot run, said before anything starts
+        algorithm, channel, problem.n_agents, settings.backend, settings.asynchronous
+    )
+    pieces = (config, problem, network, algorithm, sampling, settings, resolved, out, record, channel)
+
+    def claim() -> PreparedRun:  # the writing process claims the directory and writes config.toml
+        run = PreparedRun(*pieces, owner=Owner(out, "run", config.output.overwrite))
         try:
-            run = _claim(run, config.output, out, record)
+            return _claim(run, config.output, out, record)
         except BaseException:
             run.release()
             raise
-    except DgtdInputError as e:
-        if mpi.launched():
-            mpi.world().bcast(str(e), root=0)
-        raise
-    if mpi.launched():
-        mpi.world().bcast(None, root=0)
-    return run
+
+    def follow() -> PreparedRun:  # the other ranks read what they resume from, as the writing one found it
+        run = PreparedRun(*pieces)
+        if (out / CHECKPOINT).exists() and (config.output.resume or not config.output.overwrite):
+            run.snapshot = load_checkpoint(out / CHECKPOINT)[0]  # (it has not cleared it)
+        run.finished = config.output.resume and run.snapshot is None
+        return run
+
+    return runtime.claimed(claim, follow)
 
 
 def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:

@@ -96,9 +96,9 @@ def without(argv: list[str], names: tuple[str, ...]) -> list[str]:
 def launch(ranks: int | None, hosts: str | None, argv: list[str]) -> int:
     """Check the launch, start ``argv`` (a ``dgtd run`` command line) on ``ranks`` ranks, and return mpiexec's exit
     code (the ranks' own: 2 for bad input, as in one process)."""
-    from dgtd.backends import mpi
+    from dgtd.run import runtime
 
-    if mpi.launched():
+    if runtime.in_job():
         raise DgtdInputError("--ranks starts mpiexec itself: under mpiexec leave it out (mpiexec -n sets the ranks)")
     if ranks is None:
         raise DgtdInputError("--hosts names the machines of --ranks R: give --ranks too")

@@ -221,3 +221,14 @@ LINK_OPTIONS = tuple(f.name for f in fields(SECTIONS["network"]) if f.name not i
 """The links' options (`dgtd.config.NetworkConfig`), which run, sweep, solve and compare all take."""
 ENV_OPTIONS = (*_env_options(), "data", "gamma")
 """The options of a user's simulator or recordings (--env, --features, ..., --data, --gamma)."""
+
+
+def problem_line(problem, links: str) -> str:
+    """What a run is on, in one line: the problem (a model's states, or an estimated reference) and its network."""
+    from dgtd.problems.model import Problem
+
+    states = f"{problem.n_states} states" if isinstance(problem, Problem) else "no model (an estimated reference)"
+    return (
+        f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
+        f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}"
+    )

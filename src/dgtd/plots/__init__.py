@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from dgtd.plots.bands import BAND, BAND_WORDS, band, median_band  # noqa: E402,F401
 from dgtd.run.loop import RunResult  # noqa: E402
 from dgtd.run.results import atomic_write  # noqa: E402
 
@@ -98,31 +99,6 @@ def plot_iterates(
     ax.grid(alpha=0.3)
     _save(fig, path)
     return True
-
-
-BAND = (5.0, 95.0)  # the percentiles over seeds of every band drawn: a 90 % band
-BAND_WORDS = "band: 5th to 95th percentile over seeds"
-
-
-def median_band(Y: np.ndarray):
-    """Median over seeds (NaN where half the seeds or more are NaN: diverged, or a value left out) and the 90 % band
-    (`BAND`, linear interpolation between seeds) of the others; Y is (checkpoints, seeds)."""
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        alive = np.isfinite(Y).sum(axis=1)
-        med = np.where(alive * 2 > Y.shape[1], np.nanmedian(Y, axis=1), np.nan)
-        lo, hi = np.nanpercentile(Y, BAND, axis=1)
-        return med, lo, hi
-
-
-def band(ax, x, Y, label, color=None):
-    """Median over seeds with the 90 % band (`median_band`)."""
-    med, lo, hi = median_band(Y)
-    (line,) = ax.plot(x, med, label=label, color=color)
-    if Y.shape[1] > 1:
-        ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
 
 
 def _log_or_zero(ax, x, Y, label):

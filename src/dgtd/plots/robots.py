@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from dgtd.plots import band  # noqa: E402
+from dgtd.plots.bands import band  # noqa: E402
 from dgtd.run.results import atomic_write, file_mode  # noqa: E402
 from dgtd.scenarios.robots import PatrolReport, map_correlation  # noqa: E402
 

@@ -90,7 +90,7 @@ def mpe_spread(
     """MPE2 simple_spread, N agents (3), linked within ``radius`` (1.0), DGTD scaled to the features; LSTD reference.
     ``policy``: "heuristic" (`spread_policy`) or "random" (uniform over the 5 moves)."""
     from dgtd.graphs.proximity import ProximityNetwork
-    from dgtd.scenarios import Scenario
+    from dgtd.scenarios.base import Scenario
     from dgtd.scenarios.user import (
         REFERENCE_SEED_OFFSET,
         TRAJECTORY_SEED_OFFSET,

@@ -466,7 +466,7 @@ def patrol_scenario(
 
     from dgtd.problems.features import tabular
     from dgtd.problems.model import make_problem
-    from dgtd.scenarios import Scenario
+    from dgtd.scenarios.base import Scenario
     from dgtd.sources.model import Sampling
 
     proximity = ProximityNetwork(world.n_robots, radius)

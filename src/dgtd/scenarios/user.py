@@ -445,7 +445,7 @@ def problem_scenario(problem, network, algorithm, sampling, iterations: int, sta
     and every algorithm compared at `problem_compare_steps` from ``start`` (the algorithm before its steps came
     from the problem; None: they did not)."""
     from dgtd.problems.exact import Moments
-    from dgtd.scenarios import Scenario
+    from dgtd.scenarios.base import Scenario
 
     settings, note = problem_compare_steps(Moments(problem), network, start or algorithm, start is not None)
     return Scenario(
@@ -463,7 +463,7 @@ def problem_scenario(problem, network, algorithm, sampling, iterations: int, sta
 def env_scenario(spec: EnvSpec, gamma: float, network_for):
     """The `Scenario` of a user's environment; ``network_for(N)`` is the run's graph over N agents."""
     from dgtd.graphs.proximity import ProximityNetwork
-    from dgtd.scenarios import Scenario
+    from dgtd.scenarios.base import Scenario
     from dgtd.sources.env import EnvSource, reference_from_env
     from dgtd.sources.gym import SplitReward
 
@@ -538,7 +538,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
 def data_scenario(path: str, gamma: float, network_for):
     """The `Scenario` of a transitions file (its `TransitionFile` as ``data``): recording k is seed k (or each seed
     replays every episode in an order of its own), the reference LSTD over all of it."""
-    from dgtd.scenarios import Scenario
+    from dgtd.scenarios.base import Scenario
     from dgtd.sources.data import DataSource, TransitionFile
 
     data = TransitionFile(path)

@@ -24,7 +24,6 @@ from dgtd.config import (
     RunConfig,
     field_types,
     flat,
-    make_channel,
     make_source,
     resolve,
     spec_record,
@@ -98,7 +97,7 @@ def expand(exp: Experiment) -> list[Job]:
         point = dict(zip((k for k, _ in keys), values, strict=True))
         config = absolute_paths(apply_point(exp.config, point))
         try:
-            *_, resolved = resolve(config)
+            resolved = resolve(config).config
         except DgtdInputError as e:
             where = ", ".join(f"{k} = {v!r}" for k, v in point.items())
             raise DgtdInputError(f"grid point {where}: {e}") from None
@@ -118,12 +117,12 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
     from dgtd.run.loop import run as run_loop
     from dgtd.run.results import summary
 
-    problem, network, algorithm, sampling, settings, resolved = resolve(unflat(spec))
+    problem, network, algorithm, sampling, settings, resolved, channel = resolve(unflat(spec))
     if threads and settings.backend == "numba":
         import numba
 
         numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
-    source, channel = make_source(resolved, settings), make_channel(resolved, network)
+    source = make_source(resolved, settings)
     result = run_loop(problem, network, algorithm, sampling, settings, source=source, channel=channel)
     return {
         "steps": result.steps,

@@ -67,23 +67,14 @@ _refresh_cache()
 
 from dgtd.algorithms import ALGORITHMS  # noqa: E402
 from dgtd.backends.compiled.driver import run_block  # noqa: E402
-from dgtd.backends.compiled.step import CompiledStep, compiled_step, user_step  # noqa: E402
+from dgtd.backends.compiled.step import CompiledStep, registered_step, step_of  # noqa: E402
 from dgtd.channels import Imperfect, Lossy, Perfect  # noqa: E402
 
-STEPS = {name: compiled_step(cls(), name.replace("-", "_")) for name, cls in ALGORITHMS.items()}
+STEPS = {name: registered_step(cls) for name, cls in ALGORITHMS.items()}
 
 # Each link model's compiled twin, tested equal to it: the perfect and lossy links' hearing (`channel`) and draws per
 # arc (`sampling`), and the copies the receivers of imperfect links hold (`held`), all driven by `driver`
 TWINS = {cls.name: cls for cls in (Perfect, Lossy, Imperfect)}
-
-
-def step_of(algorithm) -> CompiledStep | None:
-    """The compiled step of ``algorithm`` (an instance): the registered algorithm's, or one made from a user's class
-    (`dgtd.backends.compiled.step.user_step`); None where it writes ``update`` alone."""
-    cls = type(algorithm)
-    if ALGORITHMS.get(cls.name) is cls:
-        return STEPS[cls.name]
-    return user_step(algorithm)
 
 
 def fallback(algorithm, channel) -> str | None:
@@ -102,4 +93,4 @@ def fallback(algorithm, channel) -> str | None:
     return None
 
 
-__all__ = ["STEPS", "TWINS", "fallback", "run_block", "step_of"]
+__all__ = ["STEPS", "TWINS", "CompiledStep", "fallback", "run_block", "step_of"]

@@ -39,7 +39,7 @@ from dgtd.backends.compiled.sampling import (
     entity_ids,
     sample_args,
 )
-from dgtd.backends.compiled.step import CompiledStep, Features, Samples
+from dgtd.backends.compiled.step import CompiledStep, Features, Samples, step_of
 from dgtd.channels import counted
 from dgtd.samples import Block, Draws, SampleTable
 
@@ -231,8 +231,6 @@ class Advance:
 
     def __init__(self, ctx, state, channel, w_sum: np.ndarray, alphas: np.ndarray, blk):
         algorithm = self.algorithm = ctx.algorithm
-        from dgtd.backends.compiled import step_of
-
         compiled = step_of(algorithm)
         if compiled is None:
             raise TypeError(f"{algorithm.name} writes update alone: the compiled driver cannot run it")

@@ -38,7 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from dgtd.algorithms import base
+from dgtd.algorithms import ALGORITHMS, base
 from dgtd.backends.compiled.channel import laplacian, metropolis
 from dgtd.backends.compiled.simd import dot
 
@@ -144,6 +144,23 @@ def writes_one_definition(cls) -> bool:
 
 
 _USERS: dict[type, CompiledStep] = {}
+_REGISTERED: dict[str, CompiledStep] = {}
+
+
+def registered_step(cls) -> CompiledStep:
+    """The compiled step of a registered algorithm class (`dgtd.algorithms.ALGORITHMS`), made once per process."""
+    if cls.name not in _REGISTERED:
+        _REGISTERED[cls.name] = compiled_step(cls(), cls.name.replace("-", "_"))
+    return _REGISTERED[cls.name]
+
+
+def step_of(algorithm) -> CompiledStep | None:
+    """The compiled step of ``algorithm`` (an instance): the registered algorithm's, or one made from a user's class
+    (`user_step`); None where it writes ``update`` alone."""
+    cls = type(algorithm)
+    if ALGORITHMS.get(cls.name) is cls:
+        return registered_step(cls)
+    return user_step(algorithm)
 
 
 def user_step(algorithm) -> CompiledStep | None:
