@@ -496,7 +496,8 @@ class Ranks:
     max, the consensus error by sums added in the agents' storage order from rank to rank, so that every number is
     that of one process bit for bit; and every agent's rows on rank 0 where the output asks for them (`whole`)."""
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, kernel=None, asynchronous: bool = False):
+        self.ctx, self.kernel, self.asynchronous = ctx, kernel, asynchronous
         self.partition = P = partition(ctx)
         self.agents, self.n_agents, self.root = P.own, int(P.bounds[-1]), P.rank == 0
         if ctx.__dict__["_mpi"].get("compiled"):
@@ -514,9 +515,7 @@ class Ranks:
         kernel_ = kernel(ctx, backend, staleness if asynchronous else False)
         if asynchronous:
             message_ages(restore=NO_AGES if resume is None else resume["message_ages"])
-        layout = cls(ctx)
-        layout.kernel, layout.asynchronous, layout.ctx = kernel_, asynchronous, ctx
-        return layout
+        return cls(ctx, kernel_, asynchronous)
 
     block_budget = 1 << 28  # a rank sets its share's driver up at each block: longer blocks (N / R agents a step)
 

@@ -150,36 +150,12 @@ def _run_job(job, t_start: float) -> None:
     import time
 
     from dgtd.cli.job import CONFIG
-    from dgtd.config import problem_steps, scenario_of, steps_from_the_problem, view
 
     t_prepared = time.perf_counter()
     if job.finished:
         click.echo(f"{job.out}: the run is already finished (summary.json); nothing to resume")
         return
-    problem, network, algorithm, samp, settings = job.problem, job.network, job.algorithm, job.sampling, job.settings
-    links = network.describe()
-    if job.resolved.problem.scenario is not None and scenario_of(job.resolved).source is not None:
-        links = "set by the scenario's own simulation (see its report)"
-    channel = job.channel
-    if channel.name != "perfect":  # lost, late, asleep or compressed messages
-        links += f"; {channel.describe()}"
-    click.echo(problem_line(problem, links))
-    if job.resolved.problem.data is not None:  # the source's own samples: the run's Sampling is not used
-        samples = "the recording's samples"
-    elif job.resolved.problem.env is not None:
-        samples = "the simulator's samples"
-    else:
-        samples = f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states"
-    click.echo(
-        f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samples}, "
-        f"{settings.backend} backend"
-    )
-    if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
-        click.echo(scenario_of(job.resolved).description)
-    if steps_from_the_problem(view(job.config)):  # say which step was chosen, and why
-        note = problem_steps(job.config, problem, network)[1]
-        if note:
-            click.echo(note)
+    click.echo(run_header(job))
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
@@ -197,6 +173,50 @@ def _run_job(job, t_start: float) -> None:
         raise
     t_saved = time.perf_counter()
     click.echo(final_table(result))
+    report_notes(job, result)
+    kernels = result.info.get("kernel_seconds", 0.0)
+    click.echo(
+        f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({t_saved - t_start:.1f} s in all: setup "
+        f"{t_prepared - t_start:.1f} s, kernels {kernels:.1f} s, run {t_ran - t_prepared - kernels:.1f} s, "
+        f"results and figures {t_saved - t_ran:.1f} s)"
+    )
+
+
+def run_header(job) -> str:
+    """The lines a run starts with: its problem and links, its algorithm and settings, where its samples come from,
+    and the first step chosen from the problem where it was."""
+    from dgtd.config import problem_steps, scenario_of, steps_from_the_problem, view
+
+    lines = []
+    problem, network, algorithm, samp, settings = job.problem, job.network, job.algorithm, job.sampling, job.settings
+    links = network.describe()
+    if job.resolved.problem.scenario is not None and scenario_of(job.resolved).source is not None:
+        links = "set by the scenario's own simulation (see its report)"
+    channel = job.channel
+    if channel.name != "perfect":  # lost, late, asleep or compressed messages
+        links += f"; {channel.describe()}"
+    lines.append(problem_line(problem, links))
+    if job.resolved.problem.data is not None:  # the source's own samples: the run's Sampling is not used
+        samples = "the recording's samples"
+    elif job.resolved.problem.env is not None:
+        samples = "the simulator's samples"
+    else:
+        samples = f"{samp.mode} sampling, {'shared' if samp.shared else 'independent'} states"
+    lines.append(
+        f"{algorithm.describe()}; {settings.iterations:,} iterations x {settings.seeds} seed(s), {samples}, "
+        f"{settings.backend} backend"
+    )
+    if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
+        lines.append(scenario_of(job.resolved).description)
+    if steps_from_the_problem(view(job.config)):  # say which step was chosen, and why
+        note = problem_steps(job.config, problem, network)[1]
+        if note:
+            lines.append(note)
+    return "\n".join(lines)
+
+
+def report_notes(job, result) -> None:
+    """What the run's end says beside its table: boxes that grew, iterates pinned to them, the scenario's report."""
     from dgtd.run.results import pinned_to_boxes
 
     for name, box in result.report.get("boxes_grown", {}).items():
@@ -216,12 +236,6 @@ def _run_job(job, t_start: float) -> None:
         )
     if job.report_text:
         click.echo(job.report_text)
-    kernels = result.info.get("kernel_seconds", 0.0)
-    click.echo(
-        f"wrote {job.out}/{CONFIG}, {', '.join(names)} ({t_saved - t_start:.1f} s in all: setup "
-        f"{t_prepared - t_start:.1f} s, kernels {kernels:.1f} s, run {t_ran - t_prepared - kernels:.1f} s, "
-        f"results and figures {t_saved - t_ran:.1f} s)"
-    )
 
 
 PROBLEM_FLAGS = {"scenario", "problem_file", "env_make", "data"}

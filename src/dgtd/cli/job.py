@@ -11,6 +11,7 @@ import json
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 from dgtd.config import (
     PROBLEM_FIELDS,
@@ -38,20 +39,20 @@ class PreparedRun:
     """A resolved run and where it goes: the library objects, the resolved config and, when resuming, the snapshot."""
 
     config: RunConfig
-    problem: object
-    network: object
-    algorithm: object
-    sampling: object
-    settings: object
-    resolved: object
+    problem: Any
+    network: Any
+    algorithm: Any
+    sampling: Any
+    settings: Any
+    resolved: RunConfig  # every field given its value (`dgtd.config.resolve`)
     out: Path
     record: dict
-    channel: object  # the links' model, built once (`dgtd.config.resolve`)
+    channel: Any  # the links' model, built once (`dgtd.config.resolve`)
     snapshot: dict | None = None
     finished: bool = False
-    source: object = None
+    source: Any = None
     report_text: str = ""
-    owner: object = None  # the lock on ``out`` (`dgtd.run.owner.Owner`), held until `release`
+    owner: Any = None  # the lock on ``out`` (`dgtd.run.owner.Owner`), held until `release`
 
     def release(self) -> None:
         """Let the results directory go: another command may write into it now."""

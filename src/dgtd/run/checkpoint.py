@@ -209,7 +209,7 @@ def _rows_of(snap: dict):
         value = snap.get(name)
         if isinstance(value, dict):  # a channel's state: the per-arc fields it holds (the others empty placeholders)
             yield from (((name, f), 1, "arcs") for f in per_arc_fields(value))
-        elif np.ndim(value) >= 2 and value.shape[0] and value.shape[1]:
+        elif value is not None and np.ndim(value) >= 2 and value.shape[0] and value.shape[1]:
             yield (name,), 1, "arcs"
     if isinstance(snap.get("source"), dict) and snap["source"].get("current") is not None:
         yield ("source", "current"), 1, "source"

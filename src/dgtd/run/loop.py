@@ -299,7 +299,7 @@ def per_agent_counts(ctx, per_arc: np.ndarray) -> dict:
         return {}
     M, q = len(ctx.algorithm.messages), ctx.problem.n_features
     sent = np.zeros((per_arc.shape[0], ctx.arcs.n_agents))
-    np.add.at(sent, (slice(None), ctx.arcs.src), per_arc)
+    np.add.at(sent, (slice(None), np.asarray(ctx.arcs.src, dtype=np.int64)), per_arc)  # type: ignore[arg-type]
     return {"per_agent": {"messages": sent * M, "bits": sent * M * ctx.channel.vector_bits(q)}}
 
 

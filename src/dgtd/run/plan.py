@@ -8,7 +8,7 @@ import threading
 import time
 import weakref
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,12 +32,12 @@ class Context:
 
     problem: Problem
     network: RandomEdges
-    algorithm: object
+    algorithm: Any
     sampling: Sampling
     tables: SamplerTables
     arcs: Arcs
     tail_start: int
-    channel: object = field(default_factory=Perfect)
+    channel: Any = field(default_factory=Perfect)
 
     def __post_init__(self):
         p = self.problem
@@ -86,8 +86,8 @@ class Reference(NamedTuple):
     """What a run measures against, and the context its kernels read (`prepare`)."""
 
     ctx: Context
-    moments: object  # `dgtd.problems.exact.Moments`, or an estimated reference's
-    L_mean: object  # the mean mixing Laplacian (dense or sparse)
+    moments: Any  # `dgtd.problems.exact.Moments`, or an estimated reference's
+    L_mean: Any  # the mean mixing Laplacian (dense or sparse)
     fixed: FixedPoint  # what the errors are measured against
     report: dict  # what the algorithm reports of itself
     w_star: np.ndarray
@@ -171,8 +171,8 @@ class Plan:
     settings: RunSettings
     steps: np.ndarray  # the checkpoint steps (`checkpoint_steps`)
     reference: Reference
-    layout: object  # `dgtd.run.layout.Whole` or the MPI runtime's `Ranks`
-    source: object
+    layout: Any  # `dgtd.run.layout.Whole` or the MPI runtime's `Ranks`
+    source: Any
     fused: bool  # the kernel draws its own samples from the source's keyed streams
     block: int  # steps a block at most
     every: int  # steps between saved checkpoints (0: none)

@@ -4,6 +4,7 @@ counts derived from them (checkpoints, blocks)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -79,10 +80,10 @@ class RunSettings:
 MAX_COUNT = 2**63 - 1  # what a 64-bit integer (NumPy's, TOML's) holds
 
 
-def check_count(name: str, value, low: int) -> int:
+def check_count(name: str, value: Any, low: int) -> int:
     """An integer setting in [low, 2^63 - 1] as an int (a whole float such as 1e5 too), or a one-line error naming
     it."""
-    if isinstance(value, (float, np.floating)) and float(value).is_integer() and abs(value) < 2.0**63:
+    if isinstance(value, (float, np.floating)) and float(value).is_integer() and abs(float(value)) < 2.0**63:
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= MAX_COUNT:
         raise DgtdInputError(f"{name} must be >= {low} and below 2^63, a whole number; got {value!r}")

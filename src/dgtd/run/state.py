@@ -32,18 +32,18 @@ class RunState:
     c: int = held(default=0)  # the checkpoints recorded
     seconds: float = held(default=0.0)  # seconds spent before this process took the run up (a resumed run's)
     state: Any = held(AGENTS, 1, gathered=True)  # the algorithm's state (a NamedTuple of (B, n, q) arrays)
-    sums: dict = held(AGENTS, 1, gathered=True)  # {"all": the running sum of the estimates w_k (B, n, q)}
-    tail_base: np.ndarray | None = held(AGENTS, 1, gathered=True)  # that sum when the tail began
-    metrics: dict = held()  # (C, B) each, `dgtd.run.measure.METRICS`
-    counts: dict = held()  # (C, B) each, `dgtd.run.measure.COUNTS`
-    agent_error_last: np.ndarray | None = held(AGENTS, 2, gathered=True)  # (C, B, n)
-    agent_error_avg: np.ndarray | None = held(AGENTS, 2, gathered=True)
-    w_trace: np.ndarray | None = held(root_only=True)  # (C, B, N, q), where small enough
-    sum_trace: np.ndarray | None = held(AGENTS, 2)  # the running sum at each checkpoint, for the tail averages
-    messages: np.ndarray | None = held()  # (B,) delivered so far, frozen once a seed diverges
-    bits: np.ndarray | None = held()
-    per_arc: np.ndarray | None = held(ARCS, 1, gathered=True)  # (B, arcs) deliveries, where the channel counts them
-    diverged_at: np.ndarray | None = held()  # (B,) the step a seed diverged at, -1 while it has not
+    sums: Any = held(AGENTS, 1, gathered=True)  # {"all": the running sum of the estimates w_k (B, n, q)}
+    tail_base: Any = held(AGENTS, 1, gathered=True)  # that sum when the tail began
+    metrics: Any = held()  # (C, B) each, `dgtd.run.measure.METRICS`
+    counts: Any = held()  # (C, B) each, `dgtd.run.measure.COUNTS`
+    agent_error_last: Any = held(AGENTS, 2, gathered=True)  # (C, B, n)
+    agent_error_avg: Any = held(AGENTS, 2, gathered=True)
+    w_trace: Any = held(root_only=True)  # (C, B, N, q), where small enough
+    sum_trace: Any = held(AGENTS, 2)  # the running sum at each checkpoint, for the tail averages
+    messages: Any = held()  # (B,) delivered so far, frozen once a seed diverges
+    bits: Any = held()
+    per_arc: Any = held(ARCS, 1, gathered=True)  # (B, arcs) deliveries, where the channel counts them
+    diverged_at: Any = held()  # (B,) the step a seed diverged at, -1 while it has not
     channel: Any = held(ARCS, 1)  # the channel's state (`dgtd.channels.base.Channel.init`)
     source: dict | None = held()  # the source's stream state, taken at a save
     message_ages: dict | None = held()  # asynchronous ranks' counts of message ages, taken at a save

@@ -20,6 +20,7 @@ import csv
 import io
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -99,7 +100,8 @@ class SweepStore:
             metrics = {k.removeprefix("metric."): data[k] for k in data.files if k.startswith("metric.")}
         C, B = len(steps), next(iter(metrics.values())).shape[1]
         n = len(metrics) * C * B
-        cols = {"job": [job_id] * n, **{k: [v] * n for k, v in point.items()}, "algorithm": [summary["algorithm"]] * n}
+        cols: dict[str, Any] = {"job": [job_id] * n, **{k: [v] * n for k, v in point.items()}}
+        cols["algorithm"] = [summary["algorithm"]] * n
         cols["seed"] = np.tile(np.arange(B), C * len(metrics))
         cols["step"] = np.tile(np.repeat(steps, B), len(metrics))
         cols["metric"] = [m for m in metrics for _ in range(C * B)]
@@ -112,7 +114,7 @@ class SweepStore:
         if not parts:
             return None
         names = list(parts[0])
-        cols = {
+        cols: dict[str, Any] = {
             k: [x for part in parts for x in part[k]]
             if not isinstance(parts[0][k], np.ndarray)
             else np.concatenate([part[k] for part in parts])
