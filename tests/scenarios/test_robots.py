@@ -291,9 +291,9 @@ def test_a_simulators_kernel_is_loaded_before_the_first_step_not_inside_it(monke
     """With a simulator's source the compiled kernel runs first on an empty block (it loads or compiles there, and
     is announced), then on the steps: a compilation inside the first step showed as a stalled run with an ETA of
     hundreds of hours."""
-    import dgtd.run.loop as loop
+    import dgtd.run.layout as layout
 
-    real, lengths = loop.kernel_for, []
+    real, lengths = layout.kernel_for, []
 
     def recording(backend, name, channel=None):
         kernel = real(backend, name, channel)
@@ -302,7 +302,7 @@ def test_a_simulators_kernel_is_loaded_before_the_first_step_not_inside_it(monke
             kernel(ctx, state, channel, sums, alpha, block),
         )[1]
 
-    monkeypatch.setattr(loop, "kernel_for", recording)
+    monkeypatch.setattr(layout, "kernel_for", recording)
     sc = small_scenario()
     events = []
     settings = RunSettings(iterations=300, seeds=1, checkpoints=3, backend="numba", block_size=100)
