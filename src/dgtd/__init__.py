@@ -14,7 +14,8 @@ The names a user needs, each documented where it is defined::
 - runs: `evaluate` (`dgtd.run.loop.run` is the loop itself, with checkpoints and resume), `RunSettings`,
   `Sampling`, `RunResult`;
 - scenarios: `scenario`, `SCENARIOS`;
-- algorithms: `DGTD`, `GTD2`, `TDC`, `TD0`, `ConsensusTD0`, `PDTD`, `TDTracking`, `Local`, `make_algorithm`,
+- algorithms: `DGTD`, `GTD2`, `TDC`, `TDRC`, `TD0`, `ConsensusTD0`, `PDTD`, `TDTracking`, `TDCTracking`,
+  `ConsensusTDRC`, `Local`, `make_algorithm`,
   `ALGORITHMS`, and `check_algorithm`, which checks a user's own on every backend;
 - problems: `make_problem`, `from_mdp`, `load_problem`, `save_problem`, `tasks`, `exact`;
 - graphs: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`;
@@ -66,6 +67,9 @@ _EXPORTS = {
     "DGTD": "dgtd.algorithms",
     "GTD2": "dgtd.algorithms",
     "TDC": "dgtd.algorithms",
+    "TDRC": "dgtd.algorithms",
+    "TDCTracking": "dgtd.algorithms",
+    "ConsensusTDRC": "dgtd.algorithms",
     "TD0": "dgtd.algorithms",
     "ConsensusTD0": "dgtd.algorithms",
     "PDTD": "dgtd.algorithms",
