@@ -105,7 +105,8 @@ __all__ = sorted(_EXPORTS)
 def __getattr__(name: str):
     if name not in _EXPORTS:
         raise AttributeError(f"module 'dgtd' has no attribute {name!r}")
-    module, attr = _EXPORTS[name] if isinstance(_EXPORTS[name], tuple) else (_EXPORTS[name], name)
+    where = _EXPORTS[name]
+    module, attr = where if isinstance(where, tuple) else (where, name)
     value = getattr(_importlib.import_module(module), attr)
     globals()[name] = value
     return value

@@ -397,7 +397,7 @@ _TYPE_WORDS = {
 }
 
 
-def check_type(where: str, value, hint) -> object:
+def check_type(where: str, value, hint) -> Any:
     """``value`` as the type ``hint`` asks (ints are accepted for floats), or a `DgtdInputError` naming ``where``."""
     options = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
     for t in options:
@@ -538,7 +538,7 @@ def resolve(config: RunConfig) -> ResolvedRun:
     if spec.graph is not None or network is None:
         graph = spec.graph or graph
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
-        network = _network(graph, problem.n_agents, edge_prob)
+        network = _network(graph or "ring", problem.n_agents, edge_prob)
     loss = _loss(spec.loss)
     wake = _loss(spec.wake)  # a probability or a list, as a loss is written
     channel = channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # built once, here
@@ -548,8 +548,8 @@ def resolve(config: RunConfig) -> ResolvedRun:
     sampling = Sampling(
         mode=spec.sampling or sampling.mode, shared=sampling.shared if spec.shared is None else spec.shared
     )
-    given = {k: v for k, v in asdict(config.run).items() if v is not None}
-    settings = RunSettings(**{"iterations": iterations, **given})
+    run_given = {k: v for k, v in asdict(config.run).items() if v is not None}
+    settings = RunSettings(**{"iterations": iterations, **run_given})
     own = field_types(type(algorithm))
     resolved = dict(
         vars(spec),
@@ -651,7 +651,7 @@ def env_spec(table: dict):
             raise DgtdInputError(
                 f"unknown field {key!r} in [env]{closest(key, types)} (its fields: {', '.join(types)})"
             )
-    values = {k: check_type(f"env.{k}", v, types[k]) for k, v in table.items() if v is not None}
+    values: dict[str, Any] = {k: check_type(f"env.{k}", v, types[k]) for k, v in table.items() if v is not None}
     for key in ("agents", "reference_steps", "reference_groups", "pilot_steps"):
         if values.get(key) is not None and values[key] < (2 if key in ("agents", "reference_groups") else 1):
             raise DgtdInputError(
@@ -870,7 +870,7 @@ def build_algorithm(spec, default):
         algorithm = default
     else:
         algorithm = cls(**{k: getattr(default, k) for k in STEP_SIZE_FIELDS if k in own and hasattr(default, k)})
-    over = {}
+    over: dict[str, Any] = {}
     for k in ALGORITHM_FIELDS:
         if getattr(spec, k) is not None:
             if k not in own:

@@ -42,6 +42,7 @@ from __future__ import annotations
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.config import (
@@ -124,7 +125,7 @@ def _unknown(key: str, valid, where: str) -> DgtdInputError:
 
 def _grid(data: dict, where: str) -> dict:
     """Check a [grid] table: flat field names mapped to non-empty lists of values of the field's type."""
-    grid = {}
+    grid: dict[str, Any] = {}
     for key, values in data.items():
         if key in TABLES:
             if not isinstance(values, dict):
@@ -166,7 +167,9 @@ def _section(name: str, table: dict, where: str) -> dict:
 def parse(data: dict, where: str = "the experiment") -> Experiment:
     """An `Experiment` from the data of a TOML file (or any dict of the same shape): one table per section of
     `RunConfig`, or the older flat layout."""
-    values, sweep, grid = {}, {}, {}
+    values: dict[str, Any] = {}
+    sweep: dict[str, Any] = {}
+    grid: dict[str, Any] = {}
     for key, value in data.items():
         if key in SECTIONS and isinstance(value, dict):
             values.update(_section(key, value, where))

@@ -347,7 +347,8 @@ def solve(ctx, scenario, problem_file, **_):
         raise DgtdInputError("name a scenario (dgtd scenarios lists them) or give --problem FILE.npz")
     flags = given_flags(ctx, exclude=("scenario", "problem_file"))
     config = override(Experiment(unflat({"scenario": scenario, "problem_file": problem_file})), flags).config
-    problem, network, algorithm, _, _, _, channel = resolve(config)
+    r = resolve(config)
+    problem, network, algorithm, channel = r.problem, r.network, r.algorithm, r.channel
     m = exact.Moments(problem)
     L = mean_mixing(network, channel, Arcs.of(network.base.edges, network.n_nodes), algorithm)
     w = exact.w_star(m)

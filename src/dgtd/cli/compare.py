@@ -164,7 +164,7 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
                 log=bar.write if tune else None,
                 source_factory=sc.source,
                 done=(results, used, tables),
-                on_finished=lambda *part: save_part(out, *part, record),
+                on_finished=lambda name, result, alg, table: save_part(out, name, result, alg, table, record),
                 kernel_ready=lambda seconds: bar.unpause(),  # the compilation is not in the ETA
                 channel=channel,
             )

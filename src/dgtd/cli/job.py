@@ -210,7 +210,8 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
             "name a scenario (dgtd scenarios lists them), give --problem FILE.npz, --env "
             "module:make_env, --data FILE, or an experiment file"
         )
-    if runtime.in_job() and config.run.backend is None and config.run.asynchronous:  # ranks that do not wait run
+    run_length: Any = config.run  # (a dataclass made from RunSettings' fields)
+    if runtime.in_job() and run_length.backend is None and run_length.asynchronous:  # ranks that do not wait run
         config = replace(config, run=replace(config.run, backend="numpy"))  # the reference (`runtime.check_supported`)
     problem, network, algorithm, sampling, settings, resolved, channel = resolve(absolute_paths(config))
     out = Path(config.output.out) if config.output.out else Path("runs") / problem.name

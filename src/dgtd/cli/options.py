@@ -38,6 +38,14 @@ def _split(ctx, param, value):
     return _floats(value, "'random' or the agents' shares separated by commas, e.g. 0.5,0.3,0.2")
 
 
+def declared_option(f) -> dict:
+    """The option a field declares (`dgtd.fields.option`): every field handed here has one."""
+    spec = option_of(f)
+    if spec is None:
+        raise TypeError(f"field {f.name} declares no command-line option")
+    return spec
+
+
 CALLBACKS = {"split": _split, "boxes": _numbers}
 """Options whose text is parsed here (a field of a list type); the others are parsed by the config's checks."""
 
@@ -56,7 +64,7 @@ def _kind(name: str, hint, choices=None):
 def make_option(name: str, f, hint, help: str, default=None, show_default: bool = False, choices=None):
     """The click option of field ``f`` (type ``hint``) under the flat ``name``; ``choices``: its valid values, where
     they are not the run's (`CHOICES`)."""
-    spec = option_of(f)
+    spec = declared_option(f)
     kind = _kind(name, hint, choices)
     dashed = "--" + name.replace("_", "-")
     if kind is bool:
@@ -114,7 +122,7 @@ def _env_options() -> dict:
     for f in fields(EnvSpec):
         if option_of(f) is not None:
             name = env_flag(f.name)
-            out[name] = make_option(name, f, hints[f.name], option_of(f)["help"])
+            out[name] = make_option(name, f, hints[f.name], declared_option(f)["help"])
     return out
 
 
@@ -147,7 +155,7 @@ def _algorithm_options() -> dict:
         meanings: dict = {}
         defaults: dict = {}
         for algorithm, cls, f in owners:
-            meanings.setdefault(option_of(_declared(cls, name))["help"], []).append(algorithm)
+            meanings.setdefault(declared_option(_declared(cls, name))["help"], []).append(algorithm)
             defaults.setdefault(_value(f.default), []).append(algorithm)
         everyone = len(owners) == len(ALGORITHMS)
         if len(meanings) == 1:
@@ -168,7 +176,7 @@ def output_options():
     """Decorate a command with `Output`'s fields that are options (--out, --plots, ...), its defaults shown."""
     hints = field_types(Output)
     return _all(
-        make_option(f.name, f, hints[f.name], option_of(f)["help"], f.default, f.default is not None)
+        make_option(f.name, f, hints[f.name], declared_option(f)["help"], f.default, f.default is not None)
         for f in fields(Output)
         if option_of(f) is not None
     )
@@ -182,7 +190,7 @@ def sweep_options():
     hints, choices = field_types(SweepOptions), {"executor": EXECUTORS, "format": TABLE_FORMATS}
     return _all(
         make_option(
-            f.name, f, hints[f.name], option_of(f)["help"], f.default, f.default is not None, choices.get(f.name)
+            f.name, f, hints[f.name], declared_option(f)["help"], f.default, f.default is not None, choices.get(f.name)
         )
         for f in fields(SweepOptions)
     )

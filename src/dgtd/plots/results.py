@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -45,7 +46,7 @@ def load_run(directory: Path) -> SimpleNamespace:
         raise DgtdInputError(f"results file {path} has negative steps or seeds; {fix}")
     steps = np.unique(step_of)
     seeds = 1 + int(seed_of.max())
-    metrics = {}
+    metrics: dict = {}
     for r, k, b, x in zip(rows, step_of, seed_of, values):
         m = metrics.setdefault(r["metric"], np.full((len(steps), seeds), np.nan))
         m[np.searchsorted(steps, k), b] = x
@@ -305,6 +306,7 @@ def plot_final_error(jobs: dict, points: dict, keys: list[str], path: Path, metr
         return False
     varying = [k for k in keys if len({repr(points[j].get(k)) for j in final}) > 1]
     numeric = [k for k in varying if _numeric([points[j][k] for j in final if points[j].get(k) is not None])]
+    kx: str | None
     if len(numeric) >= 2:
         kx, ky = numeric[:2]
         panels: dict = {}
@@ -377,7 +379,7 @@ def plot_directory(directory: Path) -> list[Path]:
         if plot_consensus(results, directory / "consensus.png", title):
             written.append(directory / "consensus.png")
         return written
-    run = load_run(directory)
+    run: Any = load_run(directory)  # a RunResult's fields, read back
     plot_errors(run, directory / "errors.png")
     written.append(directory / "errors.png")
     if plot_iterates(run, directory / "iterates.png", algorithm=run.algorithm):

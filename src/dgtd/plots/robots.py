@@ -191,13 +191,14 @@ def write_gif(world, network, result, source, path: Path, n_frames: int = 60, fp
     fig, axes = plt.subplots(1, N, figsize=(2.6 * N + 0.8, 3.1), squeeze=False)
     fig.subplots_adjust(left=0.05, right=0.88, bottom=0.08, top=0.80, wspace=0.18)
     axes = axes[0]
-    ims, robots = [], []
+    ims: list = []
+    robots: list = []
     for i, ax in enumerate(axes):
         ims.append(draw_map(ax, world, result.w_trace[index[chosen[0]], 0, i], 0.0, vmax))
         ax.set_title(f"agent {i + 1}", color=agent_colour(i), fontsize=9)
         ax.set_xlim(0, world.size)
         ax.set_ylim(0, world.size)
-    fig.colorbar(ims[0], cax=fig.add_axes([0.90, 0.12, 0.015, 0.64]), label="value")
+    fig.colorbar(ims[0], cax=fig.add_axes((0.90, 0.12, 0.015, 0.64)), label="value")
 
     def draw(frame):
         k = chosen[frame]

@@ -30,7 +30,7 @@ def value_figures(report, result, out) -> list[str]:
         return []
     ref, agents, restarts = report.trajectory(result)
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True, height_ratios=(3, 1.4))
-    colours = plt.get_cmap("tab10").colors
+    colours = plt.get_cmap("tab10").colors  # type: ignore[attr-defined]
     for i, v in enumerate(agents):  # the first agent widest: agents in consensus show as nested lines
         width = 1.0 + 2.0 * (len(agents) - 1 - i) / max(len(agents) - 1, 1)
         top.plot(*_broken(v, restarts), color=colours[i % 10], lw=width, label=f"agent {i + 1}")

@@ -61,31 +61,8 @@ def from_mdp(
     pi = joint_policy(policies)
     if pi.shape[1] != A:
         raise DgtdInputError(f"the local policies' action counts multiply to {pi.shape[1]} joint actions but P has {A}")
-    rewards = np.asarray(rewards, dtype=np.float64)
-    if rewards.ndim == 4:
-        rewards = _as_float_array("rewards", rewards, 4)
-        if rewards.shape[1:] != (S, A, S):
-            raise DgtdInputError(f"rewards must have shape (N, {S}, {A}, {S}), got {rewards.shape}")
-        R_sa = np.einsum("sat,nsat->nsa", P, rewards)
-        R_transition = rewards
-    else:
-        R_sa, R_transition = _as_float_array("rewards", rewards, 3), None
-        if R_sa.shape[1:] != (S, A):
-            raise DgtdInputError(f"rewards must have shape (N, {S}, {A}) or (N, {S}, {A}, {S}), got {rewards.shape}")
-    if behaviour is None:
-        beta = pi
-    else:
-        behaviour = [_as_float_array(f"behaviour policy {i}", b, 2) for i, b in enumerate(behaviour)]
-        if len(behaviour) != len(policies):
-            raise DgtdInputError(
-                f"{len(policies)} target policies but {len(behaviour)} behaviour policies; give one "
-                "behaviour policy per target policy"
-            )
-        for i, (b, p) in enumerate(zip(behaviour, policies, strict=True)):
-            if b.shape != p.shape:
-                raise DgtdInputError(f"behaviour policy {i} has shape {b.shape}, its target policy {p.shape}")
-            check_stochastic(f"behaviour policy {i}", b)
-        beta = joint_policy(behaviour)
+    R_sa, R_transition = _mean_rewards(rewards, P)
+    beta = pi if behaviour is None else _behaviour(behaviour, policies)
     if np.any((pi > 0) & (beta == 0)):
         s, a = np.argwhere((pi > 0) & (beta == 0))[0]
         raise DgtdInputError(
@@ -110,3 +87,33 @@ def from_mdp(
         signed_rewards=signed_rewards,
         R_transition=R_transition,
     )
+
+
+def _mean_rewards(rewards, P: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(r_i(s, a) (N, S, A), r_i(s, a, s') (N, S, A, S) where the rewards depend on s', else None), checked."""
+    S, A, _ = P.shape
+    rewards = np.asarray(rewards, dtype=np.float64)
+    if rewards.ndim == 4:
+        rewards = _as_float_array("rewards", rewards, 4)
+        if rewards.shape[1:] != (S, A, S):
+            raise DgtdInputError(f"rewards must have shape (N, {S}, {A}, {S}), got {rewards.shape}")
+        return np.einsum("sat,nsat->nsa", P, rewards), rewards
+    R_sa = _as_float_array("rewards", rewards, 3)
+    if R_sa.shape[1:] != (S, A):
+        raise DgtdInputError(f"rewards must have shape (N, {S}, {A}) or (N, {S}, {A}, {S}), got {rewards.shape}")
+    return R_sa, None
+
+
+def _behaviour(behaviour: Sequence, policies: list) -> np.ndarray:
+    """The joint behaviour policy beta (S, A) of the agents' local ones, each checked against its target policy."""
+    behaviour = [_as_float_array(f"behaviour policy {i}", b, 2) for i, b in enumerate(behaviour)]
+    if len(behaviour) != len(policies):
+        raise DgtdInputError(
+            f"{len(policies)} target policies but {len(behaviour)} behaviour policies; give one "
+            "behaviour policy per target policy"
+        )
+    for i, (b, p) in enumerate(zip(behaviour, policies, strict=True)):
+        if b.shape != p.shape:
+            raise DgtdInputError(f"behaviour policy {i} has shape {b.shape}, its target policy {p.shape}")
+        check_stochastic(f"behaviour policy {i}", b)
+    return joint_policy(behaviour)

@@ -22,6 +22,7 @@ After the run, ``values.png`` shows every agent's value estimate along a fresh t
 from __future__ import annotations
 
 from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -110,7 +111,7 @@ def mpe_spread(
         raise DgtdInputError(f"mpe-spread's policy is one of {', '.join(POLICIES)}, got {policy!r}")
     proximity = ProximityNetwork(N, float(radius))
     chosen = spread_policy(N, epsilon) if policy == "heuristic" else "random"
-    common = dict(policy=chosen, positions=agent_positions, proximity=proximity)
+    common: dict[str, Any] = dict(policy=chosen, positions=agent_positions, proximity=proximity)
     features = spread_features(N)
     reference, link_frequency = reference_from_env(
         lambda g: EnvSource(partial(make_spread, N), features, 0, [g], seed_offset=REFERENCE_SEED_OFFSET, **common),

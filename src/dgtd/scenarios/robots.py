@@ -178,7 +178,8 @@ class PatrolSource:
         self.seed, self.seed_ids = int(seed), np.asarray(list(seed_ids), dtype=np.int64)
         self.keys = seed_keys(self.seed, self.seed_ids)
         self.record = int(record)
-        self.x = self.r = None
+        self.x: np.ndarray = np.zeros((0, 0, 2))  # positions and headings (`start` sets them)
+        self.r: np.ndarray = np.zeros((0, 0))
         self.k = 0
         self.stats = empty_stats(network.n_edges)
         self.snapshots: list[tuple[int, np.ndarray, np.ndarray]] = []

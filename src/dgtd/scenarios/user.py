@@ -17,9 +17,11 @@ import importlib
 import importlib.util
 import inspect
 import sys
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -135,14 +137,7 @@ def load_callable(text: str, what: str):
         raise DgtdInputError(f"{what} {text!r} must read module.path:function (or path/to/file.py:function)")
     try:
         if module_name.endswith(".py"):
-            path = Path(module_name)
-            if not path.is_file():
-                raise DgtdInputError(f"{what} {text!r}: file {path} does not exist")
-            if str(path.parent.resolve()) not in sys.path:  # its helper modules beside it import, as in a script
-                sys.path.insert(0, str(path.parent.resolve()))
-            spec = importlib.util.spec_from_file_location(path.stem, path)
-            module = importlib.util.module_from_spec(spec)
-            spec.loader.exec_module(module)
+            module = _module_of_file(Path(module_name), f"{what} {text!r}")
         else:
             module = importlib.import_module(module_name)
     except DgtdInputError:
@@ -164,6 +159,20 @@ def load_callable(text: str, what: str):
     if not callable(obj):
         raise DgtdInputError(f"{what} {text!r}: {attr} is not a function")
     return obj
+
+
+def _module_of_file(path: Path, what: str):
+    """The module of a Python file, imported as a script would be (its helper modules beside it import)."""
+    if not path.is_file():
+        raise DgtdInputError(f"{what}: file {path} does not exist")
+    if str(path.parent.resolve()) not in sys.path:
+        sys.path.insert(0, str(path.parent.resolve()))
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    if spec is None or spec.loader is None:
+        raise DgtdInputError(f"{what}: file {path} cannot be imported as Python")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _gymnasium_make(env_id: str, **kwargs):
@@ -194,6 +203,7 @@ def env_factory(spec: EnvSpec):
         raise DgtdInputError("name the environment: --env module.path:make_env (or make = ... in the [env] table)")
     function = load_callable(spec.make, "--env")
     kwargs = dict(spec.args or {})
+    params: Mapping[str, inspect.Parameter]
     try:
         params = inspect.signature(function).parameters
     except (TypeError, ValueError):
@@ -305,16 +315,18 @@ def build_features(text: str, probe, pilot_states):
                 f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
                 "with positive integers"
             )
-        states, box = None, _state_box(probe)
-        if box is not None and len(box[0]) != pilot_states(8).shape[1]:  # state() is not the observations
-            box = None
-        keep = None if box is None else np.isfinite(box[0]) & np.isfinite(box[1]) & (box[1] - box[0] < 1e6)
-        if keep is None or not keep.all():  # the range seen, where no finite and reasonable bound is declared
+        states, declared = None, _state_box(probe)
+        if declared is not None and len(declared[0]) != pilot_states(8).shape[1]:  # state() is not the observations
+            declared = None
+        low, high = declared if declared is not None else (np.zeros(0), np.zeros(0))
+        keep = np.isfinite(low) & np.isfinite(high) & (high - low < 1e6)
+        if declared is None or not keep.all():  # the range seen, where no finite and reasonable bound is declared
             states = pilot_states()
-            low, high = states.min(axis=0), states.max(axis=0)
-            if keep is not None:
-                low, high = np.where(keep, box[0], low), np.where(keep, box[1], high)
-            box = (low, np.where(high > low, high, low + 1.0))
+            seen_low, seen_high = states.min(axis=0), states.max(axis=0)
+            if declared is not None:
+                seen_low, seen_high = np.where(keep, low, seen_low), np.where(keep, high, seen_high)
+            low, high = seen_low, np.where(seen_high > seen_low, seen_high, seen_low + 1.0)
+        box = (low, high)
         dim = len(box[0])
         n = {"fourier": (sizes[0] + 1) ** dim, "rbf": 1 + sizes[0] ** dim, "tiles": sizes[0] * (sizes[-1] + 1) ** dim}[
             kind
@@ -477,7 +489,9 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
             "and the radius within which agents talk"
         )
     if spec.positions is not None:
-        links = dict(positions=load_callable(spec.positions, "positions"), proximity=ProximityNetwork(N, spec.radius))
+        radius = float(spec.radius) if spec.radius is not None else 0.0  # (checked above: given with positions)
+        links: dict[str, Any] = dict(positions=load_callable(spec.positions, "positions"))
+        links["proximity"] = ProximityNetwork(N, radius)
         network = None
     else:
         network = network_for(N)
@@ -493,7 +507,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
             seed_offset=offset,
             n_features=width,
             reward_map=reward_map,
-            name=env_name(spec.make),
+            name=env_name(str(spec.make)),
             **links,
         )
 
@@ -572,7 +586,7 @@ class TrajectoryReport:
     trajectory of ``steps`` steps under the same policy, beside the reference's phi(s)' w*; figure ``values.png``
     (`dgtd.plots.values`). Called as ``report(result, source) -> (dict, text)``."""
 
-    make_source: object  # () -> a fresh one-copy source on streams of their own
+    make_source: Callable[[], Any]  # () -> a fresh one-copy source on streams of their own
     steps: int = 200
     _states: tuple | None = None  # (features of the states visited (T, q), restarts): drawn once, for every run
 

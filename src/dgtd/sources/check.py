@@ -122,7 +122,7 @@ def _seed(blk: Block, b: int) -> dict:
 def _joined(a: Block, b: Block) -> Block:
     """Two blocks as one (their tables stacked, the second's indices shifted)."""
     shift = 0 if a.table is None else a.table.phi.shape[0]
-    table = None if a.table is None else type(a.table)(*(np.concatenate([x, y]) for x, y in zip(a.table, b.table)))
+    table = None if a.table is None or b.table is None else type(a.table)(*map(np.concatenate, zip(a.table, b.table)))
     up = None if a.up is None else np.concatenate([a.up, b.up])
     return Block(
         np.concatenate([a.s, b.s + shift]),
@@ -137,7 +137,7 @@ def _joined(a: Block, b: Block) -> Block:
 def _same(a: Block | dict, b: Block | dict, what: str) -> None:
     if isinstance(a, Block):
         for k in range(a.r.shape[1]):
-            _same(_seed(a, k), _seed(b, k), f"{what} (seed {k})")
+            _same(_seed(a, k), _seed(b, k), f"{what} (seed {k})")  # type: ignore[arg-type]
         return
     for name in a:
         x, y = a[name], b[name]

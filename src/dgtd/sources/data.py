@@ -166,7 +166,8 @@ class TransitionFile:
         self.by_seed = "seed" in names  # independent recordings; else one dataset of episodes
         self.has_ratio, self.has_terminal = "ratio" in names, "terminal" in names
         firsts = [*KEYS, *(STATES if self.tabular else ())]
-        units, n_states, agents = {}, 0, -1  # (seed, episode) -> (rows, last step)
+        units: dict = {}  # (seed, episode) -> (rows, last step)
+        n_states, agents = 0, -1
         for batch in _read(path, [c for c in firsts if c in names]):
             b = _checked(path, batch, firsts)
             if min(b[c].min(initial=0) for c in firsts if c not in ("seed", "episode")) < 0:
@@ -218,7 +219,7 @@ class TransitionFile:
             *(STATES if self.tabular else (*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)))),
             "reward",
         ]
-        eye = np.eye(q) if self.tabular else None
+        eye = np.eye(q) if self.tabular else np.zeros((0, 0))
         for batch in _read(path):
             b = _checked(
                 path,

@@ -124,7 +124,11 @@ class EnvSource:
         self.reward_map = reward_map
         self.name = name or named(make_env)
         self.seed, self.seed_ids, self.seed_offset = int(seed), [int(k) for k in seed_ids], int(seed_offset)
-        self.envs = self.agents = self.current = None
+        self.envs: list = []  # (`start` makes them)
+        self.agents: list = []
+        self.current: list = []
+        self.gens: list = []
+        self.spaces: list = []
 
     @property
     def edges(self) -> np.ndarray:

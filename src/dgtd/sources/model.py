@@ -274,8 +274,9 @@ class ModelSource:
         )
         self.markov = sampling.mode == "markov"
         self.backend = backend
-        self.current = None
-        self.agents = self.edges = None  # all of them (`restrict`)
+        self.current: np.ndarray | None = None
+        self.agents: np.ndarray | None = None  # all of them (`restrict`)
+        self.edges: np.ndarray | None = None
 
     def restrict(self, agents: np.ndarray, edges: np.ndarray) -> None:
         """Draw only the samples of ``agents`` and the links of ``edges`` (ids in the whole network, as an MPI rank

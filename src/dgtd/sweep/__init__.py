@@ -121,7 +121,7 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
     if threads and settings.backend == "numba":
         import numba
 
-        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     source = make_source(resolved, settings)
     result = run_loop(problem, network, algorithm, sampling, settings, source=source, channel=channel)
     return {

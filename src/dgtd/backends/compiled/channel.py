@@ -64,9 +64,9 @@ def laplacian(inbox, m, b, i):
     d_i x_i - x_j1 - x_j2 - ... (`neighbour_sums`), which streams the neighbours' rows past registers once."""
     at = inbox.at
     if inbox.arc_weights.shape[0] > 0:  # sum_j c_ij (x_i - x_j), c_ij the arc's weight (`dgtd.channels.Lossy`)
-        weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
+        weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at, 0], inbox.sums, (m, at))  # type: ignore[call-arg]
         return
-    neighbour_sums(inbox.sent, (m, b), i, inbox.heard, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
+    neighbour_sums(inbox.sent, (m, b), i, inbox.heard, at, inbox.n_heard[at, 0], inbox.sums, (m, at))  # type: ignore[call-arg]
 
 
 @njit(cache=True, inline="always")
@@ -84,7 +84,7 @@ def metropolis(inbox, m, b, i):
     inbox.sums[m, inbox.at]; each term added in the order of the neighbours, as `dgtd.channels.Inbox.metropolis`
     adds them."""
     at = inbox.at
-    weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at, 0], inbox.sums, (m, at))
+    weighted_sums(inbox.sent, (m, b), i, inbox.heard, inbox.weights, at, inbox.n_heard[at, 0], inbox.sums, (m, at))  # type: ignore[call-arg]
 
 
 @njit(cache=True, inline="always")

@@ -370,9 +370,9 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None,
     groups = np.linspace(0, B, threads + 1).astype(int)
 
     def run(b0, b1):
-        space = _space(1, 1, n_obs, N, A, degree, q, M, compiled.work)._replace(degree=_private((1, N + A), np.int64))
-        space = HeldSpace(
-            *space,
+        shared = _space(1, 1, n_obs, N, A, degree, q, M, compiled.work)._replace(degree=_private((1, N + A), np.int64))
+        space = HeldSpace(  # type: ignore[call-arg]
+            *shared,
             awake=_private((N,), np.bool_),
             late=_private((A,), np.int64),
             rounding=_private((A, Q), np.float64),

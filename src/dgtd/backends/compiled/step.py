@@ -301,7 +301,7 @@ def phi_dot(feat, s, X, at, q):
         for p in range(feat.ptr[s], feat.ptr[s + 1]):
             acc += feat.val[p] * X[at + (feat.idx[p],)]
         return acc
-    return dot(feat.Phi, s, X, at, q)
+    return dot(feat.Phi, s, X, at, q)  # type: ignore[call-arg]
 
 
 @njit(cache=True, inline="always")
