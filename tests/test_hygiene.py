@@ -15,8 +15,6 @@ STILL_LONG = {
     "dgtd/backends/compiled/held.py:compress",
     "dgtd/cli/compare.py:compare",
     "dgtd/config.py:resolve",
-    "dgtd/problems/model.py:make_problem",
-    "dgtd/scenarios/user.py:build_features",
     "dgtd/sources/data.py:__init__",
 }
 

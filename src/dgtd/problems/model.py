@@ -299,16 +299,56 @@ def make_problem(
         gamma = float(gamma)
     except (TypeError, ValueError):
         raise DgtdInputError(f"gamma must be a number, got {gamma!r}") from None
-    S = P.shape[0]
-    if terminal is not None:
-        terminal = np.asarray(terminal)
-        if terminal.shape != (S,) or terminal.dtype.kind not in "biu" or not np.isin(terminal, (0, 1)).all():
-            raise DgtdInputError(
-                f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
-                f"shape {terminal.shape}"
-            )
-        terminal = terminal.astype(bool) if terminal.any() else None
-    episodic = terminal is not None
+    terminal = _terminal_flags(terminal, P.shape[0])
+    _check_model(P, R, Phi, gamma, terminal, dependent_features)
+    P_sample, ratio, R_sample = _sampling_model(P, R, P_sample, ratio, R_sample)
+    if R_transition is not None:
+        R_transition = _transition_rewards(R_transition, P_sample, R_sample)
+    check_reward_noise(reward_noise, R_transition)
+    P_beh = P_sample.sum(axis=1)
+    check_irreducible("the behaviour chain" if P_sample.shape[1] > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
+    sigma = _sigma(sigma, R, R_sample, R_transition, signed_rewards, reward_noise)
+    if w0 is not None:
+        w0 = _as_float_array("w0", w0, 1)
+        if w0.shape != (Phi.shape[1],):
+            raise DgtdInputError(f"w0 must have one entry per feature ({Phi.shape[1]}), got shape {w0.shape}")
+    for x in (P, R, Phi, P_sample, ratio, R_sample, terminal, R_transition, w0):
+        if x is not None:
+            x.setflags(write=False)
+    return Problem(
+        P,
+        R,
+        Phi,
+        gamma,
+        P_sample,
+        ratio,
+        R_sample,
+        sigma,
+        reward_noise,
+        name,
+        tuple(state_labels),
+        w0,
+        terminal,
+        R_transition,
+    )
+
+
+def _terminal_flags(terminal, S: int) -> np.ndarray | None:
+    """An episodic task's terminal flags (S,) as booleans, or None where there are none."""
+    if terminal is None:
+        return None
+    terminal = np.asarray(terminal)
+    if terminal.shape != (S,) or terminal.dtype.kind not in "biu" or not np.isin(terminal, (0, 1)).all():
+        raise DgtdInputError(
+            f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
+            f"shape {terminal.shape}"
+        )
+    return terminal.astype(bool) if terminal.any() else None
+
+
+def _check_model(P, R, Phi, gamma: float, terminal, dependent_features: bool) -> None:
+    """gamma, the shapes of P, R and Phi, P stochastic, episodes that end where gamma = 1, Phi's rank."""
+    S, episodic = P.shape[0], terminal is not None
     if not np.isfinite(gamma) or not (0.0 < gamma < 1.0 or (episodic and gamma == 1.0)):
         raise DgtdInputError(
             f"gamma must lie strictly between 0 and 1 (or be 1 in an episodic task, with terminal states), got {gamma}"
@@ -331,10 +371,14 @@ def make_problem(
             f"Phi ({Phi.shape[0]} x {Phi.shape[1]}) does not have full column rank "
             f"(rank {np.linalg.matrix_rank(Phi)}); remove features that are linear combinations of others"
         )
+
+
+def _sampling_model(P, R, P_sample, ratio, R_sample) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P_sample (S, A, S), ratio (S, A), R_sample (N, S, A)): the behaviour's sampling model, checked to reproduce P
+    and R; on-policy (one action, ratio 1) where none is given."""
+    S = P.shape[0]
     if P_sample is None:
-        P_sample = P[:, None, :]
-        ratio = np.ones((S, 1))
-        R_sample = R[:, :, None]
+        P_sample, ratio, R_sample = P[:, None, :], np.ones((S, 1)), R[:, :, None]
     P_sample = _as_float_array("P_sample", P_sample, 3)
     ratio = _as_float_array("ratio", ratio, 2)
     R_sample = _as_float_array("R_sample", R_sample, 3)
@@ -354,22 +398,28 @@ def make_problem(
         )
     if not np.allclose(np.einsum("sa,nsa->ns", beta * ratio, R_sample), R, atol=1e-8 * max(1.0, np.abs(R).max())):
         raise DgtdInputError("the sampling model does not reproduce R: sum_a pi(a|s) R_sample(i,s,a) must equal R(i,s)")
-    if R_transition is not None:
-        R_transition = _as_float_array("R_transition", R_transition, 4)
-        if R_transition.shape != (R.shape[0], S, A, S):
-            raise DgtdInputError(
-                f"R_transition must have shape (N, S, A, S) = {(R.shape[0], S, A, S)}, got {R_transition.shape}"
-            )
-        P_sa = np.divide(P_sample, beta[:, :, None], out=np.zeros_like(P_sample), where=beta[:, :, None] > 0)
-        if not np.allclose(
-            np.einsum("sat,nsat->nsa", P_sa, R_transition)[:, beta > 0],
-            R_sample[:, beta > 0],
-            atol=1e-8 * max(1.0, np.abs(R_sample).max()),
-        ):
-            raise DgtdInputError("R_sample must be the expectation of R_transition over the next state")
-    check_reward_noise(reward_noise, R_transition)
-    P_beh = P_sample.sum(axis=1)
-    check_irreducible("the behaviour chain" if A > 1 or not np.array_equal(P_beh, P) else "P", P_beh)
+    return P_sample, ratio, R_sample
+
+
+def _transition_rewards(R_transition, P_sample, R_sample) -> np.ndarray:
+    """r_i(s, a, s') (N, S, A, S), checked to average to R_sample over the next state."""
+    N, S, A = R_sample.shape
+    R_transition = _as_float_array("R_transition", R_transition, 4)
+    if R_transition.shape != (N, S, A, S):
+        raise DgtdInputError(f"R_transition must have shape (N, S, A, S) = {(N, S, A, S)}, got {R_transition.shape}")
+    beta = P_sample.sum(axis=2)
+    P_sa = np.divide(P_sample, beta[:, :, None], out=np.zeros_like(P_sample), where=beta[:, :, None] > 0)
+    if not np.allclose(
+        np.einsum("sat,nsat->nsa", P_sa, R_transition)[:, beta > 0],
+        R_sample[:, beta > 0],
+        atol=1e-8 * max(1.0, np.abs(R_sample).max()),
+    ):
+        raise DgtdInputError("R_sample must be the expectation of R_transition over the next state")
+    return R_transition
+
+
+def _sigma(sigma, R, R_sample, R_transition, signed_rewards: bool, reward_noise: str) -> float:
+    """The rewards' bound sigma (the largest |mean reward| where not given), checked against the rewards' signs."""
     if not signed_rewards and (np.any(R < 0) or np.any(R_sample < 0)):
         raise DgtdInputError("rewards must be >= 0 (the paper's rewards lie in [0, sigma]); shift them by a constant")
     r_max = float(
@@ -384,30 +434,4 @@ def make_problem(
         raise DgtdInputError(
             "reward noise draws rewards in [0, sigma]; a problem with signed rewards needs reward_noise='none'"
         )
-    if w0 is not None:
-        w0 = _as_float_array("w0", w0, 1)
-        if w0.shape != (Phi.shape[1],):
-            raise DgtdInputError(f"w0 must have one entry per feature ({Phi.shape[1]}), got shape {w0.shape}")
-        w0.setflags(write=False)
-    for a in (
-        (P, R, Phi, P_sample, ratio, R_sample)
-        + ((terminal,) if episodic else ())
-        + (() if R_transition is None else (R_transition,))
-    ):
-        a.setflags(write=False)
-    return Problem(
-        P,
-        R,
-        Phi,
-        gamma,
-        P_sample,
-        ratio,
-        R_sample,
-        sigma,
-        reward_noise,
-        name,
-        tuple(state_labels),
-        w0,
-        terminal,
-        R_transition,
-    )
+    return sigma

@@ -305,44 +305,7 @@ def build_features(text: str, probe, pilot_states):
     seen under the policy, for a box the state space does not declare."""
     kind, _, rest = str(text).partition(":")
     if kind in ("fourier", "rbf", "tiles"):
-        try:
-            sizes = [int(x) for x in rest.split(":")] if rest else []
-        except ValueError:
-            sizes = None
-        wanted = 2 if kind == "tiles" else 1
-        if sizes is None or len(sizes) != wanted or min(sizes) < 1:
-            raise DgtdInputError(
-                f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
-                "with positive integers"
-            )
-        states, declared = None, _state_box(probe)
-        if declared is not None and len(declared[0]) != pilot_states(8).shape[1]:  # state() is not the observations
-            declared = None
-        low, high = declared if declared is not None else (np.zeros(0), np.zeros(0))
-        keep = np.isfinite(low) & np.isfinite(high) & (high - low < 1e6)
-        if declared is None or not keep.all():  # the range seen, where no finite and reasonable bound is declared
-            states = pilot_states()
-            seen_low, seen_high = states.min(axis=0), states.max(axis=0)
-            if declared is not None:
-                seen_low, seen_high = np.where(keep, low, seen_low), np.where(keep, high, seen_high)
-            low, high = seen_low, np.where(seen_high > seen_low, seen_high, seen_low + 1.0)
-        box = (low, high)
-        dim = len(box[0])
-        n = {"fourier": (sizes[0] + 1) ** dim, "rbf": 1 + sizes[0] ** dim, "tiles": sizes[0] * (sizes[-1] + 1) ** dim}[
-            kind
-        ]
-        if n > 4096:
-            raise DgtdInputError(
-                f"--features {text} on a {dim}-dimensional state makes {n:,} features; lower it, or "
-                "give your own features (module:function)"
-            )
-        f = {
-            "fourier": lambda: feature_maps.fourier(sizes[0], *box),
-            "rbf": lambda: feature_maps.rbf(sizes[0], *box),
-            "tiles": lambda: feature_maps.tile_coding(sizes[0], sizes[1], *box),
-        }[kind]()
-        where = "the state space's bounds" if states is None else f"the range of {len(states):,} states seen"
-        return f, n, f"{kind} features ({n}) over {where}"
+        return _box_features(text, kind, rest, probe, pilot_states)
     if kind == "one-hot":
         n = _discrete_states(probe)
         if n is None:
@@ -368,6 +331,45 @@ def build_features(text: str, probe, pilot_states):
             )
         return function, phi.shape[1], f"features {text} ({phi.shape[1]})"
     raise DgtdInputError(f"--features {text!r} is not known: give {FEATURES_HELP}")
+
+
+def _box_features(text: str, kind: str, rest: str, probe, pilot_states):
+    """Fourier, RBF or tile-coding features over the state space's box: its declared bounds where finite and
+    reasonable, else the range of the states seen under the policy."""
+    try:
+        sizes = [int(x) for x in rest.split(":")] if rest else []
+    except ValueError:
+        sizes = []
+    if len(sizes) != (2 if kind == "tiles" else 1) or min(sizes) < 1:
+        raise DgtdInputError(
+            f"--features {text!r}: write {'tiles:TILINGS:TILES' if kind == 'tiles' else kind + ':N'} "
+            "with positive integers"
+        )
+    states, declared = None, _state_box(probe)
+    if declared is not None and len(declared[0]) != pilot_states(8).shape[1]:  # state() is not the observations
+        declared = None
+    low, high = declared if declared is not None else (np.zeros(0), np.zeros(0))
+    keep = np.isfinite(low) & np.isfinite(high) & (high - low < 1e6)
+    if declared is None or not keep.all():  # the range seen, where no finite and reasonable bound is declared
+        states = pilot_states()
+        seen_low, seen_high = states.min(axis=0), states.max(axis=0)
+        if declared is not None:
+            seen_low, seen_high = np.where(keep, low, seen_low), np.where(keep, high, seen_high)
+        low, high = seen_low, np.where(seen_high > seen_low, seen_high, seen_low + 1.0)
+    dim = len(low)
+    n = {"fourier": (sizes[0] + 1) ** dim, "rbf": 1 + sizes[0] ** dim, "tiles": sizes[0] * (sizes[-1] + 1) ** dim}[kind]
+    if n > 4096:
+        raise DgtdInputError(
+            f"--features {text} on a {dim}-dimensional state makes {n:,} features; lower it, or "
+            "give your own features (module:function)"
+        )
+    f = {
+        "fourier": lambda: feature_maps.fourier(sizes[0], low, high),
+        "rbf": lambda: feature_maps.rbf(sizes[0], low, high),
+        "tiles": lambda: feature_maps.tile_coding(sizes[0], sizes[1], low, high),
+    }[kind]()
+    where = "the state space's bounds" if states is None else f"the range of {len(states):,} states seen"
+    return f, n, f"{kind} features ({n}) over {where}"
 
 
 def mean_proximity_network(proximity, frequency):
