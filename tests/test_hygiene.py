@@ -15,7 +15,6 @@ STILL_LONG = {
     "dgtd/backends/compiled/held.py:compress",
     "dgtd/cli/compare.py:compare",
     "dgtd/config.py:resolve",
-    "dgtd/sources/data.py:__init__",
 }
 
 

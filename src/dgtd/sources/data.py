@@ -165,24 +165,8 @@ class TransitionFile:
         self.tabular = "phi_0" not in names
         self.by_seed = "seed" in names  # independent recordings; else one dataset of episodes
         self.has_ratio, self.has_terminal = "ratio" in names, "terminal" in names
-        firsts = [*KEYS, *(STATES if self.tabular else ())]
-        units: dict = {}  # (seed, episode) -> (rows, last step)
-        n_states, agents = 0, -1
-        for batch in _read(path, [c for c in firsts if c in names]):
-            b = _checked(path, batch, firsts)
-            if min(b[c].min(initial=0) for c in firsts if c not in ("seed", "episode")) < 0:
-                raise DgtdInputError(f"transitions file {path}: steps, agents and states are numbered from 0")
-            if self.tabular:
-                n_states = max(n_states, 1 + int(b["state"].max(initial=0)), 1 + int(b["next_state"].max(initial=0)))
-            agents = max(agents, int(b["agent"].max(initial=-1)))
-            keys, inverse = np.unique(np.stack([b["seed"], b["episode"]], axis=1), axis=0, return_inverse=True)
-            inverse = inverse.ravel()
-            count, last = np.bincount(inverse), np.full(len(keys), -1)
-            np.maximum.at(last, inverse, b["step"])
-            for (k, e), c, t in zip(keys.tolist(), count.tolist(), last.tolist()):
-                n, before = units.get((k, e), (0, -1))
-                units[(k, e)] = (n + c, max(before, t))
-        self.q = q = n_states if self.tabular else sum(1 for c in names if c.startswith("phi_"))
+        units, n_states, agents = self._survey(names)
+        self.q = n_states if self.tabular else sum(1 for c in names if c.startswith("phi_"))
         self.N = N = agents + 1
         self.units = sorted(units)
         self.lengths = np.array([units[u][1] + 1 for u in self.units])
@@ -196,12 +180,11 @@ class TransitionFile:
                 )
         seeds = [k for k, _ in self.units]
         self.ids = np.unique(seeds)
+        n_groups = min(GROUPS, len(self.units))
         self.groups = (
             [np.flatnonzero(np.array(seeds) == k) for k in self.ids]
             if self.by_seed
-            else [
-                np.arange(g, len(self.units), min(GROUPS, len(self.units))) for g in range(min(GROUPS, len(self.units)))
-            ]
+            else [np.arange(g, len(self.units), n_groups) for g in range(n_groups)]
         )
         if len(self.groups) < 2:
             raise DgtdInputError(
@@ -209,6 +192,33 @@ class TransitionFile:
                 f"{'recording' if self.by_seed else 'episode'}; the reference's standard error needs "
                 "at least two independent ones"
             )
+        self._fill()
+
+    def _survey(self, names: list[str]) -> tuple[dict, int, int]:
+        """A first pass over the file's keys: {(seed, episode): (rows, last step)}, the number of states (tabular),
+        the largest agent id."""
+        firsts = [*KEYS, *(STATES if self.tabular else ())]
+        units: dict = {}
+        n_states, agents = 0, -1
+        for batch in _read(self.path, [c for c in firsts if c in names]):
+            b = _checked(self.path, batch, firsts)
+            if min(b[c].min(initial=0) for c in firsts if c not in ("seed", "episode")) < 0:
+                raise DgtdInputError(f"transitions file {self.path}: steps, agents and states are numbered from 0")
+            if self.tabular:
+                n_states = max(n_states, 1 + int(b["state"].max(initial=0)), 1 + int(b["next_state"].max(initial=0)))
+            agents = max(agents, int(b["agent"].max(initial=-1)))
+            keys, inverse = np.unique(np.stack([b["seed"], b["episode"]], axis=1), axis=0, return_inverse=True)
+            inverse = inverse.ravel()
+            count, last = np.bincount(inverse), np.full(len(keys), -1)
+            np.maximum.at(last, inverse, b["step"])
+            for (k, e), c, t in zip(keys.tolist(), count.tolist(), last.tolist()):
+                n, before = units.get((k, e), (0, -1))
+                units[(k, e)] = (n + c, max(before, t))
+        return units, n_states, agents
+
+    def _fill(self) -> None:
+        """The second pass: every row into its cell (unit's step, agent) of a memory-mapped array, each cell once."""
+        q, N, path = self.q, self.N, self.path
         self._dir = tempfile.mkdtemp(prefix="dgtd-transitions-")
         weakref.finalize(self, shutil.rmtree, self._dir, True)
         shape = (int(self.offsets[-1]), N, 2 * q + 3)
@@ -219,13 +229,10 @@ class TransitionFile:
             *(STATES if self.tabular else (*(f"phi_{j}" for j in range(q)), *(f"next_phi_{j}" for j in range(q)))),
             "reward",
         ]
+        extra = [*(["ratio"] if self.has_ratio else []), *(["terminal"] if self.has_terminal else [])]
         eye = np.eye(q) if self.tabular else np.zeros((0, 0))
         for batch in _read(path):
-            b = _checked(
-                path,
-                batch,
-                [*KEYS, *values, *(["ratio"] if self.has_ratio else []), *(["terminal"] if self.has_terminal else [])],
-            )
+            b = _checked(path, batch, [*KEYS, *values, *extra])
             keys, inverse = np.unique(np.stack([b["seed"], b["episode"]], axis=1), axis=0, return_inverse=True)
             where = self.offsets[[index[tuple(key)] for key in keys.tolist()]][inverse.ravel()] + b["step"]
             block = np.empty((len(where), 2 * q + 3))
