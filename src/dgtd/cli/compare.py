@@ -66,36 +66,12 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     The run is described, checked and recorded as the `RunConfig` of `dgtd run` (the same fields, defaults and
     checks), plus the algorithms compared and the tuning. Each algorithm's numbers are saved as it finishes: after
     an interrupt, the same command again runs only the algorithms that had not finished."""
-    from tqdm import tqdm
-
-    from dgtd.algorithms.stepsizes import describe as describe_steps
-    from dgtd.config import (
-        PROBLEM_FIELDS,
-        moments_of,
-        problem_start,
-        resolve,
-        scenario_of,
-        spec_record,
-        steps_from_the_problem,
-        unflat,
-        view,
-    )
+    from dgtd.config import PROBLEM_FIELDS, resolve, spec_record, unflat
     from dgtd.errors import DgtdInputError
     from dgtd.experiments import Experiment, absolute_paths, override
-    from dgtd.run.compare import (
-        CompareSettings,
-        configs_for,
-        finish_directory,
-        prepare_directory,
-        save_part,
-        write_compare,
-    )
-    from dgtd.run.compare import (
-        compare as run_compare,
-    )
+    from dgtd.run.compare import CompareSettings, configs_for, finish_directory, prepare_directory, write_compare
     from dgtd.run.owner import Owner
     from dgtd.run.results import NotWritten
-    from dgtd.scenarios.user import problem_compare_steps, problem_scenario
 
     given = {k: v for k, v in given.items() if v is not None}
     config = override(Experiment(unflat({"scenario": scenario, "seeds": seeds})), given).config
@@ -103,35 +79,14 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
         raise DgtdInputError(
             "name a scenario (dgtd scenarios lists them), --problem FILE.npz, --env module:make_env or --data FILE"
         )
-    p, network, algorithm, samp, settings, resolved, channel = resolve(absolute_paths(config))
-    start = problem_start(config) if steps_from_the_problem(view(config)) else None
-    sc = scenario_of(resolved)
-    if sc is None:
-        sc = problem_scenario(p, network, algorithm, samp, settings.iterations, start)
-    elif start is not None:  # a simulator or a recording: every method's first step from its estimated mean dynamics
-        steps_of, note = problem_compare_steps(moments_of(p), network, start, derive=True)
-        sc = replace(sc, algorithm=algorithm, compare_settings=steps_of, compare_note=note)
-    cs = CompareSettings(_names(algorithms), settings, tune=tune, tune_seeds=tune_seeds)
+    r = resolve(absolute_paths(config))
+    sc, start = _compared_scenario(config, r)
+    cs = CompareSettings(_names(algorithms), r.settings, tune=tune, tune_seeds=tune_seeds)
     configs = configs_for(sc, cs.algorithms)
-    out = Path(out) if out else Path("runs") / f"compare-{scenario or p.name}"
-    click.echo(
-        f"{problem_line(p, network.describe())}; {samp.mode} sampling, "
-        f"{'shared' if samp.shared else 'independent'} states"
-    )
-    click.echo(
-        f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
-        f"{', step sizes tuned first' if tune else ''}"
-    )
-    if not tune:
-        origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
-        if start is not None:  # each method's offset is its own: say the whole schedule
-            steps = ", ".join(f"{name} {describe_steps(a.schedule, a.alpha0, a.beta)}" for name, a in configs.items())
-            click.echo(f"alpha_k: {steps} ({origin}); --tune picks each alpha0 from x (1/10 .. 10) on separate seeds")
-        else:
-            steps = ", ".join(f"{name} {a.alpha0:.3g}" for name, a in configs.items())
-            click.echo(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
+    out = Path(out) if out else Path("runs") / f"compare-{scenario or r.problem.name}"
+    click.echo(_what_runs(r, cs, sc, configs, start, seeds, tune))
     record = {
-        **spec_record(resolved),
+        **spec_record(r.config),
         "algorithms": list(cs.algorithms),
         "tune": tune,
         "tune_seeds": tune_seeds if tune else None,
@@ -144,61 +99,116 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
                 f"resuming the interrupted comparison in {out}: {', '.join(results)} finished before; running "
                 f"{', '.join(a for a in cs.algorithms if a not in results)}"
             )
-        bar = tqdm(
-            total=settings.iterations * len(cs.algorithms),
-            initial=settings.iterations * len(results),
-            unit="it",
-            unit_scale=True,
-            disable=not progress,
-            file=sys.stderr,
-            mininterval=0.5,
-        )
+        _run_each(r, sc, cs, configs, out, record, (results, used, tables), progress)
         try:
-            run_compare(
-                p,
-                network,
-                samp,
-                configs,
-                cs,
-                progress=lambda name, n: bar.update(n),
-                log=bar.write if tune else None,
-                source_factory=sc.source,
-                done=(results, used, tables),
-                on_finished=lambda name, result, alg, table: save_part(out, name, result, alg, table, record),
-                kernel_ready=lambda seconds: bar.unpause(),  # the compilation is not in the ETA
-                channel=channel,
-            )
-        except KeyboardInterrupt:
-            bar.close()
-            finished = [name for name in cs.algorithms if name in results]
-            if not finished:
-                raise
-            missing = [name for name in cs.algorithms if name not in results]
-            write_compare(out, p, network, results, used, tables, {**record, "interrupted": True, "missing": missing})
-            raise KeyboardInterrupt(
-                f"interrupted: the results of {', '.join(finished)} are written to {out} "
-                f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
-                f"to the end: run the same command again to run only those"
-            ) from None
-        finally:
-            bar.close()
-        try:
-            write_compare(out, p, network, results, used, tables, record)
+            write_compare(out, r.problem, r.network, results, used, tables, record)
         except NotWritten:
             click.echo(table(results, used))  # the numbers are in memory: the user sees them whatever the disk kept
             raise
         finish_directory(out)
-        figures = ""
-        if plots:
-            from dgtd.plots.compare import plot_compare, plot_consensus
-
-            title = f"{p.name}, N={p.n_agents}, {seeds} seeds"
-            plot_compare(results, out / "compare.png", title)
-            figures = ", compare.png"
-            if plot_consensus(results, out / "consensus.png", title):  # none when only centralised learners ran
-                figures += ", consensus.png"
+        figures = _figures(results, out, f"{r.problem.name}, N={r.problem.n_agents}, {seeds} seeds") if plots else ""
         click.echo(table(results, used))
         click.echo(f"wrote {out}/metrics.csv, bands.csv, agent_errors.npz, summary.json{figures}")
+
+
+def _compared_scenario(config, r):
+    """The scenario the methods are compared on, with each method's steps (from the problem where asked), and the
+    first-step rule's start where it applies."""
+    from dgtd.config import moments_of, problem_start, scenario_of, steps_from_the_problem, view
+    from dgtd.scenarios.user import problem_compare_steps, problem_scenario
+
+    start = problem_start(config) if steps_from_the_problem(view(config)) else None
+    sc = scenario_of(r.config)
+    if sc is None:
+        sc = problem_scenario(r.problem, r.network, r.algorithm, r.sampling, r.settings.iterations, start)
+    elif start is not None:  # a simulator or a recording: every method's first step from its estimated mean dynamics
+        steps_of, note = problem_compare_steps(moments_of(r.problem), r.network, start, derive=True)
+        sc = replace(sc, algorithm=r.algorithm, compare_settings=steps_of, compare_note=note)
+    return sc, start
+
+
+def _what_runs(r, cs, sc, configs, start, seeds, tune) -> str:
+    """The lines a comparison starts with: the problem, the methods and their step sizes, and where those come from."""
+    from dgtd.algorithms.stepsizes import describe as describe_steps
+
+    samp, settings = r.sampling, r.settings
+    lines = [
+        f"{problem_line(r.problem, r.network.describe())}; {samp.mode} sampling, "
+        f"{'shared' if samp.shared else 'independent'} states",
+        f"{', '.join(cs.algorithms)}: {settings.iterations:,} iterations x {seeds} seed(s) each"
+        f"{', step sizes tuned first' if tune else ''}",
+    ]
+    if not tune:
+        origin = sc.compare_note if sc.compare_settings else "each method's default, with the run's schedule"
+        if start is not None:  # each method's offset is its own: say the whole schedule
+            steps = ", ".join(f"{name} {describe_steps(a.schedule, a.alpha0, a.beta)}" for name, a in configs.items())
+            lines.append(f"alpha_k: {steps} ({origin}); --tune picks each alpha0 from x (1/10 .. 10) on separate seeds")
+        else:
+            steps = ", ".join(f"{name} {a.alpha0:.3g}" for name, a in configs.items())
+            lines.append(f"alpha0: {steps} ({origin}); --tune picks each from alpha0 x (1/10 .. 10) on separate seeds")
+    return "\n".join(lines)
+
+
+def _run_each(r, sc, cs, configs, out: Path, record: dict, done: tuple, progress: bool) -> None:
+    """Every method not finished yet, each saved as it finishes; after Ctrl-C, what finished is written and the
+    message says how to run the rest."""
+    from tqdm import tqdm
+
+    from dgtd.run.compare import compare as run_compare
+    from dgtd.run.compare import save_part, write_compare
+
+    results, used, tables = done
+    iterations = r.settings.iterations
+    bar = tqdm(
+        total=iterations * len(cs.algorithms),
+        initial=iterations * len(results),
+        unit="it",
+        unit_scale=True,
+        disable=not progress,
+        file=sys.stderr,
+        mininterval=0.5,
+    )
+    try:
+        run_compare(
+            r.problem,
+            r.network,
+            r.sampling,
+            configs,
+            cs,
+            progress=lambda name, n: bar.update(n),
+            log=bar.write if cs.tune else None,
+            source_factory=sc.source,
+            done=done,
+            on_finished=lambda name, result, alg, table: save_part(out, name, result, alg, table, record),
+            kernel_ready=lambda seconds: bar.unpause(),  # the compilation is not in the ETA
+            channel=r.channel,
+        )
+    except KeyboardInterrupt:
+        bar.close()
+        finished = [name for name in cs.algorithms if name in results]
+        if not finished:
+            raise
+        missing = [name for name in cs.algorithms if name not in results]
+        interrupted = {**record, "interrupted": True, "missing": missing}
+        write_compare(out, r.problem, r.network, results, used, tables, interrupted)
+        raise KeyboardInterrupt(
+            f"interrupted: the results of {', '.join(finished)} are written to {out} "
+            f"(metrics.csv, agent_errors.npz, summary.json); {', '.join(missing)} did not run "
+            f"to the end: run the same command again to run only those"
+        ) from None
+    finally:
+        bar.close()
+
+
+def _figures(results: dict, out: Path, title: str) -> str:
+    """The comparison's figures; returns their names as the closing line lists them."""
+    from dgtd.plots.compare import plot_compare, plot_consensus
+
+    plot_compare(results, out / "compare.png", title)
+    figures = ", compare.png"
+    if plot_consensus(results, out / "consensus.png", title):  # none when only centralised learners ran
+        figures += ", consensus.png"
+    return figures
 
 
 def table(results: dict, used: dict) -> str:
