@@ -13,7 +13,6 @@ MAX_LINES, MAX_COMPLEXITY = 80, 12
 STILL_LONG = {
     "dgtd/backends/compiled/held.py:carry",
     "dgtd/backends/compiled/held.py:compress",
-    "dgtd/config.py:resolve",
 }
 
 

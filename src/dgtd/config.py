@@ -463,78 +463,14 @@ def resolve(config: RunConfig) -> ResolvedRun:
     """A config resolved (`ResolvedRun`): every field checked, each None given the scenario's value, the library's
     objects built, the channel once."""
     spec = view(config)
-    if spec.env is not None and not spec.env.get("make"):
-        raise DgtdInputError(
-            f"{', '.join(sorted(spec.env))} set the fields of an env run; name the env too: --env "
-            "module.path:make_env (make = ... in the [env] table)"
-        )
-    given = [name for name in PROBLEM_FIELDS if getattr(spec, name) is not None]
-    if len(given) != 1:
-        raise DgtdInputError(
-            "name exactly one problem: a scenario (e.g. paper-example-1), --problem FILE.npz, "
-            "--env module:make_env or --data FILE" + (f" (got {', '.join(given)})" if given else "")
-        )
-    params, env = None, None
-    if spec.gamma is not None and spec.env is None and spec.data is None:
-        raise DgtdInputError("gamma is the discount of an --env or --data run; a scenario or problem file has its own")
-    if spec.gamma is not None and not 0.0 <= spec.gamma <= 1.0:
-        raise DgtdInputError(f"gamma must be in [0, 1] (1 only for episodes that end), got {spec.gamma}")
+    _check_problem_fields(spec)
     if spec.scenario is not None:
-        kwargs, params, edge_prob = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)
-        sc = scenario_of(spec)
-        problem, network, algorithm, sampling, iterations = (
-            sc.problem,
-            sc.network,
-            sc.algorithm,
-            sc.sampling,
-            sc.iterations,
-        )
-        graph = None  # the scenario's own network, rebuilt from the same parameters
-        if sc.source is not None:
-            _refuse_model_overrides(spec, sc)  # its source sets the links, states and rewards
-        if spec.edge_prob is not None and "edge_prob" not in kwargs and spec.graph is None:
-            if not hasattr(network, "base"):
-                raise DgtdInputError(
-                    f"scenario {spec.scenario!r} has no random-edge network, so edge_prob does not apply; remove it"
-                )
-            network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
-        if spec.reward_noise not in (None, problem.reward_noise):
-            problem = with_reward_noise(problem, spec.reward_noise)
-        if spec.restarts not in (None, getattr(problem, "restarts", None)):
-            problem = with_restarts(problem, spec.restarts)
+        base = _from_scenario(spec)
     elif spec.problem_file is not None:
-        if spec.params:
-            raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")
-        problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
-        if spec.restarts is not None:
-            problem = with_restarts(problem, spec.restarts)
-        graph, edge_prob, iterations = "ring", 1.0, 100_000
-        algorithm, sampling, network = DGTD(), Sampling(), None
+        base = _from_problem_file(spec)
     else:
-        if spec.params:
-            raise DgtdInputError("params are a scenario's parameters; an --env run takes its settings in [env]")
-        env = None if spec.env is None else asdict(env_spec(spec.env))
-        spec = SimpleNamespace(
-            **{**vars(spec), "env": env, "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma}
-        )
-        sc = scenario_of(spec)
-        _refuse_model_overrides(spec, sc, graph_applies=True)
-        problem, network, algorithm, sampling, iterations = (
-            sc.problem,
-            sc.network,
-            sc.algorithm,
-            sc.sampling,
-            sc.iterations,
-        )
-        proximity = env is not None and env["positions"] is not None
-        if proximity and (spec.graph is not None or spec.edge_prob is not None):
-            raise DgtdInputError(
-                "this env links its agents by their positions (env.positions, env.radius); --graph "
-                "and --edge-prob do not apply"
-            )
-        graph, edge_prob = (None, None) if proximity else (spec.graph or "ring", _edge_prob(spec))
-        if spec.data is not None:
-            _check_recordings(spec, sc)
+        base = _from_env_or_data(spec)
+    spec, problem, network, algorithm, sampling, iterations, graph, edge_prob, params, env = base
     if spec.graph is not None or network is None:
         graph = spec.graph or graph
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
@@ -577,6 +513,92 @@ def resolve(config: RunConfig) -> ResolvedRun:
         or None,
     )
     return ResolvedRun(problem, network, algorithm, sampling, settings, unflat(resolved, config.output), channel)
+
+
+class _Base(NamedTuple):
+    """What a run's problem gives before the config's own fields are applied (`resolve`)."""
+
+    spec: Any
+    problem: Any
+    network: Any
+    algorithm: Any
+    sampling: Sampling
+    iterations: int
+    graph: str | None
+    edge_prob: float | None
+    params: dict | None
+    env: dict | None
+
+
+def _check_problem_fields(spec) -> None:
+    """Exactly one problem named, an env run's fields with its env, gamma only where the run has none of its own."""
+    if spec.env is not None and not spec.env.get("make"):
+        raise DgtdInputError(
+            f"{', '.join(sorted(spec.env))} set the fields of an env run; name the env too: --env "
+            "module.path:make_env (make = ... in the [env] table)"
+        )
+    given = [name for name in PROBLEM_FIELDS if getattr(spec, name) is not None]
+    if len(given) != 1:
+        raise DgtdInputError(
+            "name exactly one problem: a scenario (e.g. paper-example-1), --problem FILE.npz, "
+            "--env module:make_env or --data FILE" + (f" (got {', '.join(given)})" if given else "")
+        )
+    if spec.gamma is not None and spec.env is None and spec.data is None:
+        raise DgtdInputError("gamma is the discount of an --env or --data run; a scenario or problem file has its own")
+    if spec.gamma is not None and not 0.0 <= spec.gamma <= 1.0:
+        raise DgtdInputError(f"gamma must be in [0, 1] (1 only for episodes that end), got {spec.gamma}")
+
+
+def _from_scenario(spec) -> _Base:
+    """A named scenario's problem, network, algorithm and sampling, with the config's edge probability, reward noise
+    and restarts."""
+    kwargs, params, edge_prob = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)
+    sc = scenario_of(spec)
+    problem, network = sc.problem, sc.network
+    if sc.source is not None:
+        _refuse_model_overrides(spec, sc)  # its source sets the links, states and rewards
+    if spec.edge_prob is not None and "edge_prob" not in kwargs and spec.graph is None:
+        if not hasattr(network, "base"):
+            raise DgtdInputError(
+                f"scenario {spec.scenario!r} has no random-edge network, so edge_prob does not apply; remove it"
+            )
+        network, edge_prob = random_edges(network.base, spec.edge_prob), spec.edge_prob
+    if spec.reward_noise not in (None, problem.reward_noise):
+        problem = with_reward_noise(problem, spec.reward_noise)
+    if spec.restarts not in (None, getattr(problem, "restarts", None)):
+        problem = with_restarts(problem, spec.restarts)
+    # graph None: the scenario's own network, rebuilt from the same parameters
+    return _Base(spec, problem, network, sc.algorithm, sc.sampling, sc.iterations, None, edge_prob, params, None)
+
+
+def _from_problem_file(spec) -> _Base:
+    """A problem file's model, on a ring by default, with DGTD's defaults."""
+    if spec.params:
+        raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")
+    problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
+    if spec.restarts is not None:
+        problem = with_restarts(problem, spec.restarts)
+    return _Base(spec, problem, None, DGTD(), Sampling(), 100_000, "ring", 1.0, None, None)
+
+
+def _from_env_or_data(spec) -> _Base:
+    """A simulator's or a recording's estimated reference and its scenario, linked by positions or a graph."""
+    if spec.params:
+        raise DgtdInputError("params are a scenario's parameters; an --env run takes its settings in [env]")
+    env = None if spec.env is None else asdict(env_spec(spec.env))
+    spec = SimpleNamespace(**{**vars(spec), "env": env, "gamma": DEFAULT_GAMMA if spec.gamma is None else spec.gamma})
+    sc = scenario_of(spec)
+    _refuse_model_overrides(spec, sc, graph_applies=True)
+    proximity = env is not None and env["positions"] is not None
+    if proximity and (spec.graph is not None or spec.edge_prob is not None):
+        raise DgtdInputError(
+            "this env links its agents by their positions (env.positions, env.radius); --graph "
+            "and --edge-prob do not apply"
+        )
+    graph, edge_prob = (None, None) if proximity else (spec.graph or "ring", _edge_prob(spec))
+    if spec.data is not None:
+        _check_recordings(spec, sc)
+    return _Base(spec, sc.problem, sc.network, sc.algorithm, sc.sampling, sc.iterations, graph, edge_prob, None, env)
 
 
 def view(config) -> SimpleNamespace:
