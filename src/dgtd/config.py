@@ -253,6 +253,10 @@ class Output:
 
     def __post_init__(self):
         object.__setattr__(self, "checkpoint_every", check_count("checkpoint_every", self.checkpoint_every, 0))
+        if self.resume and self.overwrite:  # one continues the saved run, the other starts afresh
+            raise DgtdInputError(
+                "--resume continues the saved run and --overwrite starts it afresh: give one of them, not both"
+            )
         if self.log is not None:
             from dgtd.run.logs import log_kinds
 

@@ -18,11 +18,17 @@ def user_error(what: str, error: Exception) -> UserCodeError:
 
 def call_user(what: str, function, *args, **kwargs):
     """``function(*args, **kwargs)``, where ``function`` is a user's code: any exception it raises (a dgtd refusal
-    passes as it is) becomes a `UserCodeError` that names ``what`` and keeps the original as its cause."""
+    passes as it is), and a ``sys.exit`` it calls, becomes a `UserCodeError` that names ``what`` and keeps the
+    original as its cause."""
     try:
         return function(*args, **kwargs)
     except DgtdInputError:
         raise
+    except SystemExit as e:  # sys.exit() in a user's code would end dgtd with that code, no results and no word
+        raise UserCodeError(
+            f"{what} called sys.exit({'' if e.code is None else repr(e.code)}): a function dgtd calls must return, "
+            "not end the program"
+        ) from e
     except Exception as e:  # noqa: BLE001  (anything the user's code raises is theirs to see)
         raise user_error(what, e) from e
 

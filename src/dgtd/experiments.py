@@ -59,6 +59,7 @@ from dgtd.config import (
 )
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option, option_of
+from dgtd.files import text_of
 from dgtd.graphs.topologies import TOPOLOGIES
 from dgtd.scenarios.user import EnvSpec
 
@@ -204,10 +205,11 @@ def load(path: str | Path) -> Experiment:
     if path.is_dir():
         path = path / "config.toml"
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = tomllib.loads(text_of(path))  # (an editor's byte-order mark is no part of the TOML)
     except FileNotFoundError:
         raise DgtdInputError(f"experiment file {path} does not exist") from None
+    except UnicodeDecodeError as e:
+        raise DgtdInputError(f"{path} is not UTF-8 text, as TOML is ({e})") from None
     except tomllib.TOMLDecodeError as e:
         raise DgtdInputError(f"{path} is not valid TOML: {e}") from None
     return parse(data, str(path))

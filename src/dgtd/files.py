@@ -19,6 +19,11 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 
 
+def text_of(path) -> str:
+    """A text file's contents, UTF-8 with or without a byte-order mark (an editor's BOM is no part of the text)."""
+    return Path(path).read_text(encoding="utf-8-sig")
+
+
 def present(path: Path, what: str, fix: str) -> Path:
     """``path``, or a one-line refusal naming the file by its role (``what``) where it is a folder or missing."""
     path = Path(path)
@@ -65,7 +70,7 @@ def read_json(path, what: str, fix: str, required=()) -> dict:
     """A JSON object from a file, with the keys ``required`` present."""
     path = present(path, what, fix)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(text_of(path))
     except (ValueError, UnicodeDecodeError) as e:
         raise DgtdInputError(f"{what} {path} is not valid JSON ({e}); {fix}") from None
     if not isinstance(data, dict):
@@ -80,7 +85,7 @@ def read_csv(path, what: str, fix: str, required=()) -> list[dict]:
     """The rows of a CSV file with a header, as dicts, with the columns ``required`` present and filled."""
     path = present(path, what, fix)
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:
             reader = csv.DictReader(f)
             rows = list(reader)
             header = reader.fieldnames or []

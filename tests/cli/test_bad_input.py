@@ -347,3 +347,16 @@ def test_ranks_without_the_mpi_extra_say_how_to_install_it(run_cli, tmp_path, mo
     monkeypatch.setattr(launch.shutil, "which", lambda *a, **k: None)  # no mpiexec anywhere
     one_line_error(*run_cli(*RUN, "-T", 10, "--ranks", 2, "--out", tmp_path / "o"), "pip install 'dgtd[mpi]'")
     assert not (tmp_path / "o").exists()
+
+
+def test_a_byte_order_mark_is_no_part_of_a_toml_file_or_an_edge_list(tmp_path, run_cli):
+    """An editor's UTF-8 BOM gave "Invalid statement (line 1, column 1)" and "nodes \\ufeff0,1"."""
+    bom = b"\xef\xbb\xbf"
+    edges = tmp_path / "edges.txt"
+    edges.write_bytes(bom + b"0 1\n1 2\n2 3\n3 4\n4 0\n")
+    toml = tmp_path / "exp.toml"
+    toml.write_bytes(bom + f'[problem]\nscenario = "paper-example-1"\n\n[network]\ngraph = "{edges}"\n'.encode())
+    out = tmp_path / "out"
+    code, _, err = run_cli("run", toml, "-T", "30", "--backend", "numpy", "--no-plots", "--no-progress", "--out", out)
+    assert code == 0, err
+    assert (out / "summary.json").exists()

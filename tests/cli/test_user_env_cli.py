@@ -569,3 +569,27 @@ def test_compare_on_an_env_takes_every_methods_first_step_from_its_estimated_mea
     assert code == 0, err
     assert "alpha_k: dgtd 7.906/sqrt(k+3230), td0 1/sqrt(k+1000), tdc 3/sqrt(k+1000)" in text
     assert "every first step at most what the method's mean dynamics allow" in text
+
+
+def test_a_users_sys_exit_is_an_error_naming_the_function_not_a_silent_exit(run_cli, tmp_path):
+    """A features function that calls sys.exit(0) made dgtd exit 0 with no output and no results."""
+    user = tmp_path / "quits.py"
+    user.write_text("import sys\n\ndef features(states):\n    sys.exit(0)\n")
+    out = tmp_path / "out"
+    code, _, err = run_cli(
+        "run",
+        "--env",
+        env("make_chain"),
+        "--features",
+        f"{user}:features",
+        "--gamma",
+        0.8,
+        "-T",
+        100,
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        out,
+    )
+    assert code == 2 and "sys.exit(0)" in err and "features" in err and len(err.strip().splitlines()) == 1
+    assert not (out / "summary.json").exists()

@@ -161,3 +161,15 @@ def test_probabilities_saved_in_single_precision_are_read_to_their_precision(tmp
     assert exact64.P.dtype == np.float64
     with pytest.raises(DgtdInputError, match="sums to"):
         load_problem(write(tmp_path, "d.npz", **{**_mrp_arrays(), "P": np.array([[0.3, 0.6], [0.1, 0.9]], np.float32)}))
+
+
+def test_a_misspelt_array_is_refused_by_name_not_ignored(tmp_path, run_cli):
+    """`sigam` for `sigma` was ignored, and sigma took its default (changing the boxes and the reward noise)."""
+    P = np.array([[0.5, 0.5], [0.5, 0.5]])
+    path = write(tmp_path, "mrp.npz", P=P, R=np.ones((2, 2)), Phi=np.eye(2), gamma=0.9, sigam=5.0)
+    code, out, err = run_cli("solve", "--problem", path)
+    assert code == 2 and "'sigam'" in err and "did you mean 'sigma'" in err and len(err.strip().splitlines()) == 1
+    good = write(tmp_path, "mrp2.npz", P=P, R=np.ones((2, 2)), Phi=np.eye(2), gamma=0.9, sigma=5.0)
+    assert load_problem(good).sigma == 5.0
+    with pytest.raises(Exception, match="policy_0"):
+        load_problem(write(tmp_path, "m.npz", **chain_arrays(), policy0=np.ones((2, 1))))

@@ -280,3 +280,25 @@ def test_a_graph_or_loss_file_changed_under_a_checkpoint_is_refused_naming_it(tm
         assert code == 2 and f"the {role} file {what} changed since the checkpoint" in err, err
     code, _, err = run_cli(*command, "--overwrite")
     assert code == 0, err
+
+
+def test_resume_with_overwrite_is_refused_not_half_obeyed(tmp_path, run_cli):
+    """--resume DIR --overwrite resumed and ignored --overwrite: the two cannot both hold."""
+    out = tmp_path / "r"
+    code, _, err = run_cli(
+        "run",
+        "paper-example-1",
+        "-T",
+        "40",
+        "--checkpoint-every",
+        "20",
+        "--backend",
+        "numpy",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        out,
+    )
+    assert code == 0, err
+    code, _, err = run_cli("run", "--resume", out, "--overwrite")
+    assert code == 2 and "--resume" in err and "--overwrite" in err and len(err.strip().splitlines()) == 1

@@ -23,7 +23,8 @@ def test_the_checkpoints_rows_are_the_declarations():
     assert set(checkpoint.ARC_FIELDS) == set(declared(ARCS)) == {"channel", "per_arc"}
 
 
-def snapshots_of_a_run(**options) -> tuple[list, object]:
+def snapshots_of_a_run(resume=None, **options) -> tuple[list, object, object]:
+    """The snapshots a garnet run saves every 100 steps (from ``resume`` where given), its result and its config."""
     spec = unflat(dict(scenario="garnet", iterations=300, seeds=2, checkpoints=5, backend="numpy", **options))
     r = resolve(spec)
     saved: list = []
@@ -36,6 +37,7 @@ def snapshots_of_a_run(**options) -> tuple[list, object]:
         checkpoint_every=100,
         on_checkpoint=saved.append,
         channel=r.channel,
+        resume=resume,
     )
     return saved, result, r
 
@@ -118,17 +120,8 @@ def test_gathered_takes_exactly_the_declared_fields_on_their_axes():
 
 
 def test_a_snapshot_continues_the_run_bit_for_bit():
-    saved, whole, r = snapshots_of_a_run(loss=0.3, burst=2)
-    again = run(
-        r.problem,
-        r.network,
-        r.algorithm,
-        r.sampling,
-        r.settings,
-        checkpoint_every=100,
-        resume=saved[0],
-        channel=r.channel,
-    )
+    saved, whole, _ = snapshots_of_a_run(loss=0.3, burst=2)
+    _, again, _ = snapshots_of_a_run(resume=saved[0], loss=0.3, burst=2)
     for name, x in whole.metrics.items():
         assert_array_equal(again.metrics[name], x, err_msg=name)
     assert_array_equal(again.w_last, whole.w_last)

@@ -24,6 +24,7 @@ from dgtd.channels.arcs import Arcs
 from dgtd.channels.base import copied, counted
 from dgtd.channels.inbox import Inbox
 from dgtd.errors import DgtdInputError
+from dgtd.files import text_of
 from dgtd.streams import ARC_BURST_START, ARC_LOSS, seed_keys, uniforms
 
 
@@ -193,7 +194,7 @@ def _loss_file(path: str, arcs: Arcs) -> np.ndarray:
         raise DgtdInputError(f"loss {path!r} is neither a probability, a list of them, nor a file of 'i j p' lines")
     arc_of = {(int(d), int(s)): a for a, (d, s) in enumerate(zip(arcs.dst, arcs.src))}
     per_arc = np.zeros(arcs.n_arcs)
-    for n, line in enumerate(file.read_text().splitlines(), 1):
+    for n, line in enumerate(text_of(file).splitlines(), 1):
         words = line.split("#")[0].split()
         if not words:
             continue

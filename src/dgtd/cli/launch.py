@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from dgtd.errors import DgtdInputError
+from dgtd.files import text_of
 
 SSH_SECONDS = 10  # how long ssh may take to reach a host before it counts as unreachable
 LOCAL = {"localhost", "127.0.0.1", "::1"}
@@ -36,7 +37,7 @@ def read_hosts(path: str) -> list[str]:
     if not file.is_file():
         raise DgtdInputError(f"--hosts {path}: no such file (a line host or host:slots per machine)")
     hosts = []
-    for number, line in enumerate(file.read_text().splitlines(), 1):
+    for number, line in enumerate(text_of(file).splitlines(), 1):
         line = line.split("#")[0].strip()
         if not line:
             continue

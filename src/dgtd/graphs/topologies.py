@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.files import text_of
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,7 +117,7 @@ def read_edge_list(path_: str) -> Graph:
     import networkx as nx
 
     try:
-        lines = Path(path_).read_text().splitlines()
+        lines = text_of(path_).splitlines()
     except FileNotFoundError:
         raise DgtdInputError(f"edge-list file {path_} does not exist") from None
     except (OSError, UnicodeDecodeError) as e:
@@ -130,7 +130,7 @@ def read_edge_list(path_: str) -> Graph:
                 "graph's links carry no weights here: their probabilities are --edge-prob)"
             )
     try:
-        G = nx.read_edgelist(path_, nodetype=int, data=False)
+        G = nx.parse_edgelist(lines, nodetype=int, data=False)  # (the lines as read, a BOM dropped)
     except (TypeError, ValueError, IndexError) as e:
         raise DgtdInputError(f"edge-list file {path_} is malformed ({e}); write one 'i j' pair per line") from None
     if G.number_of_nodes() == 0:

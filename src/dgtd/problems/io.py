@@ -12,6 +12,7 @@ signed_rewards = 1 to allow negative mean rewards (as the Boyan chain's -3 per s
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 from pathlib import Path
 
@@ -32,6 +33,7 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
     """Load and validate a problem file of either form; every failure is a one-line `DgtdInputError`."""
     p = Path(path)
     arrays = read_npz(p, "problem file", FORMS, required=REQUIRED)
+    _refuse_unknown(path, arrays)
     arrays = {name: _real(path, name, x) for name, x in arrays.items()}
     for k in ("gamma", "sigma", "signed_rewards"):
         if k in arrays and np.asarray(arrays[k]).size != 1:
@@ -65,6 +67,24 @@ def load_problem(path: str, reward_noise: str = "none") -> Problem:
         terminal=terminal,
         signed_rewards=signed,
     )
+
+
+KNOWN = ("P", "R", "Phi", "gamma", "sigma", "terminal", "signed_rewards")  # besides policy_k and behaviour_k
+
+
+def _refuse_unknown(path, arrays: dict) -> None:
+    """One line naming an array the file holds that neither form reads (a misspelt ``sigam`` would otherwise be
+    ignored, and sigma take its default), with the closest known name."""
+    for name in sorted(arrays):
+        prefix, _, k = name.rpartition("_")
+        if name in KNOWN or (prefix in ("policy", "behaviour") and k.isdigit()):
+            continue
+        close = difflib.get_close_matches(name, [*KNOWN, "policy_0", "behaviour_0"], n=1, cutoff=0.5)
+        raise DgtdInputError(
+            f"{path} holds an array {name!r} that a problem file does not have"
+            + (f"; did you mean {close[0]!r}?" if close else "")
+            + f" (its arrays: {', '.join(KNOWN)}, policy_0, ..., behaviour_0, ...)"
+        )
 
 
 STOCHASTIC = ("P", "policy_", "behaviour_")  # arrays whose last axis holds probabilities that sum to one
