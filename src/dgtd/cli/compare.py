@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.cli.options import ENV_OPTIONS, LINK_OPTIONS, problem_line, run_options
+from dgtd.cli.options import ENV_OPTIONS, LINK_OPTIONS, output_options, problem_line, run_options
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -34,16 +34,15 @@ def _names(text: str | None) -> tuple[str, ...]:
     help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.",
 )
 @click.option("--tune-seeds", type=int, default=2, show_default=True, help="Seeds per tuning run.")
-@click.option(
-    "--out", type=click.Path(file_okay=False), default=None, help="Results directory (default: runs/compare-SCENARIO)."
-)
-@click.option("--progress/--no-progress", default=True, show_default=True)
-@click.option("--plots/--no-plots", default=True, show_default=True)
-@click.option(
-    "--overwrite",
-    is_flag=True,
-    default=False,
-    help="Replace another comparison's results in --out (otherwise refused).",
+@output_options(
+    "out",
+    "progress",
+    "plots",
+    "overwrite",
+    helps={
+        "out": "Results directory (default: runs/compare-SCENARIO).",
+        "overwrite": "Replace another comparison's results in --out (otherwise refused).",
+    },
 )
 @run_options(
     "iterations",

@@ -105,9 +105,10 @@ def launch(ranks: int | None, hosts: str | None, argv: list[str]) -> int:
         raise DgtdInputError("--hosts names the machines of --ranks R: give --ranks too")
     if ranks < 1:
         raise DgtdInputError(f"--ranks must be at least 1, got {ranks}")
+    listed = None if hosts is None else read_hosts(hosts)  # the host file's faults first, mpiexec installed or not
     command = [mpiexec(), "-n", str(ranks)]
-    if hosts is not None:
-        check_reachable(read_hosts(hosts), hosts)
+    if hosts is not None and listed is not None:
+        check_reachable(listed, hosts)
         command += ["-f", hosts]
     command += [sys.executable, "-m", "dgtd.cli", *without(argv, ("--ranks", "--hosts"))]
     job = subprocess.Popen(command)

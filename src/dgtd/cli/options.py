@@ -172,13 +172,16 @@ def _algorithm_options() -> dict:
     return out
 
 
-def output_options():
-    """Decorate a command with `Output`'s fields that are options (--out, --plots, ...), its defaults shown."""
-    hints = field_types(Output)
+def output_options(*names: str, helps: dict | None = None):
+    """Decorate a command with `Output`'s fields that are options (--out, --plots, ...; those of ``names``, or every
+    one), its defaults shown; ``helps``: another command's words for what a field means to it."""
+    hints, helps = field_types(Output), helps or {}
     return _all(
-        make_option(f.name, f, hints[f.name], declared_option(f)["help"], f.default, f.default is not None)
+        make_option(
+            f.name, f, hints[f.name], helps.get(f.name, declared_option(f)["help"]), f.default, f.default is not None
+        )
         for f in fields(Output)
-        if option_of(f) is not None
+        if option_of(f) is not None and (not names or f.name in names)
     )
 
 
