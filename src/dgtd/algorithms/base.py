@@ -240,3 +240,28 @@ def agent_mean(x, n_agents: int, xp=np):
 def td_error(dot_phi_next_w, dot_phi_w, r, gamma):
     """delta = r + gamma phi'^T w - phi^T w, from the two products: floats, or arrays (B, N)."""
     return r + gamma * dot_phi_next_w - dot_phi_w
+
+
+def check_contract(algorithm) -> None:
+    """What the run loop and every backend rely on, checked in one line before anything compiles: a NamedTuple state
+    of (B, N or 1, q) arrays with a field w, whose fields list what an agent keeps before what it sends, and messages
+    that ``sends`` names as ``messages`` does."""
+    name = getattr(algorithm, "name", type(algorithm).__name__)
+    state = algorithm.init(2, 3, 4)
+    fields = tuple(getattr(state, "_fields", ()))
+    if not fields:
+        raise DgtdInputError(f"{name}'s init returns a {type(state).__name__}, not a NamedTuple of arrays")
+    if "w" not in fields:
+        raise DgtdInputError(f"{name}'s state has no field w (the value weights every estimate reports)")
+    odd = [f for f, x in zip(fields, state) if np.shape(x) not in ((2, 3, 4), (2, 1, 4))]
+    if odd:
+        raise DgtdInputError(
+            f"{name}'s state field {odd[0]} is not (B, N or 1, q): init(2, 3, 4) gave it the shape "
+            f"{np.shape(state[fields.index(odd[0])])}"
+        )
+    sent = tuple(algorithm.sends(state))
+    if sent != tuple(algorithm.messages):
+        raise DgtdInputError(f"{name} sends {sent}, not its messages {tuple(algorithm.messages)}")
+    own = tuple(f for f in fields if f not in algorithm.messages)
+    if fields[: len(own)] != own:
+        raise DgtdInputError(f"{name}'s state {fields} lists what it sends before what it keeps")

@@ -14,6 +14,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from dgtd.algorithms.base import check_contract
+from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import tasks
@@ -116,14 +118,10 @@ def _run(algorithm, case: str, problem, sampling, backend: str, layout: str = "a
 def _check_shape(algorithm) -> None:
     """What the run loop and the backends rely on: a NamedTuple state (B, N or 1, q) whose fields list what an agent
     keeps before what it sends, messages named by ``sends`` as by ``messages``, an ``update`` that leaves its input."""
-    state = algorithm.init(2, 3, 4)
-    fields = tuple(state._fields)
-    assert "w" in fields, f"{algorithm.name}'s state has no field w (the value weights every estimate reports)"
-    assert all(x.shape in ((2, 3, 4), (2, 1, 4)) for x in state), f"{algorithm.name}'s state is not (B, N or 1, q)"
-    sent = algorithm.sends(state)
-    assert tuple(sent) == tuple(algorithm.messages), f"{algorithm.name} sends {tuple(sent)}, not its messages"
-    own = tuple(f for f in fields if f not in algorithm.messages)
-    assert fields[: len(own)] == own, f"{algorithm.name}'s state {fields} lists what it sends before what it keeps"
+    try:
+        check_contract(algorithm)
+    except DgtdInputError as e:
+        raise AssertionError(str(e)) from None
 
 
 def _compare(ref, got, rtol: float, what: str) -> float:

@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from dgtd.algorithms.base import FixedPoint
+from dgtd.algorithms.base import FixedPoint, check_contract
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import RandomEdges
@@ -226,6 +226,7 @@ def plan_run(
     t_start = time.perf_counter()
     steps = checkpoint_steps(int(settings.iterations), int(settings.checkpoints))
     B, N, q = int(settings.seeds), problem.n_agents, problem.n_features
+    check_contract(algorithm)  # before anything compiles
     check_memory(algorithm, B, N, q, 2 * network.n_edges, len(steps), settings.backend)
     reference = prepare(problem, network, algorithm, sampling, settings, channel)
     ctx = reference.ctx

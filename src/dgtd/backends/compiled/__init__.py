@@ -67,7 +67,7 @@ _refresh_cache()
 
 from dgtd.algorithms import ALGORITHMS  # noqa: E402
 from dgtd.backends.compiled.driver import run_block  # noqa: E402
-from dgtd.backends.compiled.step import CompiledStep, registered_step, step_of  # noqa: E402
+from dgtd.backends.compiled.step import CompiledStep, registered_step, source_of, step_of  # noqa: E402
 from dgtd.channels import Imperfect, Lossy, Perfect  # noqa: E402
 
 STEPS = {name: registered_step(cls) for name, cls in ALGORITHMS.items()}
@@ -93,4 +93,4 @@ def fallback(algorithm, channel) -> str | None:
     return None
 
 
-__all__ = ["STEPS", "TWINS", "CompiledStep", "fallback", "run_block", "step_of"]
+__all__ = ["STEPS", "TWINS", "CompiledStep", "fallback", "run_block", "source_of", "step_of"]

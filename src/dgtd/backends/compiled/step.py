@@ -73,6 +73,7 @@ class CompiledStep:
     work: int
     key: str
     cache: bool = True
+    generated: str = ""  # the accessors spelled out for its fields and messages (`source_of`)
 
 
 def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
@@ -99,6 +100,7 @@ def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
         for feature, x in cls.reads
     ]
     terms = [f"work[{TERMS + k}, at, f]" for k in range(n_terms)]
+    generated: list[str] = []
     space = dict(
         globals(),
         COEFFICIENTS=_compiled(cls.coefficients),
@@ -106,12 +108,17 @@ def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
         FEATURE=_compiled(cls.feature),
         TRANSMIT=_compiled(cls.transmit),
         STEPS_OF=_compiled(cls.steps),
-        PRODUCTS=_spelled("feat, s, sn, own, sent, b, i, q", [f"return {_tuple(products)}"]),
-        LOAD_STATE=_spelled("own, sent, b, i, f", [f"return {_tuple(state)}"]),
-        LOAD_HEARD=_spelled("L, at, f", [f"return {_tuple([f'L[{m}, at, f]' for m in range(M)])}"]),
-        STORE=_spelled("own, out, b, i, f, new, messages", stores or ["pass"]),
-        LOAD_TERMS=_spelled("work, at, f", [f"return {_tuple(terms)}"]),
-        ADD_TERMS=_spelled("work, at, f, d", [f"{x} += d[{k}]" for k, x in enumerate(terms)] or ["pass"]),
+        **{
+            name: _spelled(name, cls.name, arguments, lines, generated)
+            for name, arguments, lines in (
+                ("PRODUCTS", "feat, s, sn, own, sent, b, i, q", [f"return {_tuple(products)}"]),
+                ("LOAD_STATE", "own, sent, b, i, f", [f"return {_tuple(state)}"]),
+                ("LOAD_HEARD", "L, at, f", [f"return {_tuple([f'L[{m}, at, f]' for m in range(M)])}"]),
+                ("STORE", "own, out, b, i, f, new, messages", stores or ["pass"]),
+                ("LOAD_TERMS", "work, at, f", [f"return {_tuple(terms)}"]),
+                ("ADD_TERMS", "work, at, f, d", [f"{x} += d[{k}]" for k, x in enumerate(terms)] or ["pass"]),
+            )
+        },
         W_AT=(int(where["w"][0] == "sent"), where["w"][1]),
         M=M,
         METROPOLIS=cls.mixing == "metropolis",
@@ -120,21 +127,57 @@ def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
     space["features"] = _in(space, features, "features")  # it reads the constants above
     step = _in(space, _centralised if cls.centralised else _agent, f"step_{name}")
     work = TERMS + n_terms if cls.centralised else PHI_NEXT + 1
-    return CompiledStep(step, own, cls.mixing == "metropolis", work, name, cache)
+    return CompiledStep(step, own, cls.mixing == "metropolis", work, name, cache, "\n".join(generated))
 
 
 def _tuple(items: list[str]) -> str:
     return "(" + "".join(f"{x}, " for x in items) + ")"
 
 
-def _spelled(arguments: str, lines: list[str]):
+def _spelled(name: str, owner: str, arguments: str, lines: list[str], generated: list[str]):
     """A function of ``arguments`` with body ``lines``, compiled to be inlined: the loads and stores of a feature's
     values, spelled out for an algorithm's numbers of fields, messages, products and directions, as numba types a tuple
     only from constant indices (a tuple from a column of the stack, ``to_fixed_tuple``, kept the feature loop from
-    being vectorised: measured 2 to 2.5 times slower)."""
+    being vectorised: measured 2 to 2.5 times slower). Its text goes to ``generated`` (`source_of` prints it), and an
+    error in it names it and its algorithm (``<dgtd: LOAD_STATE of tdc-tracking>``), not ``<string>``."""
+    text = f"def {name}({arguments}):\n    " + "\n    ".join(lines) + "\n"
+    generated.append(text)
     space = {"phi_dot": phi_dot}
-    exec("def spelled(" + arguments + "):\n    " + "\n    ".join(lines), space)
-    return njit(inline="always")(space["spelled"])
+    exec(compile(text, f"<dgtd: {name} of {owner}>", "exec"), space)
+    return njit(inline="always")(space[name])
+
+
+ALGORITHM_FUNCTIONS = ("coefficients", "terms", "feature", "transmit", "steps")
+
+
+def source_of(algorithm) -> str:
+    """What the compiled backend runs for one learner of ``algorithm`` at one step, as text: where its own functions
+    are (file and line: numba inlines them as written, and an error in one names that line), the template the driver
+    calls with them in place, and the accessors generated for its fields and messages. None of it is compiled here.
+
+    Example::
+
+        >>> import dgtd
+        >>> from dgtd.backends.compiled import source_of
+        >>> print(source_of(dgtd.TDC()))  # doctest: +SKIP
+    """
+    import inspect
+
+    compiled = step_of(algorithm)
+    cls = type(algorithm)
+    if compiled is None:
+        return f"# {cls.name} writes update alone: it runs on the NumPy reference backend, not compiled"
+    lines = [f"# The compiled step of {cls.name} ({cls.__module__}.{cls.__qualname__}): its own functions, inlined"]
+    for name in ALGORITHM_FUNCTIONS:
+        fn = getattr(getattr(cls, name), "__func__", getattr(cls, name))
+        code = fn.__code__
+        lines.append(f"#   {name}: {code.co_filename}:{code.co_firstlineno}")
+    templates = (_centralised,) if cls.centralised else (_agent, features)
+    lines.append("# the template, with them in place of COEFFICIENTS, TERMS_OF, FEATURE, TRANSMIT and STEPS_OF:")
+    lines += [inspect.getsource(t) for t in templates]
+    lines.append("# the accessors spelled out for its fields, messages, products and directions:")
+    lines.append(compiled.generated)
+    return "\n".join(lines)
 
 
 def writes_one_definition(cls) -> bool:
