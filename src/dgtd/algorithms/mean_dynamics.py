@@ -15,7 +15,8 @@ estimated reference) the sum runs over the transitions the reference kept, each 
 `first_step` is then the same rule for every method: half the largest first step at which every mode of the mean
 dynamics contracts (|nu| < 1 for every eigenvalue nu of J other than the modes J leaves alone, nu = 1), for every
 mixing eigenvalue; and at most the step at which a single sample overshoots along its own features (the largest of
-the step sizes it derives from alpha times max_s |phi(s)|^2 at most 1). For a method whose every mode is
+the step sizes it derives from alpha times max ratio(s, a) |phi(s)|^2 at most 1: off-policy, a sample's step is its
+importance ratio times on-policy's). For a method whose every mode is
 I - alpha nu (DGTD, TD(0), TDRC) half the largest contracting step is min Re(nu) / |nu|^2 over its modes.
 """
 
@@ -225,22 +226,30 @@ def _digest(transitions: tuple, lams: np.ndarray) -> str:
     return h.hexdigest()
 
 
+def overshoot(known: tuple) -> float:
+    """max ratio |phi(s)|^2 over the transitions (at least max_s |phi(s)|^2): a sample's step along its own features
+    is alpha times its importance ratio times |phi(s)|^2, so past 1 / this one sample overshoots."""
+    rows, s, _, weight, sample = known
+    phi2 = (rows**2).sum(axis=1)
+    ratio = np.asarray(sample.ratio).reshape(-1)
+    seen = weight > 0
+    return float(max(phi2.max(), (ratio[seen] * phi2[s[seen]]).max(initial=0.0)))
+
+
 def _first_step(algorithm, known: tuple, lams: np.ndarray) -> tuple[float | None, str]:
-    largest_phi = float((known[0] ** 2).sum(axis=1).max())  # max_s |phi(s)|^2
+    largest_phi = overshoot(known)  # max ratio |phi(s)|^2, max_s |phi(s)|^2 on-policy
     cap = sample_cap(algorithm, largest_phi)
     mean_map = MeanMap(algorithm, known)
     largest = min(largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in lams)
     if largest <= 0.0:
         return None, "no step makes every mode of its mean dynamics contract here"
-    over = 1.0 / largest_phi
+    over, bound = 1.0 / largest_phi, "1 / max ratio |phi(s)|^2" if known[4].ratio.max() > 1.0 else "1 / max |phi(s)|^2"
     if largest >= 2.0 * cap:
         return cap, (
-            f"its step sizes at most 1 / max |phi(s)|^2 = {over:.3g}, where one sample overshoots (every mode of its "
+            f"its step sizes at most {bound} = {over:.3g}, where one sample overshoots (every mode of its "
             "mean dynamics contracts at twice that)"
         )
-    return 0.5 * largest, (
-        f"half the largest at which every mode of its mean dynamics contracts (1 / max |phi(s)|^2: {over:.3g})"
-    )
+    return 0.5 * largest, f"half the largest at which every mode of its mean dynamics contracts ({bound}: {over:.3g})"
 
 
 def first_of(algorithm) -> float:
