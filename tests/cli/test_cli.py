@@ -267,3 +267,25 @@ def test_compare_on_a_problem_file_says_which_steps_each_method_gets_and_why(cap
     scale = feature_scale(Moments(p))
     td0 = tuned_steps("garnet")["td0"]["alpha0"] / scale
     assert f"td0 {td0:.3g}" in out and f"E|phi|^2 = {scale:.3g}" in out and "--tune" in out, out
+
+
+def test_compare_names_its_winner_by_the_tail_average_with_the_spread_over_seeds():
+    """dgtd compare never said which method was best, nor that its numbers are medians; by the last iterate TD(0)
+    could look best while DGTD's tail average wins. The verdict ranks by value_error_tail, a diverged seed last."""
+    from types import SimpleNamespace
+
+    from dgtd.cli.compare import verdict
+
+    def result(last, tail, diverged=(-1, -1, -1)):
+        metrics = {"value_error_last": np.array([last]), "value_error_tail": np.array([tail])}
+        return SimpleNamespace(metrics=metrics, info={"diverged_at": np.array(diverged)})
+
+    results = {
+        "td0": result([0.001, 0.001, 0.001], [0.0057, 0.006, 0.0055]),
+        "dgtd": result([0.01, 0.01, 0.01], [0.0024, 0.0031, 0.0020]),
+        "tdrc": result([0.0, 0.0, 0.0], [0.0001, np.nan, 0.0001], (-1, 40, -1)),
+    }
+    said = verdict(results)
+    assert "median over 3 seed(s)" in said
+    assert "lowest value tail: dgtd, 0.0024 (seeds 0.002 to 0.0031); then td0, 0.0057" in said
+    assert "not ranked (a seed diverged or has no tail average): tdrc" in said
