@@ -268,13 +268,22 @@ def absolute_paths(config: RunConfig) -> RunConfig:
     over = {}
     p = config.problem
     if p.problem_file is not None:
-        over["problem_file"] = str(Path(p.problem_file).resolve())
+        over["problem_file"] = _absolute(p.problem_file)
     if p.data is not None:
-        over["data"] = str(Path(p.data).resolve())
+        over["data"] = _absolute(p.data)
     graph = config.network.graph
     if graph is not None and graph not in TOPOLOGIES:
-        over["graph"] = str(Path(graph).resolve())
+        over["graph"] = _absolute(graph)
     return with_flat(config, **over)
+
+
+def _absolute(path: str) -> str:
+    """``path`` resolved, or only made absolute where a loop of symbolic links stops that (the file's reader then
+    says what it is)."""
+    try:
+        return str(Path(path).resolve())
+    except (RuntimeError, OSError):
+        return str(Path(path).absolute())
 
 
 def _drop_none(d: dict) -> dict:

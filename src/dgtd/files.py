@@ -25,12 +25,21 @@ def text_of(path) -> str:
 
 
 def present(path: Path, what: str, fix: str) -> Path:
-    """``path``, or a one-line refusal naming the file by its role (``what``) where it is a folder or missing."""
+    """``path``, or a one-line refusal naming the file by its role (``what``) and saying what it is instead: a folder,
+    a symbolic link to nothing (or a loop of them), missing, or not a regular file (a pipe, which reading would wait
+    on for ever without a writer, a socket or a device)."""
     path = Path(path)
     if path.is_dir():
         raise DgtdInputError(f"{what} {path} is a directory, not a file; {fix}")
+    if path.is_symlink() and not path.exists():
+        raise DgtdInputError(f"{what} {path} is a symbolic link to nothing, or a loop of them; {fix}")
     if not path.exists():
         raise DgtdInputError(f"{what} {path} is missing; {fix}")
+    if not path.is_file():
+        raise DgtdInputError(
+            f"{what} {path} is not a regular file (a pipe, a socket or a device): save what it gives to a file "
+            f"first; {fix}"
+        )
     return path
 
 

@@ -360,3 +360,59 @@ def test_a_byte_order_mark_is_no_part_of_a_toml_file_or_an_edge_list(tmp_path, r
     code, _, err = run_cli("run", toml, "-T", "30", "--backend", "numpy", "--no-plots", "--no-progress", "--out", out)
     assert code == 0, err
     assert (out / "summary.json").exists()
+
+
+def _problem_file(path, **arrays):
+    P = np.array([[0.5, 0.5], [0.5, 0.5]])
+    base = dict(P=P, R=np.ones((2, 2)), Phi=np.eye(2), gamma=0.9)
+    np.savez(path, **{**base, **arrays})
+    return path
+
+
+@pytest.mark.parametrize(
+    "arrays, said",
+    [
+        (dict(P=np.zeros((0, 0)), R=np.zeros((1, 0)), Phi=np.zeros((0, 1))), "no states"),
+        (dict(Phi=np.zeros((2, 0))), "no features"),
+        (dict(Phi=np.eye(2) * 1e-200), "too small"),
+        (dict(Phi=np.eye(2) * 1e200), "too large"),
+        (dict(R=np.ones((2, 2)) * 1e300), "too large"),
+    ],
+    ids=["zero states", "no feature columns", "features x 1e-200", "features x 1e200", "rewards x 1e300"],
+)
+def test_a_problem_out_of_range_is_one_line_not_a_traceback_or_nan(tmp_path, run_cli, arrays, said):
+    """A zero-size problem, Phi with no columns or times 1e-200 gave tracebacks (a reshape, a division by zero in the
+    sample cap); features times 1e200 and rewards times 1e300 ran to "nan%" errors with NumPy's warnings."""
+    path = _problem_file(tmp_path / "p.npz", **arrays)
+    code, _, err = run_cli(
+        "run", "--problem", path, "-T", 50, "--backend", "numpy", "--no-plots", "--no-progress", "--out", tmp_path / "o"
+    )
+    assert code == 2 and said in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_pipe_or_a_symlink_loop_is_named_for_what_it_is(tmp_path, run_cli):
+    """--problem a named pipe with no writer blocked for ever; a symlink loop was called missing, and --out through
+    one gave a RuntimeError traceback."""
+    import os
+
+    pipe = tmp_path / "pipe.npz"
+    os.mkfifo(pipe)
+    code, _, err = run_cli("run", "--problem", pipe, "-T", 10, "--no-plots", "--no-progress")
+    assert code == 2 and "not a regular file" in err
+    os.symlink(tmp_path / "b", tmp_path / "a")
+    os.symlink(tmp_path / "a", tmp_path / "b")
+    code, _, err = run_cli("run", "--problem", tmp_path / "a", "-T", 10, "--no-plots", "--no-progress")
+    assert code == 2 and "symbolic link" in err and "missing" not in err
+    code, _, err = run_cli(
+        "run",
+        "paper-example-1",
+        "-T",
+        10,
+        "--backend",
+        "numpy",
+        "--no-plots",
+        "--no-progress",
+        "--out",
+        tmp_path / "a" / "x",
+    )
+    assert code == 2 and "symbolic link" in err and len(err.strip().splitlines()) == 1, err

@@ -215,7 +215,10 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
         config = replace(config, run=replace(config.run, backend="numpy"))  # the reference (`runtime.check_supported`)
     problem, network, algorithm, sampling, settings, resolved, channel = resolve(absolute_paths(config))
     out = Path(config.output.out) if config.output.out else Path("runs") / problem.name
-    out = out.resolve()
+    try:
+        out = out.resolve()
+    except (RuntimeError, OSError) as e:  # a loop of symbolic links on the way (RuntimeError before Python 3.13)
+        raise DgtdInputError(f"--out {out} passes through a symbolic link that loops ({e}); choose another") from None
     record = json.loads(json.dumps(spec_record(resolved)))
     runtime.check_supported(  # what the ranks cannot run, said before anything starts
         algorithm, channel, problem.n_agents, settings.backend, settings.asynchronous

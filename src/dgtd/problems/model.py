@@ -347,8 +347,14 @@ def _terminal_flags(terminal, S: int) -> np.ndarray | None:
 
 
 def _check_model(P, R, Phi, gamma: float, terminal, dependent_features: bool) -> None:
-    """gamma, the shapes of P, R and Phi, P stochastic, episodes that end where gamma = 1, Phi's rank."""
+    """gamma, the shapes of P, R and Phi, numbers in range, P stochastic, episodes that end where gamma = 1, Phi's
+    rank."""
     S, episodic = P.shape[0], terminal is not None
+    if S == 0:
+        raise DgtdInputError(f"P has no states (shape {P.shape}): a problem needs at least one")
+    if Phi.ndim == 2 and Phi.shape[1] == 0:
+        raise DgtdInputError(f"Phi has no features (shape {Phi.shape}): give at least one column")
+    _check_range(R, Phi)
     if not np.isfinite(gamma) or not (0.0 < gamma < 1.0 or (episodic and gamma == 1.0)):
         raise DgtdInputError(
             f"gamma must lie strictly between 0 and 1 (or be 1 in an episodic task, with terminal states), got {gamma}"
@@ -371,6 +377,22 @@ def _check_model(P, R, Phi, gamma: float, terminal, dependent_features: bool) ->
             f"Phi ({Phi.shape[0]} x {Phi.shape[1]}) does not have full column rank "
             f"(rank {np.linalg.matrix_rank(Phi)}); remove features that are linear combinations of others"
         )
+
+
+NUMBERS = (1e-100, 1e100)  # |phi(s)|^2 and |r| within these: their products and squares stay in float64's range
+
+
+def _check_range(R, Phi) -> None:
+    """Features and rewards whose squares and products float64 holds: beyond, the errors and steps come out NaN."""
+    with np.errstate(over="ignore", under="ignore"):
+        phi2 = float((Phi**2).sum(axis=1).max()) if Phi.size else 1.0
+        r = float(np.abs(R).max()) if R.size else 0.0
+    if not np.isfinite(phi2) or phi2 > NUMBERS[1]:
+        raise DgtdInputError(f"Phi's features are too large (max |phi(s)|^2 = {phi2:.3g}); scale them to about 1")
+    if phi2 < NUMBERS[0]:
+        raise DgtdInputError(f"Phi's features are too small (max |phi(s)|^2 = {phi2:.3g}); scale them to about 1")
+    if not np.isfinite(r) or r > NUMBERS[1]:
+        raise DgtdInputError(f"the rewards are too large (max |r| = {r:.3g}); scale them (the values scale with them)")
 
 
 def _sampling_model(P, R, P_sample, ratio, R_sample) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
