@@ -80,3 +80,14 @@ def test_jax_is_a_backend_of_the_command_line(tmp_path, run_cli):
     code, _, err = run_cli("run", "paper-example-1", "-T", "2000", "--seeds", "2", "--backend", "jax", "--out", out)
     assert code == 0, err
     assert (out / "metrics.csv").exists() and (out / "summary.json").exists()
+
+
+def test_jax_on_a_cpu_says_so_in_the_header(tmp_path, run_cli):
+    """--backend jax on a CPU was the slowest backend with no notice."""
+    from dgtd.backends import jax as on_jax
+
+    code, text, err = run_cli(
+        "run", "paper-example-1", "-T", 20, "--backend", "jax", "--no-plots", "--no-progress", "--out", tmp_path / "o"
+    )
+    assert code == 0, err
+    assert ("JAX runs on this machine's CPU" in text) == on_jax.on_cpu()

@@ -208,6 +208,11 @@ def run_header(job) -> str:
     )
     if job.resolved.problem.env is not None or job.resolved.problem.data is not None:
         lines.append(scenario_of(job.resolved).description)
+    if settings.backend == "jax":
+        from dgtd.backends import jax as on_jax
+
+        if on_jax.available() and on_jax.on_cpu():
+            lines.append(on_jax.ON_CPU)
     if steps_from_the_problem(view(job.config)):  # say which step was chosen, and why
         note = problem_steps(job.config, problem, network)[1]
         if note:
