@@ -137,7 +137,6 @@ def start(plan: Plan, resume: dict | None = None) -> RunState:
     if ctx.problem.w0 is not None:  # the task's prescribed start (Baird's); every state names the value weights w
         state = state._replace(w=np.broadcast_to(ctx.problem.w0, state.w.shape).copy())
     n_est = plan.algorithm.estimate(state).shape[1]  # the agents' estimates held here, or 1 for a centralised learner
-    n_all = n_est if layout.agents is None else N  # ... and of the whole run
     rs = RunState(
         state=state,
         # Kernels keep one running sum of w_k; the tail average is its difference from a copy taken at tail_start (a
@@ -147,7 +146,7 @@ def start(plan: Plan, resume: dict | None = None) -> RunState:
         counts={m: np.zeros((C, B)) for m in COUNTS},
         agent_error_last=np.zeros((C, B, n_est)),
         agent_error_avg=np.zeros((C, B, n_est)),
-        w_trace=np.zeros((C, B, n_all, q)) if plan.keep_trace and layout.root else None,  # (rank 0 gathers it)
+        w_trace=np.zeros((C, B, plan.estimates, q)) if plan.keep_trace and layout.root else None,  # (rank 0 gathers)
         sum_trace=np.zeros((C, B, n_est, q)) if plan.keep_sums else None,
         # the channel's counts, frozen for a seed once it diverges (a stopped seed sends nothing)
         messages=np.zeros(B),

@@ -177,6 +177,7 @@ class Plan:
     block: int  # steps a block at most
     every: int  # steps between saved checkpoints (0: none)
     limit: float  # an estimate above this has diverged
+    estimates: int  # the whole run's estimates: one per agent, or 1 for a centralised learner
     keep_trace: bool  # every agent's estimate is kept at every checkpoint (a small run's trajectory)
     # the running sum at every checkpoint is kept, for the tail average at each (`tail_at`): up to 160 MB (it is not
     # saved with the results, unlike the trace), else the tail metrics are NaN
@@ -257,6 +258,7 @@ def plan_run(
         block=block,
         every=int(checkpoint_every),
         limit=DIVERGENCE_FACTOR * max(1.0, float(np.abs(reference.w_star).max()), w0_norm),
+        estimates=estimates,
         keep_trace=B * estimates * q * len(steps) <= TRACE_MAX,
         keep_sums=B * estimates * q * len(steps) <= SUM_TRACE_MAX,
         w_ref_held=layout.rows(reference.fixed.w),
