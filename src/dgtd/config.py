@@ -862,8 +862,26 @@ def problem_start(config):
 
 def problem_steps(config, problem, network) -> tuple:
     """(the algorithm of a run on a user's problem with its steps from the problem, the header's line saying so or
-    ""): `dgtd.algorithms.base.StepSizes.from_the_problem` of `problem_start`."""
-    return problem_start(config).from_the_problem(moments_of(problem), network)
+    ""): `dgtd.algorithms.base.StepSizes.from_the_problem` of `problem_start`; where no step contracts, the
+    warning of `dgtd.algorithms.growing_mode` instead."""
+    from dgtd.algorithms import growing_mode
+
+    start, moments = problem_start(config), moments_of(problem)
+    derived, note = start.from_the_problem(moments, network)
+    return derived, growing_mode(start, moments, network) or note
+
+
+def steps_note(config, problem, network, algorithm) -> str:
+    """The header's line on the run's steps: where they come from the problem, which and why (`problem_steps`); on
+    a problem file with the user's own steps, a warning where no step would contract (`growing_mode`); else ""."""
+    from dgtd.algorithms import growing_mode
+
+    spec = view(config)
+    if steps_from_the_problem(spec):
+        return problem_steps(config, problem, network)[1]
+    if spec.problem_file is not None:
+        return growing_mode(algorithm, moments_of(problem), network)
+    return ""
 
 
 def moments_of(problem):

@@ -49,6 +49,25 @@ def make_algorithm(name: str, **fields):
     return cls(**fields)
 
 
+def growing_mode(algorithm, moments, network) -> str:
+    """A one-line warning where no step makes every mode of ``algorithm``'s mean dynamics contract on the problem
+    (``moments``: a model's or an estimated reference's) and its network, at any step size: a mode grows, so a run
+    diverges there. It names the registered methods, on their defaults, whose mean dynamics do contract there
+    (`dgtd.algorithms.mean_dynamics.first_step`). "" where a step contracts, or the dynamics are too large to
+    analyse."""
+    from dgtd.algorithms.mean_dynamics import first_step
+
+    alpha_1, why = first_step(algorithm, moments, network)
+    if alpha_1 is not None or not why.startswith("no step"):
+        return ""
+    fine = [name for name, cls in ALGORITHMS.items() if first_step(cls(), moments, network)[0] is not None]
+    return (
+        f"warning: no step makes every mode of {algorithm.name}'s mean dynamics contract on this problem (a mode "
+        f"grows at every step size: expect it to diverge); the methods whose mean dynamics contract here: "
+        f"{', '.join(fine) or 'none'}; the steps given are kept"
+    )
+
+
 __all__ = [
     "ALGORITHMS",
     "ConsensusTD0",
@@ -62,5 +81,6 @@ __all__ = [
     "TDCTracking",
     "TDRC",
     "TDTracking",
+    "growing_mode",
     "make_algorithm",
 ]

@@ -18,6 +18,12 @@ mixing eigenvalue; and at most the step at which a single sample overshoots alon
 the step sizes it derives from alpha times max ratio(s, a) |phi(s)|^2 at most 1: off-policy, a sample's step is its
 importance ratio times on-policy's). For a method whose every mode is
 I - alpha nu (DGTD, TD(0), TDRC) half the largest contracting step is min Re(nu) / |nu|^2 over its modes.
+
+Off-policy the mean is not enough: with large importance ratios a step at which the mean contracts can let the
+spread about it grow (on Baird's counterexample at 1 / 35 every gradient-TD method's does, and `local` diverged on a
+file with ratios 10). There the step is at most half the largest at which the second moment of one agent's update
+contracts: the spectral radius of X -> E[J_t X J_t^T] below 1, J_t the update of one sample
+(`second_moment_step`).
 """
 
 from __future__ import annotations
@@ -243,13 +249,111 @@ def _first_step(algorithm, known: tuple, lams: np.ndarray) -> tuple[float | None
     largest = min(largest_contracting_step(mean_map, float(lam), 2.0 * cap) for lam in lams)
     if largest <= 0.0:
         return None, "no step makes every mode of its mean dynamics contract here"
-    over, bound = 1.0 / largest_phi, "1 / max ratio |phi(s)|^2" if known[4].ratio.max() > 1.0 else "1 / max |phi(s)|^2"
+    off_policy = known[4].ratio.max() > 1.0
+    over, bound = 1.0 / largest_phi, "1 / max ratio |phi(s)|^2" if off_policy else "1 / max |phi(s)|^2"
     if largest >= 2.0 * cap:
-        return cap, (
-            f"its step sizes at most {bound} = {over:.3g}, where one sample overshoots (every mode of its "
-            "mean dynamics contracts at twice that)"
+        step, why = (
+            cap,
+            (
+                f"its step sizes at most {bound} = {over:.3g}, where one sample overshoots (every mode of its "
+                "mean dynamics contracts at twice that)"
+            ),
         )
-    return 0.5 * largest, f"half the largest at which every mode of its mean dynamics contracts ({bound}: {over:.3g})"
+    else:
+        step, why = (
+            0.5 * largest,
+            (f"half the largest at which every mode of its mean dynamics contracts ({bound}: {over:.3g})"),
+        )
+    if off_policy:
+        second = second_moment_step(algorithm, known, 2.0 * step)
+        if 0.5 * second < step:
+            ratio = float(known[4].ratio.max())
+            return 0.5 * second, (
+                f"half the largest at which the second moment of one agent's update contracts (importance ratios up "
+                f"to {ratio:.3g}: at {step:.3g}, which the mean dynamics allow, the spread about the mean grows)"
+            )
+    return step, why
+
+
+SECOND_MOMENT_WORK = 2e10  # transitions x (state size)^3 beyond which the second moment is not analysed (~5 s)
+SECOND_MOMENT_KINDS = 2000  # distinct transitions beyond which it is not (a `MeanMap` each, ~2 ms)
+
+
+def one_transition_maps(algorithm, known: tuple, limit: float = np.inf) -> tuple[list, np.ndarray]:
+    """(the `MeanMap` of each distinct transition alone, its probability): J_t(alpha, lam) of one sample, the
+    random matrix whose mean is the mean map. Transitions that read the same rows with the same ratio and
+    discount are one. ([], []) where there are more than ``limit``."""
+    rows, s, s_next, weight, sample = known
+    ratio = np.asarray(sample.ratio, dtype=float).reshape(-1)
+    gamma = np.broadcast_to(np.asarray(sample.gamma, dtype=float), (1, s.size)).reshape(-1)
+    kinds, which = np.unique(np.stack([s, s_next, ratio, gamma], axis=1), axis=0, return_inverse=True)
+    if len(kinds) > limit:
+        return [], np.zeros(0)
+    weights = np.bincount(which.reshape(-1), weights=weight, minlength=len(kinds))
+    maps = []
+    for u, t, r, g in kinds:
+        one = np.ones((1, 1, 1))
+        alone = Sample(one, one, np.zeros((1, 1)), np.full((1, 1), r), np.full((1, 1), g))
+        maps.append(MeanMap(algorithm, (rows, np.array([int(u)]), np.array([int(t)]), np.ones(1), alone)))
+    return maps, weights
+
+
+def second_moment_radius(J: np.ndarray, weights: np.ndarray) -> float:
+    """The spectral radius of X -> E[J_t X J_t^T] = sum_t p_t J_t X J_t^T, ``J`` (T, n, n) one agent's update on
+    each of its own samples: below 1 the spread of its iterates about their mean stays bounded; above, it grows
+    though the mean contracts. (A completely positive map: its radius is an eigenvalue; ARPACK finds it on the
+    matrix form where the n^2 x n^2 matrix would be large.)"""
+    from scipy.sparse.linalg import LinearOperator, eigs
+
+    n = J.shape[1]
+    if n * n <= 400:
+        return float(np.abs(np.linalg.eigvals(np.einsum("t,tij,tkl->ikjl", weights, J, J).reshape(n * n, n * n))).max())
+
+    def apply(x):
+        return np.einsum("t,tij,jk,tlk->il", weights, J, x.reshape(n, n), J, optimize=True).ravel()
+
+    op = LinearOperator((n * n, n * n), matvec=apply, dtype=np.float64)
+    return float(np.abs(eigs(op, k=1, which="LM", return_eigenvectors=False, tol=1e-8)).max())
+
+
+def moving_part(J: np.ndarray, mean: np.ndarray) -> np.ndarray | None:
+    """``J`` (T, n, n) on the subspace that moves: without the modes the mean map ``mean`` leaves alone (nu = 1:
+    DGTD's multipliers when nothing is heard, a tracking method's conserved sum), which would give the second moment
+    radius 1 at every step. Right fixed vectors are quotiented out and left ones (conserved quantities) restricted
+    away, exact where every sample fixes them as the mean does; None where one does not."""
+    from scipy.linalg import null_space
+
+    eye = np.eye(len(mean))
+    right, left = null_space(mean - eye, rcond=LEFT_ALONE), null_space(mean.T - eye, rcond=LEFT_ALONE)
+    if not right.size and not left.size:
+        return J
+    fixed = all(np.allclose(Jt @ right, right, atol=1e-9) and np.allclose(left.T @ Jt, left.T, atol=1e-9) for Jt in J)
+    if not fixed:
+        return None
+    Q = null_space(np.concatenate([right, left], axis=1).T)
+    return Q.T @ J @ Q
+
+
+def second_moment_step(algorithm, known: tuple, hi: float) -> float:
+    """The largest alpha up to ``hi`` at which the second moment of one agent's update on its own samples contracts
+    (lam = 0: the part of the noise the mixing does not average away; `second_moment_radius` of the `moving_part`),
+    by bisection; ``hi`` itself where the analysis does not apply (a mode left alone that a sample moves) or is too
+    much work (`SECOND_MOMENT_WORK`, `SECOND_MOMENT_KINDS`)."""
+    mean = MeanMap(algorithm, known)
+    n = mean(hi, 0.0).shape[0]
+    maps, weights = one_transition_maps(algorithm, known, min(SECOND_MOMENT_KINDS, SECOND_MOMENT_WORK / n**3))
+
+    def radius(alpha: float) -> float:
+        J = moving_part(np.stack([m(alpha, 0.0) for m in maps]), mean(alpha, 0.0))
+        return 0.0 if J is None or not J.shape[1] else second_moment_radius(J, weights)
+
+    if not maps or radius(hi) < 1.0:
+        return hi
+    lo = 0.0
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if radius(mid) < 1.0 else (lo, mid)
+    return lo
 
 
 def first_of(algorithm) -> float:

@@ -185,7 +185,7 @@ def _run_job(job, t_start: float) -> None:
 def run_header(job) -> str:
     """The lines a run starts with: its problem and links, its algorithm and settings, where its samples come from,
     and the first step chosen from the problem where it was."""
-    from dgtd.config import problem_steps, scenario_of, steps_from_the_problem, view
+    from dgtd.config import scenario_of, steps_note
 
     lines = []
     problem, network, algorithm, samp, settings = job.problem, job.network, job.algorithm, job.sampling, job.settings
@@ -213,10 +213,9 @@ def run_header(job) -> str:
 
         if on_jax.available() and on_jax.on_cpu():
             lines.append(on_jax.ON_CPU)
-    if steps_from_the_problem(view(job.config)):  # say which step was chosen, and why
-        note = problem_steps(job.config, problem, network)[1]
-        if note:
-            lines.append(note)
+    note = steps_note(job.config, problem, network, algorithm)  # the step chosen and why, or a growing mode
+    if note:
+        lines.append(note)
     return "\n".join(lines)
 
 
