@@ -150,7 +150,19 @@ def test_a_run_with_its_own_steps_on_a_problem_file_is_warned_of_a_growing_mode(
     """The warning does not depend on the steps: `dgtd run --problem baird.npz --algorithm td0 --alpha0 0.01` says
     before the run that TD(0)'s mean dynamics grow there and which methods contract; DGTD's run says nothing."""
     ratio_10_file(tmp_path / "b.npz")  # TD(0) grows there
-    base = ("run", "--problem", tmp_path / "b.npz", "-T", "50", "--no-plots", "--no-progress", "--alpha0", "0.01")
+    base = (
+        "run",
+        "--problem",
+        tmp_path / "b.npz",
+        "-T",
+        "50",
+        "--no-plots",
+        "--no-progress",
+        "--alpha0",
+        "0.01",
+        "--backend",
+        "numpy",
+    )
     code, text, err = run_cli(*base, "--algorithm", "td0", "--out", tmp_path / "a")
     assert code == 0, err
     assert "warning: no step makes every mode of td0's mean dynamics contract" in text + err
