@@ -343,3 +343,15 @@ def test_compare_into_a_directory_of_another_comparison_is_refused(run_cli, tmp_
     assert run_cli(*args)[0] == 0
     one_line_error(*run_cli(*args[:3], "600", *args[4:]), "holds the results of another", "--overwrite")
     assert run_cli(*args[:3], "600", *args[4:], "--overwrite")[0] == 0
+
+
+def test_a_run_that_ends_farther_from_w_star_than_it_started_says_so(run_cli, tmp_path):
+    """`--bits 1` without error feedback: stochastic rounding onto {-s, s} adds noise as large as the messages, and
+    garnet ended 1126 % off w* with no word. A run whose worst agent ends farther from w* than w = 0 is (100 %) is
+    said not to have converged, with what to change for compressed links; a run that converges says nothing."""
+    base = ("run", "garnet", "-T", "3000", "--seeds", "2", "--backend", "numpy", "--no-plots", "--no-progress")
+    code, text, err = run_cli(*base, "--bits", "1", "--out", tmp_path / "a")
+    assert code == 0, err
+    assert "did not converge" in err and "--error-feedback" in err
+    code, text, err = run_cli(*base, "--out", tmp_path / "b")
+    assert code == 0 and "did not converge" not in err

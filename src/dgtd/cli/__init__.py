@@ -219,6 +219,32 @@ def run_header(job) -> str:
     return "\n".join(lines)
 
 
+def not_converged(job, result) -> str:
+    """A warning where the worst agent's tail-averaged estimate ends farther from the run's reference than its
+    start (w0, or 0: 100 %) without having diverged, with what to change on compressed links; else ""."""
+    from dgtd.problems import exact
+    from dgtd.run.results import reference
+
+    ref = reference(result)
+    tail = exact.relative_error(result.w_tail, ref)
+    w0 = job.problem.w0 if job.problem.w0 is not None else np.zeros(ref.shape[-1])
+    start = float(exact.relative_error(w0, ref, of=ref).max())
+    worst = float(np.nanmax(tail, initial=0.0)) if np.isfinite(tail).any() else 0.0
+    if worst <= max(start, 1.0):
+        return ""
+    channel = job.channel
+    hint = ""
+    if getattr(channel, "bits", 64) < 64 and not getattr(channel, "error_feedback", False):
+        hint = (
+            f"; messages rounded to {channel.bits} bit(s) without error feedback carry noise as large as themselves: "
+            "add --error-feedback, or give more --bits"
+        )
+    return (
+        f"warning: the run did not converge: the worst agent's tail-averaged estimate ended {worst:.0%} from the "
+        f"reference, farther than it started ({start:.0%}){hint or '; lower the steps (--alpha0, or raise --beta)'}"
+    )
+
+
 def report_notes(job, result) -> None:
     """What the run's end says beside its table: boxes that grew, iterates pinned to them, the scenario's report."""
     from dgtd.run.results import pinned_to_boxes
@@ -229,6 +255,9 @@ def report_notes(job, result) -> None:
             f"(box_scale x |{name}*|_inf), so that it contains the saddle point",
             err=True,
         )
+    far = not_converged(job, result)
+    if far:
+        click.echo(far, err=True)
     pinned = pinned_to_boxes(result)
     if pinned:
         click.echo(
