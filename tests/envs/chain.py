@@ -132,3 +132,51 @@ def make_without_state_space():
     env = Chain(3)
     del env.state_space
     return env
+
+
+class OldGym:
+    """A single-agent env of the old Gym API (before gym 0.26): reset() returns only the observation and step()
+    four values (observation, reward, done, info)."""
+
+    observation_space = spaces.Box(-1.0, 1.0, (2,))
+    action_space = spaces.Discrete(2)
+
+    def reset(self, seed=None, options=None):
+        return np.zeros(2)
+
+    def step(self, action):
+        return np.zeros(2), 1.0, False, {}
+
+
+def make_old_gym():
+    return OldGym()
+
+
+class OldParallel(Chain):
+    """A ParallelEnv of the old PettingZoo API: reset() returns only the observations, step() four dicts."""
+
+    def reset(self, seed=None, options=None):
+        return super().reset(seed, options)[0]
+
+    def step(self, actions):
+        obs, rewards, terms, truncs, infos = super().step(actions)
+        return obs, rewards, {a: terms[a] or truncs[a] for a in terms}, infos
+
+
+def make_old_parallel():
+    return OldParallel(3)
+
+
+class TextChain(Chain):
+    """A chain whose state and observations are words."""
+
+    def state(self):
+        return f"state {self.s}"
+
+    def reset(self, seed=None, options=None):
+        obs, infos = super().reset(seed, options)
+        return {a: f"state {o}" for a, o in obs.items()}, infos
+
+
+def make_text_chain():
+    return TextChain(3)

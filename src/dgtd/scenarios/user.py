@@ -96,11 +96,11 @@ class EnvSpec:
             "env's reward is split among."
         ),
     )
-    split: str | list = field(
-        default="random",
+    split: str | list | None = field(
+        default=None,
         metadata=option(
             "How a Gymnasium env's one reward is split: random (fresh shares at every step, averaging to the "
-            "reward) or the agents' shares, e.g. 0.5,0.3,0.2."
+            "reward; the default) or the agents' shares, e.g. 0.5,0.3,0.2."
         ),
     )
     positions: str | None = field(
@@ -219,6 +219,11 @@ def env_factory(spec: EnvSpec):
     label = env_name(spec.make)
     if hasattr(probe, "possible_agents"):
         n = len(probe.possible_agents)
+        if spec.split is not None:  # it would be ignored, yet written into config.toml as if it held
+            raise DgtdInputError(
+                f"--split splits a single-agent Gymnasium env's one reward; --env {spec.make} is a PettingZoo "
+                "ParallelEnv whose agents have their own rewards: leave out --split (map them with --rewards)"
+            )
         if spec.agents is not None and spec.agents != n:
             raise DgtdInputError(
                 f"--env {spec.make} made {n} agents, not the {spec.agents} asked for"
@@ -232,8 +237,8 @@ def env_factory(spec: EnvSpec):
                 "reward among N agents (--split random, or shares)"
             )
         return (
-            (lambda: SplitReward(make_raw(), spec.agents, spec.split)),
-            SplitReward(probe, spec.agents, spec.split),
+            (lambda: SplitReward(make_raw(), spec.agents, spec.split or "random")),
+            SplitReward(probe, spec.agents, spec.split or "random"),
             label,
         )
     raise DgtdInputError(

@@ -29,6 +29,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError, call_user, user_error, user_numbers
 from dgtd.samples import Block, SampleTable
+from dgtd.sources.gym import PARALLEL_API, api_checked
 from dgtd.streams import EDGE_UP, SIMULATOR, entity_seed, seed_key, singles
 
 
@@ -81,10 +82,13 @@ def env_state(env, agents) -> np.ndarray:
         state = None
     except Exception as e:  # noqa: BLE001  (the user's state() failing: theirs to see)
         raise user_error(f"the env's state() ({type(env).__name__})", e) from e
+    name = type(env).__name__
     if state is None:
         obs = env._dgtd_last_obs  # set by `EnvSource` at every reset and step
-        state = np.concatenate([np.ravel(np.asarray(obs[a], dtype=np.float64)) for a in agents])
-    return np.ravel(np.asarray(state, dtype=np.float64))
+        state = np.concatenate(
+            [np.ravel(user_numbers(f"the env's observation of {a} ({name})", obs[a])) for a in agents]
+        )
+    return np.ravel(user_numbers(f"the env's state() ({name})", state))
 
 
 class EnvSource:
@@ -159,7 +163,8 @@ class EnvSource:
         """A new episode of seed b's env, seeded by (its key, simulator, episode)."""
         seed = entity_seed(self.keys[b], SIMULATOR, 0, self.episodes[b]) % (2**31 - 1)
         self.episodes[b] += 1
-        obs, _ = call_user(f"the env's reset() ({self.name})", env.reset, seed=seed)
+        what = f"the env's reset() ({self.name})"
+        obs, _ = api_checked(call_user(what, env.reset, seed=seed), 2, what, PARALLEL_API)
         env._dgtd_last_obs = obs
         return env_state(env, list(env.possible_agents))
 
@@ -187,7 +192,9 @@ class EnvSource:
                 }
                 if self.positions is not None:
                     up[t, b] = self.proximity.masks(self._positions(env))
-                obs, rewards, terms, truncs, _ = call_user(f"the env's step() ({self.name})", env.step, actions)
+                what = f"the env's step() ({self.name})"
+                result = api_checked(call_user(what, env.step, actions), 5, what, PARALLEL_API)
+                obs, rewards, terms, truncs, _ = result
                 env._dgtd_last_obs = obs
                 states[t, b] = self.current[b]
                 r[t, b] = self._rewards(rewards, actions)

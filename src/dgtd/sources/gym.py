@@ -18,6 +18,26 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 
+PARALLEL_API = (
+    "PettingZoo's ParallelEnv API (pettingzoo >= 1.22): reset() -> (observations, infos), step() -> "
+    "(observations, rewards, terminations, truncations, infos)"
+)
+GYMNASIUM_API = (
+    "Gymnasium's API (gymnasium, or gym >= 0.26): reset() -> (observation, info), step() -> "
+    "(observation, reward, terminated, truncated, info)"
+)
+
+
+def api_checked(result, size: int, what: str, api: str):
+    """``result`` of a user's env's reset() or step() (``what``), where it is the tuple of ``size`` values ``api``
+    gives; else a one-line refusal saying it is an older API and which one dgtd needs (unpacking it would raise
+    deep in dgtd)."""
+    if isinstance(result, tuple) and len(result) == size:
+        return result
+    got = f"{len(result)} values" if isinstance(result, tuple) else f"a {type(result).__name__}"
+    old = "Gym" if api is GYMNASIUM_API else "PettingZoo"
+    raise DgtdInputError(f"{what} returned {got}, not {size}: the old {old} API; dgtd needs {api}")
+
 
 def split_weights(split, n_agents: int) -> np.ndarray | None:
     """The partition w (N,) of ``split`` (a list), or None for "random"; a bad one is a one-line error."""
@@ -56,13 +76,16 @@ class SplitReward:
         return np.ravel(np.asarray(self.obs, dtype=np.float64))
 
     def reset(self, seed: int | None = None, options=None):
-        self.obs, info = self.env.reset(seed=seed, options=options)
+        what = f"the env's reset() ({type(self.env).__name__})"
+        self.obs, info = api_checked(self.env.reset(seed=seed, options=options), 2, what, GYMNASIUM_API)
         self.rng = np.random.default_rng(seed)  # the random split's own stream, from the same seed
         self.agents = list(self.possible_agents)
         return {a: self.obs for a in self.agents}, {a: info for a in self.agents}
 
     def step(self, actions: dict):
-        self.obs, reward, terminated, truncated, info = self.env.step(actions[self.possible_agents[0]])
+        what = f"the env's step() ({type(self.env).__name__})"
+        result = api_checked(self.env.step(actions[self.possible_agents[0]]), 5, what, GYMNASIUM_API)
+        self.obs, reward, terminated, truncated, info = result
         N = len(self.possible_agents)
         w = self.rng.dirichlet(np.ones(N)) if self.weights is None else self.weights
         rewards = N * w * float(reward)
