@@ -320,11 +320,13 @@ def test_ranks_started_by_dgtd_run_itself(tmp_path):
         assert done.stdout.count("wrote ") == 1
 
 
-def test_ctrl_c_ends_every_rank_at_once_and_keeps_the_checkpoint(tmp_path):
+@pytest.mark.parametrize("to", ["group", "launcher"])
+def test_ctrl_c_ends_every_rank_at_once_and_keeps_the_checkpoint(tmp_path, to):
     """Ctrl-C (SIGINT to the terminal's process group) reaches a rank only where it runs Python; a rank inside a
     collective would wait for it until the watchdog's timeout. The interrupted rank ends the job (MPI_Abort): every
     process is gone within seconds, the launcher exits 130 as an interrupted run does, the checkpoint is whole, and
-    the same command again continues from it."""
+    the same command again continues from it. SIGINT to the `dgtd run --ranks` launcher alone does the same (the
+    ranks ran on, and the launcher ended in a TimeoutExpired traceback, exit 1)."""
     out = tmp_path / "run"
     cmd = [*DGTD, "run", "garnet", "-T", "100000", "--ranks", "2", "--checkpoint-every", "5000", "--out", str(out)]
     job = subprocess.Popen(
@@ -338,7 +340,7 @@ def test_ctrl_c_ends_every_rank_at_once_and_keeps_the_checkpoint(tmp_path):
     )
     try:
         _wait_for_a_checkpoint(job, out)
-        os.killpg(job.pid, signal.SIGINT)
+        (os.killpg if to == "group" else os.kill)(job.pid, signal.SIGINT)
         _, err = job.communicate(timeout=30)
     finally:
         if job.poll() is None:

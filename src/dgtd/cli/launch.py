@@ -9,6 +9,7 @@ the launcher's error trace (``ssh: connect to host ... Connection refused`` and 
 from __future__ import annotations
 
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -111,12 +112,17 @@ def launch(ranks: int | None, hosts: str | None, argv: list[str]) -> int:
         check_reachable(listed, hosts)
         command += ["-f", hosts]
     command += [sys.executable, "-m", "dgtd.cli", *without(argv, ("--ranks", "--hosts"))]
-    job = subprocess.Popen(command)
+    # in a session of its own: a Ctrl-C, to the terminal's process group or to this process alone, reaches mpiexec
+    # once, from here, and mpiexec passes it on to the ranks, which keep what they computed
+    job = subprocess.Popen(command, start_new_session=True)
     try:
         return job.wait()
-    except KeyboardInterrupt:  # mpiexec passes Ctrl-C on to the ranks, which keep what they computed: let them end
+    except KeyboardInterrupt:
+        job.send_signal(signal.SIGINT)
         try:
             return job.wait(timeout=INTERRUPTED_SECONDS) or 130  # as an interrupted run exits (MPICH's says 0)
+        except subprocess.TimeoutExpired:
+            return 130
         finally:
             job.kill()  # a second Ctrl-C, or ranks that did not end in time
             # said here too: a rank's own line can be lost when its job is aborted before mpiexec passes it on
