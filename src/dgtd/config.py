@@ -577,9 +577,14 @@ def _from_scenario(spec) -> _Base:
 
 def _from_problem_file(spec) -> _Base:
     """A problem file's model, on a ring by default, with DGTD's defaults."""
-    if spec.params:
-        raise DgtdInputError("params are a scenario's parameters, but this run reads a problem file; remove them")
     problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
+    if spec.params:
+        raise DgtdInputError(
+            f"--agents sets the agents of a generated task or a simulator; a problem file's agents are the rows of "
+            f"its R ({problem.n_agents} agents): leave out --agents"
+            if set(spec.params) == {"agents"}
+            else "params are a scenario's parameters, but this run reads a problem file; remove them"
+        )
     if spec.restarts is not None:
         problem = with_restarts(problem, spec.restarts)
     return _Base(spec, problem, None, DGTD(), Sampling(), 100_000, "ring", 1.0, None, None)

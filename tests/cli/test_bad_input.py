@@ -416,3 +416,71 @@ def test_a_pipe_or_a_symlink_loop_is_named_for_what_it_is(tmp_path, run_cli):
         tmp_path / "a" / "x",
     )
     assert code == 2 and "symbolic link" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize(
+    "arrays, said, not_said",
+    [
+        (dict(sigma=np.inf), "sigma must be a finite number", "at least the largest"),
+        (dict(terminal=np.array([0.0, np.nan])), "terminal holds nan", "shape"),
+    ],
+    ids=["sigma inf", "nan in terminal"],
+)
+def test_a_problem_files_fault_is_named_for_what_it_is(tmp_path, run_cli, arrays, said, not_said):
+    """sigma = inf was refused by a rule inf meets ("at least the largest mean reward"); a NaN in terminal was
+    reported as a wrong shape (the shape was right)."""
+    path = _problem_file(tmp_path / "p.npz", **arrays)
+    code, _, err = run_cli("run", "--problem", path, "-T", 50, "--no-plots", "--no-progress", "--out", tmp_path / "o")
+    assert code == 2 and said in err and not_said not in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_recording_with_no_rows_says_so_not_that_it_lacks_its_columns(tmp_path, run_cli):
+    """A header-only CSV and an empty Parquet file have every column; they were said to lack them."""
+    header = "seed,step,agent,phi_0,next_phi_0,reward\n"
+    (tmp_path / "head.csv").write_text(header)
+    files = [tmp_path / "head.csv"]
+    pa = pytest.importorskip("pyarrow")
+    import pyarrow.parquet as pq
+
+    columns = header.strip().split(",")
+    types = [pa.int64()] * 3 + [pa.float64()] * 3
+    pq.write_table(pa.table({c: pa.array([], t) for c, t in zip(columns, types)}), tmp_path / "empty.parquet")
+    files.append(tmp_path / "empty.parquet")
+    for path in files:
+        code, _, err = run_cli("run", "--data", path, "-T", 10, "--no-plots", "--no-progress", "--out", tmp_path / "o")
+        assert code == 2 and "holds no rows" in err and "lacks" not in err, err
+
+
+def test_agents_with_a_problem_file_speaks_of_the_files_agents(tmp_path, run_cli):
+    """`--problem F --agents 5` said "params are a scenario's parameters": the user gave --agents, not params."""
+    path = _problem_file(tmp_path / "p.npz")
+    code, _, err = run_cli("run", "--problem", path, "--agents", 5, "-T", 10, "--no-progress", "--out", tmp_path / "o")
+    assert code == 2 and "--agents" in err and "the rows of its R (2 agents)" in err and "params" not in err, err
+
+
+def test_a_changed_edge_list_is_blamed_not_the_step_derived_from_it(tmp_path, run_cli, monkeypatch):
+    """A run on a problem file over an edge list, cut off after a checkpoint; the edge list changes, the same
+    command again: the step derived from the problem and its network changed with it, and the refusal blamed that
+    ("beta = 5170 there, 8650 here") instead of the file."""
+    S = 10
+    P = np.zeros((S, S))
+    for s in range(S):
+        P[s, max(s - 1, 0)] += 0.5
+        P[s, min(s + 1, S - 1)] += 0.5
+    x = np.linspace(0.0, 1.0, S)
+    Phi = np.stack([np.ones(S), x, np.cos(np.pi * x)], 1)
+    R = np.random.default_rng(1).uniform(0.0, 1.0, (6, S))
+    np.savez(tmp_path / "chain.npz", P=P, R=R, Phi=Phi, gamma=0.9)
+    edges = tmp_path / "edges.txt"
+    edges.write_text("0 1\n1 2\n2 3\n3 4\n4 5\n5 0\n")
+    out = tmp_path / "o"
+    command = ("run", "--problem", tmp_path / "chain.npz", "--graph", edges, "-T", 400, "--checkpoint-every", 100)
+    command += ("--backend", "numpy", "--no-plots", "--no-progress", "--out", out)
+    with monkeypatch.context() as m:  # as if cut off after its last checkpoint
+        m.setattr("dgtd.cli.job.remove_checkpoint", lambda path: None)
+        code, _, err = run_cli(*command)
+    assert code == 0 and (out / "checkpoint.npz").exists(), err
+    (out / "summary.json").unlink()
+    edges.write_text("0 1\n1 2\n2 3\n3 4\n4 5\n5 0\n0 3\n1 4\n2 5\n")
+    code, _, err = run_cli(*command)
+    assert code == 2 and "the graph file" in err and "changed since the checkpoint" in err and "beta" not in err, err

@@ -255,8 +255,11 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
     if output.resume or (ckpt.exists() and not output.overwrite):
         snapshot, saved = load_checkpoint(ckpt)
         diff = first_difference(saved, record)
-        if diff.split(" ")[0].endswith("_sha256") and not first_difference(*map(_without_files, (saved, record))):
-            role = diff.split(" ")[0].removesuffix("_sha256")
+        changed = [
+            k for k in sorted(set(saved) | set(record)) if k.endswith("_sha256") and saved.get(k) != record.get(k)
+        ]
+        if changed and all(k in saved and k in record for k in changed):  # the file, not what is derived from it
+            role = changed[0].removesuffix("_sha256")
             raise DgtdInputError(
                 f"the {role} file {input_files(run.config)[role]} changed since the checkpoint in {out} "
                 "was written (its SHA-256 differs): put the file back as it was to continue the run, or pass "
@@ -274,11 +277,6 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
         clear_previous_run(out, record, output.overwrite)
         atomic_write(out / CONFIG, run.config_toml.encode())
     return run
-
-
-def _without_files(record: dict) -> dict:
-    """A run's config record but for its input files' digests."""
-    return {key: value for key, value in record.items() if not key.endswith("_sha256")}
 
 
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's

@@ -338,6 +338,11 @@ def _terminal_flags(terminal, S: int) -> np.ndarray | None:
     if terminal is None:
         return None
     terminal = np.asarray(terminal)
+    if terminal.dtype.kind in "fc" and not np.isfinite(terminal).all():
+        raise DgtdInputError(
+            f"terminal holds {terminal[~np.isfinite(terminal)][0]} at state {int(np.flatnonzero(~np.isfinite(terminal))[0])}: "
+            "give 1 at a terminal state, 0 elsewhere"
+        )
     if terminal.shape != (S,) or terminal.dtype.kind not in "biu" or not np.isin(terminal, (0, 1)).all():
         raise DgtdInputError(
             f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
@@ -450,7 +455,9 @@ def _sigma(sigma, R, R_sample, R_transition, signed_rewards: bool, reward_noise:
     if sigma is None:
         sigma = r_max if r_max > 0 else 1.0
     sigma = float(sigma)
-    if not np.isfinite(sigma) or sigma <= 0 or sigma < r_max - 1e-12:
+    if not np.isfinite(sigma):
+        raise DgtdInputError(f"sigma must be a finite number (the rewards' bound, at least {r_max:g}), got {sigma}")
+    if sigma <= 0 or sigma < r_max - 1e-12:
         raise DgtdInputError(f"sigma must be positive and at least the largest mean reward {r_max:g}, got {sigma}")
     if signed_rewards and reward_noise not in ("none", "transition"):
         raise DgtdInputError(

@@ -86,8 +86,8 @@ def _header(path: Path) -> list[str]:
     for batch in _read(path):
         names = list(batch)
         break
-    else:
-        names = []
+    else:  # a header alone, or an empty table: it may have every column
+        raise DgtdInputError(f"transitions file {path} holds no rows; {FIX}")
     states = STATES if "state" in names and "phi_0" not in names else ("phi_0", "next_phi_0")
     missing = [c for c in ("step", "agent", "reward", *states) if c not in names]
     if "seed" not in names and "episode" not in names:
