@@ -339,10 +339,8 @@ def _terminal_flags(terminal, S: int) -> np.ndarray | None:
         return None
     terminal = np.asarray(terminal)
     if terminal.dtype.kind in "fc" and not np.isfinite(terminal).all():
-        raise DgtdInputError(
-            f"terminal holds {terminal[~np.isfinite(terminal)][0]} at state {int(np.flatnonzero(~np.isfinite(terminal))[0])}: "
-            "give 1 at a terminal state, 0 elsewhere"
-        )
+        at = int(np.flatnonzero(~np.isfinite(terminal))[0])
+        raise DgtdInputError(f"terminal holds {terminal[at]} at state {at}: give 1 at a terminal state, 0 elsewhere")
     if terminal.shape != (S,) or terminal.dtype.kind not in "biu" or not np.isin(terminal, (0, 1)).all():
         raise DgtdInputError(
             f"terminal must be {S} flags (1 at a terminal state, 0 elsewhere), one per state, got "
