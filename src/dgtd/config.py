@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
-from dgtd.fields import option
+from dgtd.fields import STEP_SIZES, option
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
@@ -381,7 +381,7 @@ def _choices() -> dict:
 
 CHOICES = _choices()
 """Flat field name -> its valid values, from the modules that check them."""
-STEP_SIZE_FIELDS = ("alpha0", "beta", "schedule")
+STEP_SIZE_FIELDS = STEP_SIZES
 
 
 def closest(name: str, valid) -> str:

@@ -355,3 +355,38 @@ def test_a_run_that_ends_farther_from_w_star_than_it_started_says_so(run_cli, tm
     assert "did not converge" in err and "--error-feedback" in err
     code, text, err = run_cli(*base, "--out", tmp_path / "b")
     assert code == 0 and "did not converge" not in err
+
+
+def test_a_compare_row_is_repeated_by_the_dgtd_run_it_names(run_cli, tmp_path):
+    """`dgtd run --help` said methods other than DGTD default to alpha0 0.1, a run on a problem file took 10 and
+    `dgtd compare` 0.686: a run did not repeat its compare row. compare now prints, and keeps in summary.json, the
+    options that repeat each row; `dgtd run` with them gives the row's tail error exactly (the same keyed samples)."""
+    import json
+    import re
+
+    import numpy as np
+
+    P = np.full((4, 4), 0.25)
+    R = np.random.default_rng(0).uniform(0.0, 1.0, (3, 4))
+    np.savez(tmp_path / "p.npz", P=P, R=R, Phi=np.eye(4)[:, :3] + 0.1, gamma=0.9)
+    common = ("--problem", tmp_path / "p.npz", "-T", "1000", "--seeds", "2", "--backend", "numpy", "--no-plots")
+    code, text, err = run_cli("compare", *common, "-a", "dgtd,tdc", "--no-progress", "--out", tmp_path / "c")
+    assert code == 0, err
+    said = re.search(r"tdc: (--algorithm tdc --alpha0 \S+ --beta \S+ --schedule \S+)", text)
+    assert said and "repeat a row" in text, text
+    row = json.loads((tmp_path / "c" / "summary.json").read_text())["algorithms"]["tdc"]
+    assert row["run_options"] == said.group(1).split()
+    code, _, err = run_cli("run", *common, *row["run_options"], "--no-progress", "--out", tmp_path / "r")
+    assert code == 0, err
+    tails = np.max(json.loads((tmp_path / "r" / "summary.json").read_text())["value_error_tail"], axis=1)
+    assert np.median(tails) == row["final"]["value_error_tail"]["median"]
+
+
+def test_run_help_says_where_the_steps_come_from():
+    """The step options' help names the scenario's steps for any --algorithm, not each class's own default."""
+    from click.testing import CliRunner
+
+    from dgtd.cli import cli
+
+    text = " ".join(CliRunner().invoke(cli, ["run", "--help"]).output.split())
+    assert "the others 0.1" not in text and "whatever --algorithm" in text and "from the problem" in text

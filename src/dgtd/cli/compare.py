@@ -216,6 +216,7 @@ def table(results: dict, used: dict) -> str:
     diverged seed counts as one that stopped learning)."""
     import numpy as np
 
+    from dgtd.fields import run_options
     from dgtd.run.compare import error_area
 
     rows = [
@@ -240,7 +241,13 @@ def table(results: dict, used: dict) -> str:
             f"{med('mspbe_last'):>12.3g}{float(np.max(r.info['messages'])):>12.3g}"
             f"{float(np.max(r.info['bits'])):>12.3g}  {d}"
         )
-    return "\n".join(rows) + "\n" + verdict(results)
+    repeat = "; ".join(f"{name}: {' '.join(run_options(used[name]))}" for name in results)
+    return (
+        "\n".join(rows)
+        + "\n"
+        + verdict(results)
+        + f"\nto repeat a row, dgtd run with the comparison's options and its method's: {repeat}"
+    )
 
 
 def verdict(results: dict) -> str:

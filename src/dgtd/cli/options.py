@@ -14,8 +14,8 @@ from dataclasses import fields
 
 import click
 
-from dgtd.config import CHOICES, FLAT, SECTIONS, Output, field_types
-from dgtd.fields import option_of
+from dgtd.config import CHOICES, FLAT, SECTIONS, STEP_SIZE_FIELDS, Output, field_types
+from dgtd.fields import declared, option_of
 
 
 def _floats(value: str, wanted: str) -> list[float]:
@@ -126,16 +126,6 @@ def _env_options() -> dict:
     return out
 
 
-def _declared(cls, name: str):
-    """The field ``name`` of algorithm ``cls`` as first declared with its option (a subclass may change only its
-    default)."""
-    for klass in cls.__mro__:
-        f = getattr(klass, "__dataclass_fields__", {}).get(name)
-        if f is not None and option_of(f) is not None:
-            return f
-    return None
-
-
 def _value(x) -> str:
     return f"{x:g}" if isinstance(x, float) else "none" if x is None else str(x)
 
@@ -148,14 +138,14 @@ def _algorithm_options() -> dict:
     by_name: dict = {}
     for algorithm, cls in ALGORITHMS.items():
         for f in fields(cls):
-            if _declared(cls, f.name) is not None:
+            if declared(cls, f.name) is not None:
                 by_name.setdefault(f.name, []).append((algorithm, cls, f))
     out = {}
     for name, owners in by_name.items():
         meanings: dict = {}
         defaults: dict = {}
         for algorithm, cls, f in owners:
-            meanings.setdefault(declared_option(_declared(cls, name))["help"], []).append(algorithm)
+            meanings.setdefault(declared_option(declared(cls, name))["help"], []).append(algorithm)
             defaults.setdefault(_value(f.default), []).append(algorithm)
         everyone = len(owners) == len(ALGORITHMS)
         if len(meanings) == 1:
@@ -166,9 +156,18 @@ def _algorithm_options() -> dict:
         common = max(defaults, key=lambda v: len(defaults[v]))
         rest = "; ".join(f"{', '.join(who)} {v}" for v, who in defaults.items() if v != common)
         others = "" if not rest else ("the others " if everyone else f"{', '.join(defaults[common])} ")
-        help += f" Default: the scenario's, else {rest + '; ' if rest else ''}{others}{common}."
+        if name in STEP_SIZE_FIELDS:  # another method takes the scenario's steps (`dgtd.config.build_algorithm`)
+            dgtd = _value(getattr(ALGORITHMS["dgtd"](), name))
+            help += (
+                f" Default: the scenario's, whatever --algorithm (a problem file's: DGTD's {dgtd}; a simulator's or "
+                "a recording's: scaled to its features); with no step option on a user's problem the first step "
+                "comes from the problem. dgtd compare gives each method its own and prints the options that repeat "
+                "its rows."
+            )
+        else:
+            help += f" Default: the scenario's, else {rest + '; ' if rest else ''}{others}{common}."
         cls = owners[0][1]
-        out[name] = make_option(name, _declared(cls, name), field_types(cls)[name], help)
+        out[name] = make_option(name, declared(cls, name), field_types(cls)[name], help)
     return out
 
 

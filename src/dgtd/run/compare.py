@@ -19,6 +19,7 @@ import numpy as np
 from dgtd.algorithms import ALGORITHMS, make_algorithm
 from dgtd.algorithms.base import FixedPoint
 from dgtd.errors import DgtdInputError
+from dgtd.fields import run_options
 from dgtd.problems import exact
 from dgtd.problems.model import Problem
 from dgtd.run.loop import RunResult, RunSettings, run
@@ -238,6 +239,7 @@ def summary(problem, network, results: dict, used: dict, tables: dict, spec: dic
         final = {k: _stats(v[-1]) for k, v in (r.metrics | r.info["counts"]).items() if k != "diverged"}
         out["algorithms"][name] = {
             "config": config_dict(used[name]),
+            "run_options": run_options(used[name]),  # with the comparison's other options, `dgtd run` repeats the row
             "tuning": [{"alpha0": a, "score": (s if np.isfinite(s) else None)} for a, s in tables.get(name, [])],
             "final": final,
             # where it converges (over lossy links each method has its own point: docs/links.md), and how far from w*
