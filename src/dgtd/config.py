@@ -14,7 +14,7 @@ import difflib
 import inspect
 import types
 import typing
-from dataclasses import asdict, dataclass, field, fields, make_dataclass, replace
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, make_dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 from types import SimpleNamespace
@@ -169,7 +169,8 @@ class NetworkConfig:
 
 @dataclass(frozen=True)
 class AlgorithmConfig:
-    """``name``, a key of `dgtd.algorithms.ALGORITHMS` (default: the scenario's), and ``fields`` to set on its
+    """``name``, a key of `dgtd.algorithms.ALGORITHMS` (default: the scenario's) or a user's class
+    (``path/to/file.py:Class``, `algorithm_class`), and ``fields`` to set on its
     config: any field of that dataclass (alpha0, beta, schedule, kappa, rho, box_scale, ...), checked against it by
     `resolve`; the others keep the scenario's values. In an experiment file they sit beside ``name`` in
     [algorithm]; on the command line every registered algorithm's field is an option (--alpha0, --kappa, --eta, ...:
@@ -177,7 +178,11 @@ class AlgorithmConfig:
 
     name: str | None = field(
         default=None,
-        metadata=option("Algorithm name (default: the scenario's, dgtd).", flags=("--algorithm",)),
+        metadata=option(
+            "Algorithm name (default: the scenario's, dgtd), or your own as path/to/file.py:Class (checked by "
+            "dgtd.check_algorithm first).",
+            flags=("--algorithm",),
+        ),
     )
     fields: dict = field(default_factory=dict)  # each registered algorithm's field an option of its own
 
@@ -506,7 +511,7 @@ def resolve(config: RunConfig) -> ResolvedRun:
         reward_noise=problem.reward_noise,
         # an episodic model's convention where it is not the default (records from before it existed stay equal)
         restarts=None if getattr(problem, "restarts", "sampled") == "sampled" else problem.restarts,
-        algorithm=algorithm.name,
+        algorithm=spec.algorithm if spec.algorithm and ":" in spec.algorithm else algorithm.name,  # a user's class
         params=params,
         env=_plain_env(env),
         algorithm_params={
@@ -908,12 +913,8 @@ def build_algorithm(spec, default):
     Another algorithm than the scenario's starts from its own defaults and the scenario's step sizes
     (alpha0, beta, schedule) where it has those fields. A field the algorithm lacks is an error.
     """
-    from dgtd.algorithms import ALGORITHMS
-
     name = spec.algorithm or default.name
-    if name not in ALGORITHMS:
-        raise DgtdInputError(f"unknown algorithm {name!r}{closest(name, ALGORITHMS)} (known: {', '.join(ALGORITHMS)})")
-    cls = ALGORITHMS[name]
+    cls = algorithm_class(name)
     own = field_types(cls)
     if isinstance(default, cls):
         algorithm = default
@@ -933,13 +934,59 @@ def build_algorithm(spec, default):
                 f"algorithm {name!r} has no parameter {k!r}{closest(k, own)} (its parameters: {', '.join(own)})"
             )
         over[k] = check_type(f"algorithm.{k}", v, own[k])
-    return replace(algorithm, **over)
+    algorithm = replace(algorithm, **over)
+    if ":" in name:
+        check_users_algorithm(name, algorithm)
+    return algorithm
+
+
+def algorithm_class(name: str):
+    """The class ``--algorithm`` names: a registered method, or a user's own (``path/to/file.py:Class`` or
+    ``module.path:Class``), a dataclass with the methods of `dgtd.algorithms.base` (README, Adding an algorithm)."""
+    from dgtd.algorithms import ALGORITHMS
+
+    if name in ALGORITHMS:
+        return ALGORITHMS[name]
+    if ":" not in name:
+        raise DgtdInputError(
+            f"unknown algorithm {name!r}{closest(name, ALGORITHMS)} (known: {', '.join(ALGORITHMS)}; or your own as "
+            "path/to/file.py:Class)"
+        )
+    from dgtd.scenarios.user import load_callable
+
+    cls = load_callable(name, "--algorithm")
+    needs = ("init", "sends", "update", "estimate", "name")
+    if not (isinstance(cls, type) and is_dataclass(cls) and all(hasattr(cls, k) for k in needs)):
+        raise DgtdInputError(
+            f"--algorithm {name}: {getattr(cls, '__name__', cls)!s} is not an algorithm class (a frozen dataclass with "
+            "init, sends, update and estimate, as dgtd.algorithms.base describes; README, Adding an algorithm)"
+        )
+    return cls
+
+
+_CHECKED: set = set()
+
+
+def check_users_algorithm(name: str, algorithm) -> None:
+    """`dgtd.check_algorithm` on the NumPy reference (five small cases, a fraction of a second) before a user's
+    algorithm runs, once per configured algorithm and process: its findings are one line each."""
+    from dgtd.run.conformance import check_algorithm
+
+    if algorithm in _CHECKED:
+        return
+    try:
+        check_algorithm(algorithm, backends=())
+    except AssertionError as e:
+        raise DgtdInputError(f"--algorithm {name}: dgtd.check_algorithm found: {e}") from e
+    _CHECKED.add(algorithm)
 
 
 def input_files(config: RunConfig) -> dict:
     """{role: path} of the files a run reads its inputs from (the problem, the recording, the graph's edge list, the
     links' loss), each by its role's name, as ``ROLE_sha256`` in its record."""
     files = {"problem": config.problem.problem_file, "data": config.problem.data}
+    module = (config.algorithm.name or "").rpartition(":")[0]
+    files["algorithm"] = module if module.endswith(".py") and Path(module).is_file() else None  # a user's algorithm
     for role in ("graph", "loss"):  # a name or numbers, or a file
         value = getattr(config.network, role)
         files[role] = value if isinstance(value, str) and Path(value).is_file() else None

@@ -264,7 +264,8 @@ def override(exp: Experiment, values: dict) -> Experiment:
 
 
 def absolute_paths(config: RunConfig) -> RunConfig:
-    """Problem and edge-list files as absolute paths, so that a saved config works from any directory."""
+    """Problem, recording, edge-list and a user's algorithm's files as absolute paths, so that a saved config works
+    from any directory."""
     over = {}
     p = config.problem
     if p.problem_file is not None:
@@ -274,6 +275,9 @@ def absolute_paths(config: RunConfig) -> RunConfig:
     graph = config.network.graph
     if graph is not None and graph not in TOPOLOGIES:
         over["graph"] = _absolute(graph)
+    module, _, cls = (config.algorithm.name or "").rpartition(":")
+    if module.endswith(".py"):  # a user's algorithm, path/to/file.py:Class
+        over["algorithm"] = f"{_absolute(module)}:{cls}"
     return with_flat(config, **over)
 
 

@@ -100,9 +100,33 @@ def check_algorithm(algorithm, backends: tuple[str, ...] | None = None) -> dict:
     return report
 
 
+FINDING = 400  # characters of a user's exception kept in a finding's one line
+
+
+def finding(algorithm, where: str, error: Exception) -> AssertionError:
+    """What a user's algorithm raised ``where``, as a finding of one line: its name, the case and backend, the
+    exception's type and its first lines (numba's typing errors run to pages; ``--debug``'s traceback keeps it all)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    text = " ".join(lines[:3]) or "(no message)"
+    text = text if len(text) <= FINDING else text[: FINDING - 3] + "..."
+    return AssertionError(
+        f"{getattr(algorithm, 'name', type(algorithm).__name__)}, {where}: {type(error).__name__}: {text}"
+    )
+
+
 def _run(algorithm, case: str, problem, sampling, backend: str, layout: str = "auto"):
     """300 steps of 2 seeds of ``algorithm`` on ``problem`` over a ring with chords whose links are up with
-    probability 0.6, on ``backend`` (numba's in ``layout``); recorded samples for the case "recorded"."""
+    probability 0.6, on ``backend`` (numba's in ``layout``); recorded samples for the case "recorded". What the
+    algorithm's code raises is a `finding`."""
+    try:
+        return _run_case(algorithm, case, problem, sampling, backend, layout)
+    except (AssertionError, KeyboardInterrupt):
+        raise
+    except Exception as e:  # noqa: BLE001  (the user's algorithm failing: theirs to see, in one line)
+        raise finding(algorithm, f"case {case} on {backend}", e) from e
+
+
+def _run_case(algorithm, case: str, problem, sampling, backend: str, layout: str):
     from dgtd.run.loop import prepare
 
     network = random_edges(topologies.ring_with_chords(problem.n_agents, 2), 0.6)
@@ -122,6 +146,8 @@ def _check_shape(algorithm) -> None:
         check_contract(algorithm)
     except DgtdInputError as e:
         raise AssertionError(str(e)) from None
+    except Exception as e:  # noqa: BLE001  (its init or sends failing)
+        raise finding(algorithm, "its contract (init(2, 3, 4) and sends)", e) from e
 
 
 def _compare(ref, got, rtol: float, what: str) -> float:

@@ -13,6 +13,7 @@ and kept within what the graph allows (`scaled_dgtd`).
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
 import inspect
@@ -167,11 +168,21 @@ def _module_of_file(path: Path, what: str):
         raise DgtdInputError(f"{what}: file {path} does not exist")
     if str(path.parent.resolve()) not in sys.path:
         sys.path.insert(0, str(path.parent.resolve()))
-    spec = importlib.util.spec_from_file_location(path.stem, path)
+    # one module per file and process, under a name no other module has: registered before it runs, as an import
+    # would be (a dataclass defined in it looks its module up), and the same classes however often it is named
+    name = f"_dgtd_file_{hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]}_{path.stem}"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:
         raise DgtdInputError(f"{what}: file {path} cannot be imported as Python")
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
     return module
 
 
