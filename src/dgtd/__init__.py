@@ -19,8 +19,8 @@ The names a user needs, each documented where it is defined::
   `ALGORITHMS`, and `check_algorithm`, which checks a user's own on every backend;
 - problems: `make_problem`, `from_mdp`, `load_problem`, `save_problem`, `tasks`, `exact`;
 - graphs: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`;
-- channels, which turn what agents send into what they hear: `Perfect`, `Lossy`, `Imperfect`, `Inbox`, `Arcs`, and
-  `Channel`, the protocol a link model of one's own follows;
+- channels, which turn what agents send into what they hear: `Perfect`, `Lossy`, `Imperfect`, `Inbox`, `Arcs`,
+  `Channel`, the protocol a link model of one's own follows, and `check_channel`, which checks one;
 - results: `read_results`.
 
 Names load on first use, so ``import dgtd`` stays quick (the compiled kernels load only when a run needs them).
@@ -98,6 +98,7 @@ _EXPORTS = {
     "Arcs": "dgtd.channels",
     "read_results": "dgtd.run.results",
     "check_algorithm": "dgtd.run.conformance",
+    "check_channel": "dgtd.run.channel_check",
 }
 __all__ = sorted(_EXPORTS)
 

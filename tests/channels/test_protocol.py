@@ -10,15 +10,17 @@ import ast
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
+import pytest
 from numpy.testing import assert_array_equal
 
 import dgtd
 from dgtd.algorithms import make_algorithm
 from dgtd.backends.compiled import TWINS
 from dgtd.channels import CHANNELS, Arcs, Channel, Counts, Imperfect, Inbox, Lossy, Perfect, counted, per_arc_fields
+from dgtd.channels.base import copied
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import exact
@@ -50,13 +52,15 @@ def test_every_registered_link_model_follows_the_protocol_with_a_state_of_its_ow
     for name, channel in examples(arcs, 5).items():
         assert isinstance(channel, Channel) and CHANNELS[name] is type(channel) and TWINS[name] is type(channel)
         state = channel.init(2, arcs, seed=3)
-        inbox, after = channel.deliver(state.copy(), arcs, sent, np.ones((2, net.n_edges), bool))
+        inbox, after = channel.deliver(copied(state), arcs, sent, np.ones((2, net.n_edges), bool))
         assert type(after) is type(state) and isinstance(inbox, Inbox)
         assert after.messages.sum() > 0 and after.bits.sum() > 0
         fields[name] = set(type(state)._fields)
         for name_, x in per_arc_fields(after).items():  # the fields the MPI runtime cuts and joins by arc
             assert x.shape[:2] == (2, arcs.n_arcs), (name, name_)
     assert fields["perfect"] == {"messages", "bits"}
+    for name, channel in examples(arcs, 5).items():  # parameters per arc and agent: checked over their network
+        assert dgtd.check_channel(channel, net)["messages"] > 0, name
     assert fields["perfect"] < fields["lossy"] < fields["imperfect"] and "copies" not in fields["lossy"]
 
 
@@ -170,3 +174,84 @@ def test_beyond_the_agents_whose_fixed_point_is_solved_a_link_model_s_own_is_sai
     assert not fixed_point_unknown(net, Perfect(), alg)
     assert fixed_point_unknown(net, Downhill(), alg) and fixed_point_unknown(net, Lossy(np.zeros(2 * net.n_edges)), alg)
     assert not fixed_point_unknown(ring5()[0], Downhill(), alg)
+
+
+class PlainCounts(NamedTuple):
+    """A state as the README describes one: a NamedTuple of the counts, and nothing else (no ``copy``)."""
+
+    messages: np.ndarray
+    bits: np.ndarray
+
+
+@dataclass(frozen=True)
+class PlainDownhill(Downhill):
+    """`Downhill` with a state of its own, as a user writes it from the README."""
+
+    name: ClassVar[str] = "plain-downhill"
+
+    def init(self, seeds, arcs, seed=0):
+        return PlainCounts(np.zeros(seeds), np.zeros(seeds))
+
+
+def test_a_link_model_as_the_readme_describes_runs_without_an_undocumented_copy_and_passes_check_channel():
+    """Its state a plain NamedTuple: runs failed (`channel_state.copy()`) until a ``copy`` method was added. It runs
+    on the reference as `Downhill` does, to the same numbers, and `dgtd.check_channel` passes it."""
+    sc = dgtd.scenario("paper-example-1")
+    net, _ = ring5()
+    alg = make_algorithm("dgtd")
+    plain, counted_ = (
+        dgtd.evaluate(sc.problem, net, alg, iterations=200, seeds=2, backend="numpy", channel=c)
+        for c in (PlainDownhill(), Downhill())
+    )
+    assert_array_equal(plain.w_last, counted_.w_last)
+    report = dgtd.check_channel(PlainDownhill())
+    assert report["arcs"] > 0 and report["steps"] > 0
+
+
+@dataclass(frozen=True)
+class NoBits(Downhill):
+    def init(self, seeds, arcs, seed=0):
+        return NamedTupleWithout(np.zeros(seeds))
+
+
+class NamedTupleWithout(NamedTuple):
+    messages: np.ndarray
+
+
+@dataclass(frozen=True)
+class OwnGenerator(Downhill):
+    def deliver(self, state, arcs, sent, up):
+        inbox, new = super().deliver(state, arcs, sent, up)
+        inbox.heard = inbox.heard * (np.random.default_rng().random(inbox.heard.shape) < 0.5)  # not keyed
+        return inbox, new._replace(messages=state.messages + inbox.heard.sum(axis=1))
+
+
+@dataclass(frozen=True)
+class NotALaplacian(Downhill):
+    def mean_mixing(self, network, arcs, mixing):
+        return np.eye(arcs.n_agents)
+
+
+@dataclass(frozen=True)
+class WrongHeard(Downhill):
+    def deliver(self, state, arcs, sent, up):
+        inbox, new = super().deliver(state, arcs, sent, up)
+        inbox.heard = inbox.heard[:, :1]
+        return inbox, new
+
+
+@pytest.mark.parametrize(
+    "channel, words",
+    [
+        (NoBits(), "bits"),
+        (OwnGenerator(), "other numbers for the same state and input"),
+        (NotALaplacian(), "rows of mean_mixing"),
+        (WrongHeard(), "heard"),
+    ],
+    ids=["no bits", "not keyed", "not a Laplacian", "heard of the wrong shape"],
+)
+def test_check_channel_says_what_a_faulty_link_model_breaks_in_one_line(channel, words):
+    with pytest.raises(AssertionError) as caught:
+        dgtd.check_channel(channel)
+    said = str(caught.value)
+    assert words in said and "\n" not in said, said

@@ -37,7 +37,7 @@ import numpy as np
 
 from dgtd.backends.mailbox import AGES, Mailbox
 from dgtd.channels import Arcs
-from dgtd.channels.base import per_arc_fields
+from dgtd.channels.base import copied, per_arc_fields
 from dgtd.errors import DgtdInputError
 
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_RANK")  # what mpiexec (MPICH's, Open MPI's) sets in its ranks
@@ -396,7 +396,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         P.exchange(ghosts)  # each ghost holds its owner's messages at the block start, until newer ones arrive
         mail = Mailbox(P, ghosts, len(alphas), staleness, WATCHDOG.beat)
     halo = P.halo
-    channel_state = channel_state.copy()  # (the channel updates its messages in flight in place)
+    channel_state = copied(channel_state)  # (the channel updates its messages in flight in place)
     mine, around = _split(channel_state, P.arcs.n_arcs) if halo is not None else (_counting(channel_state), None)
     zeros: dict = {}  # the messages on the halo's arcs: their values are not used, made once a block
     for t in range(len(alphas)):

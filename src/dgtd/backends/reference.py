@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dgtd.channels.base import copied
 from dgtd.samples import Block
 
 
@@ -17,7 +18,7 @@ def run_block(ctx, state, channel_state, w_sum: np.ndarray, alphas: np.ndarray, 
     """Advance ``ctx.algorithm`` over the len(alphas) steps of ``blk``: returns (state, channel state, w_sum), new
     values all."""
     algorithm, channel = ctx.algorithm, ctx.channel
-    w_sum, channel_state = w_sum.copy(), channel_state.copy()
+    w_sum, channel_state = w_sum.copy(), copied(channel_state)  # the channel may update what it holds in place
     Phi, ratio, continuing = (ctx.Phi, ctx.ratio, ctx.continuing) if blk.table is None else blk.table
     for t in range(len(alphas)):
         w_sum += algorithm.estimate(state)

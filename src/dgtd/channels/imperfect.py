@@ -32,7 +32,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.channels.arcs import Arcs
-from dgtd.channels.base import BITS_PER_NUMBER, copied
+from dgtd.channels.base import BITS_PER_NUMBER
 from dgtd.channels.inbox import Inbox
 from dgtd.channels.lossy import Lossy, arc_uniforms
 from dgtd.errors import DgtdInputError
@@ -58,9 +58,6 @@ class HeldState(NamedTuple):
     due: np.ndarray = np.zeros((0, 0, 0), np.int64)
     posted: np.ndarray = np.zeros((0, 0, 0), np.int64)
     per_arc: np.ndarray = np.zeros((0, 0))
-
-    def copy(self):
-        return copied(self)
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,7 +21,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.channels.arcs import Arcs
-from dgtd.channels.base import copied, counted
+from dgtd.channels.base import counted
 from dgtd.channels.inbox import Inbox
 from dgtd.errors import DgtdInputError
 from dgtd.files import text_of
@@ -48,9 +48,6 @@ class LinkState(NamedTuple):
     keys: np.ndarray
     step: np.ndarray
     links: np.ndarray
-
-    def copy(self):
-        return copied(self)
 
 
 @dataclass(frozen=True, eq=False)

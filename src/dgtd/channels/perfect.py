@@ -8,7 +8,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from dgtd.channels.arcs import Arcs
-from dgtd.channels.base import copied, counted
+from dgtd.channels.base import counted
 from dgtd.channels.inbox import Inbox
 
 
@@ -17,9 +17,6 @@ class Counts(NamedTuple):
 
     messages: np.ndarray
     bits: np.ndarray
-
-    def copy(self):
-        return copied(self)
 
 
 @dataclass(frozen=True)
