@@ -285,9 +285,11 @@ def _absolute(path: str) -> str:
     """``path`` resolved, or only made absolute where a loop of symbolic links stops that (the file's reader then
     says what it is)."""
     try:
-        return str(Path(path).resolve())
+        resolved = Path(path).resolve()
     except (RuntimeError, OSError):
         return str(Path(path).absolute())
+    # /dev/fd/N of a process substitution resolves to "pipe:[...]", a name no one can open: keep the one given
+    return str(resolved if resolved.exists() or not Path(path).exists() else Path(path).absolute())
 
 
 def _drop_none(d: dict) -> dict:

@@ -135,6 +135,9 @@ def read_edge_list(path_: str) -> Graph:
         raise DgtdInputError(f"edge-list file {path_} is malformed ({e}); write one 'i j' pair per line") from None
     if G.number_of_nodes() == 0:
         raise DgtdInputError(f"edge-list file {path_} holds no edges")
+    loops = sorted(u for u, v in G.edges if u == v)
+    if loops:
+        raise DgtdInputError(f"edge-list file {path_} links agent {loops[0]} to itself; a graph has no self-loops")
     n = max(G.nodes) + 1
     return from_edges(n, list(G.edges), f"file:{path_}")
 

@@ -225,11 +225,11 @@ class EnvSource:
                 f"the features came out {phi.shape[1]} wide, not {self.n_features} as on the first "
                 "states; features(states) must return the same number of columns for every batch"
             )
-        if phi.ndim != 2 or phi.shape[0] != len(rows) or not np.isfinite(phi).all():
+        if phi.ndim != 2 or phi.shape[0] != len(rows) or not phi.shape[1] or not np.isfinite(phi).all():
             raise DgtdInputError(
                 f"the features of {len(rows)} states came out with shape {np.shape(phi)}"
                 f"{'' if np.isfinite(phi).all() else ' and NaN or infinite entries'}; features(states "
-                "(K, dim)) must return finite (K, q)"
+                "(K, dim)) must return finite (K, q), q >= 1"
             )
         M = T * B
         index = np.arange(M).reshape(T, B, 1)
