@@ -219,9 +219,13 @@ def run_header(job) -> str:
     return "\n".join(lines)
 
 
+FARTHER = 1.5  # a tail average this many times as far from the reference as the start: not converged
+
+
 def not_converged(job, result) -> str:
-    """A warning where the worst agent's tail-averaged estimate ends farther from the run's reference than its
-    start (w0, or 0: 100 %) without having diverged, with what to change on compressed links; else ""."""
+    """A warning where the worst agent's tail-averaged estimate ends `FARTHER` times as far from the run's reference
+    as its start (w0, or 0: 100 %) or more without having diverged, with what to change on compressed links; else
+    ""."""
     from dgtd.problems import exact
     from dgtd.run.results import reference
 
@@ -230,7 +234,7 @@ def not_converged(job, result) -> str:
     w0 = job.problem.w0 if job.problem.w0 is not None else np.zeros(ref.shape[-1])
     start = float(exact.relative_error(w0, ref, of=ref).max())
     worst = float(np.nanmax(tail, initial=0.0)) if np.isfinite(tail).any() else 0.0
-    if worst <= max(start, 1.0):
+    if worst <= FARTHER * max(start, 1.0):  # (a run that barely moved ends near its start: no word)
         return ""
     channel = job.channel
     hint = ""
