@@ -21,7 +21,9 @@ The names a user needs, each documented where it is defined::
 - graphs: `ring`, `path`, `star`, `complete`, `from_edges`, `from_networkx`, `random_edges`;
 - channels, which turn what agents send into what they hear: `Perfect`, `Lossy`, `Imperfect`, `Inbox`, `Arcs`,
   `Channel`, the protocol a link model of one's own follows, and `check_channel`, which checks one;
-- results: `read_results`.
+- results: `read_results`;
+- agents that learn their policies: `learn` (the networked actor-critic with any distributed critic),
+  `LearnSettings`, `SoftmaxActor`, and `team_mdp` / `TeamMDP`, the multi-agent MDPs they learn on.
 
 Names load on first use, so ``import dgtd`` stays quick (the compiled kernels load only when a run needs them).
 """
@@ -99,6 +101,11 @@ _EXPORTS = {
     "read_results": "dgtd.run.results",
     "check_algorithm": "dgtd.run.conformance",
     "check_channel": "dgtd.run.channel_check",
+    "learn": "dgtd.run.learn",
+    "LearnSettings": "dgtd.run.learn",
+    "SoftmaxActor": "dgtd.algorithms.actor",
+    "team_mdp": "dgtd.problems.team",
+    "TeamMDP": "dgtd.problems.team",
 }
 __all__ = sorted(_EXPORTS)
 

@@ -51,6 +51,7 @@ DELAY = 10  # how late the messages on edge e's arcs are at a step, as ARC_LOSS
 ROUNDING = 11  # the stochastic rounding of arc a's numbers at a step: index j gives numbers 2j and 2j + 1
 ORDER = 12  # the order of a recording's rows for a seed (step 0, entity = row)
 SIMULATOR = 13  # the seeds of a simulator's episodes and its policy's generator (entity = episode, step 0)
+ACTION = 14  # agent i's action drawn from its own policy at a step, while it learns (paired: `singles`)
 
 PURPOSES = {
     "seed": SEED,
@@ -67,6 +68,7 @@ PURPOSES = {
     "rounding": ROUNDING,
     "order": ORDER,
     "simulator": SIMULATOR,
+    "action": ACTION,
 }
 
 

@@ -532,8 +532,10 @@ def scenarios():
 
 
 from dgtd.cli.compare import compare as _compare  # noqa: E402
+from dgtd.cli.learn import learn as _learn  # noqa: E402
 
 cli.add_command(_compare)
+cli.add_command(_learn)
 
 
 ARGV: list[str] = []  # the command line `main` was given (`dgtd.cli.launch` passes it on to the ranks)

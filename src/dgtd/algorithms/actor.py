@@ -1,0 +1,86 @@
+"""Each agent's actor: a tabular softmax policy over its own actions, moved along its TD error times its score.
+
+Agent i's policy is pi_i(a_i | s) = exp(theta_i[s, a_i]) / sum_b exp(theta_i[s, b]) (Zhang et al. 2018, section 3:
+any policy differentiable in its parameters; the tabular softmax is their experiments' and every policy is one of
+its limits). Its score is psi_i = grad log pi_i(a_i | s) = e_{s, a_i} - pi_i(. | s) on row s, and the actor step of
+their Algorithm 2,
+
+    theta_i <- theta_i + beta_k delta_i psi_i,
+
+takes the TD error delta_i = rhat_i + gamma V(s'; w_i) - V(s; w_i) of agent i's critic w_i as its advantage (rhat_i
+the team's reward as agent i knows it: `dgtd.run.learn`). Two timescales: beta_k = step / (1 + k / offset)^power with
+power in (1/2, 1], so that beta_k / alpha_k -> 0 for the critics' alpha_k = alpha0 / sqrt(k + beta): the critic is
+the faster (`two_timescales` checks it). Agents and seeds are array axes: theta is (B, N, S, A_max), an agent with
+fewer actions padded with -inf (probability 0, and its score 0 there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+
+CRITIC_POWER = {"sqrt": 0.5, "harmonic": 1.0, "constant": 0.0}  # alpha_k's decay, k^-p, of the critics' schedules
+
+
+@dataclass(frozen=True)
+class SoftmaxActor:
+    """``step``, ``offset`` and ``power`` of the actor's steps beta_k = step / (1 + k / offset)^power."""
+
+    step: float = 0.5
+    offset: float = 1000.0
+    power: float = 0.8
+
+    def __post_init__(self):
+        if not (np.isfinite(self.step) and self.step > 0 and self.offset > 0 and 0.0 < self.power <= 1.0):
+            raise DgtdInputError(
+                f"the actor's steps step / (1 + k / offset)^power need step > 0, offset > 0 and power in (0, 1]; got "
+                f"{self.step}, {self.offset}, {self.power}"
+            )
+
+    def init(self, seeds: int, actions, states: int) -> np.ndarray:
+        """theta (B, N, S, A_max): uniform policies; -inf where an agent has no such action."""
+        actions = np.asarray(actions)
+        theta = np.zeros((seeds, len(actions), states, int(actions.max())))
+        absent = np.arange(theta.shape[-1])[None, :] >= actions[:, None]  # (N, A_max)
+        theta[:, absent[:, None, :].repeat(states, axis=1)] = -np.inf
+        return theta
+
+    def steps(self, k0: int, k1: int) -> np.ndarray:
+        """beta_k for k in [k0, k1)."""
+        k = np.arange(k0, k1, dtype=np.float64)
+        return self.step / (1.0 + k / self.offset) ** self.power
+
+    def describe(self) -> str:
+        return f"softmax actors, beta_k = {self.step:g}/(1+k/{self.offset:g})^{self.power:g}"
+
+
+def two_timescales(actor: SoftmaxActor, critic) -> None:
+    """Refuse steps under which the critic is not the faster: beta_k / alpha_k must fall to 0."""
+    p = CRITIC_POWER.get(getattr(critic, "schedule", "sqrt"), 0.5)
+    if actor.power <= p:
+        raise DgtdInputError(
+            f"the actor's steps must fall faster than the critic's (two timescales, the critic the faster): the "
+            f"critic's alpha_k falls as k^-{p:g}, the actor's as k^-{actor.power:g}; give --actor-power above {p:g}"
+        )
+
+
+def policy(theta: np.ndarray) -> np.ndarray:
+    """pi (..., A_max) of theta (..., A_max): the softmax of each row, stable (its largest entry subtracted)."""
+    z = np.exp(theta - theta.max(axis=-1, keepdims=True))
+    return z / z.sum(axis=-1, keepdims=True)
+
+
+def actor_step(theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float) -> np.ndarray:
+    """theta + beta delta psi (a new array): row s_b of every agent of seed b moved by beta delta_bi (e_{a_bi} -
+    pi_bi(. | s_b)); ``s`` (B,), ``a`` and ``delta`` (B, N)."""
+    B, N = a.shape
+    b, i = np.arange(B)[:, None], np.arange(N)[None, :]
+    rows = theta[b, i, s[:, None]]  # (B, N, A_max)
+    score = -policy(rows)
+    score[b, i, a] += 1.0
+    new = theta.copy()
+    new[b, i, s[:, None]] = rows + beta * delta[:, :, None] * np.where(np.isfinite(rows), score, 0.0)
+    return new

@@ -1,0 +1,100 @@
+"""`dgtd learn`: agents that improve their policies, each with one of dgtd's distributed critics (`dgtd.run.learn`)."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import click
+
+from dgtd.cli.options import declared_option, make_option, output_options, run_options
+from dgtd.config import field_types
+from dgtd.learning import SHARED, LearnConfig
+
+
+def learn_options():
+    """`LearnConfig`'s fields as options, their defaults shown."""
+    hints = field_types(LearnConfig)
+    chosen = [
+        make_option(f.name, f, hints[f.name], declared_option(f)["help"], None, False, _choices(f.name))
+        for f in fields(LearnConfig)
+    ]
+
+    def decorate(command):
+        for option in reversed(chosen):
+            command = option(command)
+        return command
+
+    return decorate
+
+
+def _choices(name: str):
+    from dgtd.run.learn import ACTORS
+
+    return ACTORS if name == "actor" else None
+
+
+@click.command()
+@click.argument("task", required=False)
+@learn_options()
+@run_options(*SHARED)
+@output_options("out", "progress", "plots", "overwrite")
+def learn(task, out, progress, plots, overwrite, **values):
+    """Agents that learn their policies on TASK (pull-away), each with its own softmax policy and one of dgtd's
+    distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd run`; writes
+    summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png."""
+    from tqdm import tqdm
+
+    from dgtd.learning import resolve_learning
+    from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run.learn import learn as run_learning
+    from dgtd.run.learn import metrics_rows, summary
+    from dgtd.run.owner import Owner
+    from dgtd.run.results import refuse_other_results
+
+    job = resolve_learning(task, values)
+    out = Path(out) if out else Path("runs") / f"learn-{job.mdp.name}-{job.settings.actor}"
+    s, mdp = job.settings, job.mdp
+    click.echo(
+        f"{mdp.name}: {mdp.n_states} states, {mdp.n_agents} agents, actions {'x'.join(map(str, mdp.actions))}, "
+        f"gamma {mdp.gamma}; network: {job.network.describe()}; {job.channel.describe()}"
+    )
+    click.echo(
+        f"{s.actor} actors with the {job.critic.name} critic ({job.critic.describe()}); {job.actor.describe()}; "
+        f"{s.iterations:,} steps x {s.seeds} seed(s)"
+    )
+    with Owner(out, "learning run", overwrite):
+        if not overwrite:
+            refuse_other_results(out, job.record, "learning run")
+        bar = tqdm(
+            total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5
+        )
+        try:
+            result = run_learning(mdp, job.network, job.critic, job.actor, s, job.channel, progress=bar.update)
+        finally:
+            bar.close()
+        atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
+        rows = metrics_rows(result, s.actor)
+        text = "actor,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
+        atomic_write(out / "metrics.csv", text.encode())
+        written = ["summary.json", "metrics.csv"]
+        if plots:
+            from dgtd.plots.learning import learning_figure
+
+            written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
+    _report(result, mdp)
+    click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+
+
+def _report(result, mdp) -> None:
+    import numpy as np
+
+    last = result.metrics["return"][:, -1]
+    best = "" if result.return_best is None else f" of the best joint policy's J* = {result.return_best:.4g}"
+    click.echo(f"exact return J of the last policies: {', '.join(f'{x:.4g}' for x in last)} (per seed){best}")
+    if mdp.best is not None:
+        p = result.metrics["best_probability"][:, -1]
+        click.echo(f"least probability any agent puts on the team's best action in any state: {np.min(p):.3f}")
+    worst = np.max(result.metrics["critic_error"][:, -1])
+    click.echo(f"critics' error |W - W*(pi)|^2 / (N |W*|^2), last, worst seed: {worst:.3g}")

@@ -1,0 +1,29 @@
+"""The figures of a learning run: the exact return of the agents' policies against samples and against messages
+sent, with its band over seeds and the best return J*, and the critics' error against the exact critic."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from dgtd.plots.bands import BAND_WORDS, band  # noqa: E402
+
+
+def learning_figure(out: Path, result, title: str) -> str:
+    """returns.png: J(pi_t) against steps (samples per agent) with J*, and the critics' error (log scale)."""
+    fig, (ax, ay) = plt.subplots(1, 2, figsize=(11, 4))
+    band(ax, result.steps, result.metrics["return"].T, "J(pi_t), exact")
+    if result.return_best is not None:
+        ax.axhline(result.return_best, color="k", linestyle="--", label="J*, the best joint policy")
+    ax.set(xlabel="step (one sample per agent)", ylabel="average team reward", title=title)
+    ax.legend()
+    band(ay, result.steps, result.metrics["critic_error"].T, "critics' error")
+    ay.set(xlabel="step", ylabel="|W - W*(pi_t)|^2 / (N |W*|^2)", yscale="log", title=BAND_WORDS)
+    fig.tight_layout()
+    fig.savefig(Path(out) / "returns.png", dpi=110)
+    plt.close(fig)
+    return "returns.png"

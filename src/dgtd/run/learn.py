@@ -1,0 +1,233 @@
+"""Agents that improve their policies: the networked actor-critic of Zhang, Yang, Liu, Zhang and Basar (ICML 2018,
+Algorithm 2: a state-value critic and a consensus estimate of the team's reward), with any of dgtd's distributed
+critics over the same links as `dgtd run`.
+
+One step k, for B seeds at once (agents and seeds are array axes; every random number keyed, `dgtd.streams`):
+
+    draw      each agent's action a_i ~ pi_i(. | s) (purpose ACTION, entity i), the next state s' ~ P(s, a, .)
+              (SHARED_STATE), the links up (EDGE_UP), as `dgtd run` draws a shared trajectory's;
+    hear      the channel delivers what every agent sends: its critic's messages, and for networked actors its
+              estimate of the team's reward (`dgtd.channels`: lost, late or compressed as asked, counted);
+    advantage delta_i = rhat_i + gamma Phi(s') w_i - Phi(s) w_i, with rhat_i the team's reward as agent i knows it:
+              networked, its consensus estimate lambda_i^T f(s, a) (Zhang et al.'s Algorithm 2); independent, its
+              own r_i; centralised, the true team reward rbar (a ceiling no network gives);
+    critic    the chosen distributed method's update (`algorithm.update`, the paper's Algorithm 1 for DGTD) on each
+              agent's own reward (centralised: on rbar), alpha_k its schedule; independent agents hear no one;
+    reward    networked: lambda_i <- lambda_i - sum_j W_ij (lambda_i - lambda_j) + nu_k (r_i - rhat_i) f(s, a)
+              (Metropolis mixing over the links up, then a regression step on the agent's own reward: the
+              consensus of the regressions of r_i is the regression of rbar);
+    actor     theta_i <- theta_i + beta_k delta_i psi_i (`dgtd.algorithms.actor`), beta_k / alpha_k -> 0.
+
+f(s, a) is additive over the agents, f = (e_{s, a_1}, ..., e_{s, a_N}) (N S A_max numbers, N of them ones): it
+represents any team reward that is a sum of per-agent terms exactly (the pull-away task's is). At every checkpoint the
+exact return J(pi_t) of the current policies, the critics' error against the exact critic of pi_t (Chen, Zhou, Chen
+and Zou 2022: ||W - W*(pi_t)||^2 / (N ||W*||^2)) and the policies' entropy are recorded (`dgtd.problems.team`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dgtd.algorithms.actor import SoftmaxActor, actor_step, policy, two_timescales
+from dgtd.algorithms.stepsizes import step_sizes
+from dgtd.channels import Arcs, Perfect
+from dgtd.errors import DgtdInputError
+from dgtd.problems import team
+from dgtd.samples import Sample
+from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys, singles, uniforms
+
+ACTORS = ("networked", "independent", "centralised")
+METRICS = ("return", "critic_error", "entropy", "best_probability")
+
+
+@dataclass(frozen=True)
+class LearnSettings:
+    """How long and how many: ``iterations`` steps of ``seeds`` seeds of base seed ``seed``, ``checkpoints`` of them
+    measured; ``actor`` one of `ACTORS`."""
+
+    iterations: int = 20_000
+    seeds: int = 2
+    seed: int = 0
+    checkpoints: int = 40
+    actor: str = "networked"
+
+    def __post_init__(self):
+        if self.actor not in ACTORS:
+            raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
+        for name in ("iterations", "seeds", "checkpoints"):
+            if int(getattr(self, name)) < 1:
+                raise DgtdInputError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+@dataclass
+class LearnResult:
+    """``steps`` (C,) of the checkpoints; ``metrics`` {name: (B, C)} (`METRICS`); ``policies`` (B, N, S, A_max) at the
+    end; ``critic`` the critics' estimates (B, N or 1, q) at the end; ``return_best`` J* and ``best_action`` (S,) the
+    team's best joint action where computed; ``messages`` and ``bits`` (B,) delivered."""
+
+    steps: np.ndarray
+    metrics: dict
+    policies: np.ndarray
+    critic: np.ndarray
+    return_best: float | None
+    best_action: np.ndarray | None
+    messages: np.ndarray
+    bits: np.ndarray
+    seconds: float
+    info: dict = field(default_factory=dict)
+
+
+def learn(
+    mdp: team.TeamMDP, network, critic, actor: SoftmaxActor, settings: LearnSettings, channel=None, progress=None
+):
+    """Run the actor-critic of the module's docstring; ``critic`` any distributed algorithm of `dgtd.algorithms` (its
+    step sizes its own), ``channel`` the links (default perfect), ``progress(n)`` called as steps finish."""
+    two_timescales(actor, critic)
+    if network.n_nodes != mdp.n_agents:
+        raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {mdp.n_agents}")
+    started = time.perf_counter()
+    B, N, S, T = settings.seeds, mdp.n_agents, mdp.n_states, settings.iterations
+    keys = seed_keys(settings.seed, range(B))
+    channel = channel if channel is not None else Perfect()
+    arcs = Arcs.of(network.base.edges, N)
+    links = channel.init(B, arcs, settings.seed)
+    state = critic.init(B, N, mdp.n_features)
+    theta = actor.init(B, mdp.actions, S)
+    A = theta.shape[-1]
+    lam = np.zeros((B, N, N * S * A)) if settings.actor == "networked" else None
+    cdf_P, cdf_start = np.cumsum(mdp.P, axis=-1), np.cumsum(mdp.start)
+    s = _draw(cdf_start, uniforms(keys, SHARED_START, 0, 0)[0])
+    alphas, betas = step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T)
+    nus = 1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0))  # the reward regression's steps: |f|^2 = N
+    at = np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:])
+    metrics = {name: np.full((B, len(at)), np.nan) for name in METRICS}
+    agents = np.arange(N)
+    b = np.arange(B)[:, None]
+    last_action = np.array(mdp.actions) - 1
+    for k in range(T):
+        if k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, entity, step)
+            draws = _draws(keys, network, range(k, min(k + BLOCK, T)))
+        u_action, u_state, up = (
+            draws[0][k % BLOCK],
+            draws[1][k % BLOCK],
+            None if draws[2] is None else draws[2][k % BLOCK],
+        )
+        rows = policy(theta[b, agents[None, :], s[:, None]])  # (B, N, A)
+        a = np.minimum(_draw(np.cumsum(rows, axis=-1), u_action), last_action)
+        joint = mdp.joint(a)
+        s_next = _draw(cdf_P[s, joint], u_state)
+        r = mdp.R[:, s, joint].T  # (B, N): each agent's own reward
+        if settings.actor == "independent":
+            up = np.zeros((B, network.n_edges), bool)  # they send nothing
+        sent = dict(critic.sends(state))
+        if lam is not None:
+            sent["team"] = lam
+        inbox, links = channel.deliver(links, arcs, sent, up)
+        phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
+        own = np.broadcast_to(r.mean(axis=1, keepdims=True), r.shape) if settings.actor == "centralised" else r
+        W = critic.estimate(state)  # (B, N or 1, q)
+        values = (W * phi).sum(-1), (W * phi_next).sum(-1)
+        if lam is not None:
+            f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
+            rhat = np.take_along_axis(lam, np.broadcast_to(f[:, None, :], (B, N, N)), axis=-1).sum(-1)
+        else:
+            rhat = own
+        delta = rhat + mdp.gamma * values[1] - values[0]
+        new = critic.update(state, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), inbox, alphas[k])
+        if inbox.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
+            new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, state))
+        state = new
+        if lam is not None:
+            mixed = lam - inbox.metropolis("team")
+            mixed[b[:, :, None], agents[None, :, None], f[:, None, :]] += nus[k] * (r - rhat)[:, :, None]
+            lam = mixed
+        theta = actor_step(theta, s, a, delta, betas[k])
+        s = s_next
+        if k + 1 in at:
+            _measure(mdp, theta, critic.estimate(state), metrics, int(np.searchsorted(at, k + 1)))
+        if progress is not None:
+            progress(1)
+    best = team.best_return(mdp) if mdp.n_states * mdp.P.shape[1] <= team.JOINT_LIMIT else (None, None)
+    return LearnResult(
+        at, metrics, policy(theta), critic.estimate(state), best[0], best[1], links.messages, links.bits,
+        time.perf_counter() - started,
+    )  # fmt: skip
+
+
+BLOCK = 512  # steps whose random numbers are drawn together
+
+
+def _draws(keys: np.ndarray, network, steps: range) -> tuple:
+    """The uniforms of ``steps``: each agent's action (T, B, N), the next state (T, B), and the links up (T, B, E) or
+    None where every link is always up."""
+    k = np.arange(steps.start, steps.stop, dtype=np.uint64)[:, None, None]
+    action = singles(keys[None, :, None], ACTION, k, np.arange(network.n_nodes))
+    state = uniforms(keys[None, :], SHARED_STATE, k[:, :, 0], 0)[0]
+    up = None if network.fixed else singles(keys[None, :, None], EDGE_UP, k, np.arange(network.n_edges)) < network.p
+    return action, state, up
+
+
+def _draw(cdf: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The index each uniform ``u`` (...) falls at in its cumulative distribution ``cdf`` (..., K)."""
+    return np.minimum((cdf <= u[..., None]).sum(axis=-1), cdf.shape[-1] - 1)
+
+
+def local_policies(mdp: team.TeamMDP, pi: np.ndarray) -> list:
+    """One seed's policies (N, S, A_max) as the agents' own arrays, (S, A_i) each."""
+    return [pi[i, :, :n] for i, n in enumerate(mdp.actions)]
+
+
+def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int) -> None:
+    """The exact return of each seed's current policies, its critics' error against their exact critic, the mean
+    entropy, and the least probability any agent puts on its part of the team's best action (where known)."""
+    pi = policy(theta)
+    for b in range(theta.shape[0]):
+        policies = local_policies(mdp, pi[b])
+        P_pi, _ = team.chain_of(mdp, policies)
+        target = team.critic_target(mdp, policies)
+        metrics["return"][b, c] = team.average_return(mdp, policies)
+        errors = ((np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1])) - target) ** 2).sum()
+        metrics["critic_error"][b, c] = errors / (mdp.n_agents * max(float(target @ target), 1e-300))
+        metrics["entropy"][b, c] = team.entropy(policies, team.stationary(P_pi)).mean()
+        if mdp.best is not None:
+            best = mdp.local(mdp.best)  # (S, N)
+            metrics["best_probability"][b, c] = min(
+                float(p[np.arange(mdp.n_states), best[:, i]].min()) for i, p in enumerate(policies)
+            )
+
+
+def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
+    """summary.json of a learning run: what was asked, the exact best J* where computed, and per seed the last
+    policies (`policy_last`: [seeds][agents] arrays (S, A_i) of action probabilities), their exact return
+    (`return_last`, J of exactly those policies), the last critics' error and the counts of what was sent."""
+    policies = [[p.tolist() for p in local_policies(mdp, result.policies[b])] for b in range(len(result.policies))]
+    return {
+        "task": mdp.name,
+        "n_states": mdp.n_states,
+        "n_agents": mdp.n_agents,
+        "actions": list(mdp.actions),
+        "gamma": mdp.gamma,
+        "config": record,
+        "return_best": result.return_best,
+        "best_action": None if result.best_action is None else mdp.local(result.best_action).tolist(),
+        "return_last": [team.average_return(mdp, local_policies(mdp, pi)) for pi in result.policies],
+        "critic_error_last": result.metrics["critic_error"][:, -1].tolist(),
+        "best_probability_last": result.metrics["best_probability"][:, -1].tolist(),
+        "policy_last": policies,
+        "messages": result.messages.tolist(),
+        "bits": result.bits.tolist(),
+        "seconds": result.seconds,
+    }
+
+
+def metrics_rows(result: LearnResult, actor: str) -> list:
+    """metrics.csv's rows: (actor, seed, step, metric, value), every checkpoint of every seed."""
+    return [
+        (actor, b, int(k), name, repr(float(values[b, c])))
+        for name, values in result.metrics.items()
+        for b in range(values.shape[0])
+        for c, k in enumerate(result.steps)
+    ]
