@@ -108,3 +108,56 @@ def test_lost_messages_are_counted_and_the_critics_messages_carry_the_team_estim
 )
 def test_bad_learning_input_is_one_line(run_cli, tmp_path, args, words):
     one_line_error(*run_cli("learn", *args, "-T", 10, "--no-progress", "--out", tmp_path / "o"), *words)
+
+
+def as_joint_table(f: team.FactoredMDP) -> team.TeamMDP:
+    """A small factored MDP's joint table, built here from its definition: P(s, a, s') = (1/G) sum_g P_g(s, a_g, s'),
+    R_i(s, a) = R_i(s, a_i)."""
+    N, S = f.n_agents, f.n_states
+    A = 2**N
+    a = np.stack(np.unravel_index(np.arange(A), (2,) * N), axis=-1)
+    P = np.zeros((S, A, S))
+    for j in range(A):
+        for g, members in enumerate(f.groups):
+            P[:, j, :] += f.Pg[g, :, np.ravel_multi_index(tuple(a[j, members]), (2,) * len(members)), :] / len(f.groups)
+    R = np.stack([f.R[i][:, a[:, i]] for i in range(N)])
+    return team.team_mdp(P, R, f.Phi, f.gamma, (2,) * N)
+
+
+def test_a_factored_mdps_exact_answers_are_its_joint_tables():
+    """J(pi), the critic's target and J* of a factored MDP (6 agents in groups of 2, 4 states), computed without the
+    joint table, equal those of the table built from its definition (1e-12; J* by relative value iteration over the
+    64 joint actions)."""
+    f = team.factored(6, 4, 2, seed=3)
+    joint = as_joint_table(f)
+    rng = np.random.default_rng(0)
+    policies = [rng.dirichlet(np.ones(2), size=4) for _ in range(6)]
+    assert team.average_return(f, policies) == pytest.approx(team.average_return(joint, policies), abs=1e-12)
+    assert np.allclose(team.critic_target(f, policies), team.critic_target(joint, policies), atol=1e-10)
+    assert f.best_return()[0] == pytest.approx(joint.best_return()[0], abs=1e-9)
+
+
+def test_a_factored_mdps_steps_follow_its_transitions():
+    """200 000 steps drawn by `FactoredMDP.step` from one state and joint action: the frequency of every next state
+    within 5 standard errors of P(s, a, .) of the joint table (a false alarm once in 1.7 million per state)."""
+    f = team.factored(4, 3, 2, seed=1)
+    joint = as_joint_table(f)
+    rng = np.random.default_rng(7)
+    n = 200_000
+    s, a = np.full(n, 1), np.tile([1, 0, 0, 1], (n, 1))
+    s_next, r = f.step(s, a, (rng.random(n), rng.random(n)))
+    p = joint.P[1, joint.joint(np.array([1, 0, 0, 1]))]
+    freq = np.bincount(s_next, minlength=3) / n
+    assert np.all(np.abs(freq - p) <= 5 * np.sqrt(p * (1 - p) / n) + 1e-12), (freq, p)
+    assert np.array_equal(r[0], [f.R[i, 1, a[0, i]] for i in range(4)])
+
+
+def test_a_thousand_agents_learn_on_a_factored_problem():
+    """1 000 agents in groups of 2, 10 states, links of a ring up with probability 0.8: 1 500 steps of learners of
+    their own reward raise the exact return (measured 2.551 -> 2.607 of J* = 2.667 in 2 000 steps)."""
+    mdp = team.factored(1000)
+    net = random_edges(topologies.ring(1000), 0.8)
+    settings = LearnSettings(iterations=1500, seeds=1, actor="independent", checkpoints=3)
+    result = learn(mdp, net, make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(), settings)
+    J = result.metrics["return"][0]
+    assert J[-1] > J[0] + 0.02 and J[-1] < result.return_best

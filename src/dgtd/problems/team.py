@@ -20,6 +20,7 @@ exact one of the paper's section 6 on the Markov reward process (P_pi, R_pi) (`c
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,6 +67,33 @@ class TeamMDP:
         """Each agent's action (..., N) in the joint action ``joint``."""
         return np.stack(np.unravel_index(np.asarray(joint), self.actions), axis=-1)
 
+    def step(self, s: np.ndarray, a: np.ndarray, u: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(s' (B,), each agent's reward (B, N)) of states ``s`` (B,) and actions ``a`` (B, N), s' drawn by the first of
+        the uniforms ``u`` (two arrays (B,))."""
+        joint = self.joint(a)
+        return draw(self.cdf[s, joint], u[0]), self.R[:, s, joint].T
+
+    @property
+    def cdf(self) -> np.ndarray:
+        return np.cumsum(self.P, axis=-1)
+
+    def chain(self, policies) -> tuple[np.ndarray, np.ndarray]:
+        """(P_pi (S, S), R_pi (N, S)): the Markov reward process the policies make of the MDP."""
+        pi = joint_policy(policies)
+        return np.einsum("sa,sat->st", pi, self.P), np.einsum("sa,nsa->ns", pi, self.R)
+
+    def best_return(self) -> tuple[float | None, np.ndarray | None]:
+        """(J*, the best joint action in every state) by `relative_value_iteration` over the joint actions, or (None,
+        None) where the table is too large."""
+        if self.n_states * self.P.shape[1] > JOINT_LIMIT:
+            return None, None
+
+        def sweep(h):
+            Q = self.R.mean(axis=0) + self.P @ h
+            return Q.max(axis=1), Q.argmax(axis=1)
+
+        return relative_value_iteration(self.n_states, sweep)
+
 
 def team_mdp(P, R, Phi, gamma: float, actions, *, start=None, name: str = "team", best=None) -> TeamMDP:
     """A `TeamMDP`, checked: shapes, a stochastic P, finite rewards, features of full column rank."""
@@ -95,10 +123,14 @@ def joint_policy(policies) -> np.ndarray:
     return out
 
 
-def chain_of(mdp: TeamMDP, policies) -> tuple[np.ndarray, np.ndarray]:
-    """(P_pi (S, S), R_pi (N, S)): the Markov reward process the policies make of the MDP."""
-    pi = joint_policy(policies)
-    return np.einsum("sa,sat->st", pi, mdp.P), np.einsum("sa,nsa->ns", pi, mdp.R)
+def chain_of(mdp, policies) -> tuple[np.ndarray, np.ndarray]:
+    """(P_pi (S, S), R_pi (N, S)): the Markov reward process the policies make of the MDP (its own ``chain``)."""
+    return mdp.chain(policies)
+
+
+def draw(cdf: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The index each uniform ``u`` (...) falls at in its cumulative distribution ``cdf`` (..., K)."""
+    return np.minimum((cdf <= u[..., None]).sum(axis=-1), cdf.shape[-1] - 1)
 
 
 def stationary(P_pi: np.ndarray) -> np.ndarray:
@@ -110,14 +142,14 @@ def stationary(P_pi: np.ndarray) -> np.ndarray:
     return d / d.sum()
 
 
-def average_return(mdp: TeamMDP, policies) -> float:
+def average_return(mdp, policies) -> float:
     """J(pi) = sum_s d_pi(s) rbar_pi(s): the long-run average team reward of the agents' policies (the module's
     docstring), by linear algebra on the model."""
     P_pi, R_pi = chain_of(mdp, policies)
     return float(stationary(P_pi) @ R_pi.mean(axis=0))
 
 
-def critic_target(mdp: TeamMDP, policies) -> np.ndarray:
+def critic_target(mdp, policies) -> np.ndarray:
     """w*(pi) (q,): the fixed point every critic reaches on-policy under the current policies, A w* = b with
     A = Phi^T D (I - gamma P_pi) Phi and b = Phi^T D rbar_pi, D = diag(d_pi) (the paper's section 6, on the chain
     the policies make)."""
@@ -129,24 +161,26 @@ def critic_target(mdp: TeamMDP, policies) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
-def best_return(mdp: TeamMDP, tol: float = 1e-10, max_sweeps: int = 200_000) -> tuple[float, np.ndarray]:
-    """(J*, the best joint action in every state (S,)): relative value iteration over the joint actions on the
-    aperiodic chain 1/2 (I + P) (the same optimal policies, the gain halved: doubled back), until the span of a
-    sweep's change is below ``tol``; a unichain MDP converges (Puterman 1994, section 8.5.5)."""
-    S, A, _ = mdp.P.shape
-    rbar = mdp.R.mean(axis=0)
+def best_return(mdp) -> tuple[float | None, np.ndarray | None]:
+    """(J*, the best joint action in every state, or None where it is not one index) of the MDP (its own
+    ``best_return``)."""
+    return mdp.best_return()
+
+
+def relative_value_iteration(S: int, sweep, tol: float = 1e-10, max_sweeps: int = 200_000) -> tuple:
+    """(J*, the maximising action in every state or None) of an average-reward MDP whose Bellman maximum is ``sweep(h)``
+    = (max_a [rbar(s, a) + sum_s' P(s, a, s') h(s')] (S,), its argmax (S,) or None): relative value iteration on the
+    aperiodic chain 1/2 (I + P) (the same optimal policies, the gain halved: doubled back), until the span of a sweep's
+    change is below ``tol``; a unichain MDP converges (Puterman 1994, section 8.5.5)."""
     h = np.zeros(S)
     for _ in range(max_sweeps):
-        Q = 0.5 * rbar + 0.5 * (h[:, None] + mdp.P @ h)
-        new = Q.max(axis=1)
+        best, action = sweep(h)
+        new = 0.5 * (h + best)
         change = new - h
         h = new - new[0]
         if change.max() - change.min() < tol:
-            break
-    else:
-        raise DgtdInputError("relative value iteration did not converge: is the team MDP multichain?")
-    gain = 2.0 * 0.5 * (change.max() + change.min())
-    return float(gain), Q.argmax(axis=1)
+            return float(change.max() + change.min()), action
+    raise DgtdInputError("relative value iteration did not converge: is the team MDP multichain?")
 
 
 def entropy(policies, d: np.ndarray) -> np.ndarray:
@@ -188,4 +222,104 @@ def pull_away(n_agents: int = 4, n_states: int = 3, bonus: float = 1.0, gamma: f
     return team_mdp(P, R, np.eye(n_states), gamma, actions, name=f"pull-away-{n_agents}", best=best)
 
 
-TASKS = {"pull-away": pull_away}
+@dataclass(frozen=True, eq=False)
+class FactoredMDP:
+    """A team MDP whose joint table is never built: the agents form G groups of m (``groups`` (G, m), a partition);
+    at every step one group, drawn uniformly, moves the state by its own table, so that
+
+        P(s, a, s') = (1/G) sum_g P_g(s, a_g, s'),     ``Pg`` (G, S, K, S), a_g group g's joint action (K = A^m),
+
+    and agent i's reward R_i(s, a_i) depends on its own action (``R`` (N, S, A)). Each agent's action enters the
+    transition through its group's few (Zhang et al.'s 20-agent experiment, where P is a table over all 2^20 joint
+    actions, in a form whose memory is G S K S: 1 000 agents is a run, not a table). The exact quantities need no
+    joint table: P_pi sums the groups' chains, and J*'s Bellman maximum separates over the groups (the reward is a sum
+    of the agents' terms, the transition a mixture of the groups')."""
+
+    Pg: np.ndarray
+    groups: np.ndarray
+    R: np.ndarray
+    actions: tuple
+    Phi: np.ndarray
+    gamma: float
+    start: np.ndarray
+    name: str = "factored"
+    best: None = None
+
+    @property
+    def n_states(self) -> int:
+        return self.Pg.shape[1]
+
+    @property
+    def n_agents(self) -> int:
+        return self.R.shape[0]
+
+    @property
+    def n_features(self) -> int:
+        return self.Phi.shape[1]
+
+    def _group_actions(self) -> tuple:
+        return (self.actions[0],) * self.groups.shape[1]
+
+    def step(self, s: np.ndarray, a: np.ndarray, u: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(s', rewards (B, N)): the group drawn by the second uniform, s' from its table by the first."""
+        G = len(self.groups)
+        g = np.minimum((u[1] * G).astype(np.int64), G - 1)
+        mine = np.take_along_axis(a, self.groups[g], axis=1)  # (B, m): the drawn group's actions
+        k = np.ravel_multi_index(tuple(mine.T), self._group_actions())
+        cdf = np.cumsum(self.Pg[g, s, k], axis=-1)
+        return draw(cdf, u[0]), np.take_along_axis(self.R[:, s, :].transpose(1, 0, 2), a[:, :, None], axis=2)[:, :, 0]
+
+    def chain(self, policies) -> tuple[np.ndarray, np.ndarray]:
+        """(P_pi, R_pi): the groups' chains averaged, each under its agents' joint policy; each agent's mean reward."""
+        P_pi = np.zeros((self.n_states, self.n_states))
+        for g, members in enumerate(self.groups):
+            P_pi += np.einsum("sk,skt->st", joint_policy([policies[i] for i in members]), self.Pg[g])
+        R_pi = np.stack([(p * self.R[i, :, : p.shape[1]]).sum(axis=1) for i, p in enumerate(policies)])
+        return P_pi / len(self.groups), R_pi
+
+    def best_return(self) -> tuple[float, None]:
+        """(J*, None): relative value iteration whose maximum over the 2^N joint actions is a sum of the groups'
+        maxima over their K."""
+        G, S = len(self.groups), self.n_states
+        ks = np.stack(np.unravel_index(np.arange(self.Pg.shape[2]), self._group_actions()), axis=-1)  # (K, m)
+        reward = (
+            np.stack([sum(self.R[i][:, ks[:, j]] for j, i in enumerate(members)) for members in self.groups])
+            / self.n_agents
+        )  # (G, S, K): each group's part of rbar
+
+        def sweep(h):
+            return (reward + self.Pg @ h / G).max(axis=2).sum(axis=0), None
+
+        return relative_value_iteration(S, sweep)[0], None
+
+
+def factored(
+    n_agents: int = 1000, n_states: int = 10, group: int = 2, gamma: float = 0.5, seed: int = 0, name: str = "factored"
+) -> FactoredMDP:
+    """A random factored team MDP: binary actions, groups of ``group`` consecutive agents, each group's table's rows
+    uniform on the simplex, rewards R_i(s, a_i) uniform in [0, 4] (as Zhang et al.'s), one-hot features, seeded."""
+    if n_agents < 2 or n_agents % group:
+        raise DgtdInputError(
+            f"a factored task needs at least 2 agents, a multiple of its groups' {group}; got {n_agents}"
+        )
+    rng = np.random.default_rng(seed)
+    G, K = n_agents // group, 2**group
+    Pg = rng.dirichlet(np.ones(n_states), size=(G, n_states, K))
+    R = rng.uniform(0.0, 4.0, (n_agents, n_states, 2))
+    groups = np.arange(n_agents).reshape(G, group)
+    start = np.full(n_states, 1.0 / n_states)
+    return FactoredMDP(Pg, groups, R, (2,) * n_agents, np.eye(n_states), float(gamma), start, name)
+
+
+def zhang_20(n_agents: int = 20, n_states: int = 20, seed: int = 0) -> FactoredMDP:
+    """Zhang et al.'s 20-agent setting (ICML 2018, section 5.1: 20 states, binary actions, rewards uniform in [0, 4]),
+    its transitions factored over groups of 2 (`FactoredMDP`): their joint table would hold 20 x 2^20 x 20 numbers."""
+    return factored(n_agents, n_states, 2, seed=seed, name=f"zhang-{n_agents}")
+
+
+TASKS: dict[str, Callable[..., TeamMDP | FactoredMDP]] = {
+    "pull-away": pull_away,
+    "zhang-20": zhang_20,
+    "factored": factored,
+}
+"""The learning tasks by name, each a function of n_agents and n_states (`dgtd learn TASK --agents --states`)."""

@@ -98,8 +98,7 @@ def learn(
     theta = actor.init(B, mdp.actions, S)
     A = theta.shape[-1]
     lam = np.zeros((B, N, N * S * A)) if settings.actor == "networked" else None
-    cdf_P, cdf_start = np.cumsum(mdp.P, axis=-1), np.cumsum(mdp.start)
-    s = _draw(cdf_start, uniforms(keys, SHARED_START, 0, 0)[0])
+    s = team.draw(np.cumsum(mdp.start), uniforms(keys, SHARED_START, 0, 0)[0])
     alphas, betas = step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T)
     nus = 1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0))  # the reward regression's steps: |f|^2 = N
     at = np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:])
@@ -110,16 +109,12 @@ def learn(
     for k in range(T):
         if k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, entity, step)
             draws = _draws(keys, network, range(k, min(k + BLOCK, T)))
-        u_action, u_state, up = (
-            draws[0][k % BLOCK],
-            draws[1][k % BLOCK],
-            None if draws[2] is None else draws[2][k % BLOCK],
-        )
+        t = k % BLOCK
+        u_action, u_state = draws[0][t], (draws[1][0][t], draws[1][1][t])
+        up = None if draws[2] is None else draws[2][t]
         rows = policy(theta[b, agents[None, :], s[:, None]])  # (B, N, A)
-        a = np.minimum(_draw(np.cumsum(rows, axis=-1), u_action), last_action)
-        joint = mdp.joint(a)
-        s_next = _draw(cdf_P[s, joint], u_state)
-        r = mdp.R[:, s, joint].T  # (B, N): each agent's own reward
+        a = np.minimum(team.draw(np.cumsum(rows, axis=-1), u_action), last_action)
+        s_next, r = mdp.step(s, a, u_state)  # r (B, N): each agent's own reward
         if settings.actor == "independent":
             up = np.zeros((B, network.n_edges), bool)  # they send nothing
         sent = dict(critic.sends(state))
@@ -141,7 +136,7 @@ def learn(
             new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, state))
         state = new
         if lam is not None:
-            mixed = lam - inbox.metropolis("team")
+            mixed = lam - metropolis(inbox, arcs, "team")
             mixed[b[:, :, None], agents[None, :, None], f[:, None, :]] += nus[k] * (r - rhat)[:, :, None]
             lam = mixed
         theta = actor_step(theta, s, a, delta, betas[k])
@@ -150,7 +145,7 @@ def learn(
             _measure(mdp, theta, critic.estimate(state), metrics, int(np.searchsorted(at, k + 1)))
         if progress is not None:
             progress(1)
-    best = team.best_return(mdp) if mdp.n_states * mdp.P.shape[1] <= team.JOINT_LIMIT else (None, None)
+    best = mdp.best_return()
     return LearnResult(
         at, metrics, policy(theta), critic.estimate(state), best[0], best[1], links.messages, links.bits,
         time.perf_counter() - started,
@@ -161,18 +156,31 @@ BLOCK = 512  # steps whose random numbers are drawn together
 
 
 def _draws(keys: np.ndarray, network, steps: range) -> tuple:
-    """The uniforms of ``steps``: each agent's action (T, B, N), the next state (T, B), and the links up (T, B, E) or
-    None where every link is always up."""
+    """The uniforms of ``steps``: each agent's action (T, B, N), the next state's two (T, B) each, and the links up
+    (T, B, E) or None where every link is always up."""
     k = np.arange(steps.start, steps.stop, dtype=np.uint64)[:, None, None]
     action = singles(keys[None, :, None], ACTION, k, np.arange(network.n_nodes))
-    state = uniforms(keys[None, :], SHARED_STATE, k[:, :, 0], 0)[0]
+    state = uniforms(
+        keys[None, :], SHARED_STATE, k[:, :, 0], 0
+    )  # two a step: the next state, and a factored one's part
     up = None if network.fixed else singles(keys[None, :, None], EDGE_UP, k, np.arange(network.n_edges)) < network.p
     return action, state, up
 
 
-def _draw(cdf: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """The index each uniform ``u`` (...) falls at in its cumulative distribution ``cdf`` (..., K)."""
-    return np.minimum((cdf <= u[..., None]).sum(axis=-1), cdf.shape[-1] - 1)
+def metropolis(inbox, arcs: Arcs, name: str) -> np.ndarray:
+    """`Inbox.metropolis` of a long message (the team-reward estimate: N S A numbers) as one (N, N) mixing matrix
+    per seed, built from the arcs heard, times the messages, on dense graphs (N^2 <= 4 x arcs), where the arcs' gather
+    of (B, 2E, q) numbers costs more. Where the channel changed what arrived (late or compressed copies), or the graph
+    is sparse, the inbox's own."""
+    B, N = inbox.heard.shape[0], arcs.n_agents
+    if name in inbox.received or N * N > 4 * arcs.n_arcs:  # (sparse graphs: the arcs' own sums are the cheaper)
+        return inbox.metropolis(name)
+    d = inbox.count()
+    weights = inbox.heard / (1.0 + np.maximum(d[:, arcs.dst], d[:, arcs.src]))  # W_ij of each arc j -> i heard
+    W = np.zeros((B, N, N))
+    np.add.at(W, (np.arange(B)[:, None], arcs.dst[None, :], arcs.src[None, :]), weights)
+    x = inbox.sent[name]
+    return W.sum(axis=2)[:, :, None] * x - W @ x
 
 
 def local_policies(mdp: team.TeamMDP, pi: np.ndarray) -> list:
