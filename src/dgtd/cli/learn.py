@@ -39,11 +39,12 @@ def _choices(name: str):
 @click.argument("task", required=False)
 @learn_options()
 @run_options(*SHARED)
-@output_options("out", "progress", "plots", "overwrite")
-def learn(task, out, progress, plots, overwrite, **values):
+@output_options("out", "progress", "plots", "overwrite", "checkpoint_every")
+def learn(task, out, progress, plots, overwrite, checkpoint_every, **values):
     """Agents that learn their policies on TASK (pull-away), each with its own softmax policy and one of dgtd's
     distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd run`; writes
     summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png."""
+    import numpy as np
     from tqdm import tqdm
 
     from dgtd.learning import resolve_learning
@@ -51,7 +52,7 @@ def learn(task, out, progress, plots, overwrite, **values):
     from dgtd.run.learn import learn as run_learning
     from dgtd.run.learn import metrics_rows, summary
     from dgtd.run.owner import Owner
-    from dgtd.run.results import refuse_other_results
+    from dgtd.run.results import npz_bytes, refuse_other_results
 
     job = resolve_learning(task, values)
     out = Path(out) if out else Path("runs") / f"learn-{job.mdp.name}-{job.settings.actor}"
@@ -67,24 +68,69 @@ def learn(task, out, progress, plots, overwrite, **values):
     with Owner(out, "learning run", overwrite):
         if not overwrite:
             refuse_other_results(out, job.record, "learning run")
+        resume = _checkpoint(out, job.record, overwrite)
+        if resume is not None:
+            click.echo(f"resuming {out} at step {int(resume['k']):,}")
         bar = tqdm(
             total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5
         )
+        bar.update(0 if resume is None else int(resume["k"]))
         try:
-            result = run_learning(mdp, job.network, job.critic, job.actor, s, job.channel, progress=bar.update)
+            result = run_learning(
+                mdp, job.network, job.critic, job.actor, s, job.channel, progress=bar.update,
+                checkpoint_every=checkpoint_every or 0, on_checkpoint=lambda snap: _keep(out, snap, job.record),
+                resume=resume,
+            )  # fmt: skip
         finally:
             bar.close()
+        (out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
+        arrays = {"policies": result.policies, "actions": np.asarray(mdp.actions)}  # (B, N, S, A_max), (N,)
+        atomic_write(out / "policies.npz", npz_bytes(arrays))
         atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
         rows = metrics_rows(result, s.actor)
         text = "actor,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
         atomic_write(out / "metrics.csv", text.encode())
-        written = ["summary.json", "metrics.csv"]
+        written = ["policies.npz", "summary.json", "metrics.csv"]
         if plots:
             from dgtd.plots.learning import learning_figure
 
             written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
     _report(result, mdp)
     click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+
+
+CHECKPOINT = "learning-checkpoint.npz"
+
+
+def _keep(out: Path, snapshot: dict, record: dict) -> None:
+    """The run's state at a step, written atomically beside what the run was asked to do."""
+    import json
+
+    import numpy as np
+
+    from dgtd.run.atomic import atomic_write
+    from dgtd.run.results import npz_bytes
+
+    atomic_write(out / CHECKPOINT, npz_bytes(snapshot | {"record": np.asarray(json.dumps(record, sort_keys=True))}))
+
+
+def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:
+    """The snapshot to resume from: the same command's checkpoint in ``out``; another run's is refused (unless
+    --overwrite, which starts afresh)."""
+    import json
+
+    from dgtd.errors import DgtdInputError
+    from dgtd.files import read_npz
+
+    path = out / CHECKPOINT
+    if not path.exists() or overwrite:
+        return None
+    saved = read_npz(path, "checkpoint", "remove it, or pass --overwrite to start afresh")
+    if json.loads(str(saved.pop("record", "{}"))) != json.loads(json.dumps(record, sort_keys=True)):
+        raise DgtdInputError(
+            f"{out} holds the checkpoint of another learning run; choose another --out, or pass --overwrite"
+        )
+    return saved
 
 
 def _report(result, mdp) -> None:

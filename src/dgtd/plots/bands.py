@@ -22,8 +22,9 @@ def median_band(Y: np.ndarray):
 
 
 def band(ax, x, Y, label, color=None):
-    """Median over seeds with the 90 % band (`median_band`)."""
+    """Median over seeds with the 90 % band (`median_band`); returns the median's line."""
     med, lo, hi = median_band(Y)
     (line,) = ax.plot(x, med, label=label, color=color)
     if Y.shape[1] > 1:
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
+    return line

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -40,7 +41,7 @@ from dgtd.samples import Sample
 from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys, singles, uniforms
 
 ACTORS = ("networked", "independent", "centralised")
-METRICS = ("return", "critic_error", "entropy", "best_probability")
+METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", "bits")
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,9 @@ class LearnSettings:
 
 @dataclass
 class LearnResult:
-    """``steps`` (C,) of the checkpoints; ``metrics`` {name: (B, C)} (`METRICS`); ``policies`` (B, N, S, A_max) at the
+    """``steps`` (C,) of the checkpoints; ``metrics`` {name: (B, C)} (`METRICS`: the exact return, the critics' error,
+    the mean entropy, the least probability on the team's best action, the messages and bits delivered so far);
+    ``policies`` (B, N, S, A_max) at the
     end; ``critic`` the critics' estimates (B, N or 1, q) at the end; ``return_best`` J* and ``best_action`` (S,) the
     team's best joint action where computed; ``messages`` and ``bits`` (B,) delivered."""
 
@@ -80,76 +83,163 @@ class LearnResult:
     info: dict = field(default_factory=dict)
 
 
+@dataclass
+class Learners:
+    """What a learning run carries from step to step, and what a checkpoint holds: the step ``k``, each seed's state
+    ``s`` (B,), the actors' ``theta``, the team-reward estimates ``lam`` (networked), the critics' state, the links'
+    state and the metrics measured so far."""
+
+    k: int
+    s: np.ndarray
+    theta: np.ndarray
+    lam: np.ndarray | None
+    critic: Any  # the critic's NamedTuple state
+    links: Any  # the channel's NamedTuple state
+    metrics: dict
+
+    def snapshot(self) -> dict:
+        """Flat arrays (copies), as an .npz holds them."""
+        out = {"k": np.asarray(self.k), "s": self.s.copy(), "theta": self.theta.copy()}
+        if self.lam is not None:
+            out["lam"] = self.lam.copy()
+        out |= {f"critic/{k}": np.array(v) for k, v in self.critic._asdict().items()}
+        out |= {f"links/{k}": np.array(v) for k, v in self.links._asdict().items()}
+        return out | {f"metrics/{k}": v.copy() for k, v in self.metrics.items()}
+
+    def restored(self, snap: dict) -> Learners:
+        """This fresh start with a snapshot's values: the same run from its step k on."""
+
+        def part(kind: str, record):
+            return type(record)(**{name: snap[f"{kind}/{name}"] for name in record._fields})
+
+        return Learners(
+            int(snap["k"]), snap["s"], snap["theta"], snap.get("lam"), part("critic", self.critic),
+            part("links", self.links), {k: snap[f"metrics/{k}"] for k in self.metrics},
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What does not change over a learning run: the pieces, the keys, the step sizes and the checkpoints."""
+
+    mdp: Any
+    network: Any
+    critic: Any
+    actor: SoftmaxActor
+    settings: LearnSettings
+    channel: Any
+    arcs: Arcs
+    keys: np.ndarray
+    alphas: np.ndarray
+    betas: np.ndarray
+    nus: np.ndarray
+    at: np.ndarray
+
+
 def learn(
-    mdp: team.TeamMDP, network, critic, actor: SoftmaxActor, settings: LearnSettings, channel=None, progress=None
+    mdp: team.TeamMDP,
+    network,
+    critic,
+    actor: SoftmaxActor,
+    settings: LearnSettings,
+    channel=None,
+    progress=None,
+    *,
+    checkpoint_every: int = 0,
+    on_checkpoint=None,
+    resume: dict | None = None,
 ):
     """Run the actor-critic of the module's docstring; ``critic`` any distributed algorithm of `dgtd.algorithms` (its
-    step sizes its own), ``channel`` the links (default perfect), ``progress(n)`` called as steps finish."""
-    two_timescales(actor, critic)
-    if network.n_nodes != mdp.n_agents:
-        raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {mdp.n_agents}")
+    step sizes its own), ``channel`` the links (default perfect), ``progress(n)`` called as steps finish. Every
+    ``checkpoint_every`` steps ``on_checkpoint(snapshot)`` is given the run's `Learners.snapshot`; ``resume`` (one)
+    continues from it to the numbers of the uninterrupted run, bit for bit (every random number is keyed by its
+    step)."""
+    plan = _plan(mdp, network, critic, actor, settings, channel)
     started = time.perf_counter()
-    B, N, S, T = settings.seeds, mdp.n_agents, mdp.n_states, settings.iterations
-    keys = seed_keys(settings.seed, range(B))
-    channel = channel if channel is not None else Perfect()
-    arcs = Arcs.of(network.base.edges, N)
-    links = channel.init(B, arcs, settings.seed)
-    state = critic.init(B, N, mdp.n_features)
-    theta = actor.init(B, mdp.actions, S)
-    A = theta.shape[-1]
-    lam = np.zeros((B, N, N * S * A)) if settings.actor == "networked" else None
-    s = team.draw(np.cumsum(mdp.start), uniforms(keys, SHARED_START, 0, 0)[0])
-    alphas, betas = step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T)
-    nus = 1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0))  # the reward regression's steps: |f|^2 = N
-    at = np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:])
-    metrics = {name: np.full((B, len(at)), np.nan) for name in METRICS}
-    agents = np.arange(N)
-    b = np.arange(B)[:, None]
-    last_action = np.array(mdp.actions) - 1
-    for k in range(T):
-        if k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, entity, step)
-            draws = _draws(keys, network, range(k, min(k + BLOCK, T)))
-        t = k % BLOCK
-        u_action, u_state = draws[0][t], (draws[1][0][t], draws[1][1][t])
-        up = None if draws[2] is None else draws[2][t]
-        rows = policy(theta[b, agents[None, :], s[:, None]])  # (B, N, A)
-        a = np.minimum(team.draw(np.cumsum(rows, axis=-1), u_action), last_action)
-        s_next, r = mdp.step(s, a, u_state)  # r (B, N): each agent's own reward
-        if settings.actor == "independent":
-            up = np.zeros((B, network.n_edges), bool)  # they send nothing
-        sent = dict(critic.sends(state))
-        if lam is not None:
-            sent["team"] = lam
-        inbox, links = channel.deliver(links, arcs, sent, up)
-        phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
-        own = np.broadcast_to(r.mean(axis=1, keepdims=True), r.shape) if settings.actor == "centralised" else r
-        W = critic.estimate(state)  # (B, N or 1, q)
-        values = (W * phi).sum(-1), (W * phi_next).sum(-1)
-        if lam is not None:
-            f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
-            rhat = np.take_along_axis(lam, np.broadcast_to(f[:, None, :], (B, N, N)), axis=-1).sum(-1)
-        else:
-            rhat = own
-        delta = rhat + mdp.gamma * values[1] - values[0]
-        new = critic.update(state, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), inbox, alphas[k])
-        if inbox.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
-            new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, state))
-        state = new
-        if lam is not None:
-            mixed = lam - metropolis(inbox, arcs, "team")
-            mixed[b[:, :, None], agents[None, :, None], f[:, None, :]] += nus[k] * (r - rhat)[:, :, None]
-            lam = mixed
-        theta = actor_step(theta, s, a, delta, betas[k])
-        s = s_next
-        if k + 1 in at:
-            _measure(mdp, theta, critic.estimate(state), metrics, int(np.searchsorted(at, k + 1)))
+    run = _start(plan)
+    if resume is not None:
+        run = run.restored(resume)
+    draws: tuple = ()
+    for k in range(run.k, settings.iterations):
+        if k == run.k or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
+            draws = _draws(plan.keys, network, range(k - k % BLOCK, min(k - k % BLOCK + BLOCK, settings.iterations)))
+        _step(plan, run, draws, k)
+        if k + 1 in plan.at:
+            c = int(np.searchsorted(plan.at, k + 1))
+            _measure(mdp, run.theta, critic.estimate(run.critic), run.metrics, c)
+            run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
+        if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
+            on_checkpoint(run.snapshot())
         if progress is not None:
             progress(1)
     best = mdp.best_return()
     return LearnResult(
-        at, metrics, policy(theta), critic.estimate(state), best[0], best[1], links.messages, links.bits,
-        time.perf_counter() - started,
+        plan.at, run.metrics, policy(run.theta), critic.estimate(run.critic), best[0], best[1], run.links.messages,
+        run.links.bits, time.perf_counter() - started,
     )  # fmt: skip
+
+
+def _plan(mdp, network, critic, actor, settings, channel) -> _Plan:
+    two_timescales(actor, critic)
+    if network.n_nodes != mdp.n_agents:
+        raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {mdp.n_agents}")
+    T, N = settings.iterations, mdp.n_agents
+    return _Plan(
+        mdp, network, critic, actor, settings, channel if channel is not None else Perfect(),
+        Arcs.of(network.base.edges, N), seed_keys(settings.seed, range(settings.seeds)),
+        step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
+        1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0)),  # the reward regression's steps: |f|^2 = N
+        np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]),
+    )  # fmt: skip
+
+
+def _start(plan: _Plan) -> Learners:
+    mdp, B = plan.mdp, plan.settings.seeds
+    theta = plan.actor.init(B, mdp.actions, mdp.n_states)
+    N, S, A = mdp.n_agents, mdp.n_states, theta.shape[-1]
+    return Learners(
+        0,
+        team.draw(np.cumsum(mdp.start), uniforms(plan.keys, SHARED_START, 0, 0)[0]),
+        theta,
+        np.zeros((B, N, N * S * A)) if plan.settings.actor == "networked" else None,
+        plan.critic.init(B, N, mdp.n_features),
+        plan.channel.init(B, plan.arcs, plan.settings.seed),
+        {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
+    )
+
+
+def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
+    """Step k of the module's docstring, in place on ``run``: draw, hear, advantage, critic, reward, actor."""
+    mdp, critic, kind = plan.mdp, plan.critic, plan.settings.actor
+    t = k % BLOCK
+    B, N, S, A = run.theta.shape[0], mdp.n_agents, mdp.n_states, run.theta.shape[-1]
+    b, agents, s = np.arange(B)[:, None], np.arange(N), run.s
+    rows = policy(run.theta[b, agents[None, :], s[:, None]])  # (B, N, A)
+    a = np.minimum(team.draw(np.cumsum(rows, axis=-1), draws[0][t]), np.array(mdp.actions) - 1)
+    s_next, r = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # r (B, N): each agent's own reward
+    up = None if draws[2] is None else draws[2][t]
+    if kind == "independent":
+        up = np.zeros((B, plan.network.n_edges), bool)  # they send nothing
+    sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
+    inbox, run.links = plan.channel.deliver(run.links, plan.arcs, sent, up)
+    phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
+    own = np.broadcast_to(r.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
+    W = critic.estimate(run.critic)  # (B, N or 1, q)
+    rhat, f = own, None
+    if run.lam is not None:
+        f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
+        rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, N, N)), axis=-1).sum(-1)
+    delta = rhat + mdp.gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
+    new = critic.update(run.critic, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), inbox, plan.alphas[k])
+    if inbox.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
+        new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
+    run.critic = new
+    if run.lam is not None and f is not None:
+        mixed = run.lam - metropolis(inbox, plan.arcs, "team")
+        mixed[b[:, :, None], agents[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
+        run.lam = mixed
+    run.theta = actor_step(run.theta, s, a, delta, plan.betas[k])
+    run.s, run.k = s_next, k + 1
 
 
 BLOCK = 512  # steps whose random numbers are drawn together

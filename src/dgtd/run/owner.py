@@ -17,7 +17,7 @@ from pathlib import Path
 from dgtd.errors import DgtdInputError
 
 LOCK = ".dgtd.lock"
-KINDS = ("run", "comparison", "sweep")
+KINDS = ("run", "comparison", "sweep", "learning run")
 
 
 def kind_of(out: Path) -> str | None:
@@ -27,6 +27,8 @@ def kind_of(out: Path) -> str | None:
         return "sweep"
     if (out / "agent_errors.npz").exists() or (out / "parts").is_dir():
         return "comparison"
+    if (out / "policies.npz").exists() or (out / "learning-checkpoint.npz").exists():
+        return "learning run"
     if any((out / name).exists() for name in ("trajectory.npz", "checkpoint.npz", "summary.json", "config.toml")):
         return "run"
     return None
