@@ -84,8 +84,8 @@ def main() -> None:
         early = J[np.searchsorted(r.steps, 2000)]
         least = r.metrics["best_probability"][:, -1]
         shown = f"{np.nanmin(least):.3f}" if np.isfinite(least).all() else "-"
-        print(f"| {name} | {loss} | {early:.3f} | {J[-1]:.3f} | {shown} | {np.median(r.metrics['critic_error'][:, -1]):.2g} | "
-              f"{seconds:.0f} |")  # fmt: skip
+        error = np.median(r.metrics["critic_error"][:, -1])
+        print(f"| {name} | {loss} | {early:.3f} | {J[-1]:.3f} | {shown} | {error:.2g} | {seconds:.0f} |")
 
 
 if __name__ == "__main__":
