@@ -25,7 +25,7 @@ from dgtd.plots.bands import band  # noqa: E402
 from dgtd.problems import team  # noqa: E402
 from dgtd.run.learn import LearnSettings, learn  # noqa: E402
 
-CRITICS = ("dgtd", "consensus-td0", "consensus-tdrc", "td-tracking")
+CRITICS = {"dgtd": "C0", "consensus-td0": "C1", "consensus-tdrc": "C2", "td-tracking": "C3"}  # and their colours
 
 
 def one(mdp, network, critic: str, actor: str, seeds: int, iterations: int, loss: float):
@@ -48,17 +48,17 @@ def main() -> None:
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.2))
     rows = []
     for loss, style in ((0.0, "-"), (0.3, "--")):
-        for critic in CRITICS:
+        for critic, colour in CRITICS.items():
             r, seconds = one(mdp, net, critic, "networked", args.seeds, 10_000, loss)
             label = f"{critic}, loss {loss:.0%}"
-            line = band(axes[0], r.steps, r.metrics["return"].T, label)
+            line = band(axes[0], r.steps, r.metrics["return"].T, label, colour)
             line.set_linestyle(style)
             axes[1].plot(np.median(r.metrics["bits"], axis=0) / 8e6, np.median(r.metrics["return"], axis=0), style,
                          color=line.get_color(), label=label)  # fmt: skip
             rows.append((f"networked, {critic} critic", f"{loss:.0%}", r, seconds))
     for actor in ("centralised", "independent"):
         r, seconds = one(mdp, net, "dgtd", actor, args.seeds, 10_000, 0.0)
-        band(axes[0], r.steps, r.metrics["return"].T, f"{actor} (dgtd critic)", "k" if actor[0] == "c" else "grey")
+        band(axes[0], r.steps, r.metrics["return"].T, f"{actor} (dgtd critic)", "k" if actor[0] == "c" else "C7")
         rows.append((f"{actor}, dgtd critic", "0%", r, seconds))
     axes[0].axhline(2.0, color="k", linestyle=":", label="J* = 2")
     axes[0].set(xlabel="step (one sample per agent, one round of messages)", ylabel="J(pi_t), exact",

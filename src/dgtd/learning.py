@@ -36,8 +36,8 @@ class LearnConfig:
 
 
 SHARED = (
-    "algorithm", "alpha0", "beta", "schedule", "graph", "edge_prob", "loss", "burst", "reweight", "delay", "wake",
-    "bits", "top_k", "error_feedback", "iterations", "seeds", "seed", "checkpoints",
+    "problem_file", "algorithm", "alpha0", "beta", "schedule", "graph", "edge_prob", "loss", "burst", "reweight",
+    "delay", "wake", "bits", "top_k", "error_feedback", "iterations", "seeds", "seed", "checkpoints",
 )  # fmt: skip
 """The options `dgtd learn` shares with `dgtd run`."""
 
@@ -51,11 +51,21 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
     from dgtd.problems.team import TASKS
     from dgtd.run.learn import LearnSettings
 
-    if task not in TASKS:
-        raise DgtdInputError(f"name a learning task: {', '.join(TASKS)}; got {task!r}")
     own = {f.name: values.get(f.name) for f in fields(LearnConfig)}
-    sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}
-    mdp = TASKS[task](**sizes)
+    file = values.get("problem_file")
+    if (task is None) == (file is None):
+        raise DgtdInputError(f"name one learning task ({', '.join(TASKS)}) or --problem FILE.npz; got {task!r}")
+    if file is not None:
+        from dgtd.problems.io import load_team_mdp
+
+        if own["agents"] is not None or own["states"] is not None:
+            raise DgtdInputError("--agents and --states size a named task; a problem file's sizes are its arrays'")
+        mdp = load_team_mdp(file)
+    elif task not in TASKS:
+        raise DgtdInputError(f"name a learning task: {', '.join(TASKS)}; got {task!r}")
+    else:
+        sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}
+        mdp = TASKS[task](**sizes)
     network = _network(values.get("graph") or "ring", mdp.n_agents, _given(values, "edge_prob", 1.0))
     links = {k: values.get(k) for k in ("delay", "wake", "bits", "top_k", "error_feedback")}
     channel = channel_for(values.get("loss"), values.get("burst"), network, values.get("reweight"), links)
@@ -76,6 +86,10 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         actor=_given(own, "actor", "networked"),
     )
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
+    if file is not None:
+        from dgtd.problems.io import file_digest
+
+        record["problem_sha256"] = file_digest(file)
     return SimpleNamespace(
         mdp=mdp, network=network, channel=channel, critic=critic, actor=actor, settings=settings, record=record
     )

@@ -225,3 +225,32 @@ def test_dgtd_learn_killed_after_a_checkpoint_resumes_to_the_uninterrupted_numbe
         assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
     whole, cut = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("whole", "cut"))
     assert whole["policy_last"] == cut["policy_last"] and not (tmp_path / "cut" / "learning-checkpoint.npz").exists()
+
+
+def test_a_problem_file_is_learned_from_its_starting_policies(run_cli, tmp_path):
+    """`dgtd learn --problem FILE`: the multi-agent MDP form with one starting policy per agent; the return at the
+    first checkpoint is near the starting policies' exact J (they are where the actors start), and a file with
+    behaviour policies, or fewer policies than agents, is one line."""
+    mdp = team.pull_away()
+    start = [np.tile([0.9, 0.1], (3, 1))] * 4  # mostly action 0: the team's in states 0 and 2, not in 1
+    arrays = dict(P=mdp.P, R=mdp.R, Phi=mdp.Phi, gamma=mdp.gamma, **{f"policy_{i}": p for i, p in enumerate(start)})
+    np.savez(tmp_path / "p.npz", **arrays)
+    code, text, err = run_cli(
+        "learn", "--problem", tmp_path / "p.npz", "-T", 200, "--checkpoints", 20, "--no-progress", "--no-plots",
+        "--out", tmp_path / "o",
+    )  # fmt: skip
+    assert code == 0, err
+    rows = [r.split(",") for r in (tmp_path / "o" / "metrics.csv").read_text().splitlines()[1:]]
+    first = [float(r[4]) for r in rows if r[3] == "return" and r[2] == "10"]
+    assert abs(np.mean(first) - team.average_return(mdp, start)) < 0.02, (first, team.average_return(mdp, start))
+    np.savez(tmp_path / "b.npz", **arrays, behaviour_0=start[0])
+    one_line_error(
+        *run_cli("learn", "--problem", tmp_path / "b.npz", "--out", tmp_path / "x"), "behaviour_0", "on-policy"
+    )
+    np.savez(tmp_path / "c.npz", **{k: v for k, v in arrays.items() if k != "policy_3"})
+    one_line_error(
+        *run_cli("learn", "--problem", tmp_path / "c.npz", "--out", tmp_path / "x"), "3 policies for 4 agents"
+    )
+    one_line_error(
+        *run_cli("learn", "pull-away", "--problem", tmp_path / "p.npz", "--out", tmp_path / "x"), "one learning task"
+    )

@@ -22,6 +22,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 
+FLOOR = 1e-6  # the least probability a starting policy's action keeps
 CRITIC_POWER = {"sqrt": 0.5, "harmonic": 1.0, "constant": 0.0}  # alpha_k's decay, k^-p, of the critics' schedules
 
 
@@ -46,6 +47,14 @@ class SoftmaxActor:
         theta = np.zeros((seeds, len(actions), states, int(actions.max())))
         absent = np.arange(theta.shape[-1])[None, :] >= actions[:, None]  # (N, A_max)
         theta[:, absent[:, None, :].repeat(states, axis=1)] = -np.inf
+        return theta
+
+    def starting_at(self, theta: np.ndarray, policies) -> np.ndarray:
+        """theta whose policies are ``policies`` (each (S, A_i)): log pi, a probability below `FLOOR` raised to it (a
+        softmax cannot leave 0: an action the starting policy never takes would never be tried)."""
+        theta = theta.copy()
+        for i, p in enumerate(policies):
+            theta[:, i, :, : p.shape[1]] = np.log(np.maximum(p, FLOOR))[None]
         return theta
 
     def steps(self, k0: int, k1: int) -> np.ndarray:

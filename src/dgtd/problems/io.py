@@ -166,3 +166,36 @@ def file_digest(path: str) -> str:
     """The SHA-256 of a file, read in pieces (a recording may be larger than memory)."""
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def load_team_mdp(path: str):
+    """A multi-agent MDP file (the second form above) as a team MDP whose agents learn their policies
+    (`dgtd.problems.team.TeamMDP`): one policy per agent (policy_0 ... policy_{N-1}, the starting policies), R
+    (N, S, A) or (N, S, A, S) (averaged over s'), no behaviour policies (the actors learn on-policy) and no terminal
+    states. Checked as `load_problem` checks a problem file, each failure one line."""
+    from dgtd.problems.team import team_mdp
+
+    p = Path(path)
+    arrays = read_npz(p, "problem file", FORMS, required=REQUIRED)
+    _refuse_unknown(path, arrays)
+    arrays = {name: _real(path, name, x) for name, x in arrays.items()}
+    if np.ndim(arrays["P"]) != 3:
+        raise DgtdInputError(f"{path}: agents that learn need the multi-agent MDP form, P (S, A, S) over joint actions")
+    for k in ("behaviour_0", "terminal"):
+        if k in arrays:
+            raise DgtdInputError(f"{path} holds {k}: learners act on-policy in a continuing task; remove it")
+    policies = _numbered(arrays, "policy_")
+    R = np.asarray(arrays["R"], dtype=np.float64)
+    if R.ndim == 4:
+        R = np.einsum("sat,nsat->nsa", arrays["P"], R)
+    if len(policies) != R.shape[0]:
+        raise DgtdInputError(
+            f"{path} holds {len(policies)} policies for {R.shape[0]} agents' rewards: give every agent its starting "
+            "policy (policy_0, policy_1, ..., one per row of R)"
+        )
+    try:
+        gamma = float(np.asarray(arrays["gamma"]).reshape(()))
+    except (TypeError, ValueError):
+        raise DgtdInputError(f"gamma in {path} must be a number") from None
+    actions = [np.shape(x)[1] if np.ndim(x) == 2 else 0 for x in policies]
+    return team_mdp(arrays["P"], R, arrays["Phi"], gamma, actions, name=p.stem, policies=policies)

@@ -46,6 +46,7 @@ class TeamMDP:
     start: np.ndarray
     name: str = "team"
     best: np.ndarray | None = None
+    policies: tuple | None = None  # the agents' starting policies (S, A_i), where given (a problem file's)
 
     @property
     def n_states(self) -> int:
@@ -95,8 +96,9 @@ class TeamMDP:
         return relative_value_iteration(self.n_states, sweep)
 
 
-def team_mdp(P, R, Phi, gamma: float, actions, *, start=None, name: str = "team", best=None) -> TeamMDP:
-    """A `TeamMDP`, checked: shapes, a stochastic P, finite rewards, features of full column rank."""
+def team_mdp(P, R, Phi, gamma: float, actions, *, start=None, name: str = "team", best=None, policies=None) -> TeamMDP:
+    """A `TeamMDP`, checked: shapes, a stochastic P, finite rewards, features of full column rank, starting policies
+    (S, A_i) whose rows sum to 1."""
     P, R, Phi = (np.asarray(x, dtype=np.float64) for x in (P, R, Phi))
     actions = tuple(int(a) for a in actions)
     if P.ndim != 3 or P.shape[0] != P.shape[2]:
@@ -112,7 +114,14 @@ def team_mdp(P, R, Phi, gamma: float, actions, *, start=None, name: str = "team"
     if not 0.0 <= float(gamma) < 1.0:
         raise DgtdInputError(f"gamma must be in [0, 1), got {gamma}")
     start = np.full(S, 1.0 / S) if start is None else np.asarray(start, dtype=np.float64)
-    return TeamMDP(P, R, actions, Phi, float(gamma), start, name, None if best is None else np.asarray(best))
+    if policies is not None:
+        policies = tuple(np.asarray(p, dtype=np.float64) for p in policies)
+        for i, (p, n) in enumerate(zip(policies, actions)):
+            if p.shape != (S, n):
+                raise DgtdInputError(f"policy {i} must have shape (S, A_{i}) = ({S}, {n}), got {p.shape}")
+            check_stochastic(f"policy {i}", p)
+    best = None if best is None else np.asarray(best)
+    return TeamMDP(P, R, actions, Phi, float(gamma), start, name, best, policies)
 
 
 def joint_policy(policies) -> np.ndarray:

@@ -196,6 +196,8 @@ def _plan(mdp, network, critic, actor, settings, channel) -> _Plan:
 def _start(plan: _Plan) -> Learners:
     mdp, B = plan.mdp, plan.settings.seeds
     theta = plan.actor.init(B, mdp.actions, mdp.n_states)
+    if getattr(mdp, "policies", None) is not None:  # a problem file's starting policies
+        theta = plan.actor.starting_at(theta, mdp.policies)
     N, S, A = mdp.n_agents, mdp.n_states, theta.shape[-1]
     return Learners(
         0,
