@@ -254,3 +254,20 @@ def test_a_problem_file_is_learned_from_its_starting_policies(run_cli, tmp_path)
     one_line_error(
         *run_cli("learn", "pull-away", "--problem", tmp_path / "p.npz", "--out", tmp_path / "x"), "one learning task"
     )
+
+
+def test_dgtd_compare_on_a_learning_task_compares_learners(run_cli, tmp_path):
+    """`dgtd compare pull-away -a dgtd,consensus-td0`: networked learners with each critic, independent and
+    centralised ones, on the same keyed numbers (a networked/dgtd row equals `dgtd learn`'s run); the table names
+    the highest return; a centralised critic is refused in one line."""
+    common = ("-T", 600, "--seeds", 2, "--no-progress", "--no-plots")
+    code, text, err = run_cli("compare", "pull-away", "-a", "dgtd,consensus-td0", *common, "--out", tmp_path / "c")
+    assert code == 0, err
+    s = json.loads((tmp_path / "c" / "summary.json").read_text())
+    labels = {"networked/dgtd", "networked/consensus-td0", "independent/dgtd", "centralised/dgtd"}
+    assert labels <= set(s) and "highest return:" in text
+    code, _, err = run_cli("learn", "pull-away", *common, "--out", tmp_path / "l")
+    assert code == 0, err
+    alone = sorted(json.loads((tmp_path / "l" / "summary.json").read_text())["return_last"])
+    assert alone == [s["networked/dgtd"]["return_last"][k] for k in ("min", "max")]  # 2 seeds: the same two numbers
+    one_line_error(*run_cli("compare", "pull-away", "-a", "td0", *common, "--out", tmp_path / "x"), "distributed")

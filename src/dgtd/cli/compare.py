@@ -34,6 +34,12 @@ def _names(text: str | None) -> tuple[str, ...]:
     help="Pick each algorithm's alpha0 from alpha0 x (1/10, 1/3, 1, 3, 10) on separate seeds first.",
 )
 @click.option("--tune-seeds", type=int, default=2, show_default=True, help="Seeds per tuning run.")
+@click.option(
+    "--learn/--no-learn",
+    default=False,
+    help="Compare agents that learn their policies (dgtd learn) on a learning task or a multi-agent MDP file: "
+    "networked with each distributed critic (-a), independent and centralised (a learning task's name implies it).",
+)
 @output_options(
     "out",
     "progress",
@@ -58,7 +64,7 @@ def _names(text: str | None) -> tuple[str, ...]:
     *LINK_OPTIONS,
     *ENV_OPTIONS,
 )
-def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots, overwrite, **given):
+def compare(scenario, algorithms, seeds, tune, tune_seeds, learn, out, progress, plots, overwrite, **given):
     """Run several algorithms on SCENARIO (or --problem FILE.npz, --env, --data, as `dgtd run`) with the same
     samples; write metrics.csv, summary.json and plots.
 
@@ -73,6 +79,12 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, out, progress, plots,
     from dgtd.run.results import NotWritten
 
     given = {k: v for k, v in given.items() if v is not None}
+    from dgtd.problems.team import TASKS
+
+    if learn or scenario in TASKS:
+        from dgtd.cli.learn import compare_learners
+
+        return compare_learners(scenario, algorithms, seeds, out, progress, plots, overwrite, given)
     config = override(Experiment(unflat({"scenario": scenario, "seeds": seeds})), given).config
     if all(getattr(config.problem, name) is None for name in PROBLEM_FIELDS):
         raise DgtdInputError(

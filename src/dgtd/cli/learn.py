@@ -158,3 +158,100 @@ def _report(result, mdp) -> None:
         click.echo(f"least probability any agent puts on the team's best action in any state: {np.min(p):.3f}")
     worst = np.max(result.metrics["critic_error"][:, -1])
     click.echo(f"critics' error |W - W*(pi)|^2 / (N |W*|^2), last, worst seed: {worst:.3g}")
+
+
+COMPARED = ("dgtd", "consensus-td0", "consensus-tdrc", "td-tracking")  # the networked critics compared by default
+
+
+def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, given: dict) -> None:
+    """`dgtd compare TASK` (or `--learn --problem FILE`): networked learners with each critic of ``algorithms``
+    (default `COMPARED`), independent and centralised ones (DGTD critic), on the same keyed numbers; metrics.csv,
+    summary.json, learners.png and a table that says which reached the highest exact return."""
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    from dgtd.algorithms import make_algorithm
+    from dgtd.errors import DgtdInputError
+    from dgtd.learning import CRITIC_STEPS, resolve_learning
+    from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run.learn import DISTRIBUTED, learn, metrics_rows
+    from dgtd.run.owner import Owner
+
+    job = resolve_learning(task, {**given, "seeds": seeds})
+    names = tuple(a.strip() for a in algorithms.split(",")) if algorithms else COMPARED
+    bad = [n for n in names if n not in DISTRIBUTED]
+    if bad:
+        raise DgtdInputError(
+            f"learners' critics are distributed methods ({', '.join(DISTRIBUTED)}); got {', '.join(bad)}"
+        )
+    runs = [("networked", n) for n in names] + [("independent", "dgtd"), ("centralised", "dgtd")]
+    out = Path(out) if out else Path("runs") / f"compare-learners-{job.mdp.name}"
+    s = job.settings
+    click.echo(f"{job.mdp.name}: {job.mdp.n_agents} agents; {job.network.describe()}; {job.channel.describe()}")
+    click.echo(f"{', '.join(f'{a} ({n} critic)' for a, n in runs)}: {s.iterations:,} steps x {s.seeds} seed(s) each")
+    results = {}
+    with Owner(out, "learning run", overwrite):
+        bar = tqdm(total=s.iterations * len(runs), disable=not progress, file=sys.stderr, unit="it", unit_scale=True)
+        try:
+            for actor, name in runs:
+                critic = make_algorithm(name, **CRITIC_STEPS)
+                results[f"{actor}/{name}"] = learn(
+                    job.mdp, job.network, critic, job.actor, replace(s, actor=actor), job.channel, progress=bar.update
+                )
+        finally:
+            bar.close()
+        rows = [row for label, r in results.items() for row in metrics_rows(r, label)]
+        text = "learners,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
+        atomic_write(out / "metrics.csv", text.encode())
+        atomic_write_json(out / "summary.json", _compared(results, job))
+        written = ["metrics.csv", "summary.json"]
+        if plots:
+            from dgtd.plots.learning import learners_figure
+
+            written.append(learners_figure(out, results, job.mdp.name))
+    click.echo(_learners_table(results))
+    click.echo(f"wrote {out}/{', '.join(written)}")
+
+
+def _compared(results: dict, job) -> dict:
+    import numpy as np
+
+    out = {"task": job.mdp.name, "config": job.record, "return_best": next(iter(results.values())).return_best}
+    for label, r in results.items():
+        J = r.metrics["return"][:, -1]
+        out[label] = {
+            "return_last": {"median": float(np.median(J)), "min": float(J.min()), "max": float(J.max())},
+            "best_probability_last": r.metrics["best_probability"][:, -1].tolist(),
+            "critic_error_last": r.metrics["critic_error"][:, -1].tolist(),
+            "messages": r.messages.tolist(),
+            "bits": r.bits.tolist(),
+            "seconds": r.seconds,
+        }
+    return out
+
+
+def _learners_table(results: dict) -> str:
+    """One line per learners: the exact return at the end (median over seeds, and its range), the least probability
+    on the team's best action, the critics' error, what was sent; then which reached the highest return."""
+    import numpy as np
+
+    rows = [f"{'learners':<28}{'J last':>9}{'seeds':>18}{'p(best)':>9}{'critic err':>12}{'messages':>11}{'bits':>11}"]
+    for label, r in results.items():
+        J = r.metrics["return"][:, -1]
+        least = r.metrics["best_probability"][:, -1]
+        shown = f"{np.min(least):.3f}" if np.isfinite(least).all() else "-"
+        rows.append(
+            f"{label:<28}{np.median(J):>9.4g}{f'{J.min():.4g} to {J.max():.4g}':>18}{shown:>9}"
+            f"{np.median(r.metrics['critic_error'][:, -1]):>12.3g}{np.max(r.messages):>11.3g}{np.max(r.bits):>11.3g}"
+        )
+    best = max(results, key=lambda label: float(np.median(results[label].metrics["return"][:, -1])))
+    J = results[best].metrics["return"][:, -1]
+    J_star = next(iter(results.values())).return_best
+    of = "" if J_star is None else f" of J* = {J_star:.4g}"
+    rows.append(
+        "each number: at the end of the run, median over seeds; J is the exact long-run average team reward of the "
+        "policies"
+    )
+    rows.append(f"highest return: {best}, {np.median(J):.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})")
+    return "\n".join(rows)

@@ -27,3 +27,26 @@ def learning_figure(out: Path, result, title: str) -> str:
     fig.savefig(Path(out) / "returns.png", dpi=110)
     plt.close(fig)
     return "returns.png"
+
+
+def learners_figure(out: Path, results: dict, title: str) -> str:
+    """learners.png: each learners' exact return against steps (median and band over seeds) and against the bits
+    delivered (median), J* where known."""
+    import numpy as np
+
+    fig, (ax, ay) = plt.subplots(1, 2, figsize=(11, 4))
+    for label, r in results.items():
+        line = band(ax, r.steps, r.metrics["return"].T, label)
+        ay.plot(
+            np.median(r.metrics["bits"], axis=0) / 8e6, np.median(r.metrics["return"], axis=0), color=line.get_color()
+        )
+    best = next(iter(results.values())).return_best
+    if best is not None:
+        ax.axhline(best, color="k", linestyle=":", label="J*")
+    ax.set(xlabel="step (one sample per agent)", ylabel="J(pi_t), exact", title=title)
+    ay.set(xlabel="megabytes delivered (all agents)", ylabel="J(pi_t), median over seeds", title=BAND_WORDS)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(Path(out) / "learners.png", dpi=110)
+    plt.close(fig)
+    return "learners.png"

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from dgtd.algorithms import ALGORITHMS
 from dgtd.algorithms.actor import SoftmaxActor, actor_step, policy, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.channels import Arcs, Perfect
@@ -41,6 +42,7 @@ from dgtd.samples import Sample
 from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys, singles, uniforms
 
 ACTORS = ("networked", "independent", "centralised")
+DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have
 METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", "bits")
 
 
@@ -180,6 +182,11 @@ def learn(
 
 
 def _plan(mdp, network, critic, actor, settings, channel) -> _Plan:
+    if getattr(critic, "centralised", False):
+        raise DgtdInputError(
+            f"{critic.name} is one centralised learner; the agents' critics are a distributed method's: "
+            f"{', '.join(DISTRIBUTED)}"
+        )
     two_timescales(actor, critic)
     if network.n_nodes != mdp.n_agents:
         raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {mdp.n_agents}")
