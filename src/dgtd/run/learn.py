@@ -162,8 +162,9 @@ def learn(
     if resume is not None:
         run = run.restored(resume)
     draws: tuple = ()
-    for k in range(run.k, settings.iterations):
-        if k == run.k or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
+    first = run.k
+    for k in range(first, settings.iterations):
+        if k == first or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
             draws = _draws(plan.keys, network, range(k - k % BLOCK, min(k - k % BLOCK + BLOCK, settings.iterations)))
         _step(plan, run, draws, k)
         if k + 1 in plan.at:
