@@ -280,11 +280,14 @@ class FactoredMDP:
 
     def chain(self, policies) -> tuple[np.ndarray, np.ndarray]:
         """(P_pi, R_pi): the groups' chains averaged, each under its agents' joint policy; each agent's mean reward."""
-        P_pi = np.zeros((self.n_states, self.n_states))
-        for g, members in enumerate(self.groups):
-            P_pi += np.einsum("sk,skt->st", joint_policy([policies[i] for i in members]), self.Pg[g])
-        R_pi = np.stack([(p * self.R[i, :, : p.shape[1]]).sum(axis=1) for i, p in enumerate(policies)])
-        return P_pi / len(self.groups), R_pi
+        pi = np.stack(policies)  # (N, S, A): every agent's, stacked (equal action counts)
+        joint = pi[self.groups[:, 0]]  # (G, S, A): each group's joint policy, built agent by agent in C order
+        for j in range(1, self.groups.shape[1]):
+            joint = (joint[..., :, None] * pi[self.groups[:, j]][..., None, :]).reshape(
+                joint.shape[0], self.n_states, -1
+            )
+        P_pi = np.einsum("gsk,gskt->st", joint, self.Pg) / len(self.groups)
+        return P_pi, (pi * self.R).sum(axis=2)
 
     def best_return(self) -> tuple[float, None]:
         """(J*, None): relative value iteration whose maximum over the 2^N joint actions is a sum of the groups'
