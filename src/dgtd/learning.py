@@ -33,6 +33,14 @@ class LearnConfig:
     actor_power: float = field(
         default=0.8, metadata=option("The actor's steps: power, in (1/2, 1] so that the critic is the faster.")
     )
+    batch: int | None = field(
+        default=None,
+        metadata=option(
+            "Steps of a round (Chen et al.'s mini-batches): the agents communicate and move once a round, by the "
+            "mean of its samples (default 1).",
+            metavar="M",
+        ),
+    )
 
 
 SHARED = (
@@ -84,6 +92,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         seed=_given(values, "seed", 0),
         checkpoints=_given(values, "checkpoints", 40),
         actor=_given(own, "actor", "networked"),
+        batch=_given(own, "batch", 1),
     )
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
     if file is not None:

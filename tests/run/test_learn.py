@@ -13,6 +13,7 @@ from helpers import one_line_error
 
 from dgtd.algorithms import make_algorithm
 from dgtd.algorithms.actor import SoftmaxActor
+from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems import team
@@ -21,10 +22,10 @@ from dgtd.run.learn import LearnSettings, learn
 BUDGET = 10_000  # steps: DGTD's networked learners pass 0.9 on every agent's best action by 7 000 (measured 0.952)
 
 
-def run(actor: str, critic: str = "dgtd", seeds: int = 2, iterations: int = BUDGET, **kw):
+def run(actor: str, critic: str = "dgtd", seeds: int = 2, iterations: int = BUDGET, batch: int = 1, **kw):
     mdp = team.pull_away()
     net = random_edges(topologies.ring(4), 0.8)
-    settings = LearnSettings(iterations=iterations, seeds=seeds, actor=actor, checkpoints=4)
+    settings = LearnSettings(iterations=iterations, seeds=seeds, actor=actor, checkpoints=4, batch=batch)
     return learn(mdp, net, make_algorithm(critic, alpha0=1.0, beta=100.0), SoftmaxActor(), settings, **kw)
 
 
@@ -271,3 +272,16 @@ def test_dgtd_compare_on_a_learning_task_compares_learners(run_cli, tmp_path):
     alone = sorted(json.loads((tmp_path / "l" / "summary.json").read_text())["return_last"])
     assert alone == [s["networked/dgtd"]["return_last"][k] for k in ("min", "max")]  # 2 seeds: the same two numbers
     one_line_error(*run_cli("compare", "pull-away", "-a", "td0", *common, "--out", tmp_path / "x"), "distributed")
+
+
+def test_mini_batches_send_once_a_round():
+    """`batch` M (Chen et al.'s mini-batches): the agents communicate and move once every M steps, by the mean of the
+    round's samples; M = 5 delivers a fifth of the messages of M = 1 (up to which links were up at the rounds'
+    steps), and M = 1 is the step-by-step run, bit for bit. Checkpoints must fall at a round's end."""
+    one, five = run("networked", iterations=1000), run("networked", iterations=1000, batch=5)
+    assert 0.17 < five.messages.sum() / one.messages.sum() < 0.23
+    mdp, net = team.pull_away(), random_edges(topologies.ring(4), 0.8)
+    with pytest.raises(DgtdInputError, match="multiple of the --batch 5"):
+        learn(
+            mdp, net, make_algorithm("dgtd"), SoftmaxActor(), LearnSettings(iterations=100, batch=5), checkpoint_every=7
+        )

@@ -82,14 +82,15 @@ def policy(theta: np.ndarray) -> np.ndarray:
     return z / z.sum(axis=-1, keepdims=True)
 
 
-def actor_step(theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float) -> np.ndarray:
-    """theta + beta delta psi (a new array): row s_b of every agent of seed b moved by beta delta_bi (e_{a_bi} -
-    pi_bi(. | s_b)); ``s`` (B,), ``a`` and ``delta`` (B, N)."""
+def actor_increment(theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float, into=None):
+    """beta delta psi, the actor step of one sample, added to ``into`` (a new zero array of theta's shape if None):
+    row s_b of every agent of seed b gets beta delta_bi (e_{a_bi} - pi_bi(. | s_b)); ``s`` (B,), ``a`` and ``delta``
+    (B, N). An action an agent does not have (-inf) gets nothing."""
     B, N = a.shape
     b, i = np.arange(B)[:, None], np.arange(N)[None, :]
     rows = theta[b, i, s[:, None]]  # (B, N, A_max)
     score = -policy(rows)
     score[b, i, a] += 1.0
-    new = theta.copy()
-    new[b, i, s[:, None]] = rows + beta * delta[:, :, None] * np.where(np.isfinite(rows), score, 0.0)
-    return new
+    into = np.zeros_like(theta) if into is None else into
+    into[b, i, s[:, None]] += beta * delta[:, :, None] * np.where(np.isfinite(rows), score, 0.0)
+    return into

@@ -176,9 +176,14 @@ class StepSizes:
     def update(self, state, sample: Sample, inbox, alpha: float):
         """One step of every seed and agent from the algorithm's one definition (the module's docstring): its
         ``directions`` and what each agent heard, through its ``feature`` on whole arrays."""
+        return self.moved(state, self.directions(state, sample), inbox, alpha)
+
+    def moved(self, state, directions: tuple, inbox, alpha: float):
+        """The state moved along ``directions`` (its ``directions`` of one sample, or their mean over several: a
+        mini-batch) and by what each agent heard in ``inbox``, through its ``feature``."""
         heard = tuple(getattr(inbox, self.mixing)(m) for m in self.messages)
         p = self.params()
-        return type(state)(*self.feature(p, tuple(state), heard, self.directions(state, sample), self.steps(p, alpha)))
+        return type(state)(*self.feature(p, tuple(state), heard, directions, self.steps(p, alpha)))
 
     def estimate(self, state) -> np.ndarray:
         """The value-function weights: ``state.w`` for every algorithm of dgtd."""

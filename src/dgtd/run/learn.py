@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.algorithms.actor import SoftmaxActor, actor_step, policy, two_timescales
+from dgtd.algorithms.actor import SoftmaxActor, actor_increment, policy, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
@@ -49,18 +49,20 @@ METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", 
 @dataclass(frozen=True)
 class LearnSettings:
     """How long and how many: ``iterations`` steps of ``seeds`` seeds of base seed ``seed``, ``checkpoints`` of them
-    measured; ``actor`` one of `ACTORS`."""
+    measured; ``actor`` one of `ACTORS`; ``batch`` the steps of a round (Chen, Zhou, Chen and Zou 2022's
+    mini-batches: the agents communicate and move once a round, by the mean of its samples; 1 by default)."""
 
     iterations: int = 20_000
     seeds: int = 2
     seed: int = 0
     checkpoints: int = 40
     actor: str = "networked"
+    batch: int = 1
 
     def __post_init__(self):
         if self.actor not in ACTORS:
             raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
-        for name in ("iterations", "seeds", "checkpoints"):
+        for name in ("iterations", "seeds", "checkpoints", "batch"):
             if int(getattr(self, name)) < 1:
                 raise DgtdInputError(f"{name} must be >= 1, got {getattr(self, name)}")
 
@@ -98,6 +100,7 @@ class Learners:
     critic: Any  # the critic's NamedTuple state
     links: Any  # the channel's NamedTuple state
     metrics: dict
+    pending: dict = field(default_factory=dict)  # a round's sums so far: empty at every checkpoint (a round's end)
 
     def snapshot(self) -> dict:
         """Flat arrays (copies), as an .npz holds them."""
@@ -157,6 +160,11 @@ def learn(
     continues from it to the numbers of the uninterrupted run, bit for bit (every random number is keyed by its
     step)."""
     plan = _plan(mdp, network, critic, actor, settings, channel)
+    if checkpoint_every % settings.batch:
+        raise DgtdInputError(
+            f"checkpoints fall at a round's end: --checkpoint-every {checkpoint_every} is not a multiple of the "
+            f"--batch {settings.batch}"
+        )
     started = time.perf_counter()
     run = _start(plan)
     if resume is not None:
@@ -219,7 +227,9 @@ def _start(plan: _Plan) -> Learners:
 
 
 def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
-    """Step k of the module's docstring, in place on ``run``: draw, hear, advantage, critic, reward, actor."""
+    """Step k of the module's docstring, in place on ``run``: draw and act; the sample's critic directions, actor
+    increments and reward-regression increments added to the round's (`Learners.pending`); at a round's last step
+    (every ``batch`` steps, Chen et al.'s mini-batches; every step by default) hear and move (`_round`)."""
     mdp, critic, kind = plan.mdp, plan.critic, plan.settings.actor
     t = k % BLOCK
     B, N, S, A = run.theta.shape[0], mdp.n_agents, mdp.n_states, run.theta.shape[-1]
@@ -227,29 +237,41 @@ def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
     rows = policy(run.theta[b, agents[None, :], s[:, None]])  # (B, N, A)
     a = np.minimum(team.draw(np.cumsum(rows, axis=-1), draws[0][t]), np.array(mdp.actions) - 1)
     s_next, r = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # r (B, N): each agent's own reward
-    up = None if draws[2] is None else draws[2][t]
-    if kind == "independent":
-        up = np.zeros((B, plan.network.n_edges), bool)  # they send nothing
-    sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
-    inbox, run.links = plan.channel.deliver(run.links, plan.arcs, sent, up)
     phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
     own = np.broadcast_to(r.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
     W = critic.estimate(run.critic)  # (B, N or 1, q)
-    rhat, f = own, None
+    pending = run.pending
+    rhat = own
     if run.lam is not None:
         f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
         rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, N, N)), axis=-1).sum(-1)
+        lam = pending.setdefault("lam", np.zeros_like(run.lam))
+        lam[b[:, :, None], agents[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
     delta = rhat + mdp.gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
-    new = critic.update(run.critic, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), inbox, plan.alphas[k])
+    d = critic.directions(run.critic, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma))
+    pending["d"] = tuple(x + y for x, y in zip(pending["d"], d)) if "d" in pending else d
+    pending["theta"] = actor_increment(run.theta, s, a, delta, plan.betas[k], pending.get("theta"))
+    pending["n"] = pending.get("n", 0) + 1
+    run.s, run.k = s_next, k + 1
+    if run.k % plan.settings.batch == 0 or run.k == plan.settings.iterations:
+        up = None if draws[2] is None else draws[2][t]
+        _round(plan, run, np.zeros((B, plan.network.n_edges), bool) if kind == "independent" else up, k)
+
+
+def _round(plan: _Plan, run: Learners, up, k: int) -> None:
+    """A round's end: what every agent sends delivered once (independent agents send nothing), then the critics, the
+    reward estimates and the actors moved by their round's mean (one sample's own, a round of one step)."""
+    critic, pending = plan.critic, run.pending
+    n = pending.pop("n")
+    sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
+    inbox, run.links = plan.channel.deliver(run.links, plan.arcs, sent, up)
+    new = critic.moved(run.critic, tuple(x / n for x in pending.pop("d")), inbox, plan.alphas[k])
     if inbox.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
         new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
     run.critic = new
-    if run.lam is not None and f is not None:
-        mixed = run.lam - metropolis(inbox, plan.arcs, "team")
-        mixed[b[:, :, None], agents[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
-        run.lam = mixed
-    run.theta = actor_step(run.theta, s, a, delta, plan.betas[k])
-    run.s, run.k = s_next, k + 1
+    if run.lam is not None:
+        run.lam = run.lam - metropolis(inbox, plan.arcs, "team") + pending.pop("lam") / n
+    run.theta = run.theta + pending.pop("theta") / n
 
 
 BLOCK = 512  # steps whose random numbers are drawn together
