@@ -12,6 +12,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.fields import option
 
 CRITIC_STEPS = {"alpha0": 1.0, "beta": 100.0}  # the critics' default steps here: features of unit scale, tabular
+ACTOR_STEP = {"state": 0.5, "action": 0.1}  # the actors' first step by what the critics evaluate (measured, pull-away)
 
 
 @dataclass(frozen=True)
@@ -28,10 +29,24 @@ class LearnConfig:
             "reward, a ceiling no network gives."
         ),
     )
-    actor_step: float = field(default=0.5, metadata=option("The actor's steps step / (1 + k / offset)^power: step."))
+    actor_step: float | None = field(
+        default=None,
+        metadata=option(
+            "The actor's steps step / (1 + k / offset)^power: step (default 0.5; 0.1 with --values action, whose "
+            "critic's first steps favour the actions sampled most and need the slower actor)."
+        ),
+    )
     actor_offset: float = field(default=1000.0, metadata=option("The actor's steps: offset."))
     actor_power: float = field(
         default=0.8, metadata=option("The actor's steps: power, in (1/2, 1] so that the critic is the faster.")
+    )
+    values: str | None = field(
+        default=None,
+        metadata=option(
+            "What the critics evaluate: state (values V and a consensus estimate of the team's reward, Zhang et al.'s "
+            "Algorithm 2; the default) or action (values Q on additive features of the state and joint action, their "
+            "Algorithm 1)."
+        ),
     )
     batch: int | None = field(
         default=None,
@@ -83,9 +98,8 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         **{k: values.get(k) for k in ("alpha0", "beta", "schedule", "kappa", "rho")},
     )
     critic = build_algorithm(spec, make_algorithm("dgtd", **CRITIC_STEPS))
-    actor = SoftmaxActor(
-        _given(own, "actor_step", 0.5), _given(own, "actor_offset", 1000.0), _given(own, "actor_power", 0.8)
-    )
+    step = _given(own, "actor_step", ACTOR_STEP[_given(own, "values", "state")])
+    actor = SoftmaxActor(step, _given(own, "actor_offset", 1000.0), _given(own, "actor_power", 0.8))
     settings = LearnSettings(
         iterations=_given(values, "iterations", 20_000),
         seeds=_given(values, "seeds", 2),
@@ -93,6 +107,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         checkpoints=_given(values, "checkpoints", 40),
         actor=_given(own, "actor", "networked"),
         batch=_given(own, "batch", 1),
+        values=_given(own, "values", "state"),
     )
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
     if file is not None:

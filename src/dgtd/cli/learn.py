@@ -30,9 +30,9 @@ def learn_options():
 
 
 def _choices(name: str):
-    from dgtd.run.learn import ACTORS
+    from dgtd.run.learn import ACTORS, VALUES
 
-    return ACTORS if name == "actor" else None
+    return {"actor": ACTORS, "values": VALUES}.get(name)
 
 
 @click.command()

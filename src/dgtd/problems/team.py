@@ -170,6 +170,35 @@ def critic_target(mdp, policies) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
+def action_features(n_agents: int, n_states: int, n_actions: int, s, a) -> np.ndarray:
+    """f(s, a) = (e_{s, a_1}, ..., e_{s, a_N}), the additive features of a state and joint action, as the indices of
+    their ones (..., N) in a vector of N S A: agent j's block j S A + s A + a_j."""
+    return np.arange(n_agents) * n_states * n_actions + np.asarray(s)[..., None] * n_actions + np.asarray(a)
+
+
+def action_critic_target(mdp: TeamMDP, policies) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(Phi_Q (S A, F), d_sa (S A,), w*): the expected-SARSA fixed point of the team reward's action values on the
+    additive features, A w* = b with A = Phi_Q^T D (Phi_Q - gamma P_sa Pi Phi_Q), b = Phi_Q^T D rbar (the paper's
+    section 6 on the chain of state-action pairs, D = diag(d_pi(s) pi(a | s)), P_sa Pi the next pair's law); the
+    features are dependent (each agent's block sums to the state's indicator), so w* is the least-norm solution and
+    the critics' error is measured in values. None where the joint table is not built (a factored MDP)."""
+    if not isinstance(mdp, TeamMDP):
+        return None
+    S, A_joint = mdp.n_states, mdp.P.shape[1]
+    A = max(mdp.actions)
+    pi = joint_policy(policies)  # (S, A_joint)
+    pairs = np.arange(S * A_joint)
+    s, joint = pairs // A_joint, pairs % A_joint
+    F = mdp.n_agents * S * A
+    Phi_Q = np.zeros((S * A_joint, F))
+    np.put_along_axis(Phi_Q, action_features(mdp.n_agents, S, A, s, mdp.local(joint)), 1.0, axis=1)
+    d = stationary(np.einsum("sa,sat->st", pi, mdp.P))[s] * pi[s, joint]
+    next_features = np.einsum("pt,ta,taf->pf", mdp.P[s, joint], pi, Phi_Q.reshape(S, A_joint, F))
+    lhs = Phi_Q.T @ (d[:, None] * (Phi_Q - mdp.gamma * next_features))
+    rhs = Phi_Q.T @ (d * mdp.R.mean(axis=0)[s, joint])
+    return Phi_Q, d, np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+
+
 def best_return(mdp) -> tuple[float | None, np.ndarray | None]:
     """(J*, the best joint action in every state, or None where it is not one index) of the MDP (its own
     ``best_return``)."""

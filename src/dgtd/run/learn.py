@@ -42,6 +42,7 @@ from dgtd.samples import Sample
 from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys, singles, uniforms
 
 ACTORS = ("networked", "independent", "centralised")
+VALUES = ("state", "action")
 DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have
 METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", "bits")
 
@@ -50,7 +51,9 @@ METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", 
 class LearnSettings:
     """How long and how many: ``iterations`` steps of ``seeds`` seeds of base seed ``seed``, ``checkpoints`` of them
     measured; ``actor`` one of `ACTORS`; ``batch`` the steps of a round (Chen, Zhou, Chen and Zou 2022's
-    mini-batches: the agents communicate and move once a round, by the mean of its samples; 1 by default)."""
+    mini-batches: the agents communicate and move once a round, by the mean of its samples; 1 by default); ``values``
+    what the critics evaluate: "state" values V with a consensus estimate of the team's reward (Zhang et al.'s
+    Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their Algorithm 1)."""
 
     iterations: int = 20_000
     seeds: int = 2
@@ -58,10 +61,13 @@ class LearnSettings:
     checkpoints: int = 40
     actor: str = "networked"
     batch: int = 1
+    values: str = "state"
 
     def __post_init__(self):
         if self.actor not in ACTORS:
             raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
+        if self.values not in VALUES:
+            raise DgtdInputError(f"the critics evaluate {' or '.join(VALUES)} values, not {self.values!r}")
         for name in ("iterations", "seeds", "checkpoints", "batch"):
             if int(getattr(self, name)) < 1:
                 raise DgtdInputError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -177,7 +183,7 @@ def learn(
         _step(plan, run, draws, k)
         if k + 1 in plan.at:
             c = int(np.searchsorted(plan.at, k + 1))
-            _measure(mdp, run.theta, critic.estimate(run.critic), run.metrics, c)
+            _measure(mdp, run.theta, critic.estimate(run.critic), run.metrics, c, settings.values)
             run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
             on_checkpoint(run.snapshot())
@@ -219,8 +225,8 @@ def _start(plan: _Plan) -> Learners:
         0,
         team.draw(np.cumsum(mdp.start), uniforms(plan.keys, SHARED_START, 0, 0)[0]),
         theta,
-        np.zeros((B, N, N * S * A)) if plan.settings.actor == "networked" else None,
-        plan.critic.init(B, N, mdp.n_features),
+        np.zeros((B, N, N * S * A)) if plan.settings.actor == "networked" and plan.settings.values == "state" else None,
+        plan.critic.init(B, N, N * S * A if plan.settings.values == "action" else mdp.n_features),
         plan.channel.init(B, plan.arcs, plan.settings.seed),
         {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
     )
@@ -237,10 +243,14 @@ def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
     rows = policy(run.theta[b, agents[None, :], s[:, None]])  # (B, N, A)
     a = np.minimum(team.draw(np.cumsum(rows, axis=-1), draws[0][t]), np.array(mdp.actions) - 1)
     s_next, r = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # r (B, N): each agent's own reward
-    phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
     own = np.broadcast_to(r.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
     W = critic.estimate(run.critic)  # (B, N or 1, q)
     pending = run.pending
+    if plan.settings.values == "action":
+        phi, phi_next, delta = _action_values(run, s, a, s_next, W)
+        _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a, delta, k)
+        return _end_of(plan, run, draws, k, s_next)
+    phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
     rhat = own
     if run.lam is not None:
         f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
@@ -248,14 +258,46 @@ def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
         lam = pending.setdefault("lam", np.zeros_like(run.lam))
         lam[b[:, :, None], agents[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
     delta = rhat + mdp.gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
-    d = critic.directions(run.critic, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma))
+    _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a, delta, k)
+    _end_of(plan, run, draws, k, s_next)
+
+
+def _add(plan: _Plan, run: Learners, sample: Sample, s, a, advantage, k: int) -> None:
+    """A sample's critic directions and its actor step beta_k advantage psi added to the round's."""
+    pending = run.pending
+    d = plan.critic.directions(run.critic, sample)
     pending["d"] = tuple(x + y for x, y in zip(pending["d"], d)) if "d" in pending else d
-    pending["theta"] = actor_increment(run.theta, s, a, delta, plan.betas[k], pending.get("theta"))
+    pending["theta"] = actor_increment(run.theta, s, a, advantage, plan.betas[k], pending.get("theta"))
     pending["n"] = pending.get("n", 0) + 1
+
+
+def _end_of(plan: _Plan, run: Learners, draws: tuple, k: int, s_next) -> None:
+    """Step k done: the next state; at a round's end, `_round` with the links up at step k."""
     run.s, run.k = s_next, k + 1
     if run.k % plan.settings.batch == 0 or run.k == plan.settings.iterations:
-        up = None if draws[2] is None else draws[2][t]
-        _round(plan, run, np.zeros((B, plan.network.n_edges), bool) if kind == "independent" else up, k)
+        up = None if draws[2] is None else draws[2][k % BLOCK]
+        if plan.settings.actor == "independent":
+            up = np.zeros((run.s.shape[0], plan.network.n_edges), bool)  # they send nothing
+        _round(plan, run, up, k)
+
+
+def _action_values(run: Learners, s, a, s_next, W) -> tuple:
+    """(f(s, a), E_pi f(s', .), agent i's advantage) of the action-value critic (Zhang et al.'s Algorithm 1): the
+    features dense (B, 1, N S A), the next ones expected under the current policies (expected SARSA), and
+    A_i = Q_i(s, a) - sum_b pi_i(b | s) Q_i(s, b, a_-i), which on additive features is agent i's own block:
+    w_i[i, s, a_i] - sum_b pi_i(b | s) w_i[i, s, b]."""
+    B, N, S, A = run.theta.shape
+    b, agents = np.arange(B)[:, None], np.arange(N)[None, :]
+    F = N * S * A
+    phi, phi_next = np.zeros((B, 1, F)), np.zeros((B, 1, F))
+    phi[b, 0, team.action_features(N, S, A, s, a)] = 1.0
+    block = agents[:, :, None] * S * A + np.arange(A)[None, None, :]  # (1, N, A): agent j's actions at state 0
+    phi_next[b[:, :, None], 0, block + (s_next * A)[:, None, None]] = policy(run.theta[b, agents, s_next[:, None]])
+    w = np.broadcast_to(W, (B, N, F))
+    own = np.take_along_axis(w, block + (s * A)[:, None, None], axis=2)  # (B, N, A): w_i[i, s, .]
+    here = policy(run.theta[b, agents, s[:, None]])
+    advantage = np.take_along_axis(own, a[:, :, None], axis=2)[:, :, 0] - (here * np.where(here > 0, own, 0.0)).sum(-1)
+    return phi, phi_next, advantage
 
 
 def _round(plan: _Plan, run: Learners, up, k: int) -> None:
@@ -310,23 +352,38 @@ def local_policies(mdp: team.TeamMDP, pi: np.ndarray) -> list:
     return [pi[i, :, :n] for i, n in enumerate(mdp.actions)]
 
 
-def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int) -> None:
+def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int, values: str) -> None:
     """The exact return of each seed's current policies, its critics' error against their exact critic, the mean
     entropy, and the least probability any agent puts on its part of the team's best action (where known)."""
     pi = policy(theta)
     for b in range(theta.shape[0]):
         policies = local_policies(mdp, pi[b])
         P_pi, _ = team.chain_of(mdp, policies)
-        target = team.critic_target(mdp, policies)
         metrics["return"][b, c] = team.average_return(mdp, policies)
-        errors = ((np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1])) - target) ** 2).sum()
-        metrics["critic_error"][b, c] = errors / (mdp.n_agents * max(float(target @ target), 1e-300))
+        metrics["critic_error"][b, c] = _critic_error(
+            mdp, policies, np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1])), values
+        )
         metrics["entropy"][b, c] = team.entropy(policies, team.stationary(P_pi)).mean()
         if mdp.best is not None:
             best = mdp.local(mdp.best)  # (S, N)
             metrics["best_probability"][b, c] = min(
                 float(p[np.arange(mdp.n_states), best[:, i]].min()) for i, p in enumerate(policies)
             )
+
+
+def _critic_error(mdp, policies, W: np.ndarray, values: str) -> float:
+    """|W - W*(pi)|^2 / (N |W*|^2) for state values (Chen et al.'s); for action values, whose additive features are
+    dependent (`dgtd.problems.team.action_critic_target`), the same in values: sum_i |Phi_Q (w_i - w*)|_d^2 /
+    (N |Phi_Q w*|_d^2); NaN where there is no joint table to solve on."""
+    if values == "state":
+        target = team.critic_target(mdp, policies)
+        return float(((W - target) ** 2).sum() / (mdp.n_agents * max(float(target @ target), 1e-300)))
+    solved = team.action_critic_target(mdp, policies)
+    if solved is None:
+        return float("nan")
+    Phi_Q, d, target = solved
+    gaps = ((Phi_Q @ (W - target).T) ** 2 * d[:, None]).sum()
+    return float(gaps / (mdp.n_agents * max(float(((Phi_Q @ target) ** 2 * d).sum()), 1e-300)))
 
 
 def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
