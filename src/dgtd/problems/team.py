@@ -245,10 +245,13 @@ def pull_away(n_agents: int = 4, n_states: int = 3, bonus: float = 1.0, gamma: f
     if n_agents < 2 or n_states < 1:
         raise DgtdInputError("pull-away needs at least 2 agents and 1 state")
     rng = np.random.default_rng(seed)
+    if n_agents > 16 or n_states * 2**n_agents > JOINT_LIMIT:
+        raise DgtdInputError(
+            f"pull-away builds its joint table, {n_states} states x 2^{n_agents} joint actions: too large; take at most "
+            f"{int(np.log2(JOINT_LIMIT / n_states))} agents (the factored task takes thousands)"
+        )
     actions = (2,) * n_agents
     A = 2**n_agents
-    if n_states * A > JOINT_LIMIT:
-        raise DgtdInputError(f"pull-away's joint table of {n_states} x {A} is too large; take fewer agents")
     P = rng.dirichlet(np.ones(n_states), size=(n_states, A))
     team = np.arange(n_states) % 2
     a = np.stack(np.unravel_index(np.arange(A), actions), axis=-1)  # (A, N)
