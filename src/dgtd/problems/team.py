@@ -245,10 +245,11 @@ def pull_away(n_agents: int = 4, n_states: int = 3, bonus: float = 1.0, gamma: f
     if n_agents < 2 or n_states < 1:
         raise DgtdInputError("pull-away needs at least 2 agents and 1 state")
     rng = np.random.default_rng(seed)
-    if n_agents > 16 or n_states * 2**n_agents > JOINT_LIMIT:
+    most = int(np.log2(JOINT_LIMIT / max(n_states, 1)))  # agents whose joint table fits
+    if n_agents > most:
         raise DgtdInputError(
-            f"pull-away builds its joint table, {n_states} states x 2^{n_agents} joint actions: too large; take at most "
-            f"{int(np.log2(JOINT_LIMIT / n_states))} agents (the factored task takes thousands)"
+            f"pull-away builds its joint table, {n_states} states x 2^{n_agents} joint actions: too large; take at "
+            f"most {most} agents (the factored task takes thousands)"
         )
     actions = (2,) * n_agents
     A = 2**n_agents
