@@ -368,3 +368,53 @@ def test_more_ranks_than_agents_is_refused(tmp_path):
     done = mpirun(6, "run", "paper-example-1", "-T", 100, "--out", tmp_path / "o")
     assert done.returncode == 2
     assert "6 ranks for 5 agents" in done.stderr
+
+
+LEARN = ["learn", "pull-away", "--seeds", 2, "--loss", 0.2, "--no-plots", "--no-progress"]
+
+
+@pytest.mark.parametrize("extra", [[], ["--values", "action"], ["--actor", "centralised", "--batch", 4]])
+def test_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, extra):
+    """`dgtd learn --ranks R`: each rank holds its agents' actors, critics and reward estimates (4 agents on 3 ranks:
+    one rank holds two); their actions, messages and rows gathered in agent order, the policies and metrics are one
+    process's, byte for byte, on 2 and 3 ranks, over links that lose 20 % of messages."""
+    run = [*LEARN, "-T", 800, *extra]
+    base = alone(*run, "--out", tmp_path / "one")
+    assert base.returncode == 0, base.stderr
+    for ranks in (2, 3):
+        done = alone(*run, "--ranks", ranks, "--out", tmp_path / f"r{ranks}")
+        assert done.returncode == 0, done.stderr
+        for name in ("metrics.csv", "policies.npz"):
+            assert (tmp_path / f"r{ranks}" / name).read_bytes() == (tmp_path / "one" / name).read_bytes(), (ranks, name)
+
+
+def test_learners_interrupted_on_2_ranks_resume_on_2_to_the_uninterrupted_numbers(tmp_path):
+    """Ctrl-C to a `dgtd learn --ranks 2` job after a checkpoint: every process ends, the checkpoint is whole; the
+    same command again resumes and ends with the uninterrupted one-process run's metrics, byte for byte."""
+    run = [*LEARN, "-T", 30000, "--checkpoint-every", 1000]
+    out = tmp_path / "cut"
+    job = subprocess.Popen(
+        [*DGTD, *map(str, run), "--ranks", "2", "--out", str(out)],
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's shell leaves it
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "learning-checkpoint.npz").exists():
+            assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
+            time.sleep(0.1)
+        os.killpg(job.pid, signal.SIGINT)
+        _, err = job.communicate(timeout=60)
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)
+    assert job.returncode == 130 and not (out / "summary.json").exists(), err
+    again = alone(*run, "--ranks", 2, "--out", out)
+    assert again.returncode == 0 and "resuming" in again.stdout, again.stderr
+    whole = alone(*run, "--out", tmp_path / "whole")
+    assert whole.returncode == 0, whole.stderr
+    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()

@@ -663,3 +663,24 @@ class Watchdog:
 
 
 WATCHDOG = Watchdog()
+
+
+class LearnerRanks:
+    """The agents of a learning run (`dgtd.run.learn`) spread over the ranks of the job in contiguous blocks, agent
+    order kept: each rank holds its agents' rows of every per-agent array (actors, critics, reward estimates) and
+    steps them; what every agent needs of the others (their actions, for the joint transition; what they send; at a
+    checkpoint, every row) is gathered in agent order, so that each rank's rows are the numbers one process computes
+    for them, bit for bit. The state, the links and the metrics are the whole run's on every rank."""
+
+    def __init__(self, n_agents: int):
+        comm = world()
+        R = comm.Get_size()
+        if R > n_agents:
+            raise DgtdInputError(f"{R} ranks for {n_agents} agents: give at most one rank per agent")
+        self.comm = comm
+        self.local = np.array_split(np.arange(n_agents), R)[comm.Get_rank()]
+        self.root = comm.Get_rank() == 0
+
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        """Every agent's rows (B, N, ...) of what each rank holds of them (B, n, ...), in agent order, on every rank."""
+        return np.concatenate(self.comm.allgather(np.ascontiguousarray(x)), axis=1)

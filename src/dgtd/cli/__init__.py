@@ -538,7 +538,7 @@ cli.add_command(_compare)
 cli.add_command(_learn)
 
 
-ARGV: list[str] = []  # the command line `main` was given (`dgtd.cli.launch` passes it on to the ranks)
+from dgtd.cli.launch import ARGV  # noqa: E402  (the command line `main` was given, which --ranks passes on)
 
 
 def _note(message, category, filename, lineno, file=None, line=None) -> None:

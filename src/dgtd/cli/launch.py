@@ -21,6 +21,7 @@ from dgtd.files import text_of
 SSH_SECONDS = 10  # how long ssh may take to reach a host before it counts as unreachable
 LOCAL = {"localhost", "127.0.0.1", "::1"}
 INTERRUPTED_SECONDS = 60  # how long the ranks may take to end after Ctrl-C
+ARGV: list[str] = []  # the command line `dgtd.cli.main` was given, which `launch` passes on to the ranks
 
 
 def mpiexec() -> str:

@@ -40,20 +40,29 @@ def _choices(name: str):
 @learn_options()
 @run_options(*SHARED)
 @output_options("out", "progress", "plots", "overwrite", "checkpoint_every")
-def learn(task, out, progress, plots, overwrite, checkpoint_every, **values):
+@click.option(
+    "--ranks",
+    type=int,
+    default=None,
+    help="Spread the agents over R processes: starts the mpi extra's mpiexec -n R (each holds its agents' actors, "
+    "critics and estimates; the numbers are one process's, bit for bit).",
+)
+def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **values):
     """Agents that learn their policies on TASK (pull-away), each with its own softmax policy and one of dgtd's
     distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd run`; writes
     summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png."""
-    import numpy as np
     from tqdm import tqdm
 
     from dgtd.learning import resolve_learning
-    from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run import runtime
     from dgtd.run.learn import learn as run_learning
-    from dgtd.run.learn import metrics_rows, summary
     from dgtd.run.owner import Owner
-    from dgtd.run.results import npz_bytes, refuse_other_results
+    from dgtd.run.results import refuse_other_results
 
+    if ranks is not None:
+        from dgtd.cli.launch import ARGV, launch
+
+        raise SystemExit(launch(ranks, None, ARGV))
     job = resolve_learning(task, values)
     out = Path(out) if out else Path("runs") / f"learn-{job.mdp.name}-{job.settings.actor}"
     s, mdp = job.settings, job.mdp
@@ -74,38 +83,62 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, **values):
             "independent send none",
             err=True,
         )
-    with Owner(out, "learning run", overwrite):
+    held: list = []  # the results folder's lock, held by the process that writes
+
+    def claim():
+        held.append(Owner(out, "learning run", overwrite).__enter__())
         if not overwrite:
             refuse_other_results(out, job.record, "learning run")
-        resume = _checkpoint(out, job.record, overwrite)
+        return _checkpoint(out, job.record, overwrite)
+
+    resume = runtime.claimed(claim, lambda: _checkpoint(out, job.record, overwrite))
+    try:
         if resume is not None:
             click.echo(f"resuming {out} at step {int(resume['k']):,}")
         bar = tqdm(
             total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5
         )
         bar.update(0 if resume is None else int(resume["k"]))
+        keep = (lambda snap: _keep(out, snap, job.record)) if runtime.writes() else (lambda snap: None)
         try:
             result = run_learning(
                 mdp, job.network, job.critic, job.actor, s, job.channel, progress=bar.update,
-                checkpoint_every=checkpoint_every or 0, on_checkpoint=lambda snap: _keep(out, snap, job.record),
-                resume=resume,
+                checkpoint_every=checkpoint_every or 0, on_checkpoint=keep, resume=resume,
             )  # fmt: skip
         finally:
             bar.close()
-        (out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
-        arrays = {"policies": result.policies, "actions": np.asarray(mdp.actions)}  # (B, N, S, A_max), (N,)
-        atomic_write(out / "policies.npz", npz_bytes(arrays))
-        atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
-        rows = metrics_rows(result, s.actor)
-        text = "actor,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
-        atomic_write(out / "metrics.csv", text.encode())
-        written = ["policies.npz", "summary.json", "metrics.csv"]
-        if plots:
-            from dgtd.plots.learning import learning_figure
-
-            written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
+        if not runtime.writes():
+            return
+        written = _write(out, result, job, plots)
+    finally:
+        for owner in held:
+            owner.__exit__(None, None, None)
     _report(result, mdp)
     click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+
+
+def _write(out: Path, result, job, plots: bool) -> list:
+    """The results of a finished learning run, numbers before pictures, each file atomically; the checkpoint gone."""
+    import numpy as np
+
+    from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run.learn import metrics_rows, summary
+    from dgtd.run.results import npz_bytes
+
+    mdp, s = job.mdp, job.settings
+    (out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
+    arrays = {"policies": result.policies, "actions": np.asarray(mdp.actions)}  # (B, N, S, A_max), (N,)
+    atomic_write(out / "policies.npz", npz_bytes(arrays))
+    atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
+    rows = metrics_rows(result, s.actor)
+    text = "actor,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
+    atomic_write(out / "metrics.csv", text.encode())
+    written = ["policies.npz", "summary.json", "metrics.csv"]
+    if plots:
+        from dgtd.plots.learning import learning_figure
+
+        written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
+    return written
 
 
 CHECKPOINT = "learning-checkpoint.npz"

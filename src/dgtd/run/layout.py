@@ -114,3 +114,23 @@ def kernel_for(backend: str, algorithm, channel=None):
         warnings.warn(reason, stacklevel=4)
         return run_block
     return compiled
+
+
+class AllAgents:
+    """Every agent of a learning run in this process: its rows are all of them, and gathering them is nothing."""
+
+    root = True
+
+    def __init__(self, n_agents: int):
+        self.local = np.arange(n_agents)
+
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        return x
+
+
+def learner_layout(n_agents: int):
+    """Where a learning run's agents are held: spread over the ranks of an mpiexec job of more than one rank
+    (`dgtd.backends.mpi.LearnerRanks`), else all here (`AllAgents`)."""
+    from dgtd.backends import mpi
+
+    return mpi.LearnerRanks(n_agents) if mpi.spread() else AllAgents(n_agents)

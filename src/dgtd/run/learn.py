@@ -38,6 +38,7 @@ from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
+from dgtd.run.layout import learner_layout
 from dgtd.samples import Sample
 from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys, singles, uniforms
 
@@ -108,24 +109,26 @@ class Learners:
     metrics: dict
     pending: dict = field(default_factory=dict)  # a round's sums so far: empty at every checkpoint (a round's end)
 
-    def snapshot(self) -> dict:
-        """Flat arrays (copies), as an .npz holds them."""
-        out = {"k": np.asarray(self.k), "s": self.s.copy(), "theta": self.theta.copy()}
+    def snapshot(self, rows) -> dict:
+        """Flat arrays (copies), as an .npz holds them: every agent's rows, gathered from where they are held
+        (``rows``, the run's layout: `dgtd.run.layout.learner_layout`)."""
+        out = {"k": np.asarray(self.k), "s": self.s.copy(), "theta": rows.gather(self.theta).copy()}
         if self.lam is not None:
-            out["lam"] = self.lam.copy()
-        out |= {f"critic/{k}": np.array(v) for k, v in self.critic._asdict().items()}
+            out["lam"] = rows.gather(self.lam).copy()
+        out |= {f"critic/{k}": rows.gather(np.asarray(v)).copy() for k, v in self.critic._asdict().items()}
         out |= {f"links/{k}": np.array(v) for k, v in self.links._asdict().items()}
         return out | {f"metrics/{k}": v.copy() for k, v in self.metrics.items()}
 
-    def restored(self, snap: dict) -> Learners:
-        """This fresh start with a snapshot's values: the same run from its step k on."""
+    def restored(self, snap: dict, rows) -> Learners:
+        """This fresh start with a snapshot's values, each agent's rows those held here: the same run from step k."""
+        local = rows.local
 
-        def part(kind: str, record):
-            return type(record)(**{name: snap[f"{kind}/{name}"] for name in record._fields})
-
+        critic = type(self.critic)(**{name: snap[f"critic/{name}"][:, local] for name in self.critic._fields})
+        links = type(self.links)(**{name: snap[f"links/{name}"] for name in self.links._fields})
+        lam = snap.get("lam")
         return Learners(
-            int(snap["k"]), snap["s"], snap["theta"], snap.get("lam"), part("critic", self.critic),
-            part("links", self.links), {k: snap[f"metrics/{k}"] for k in self.metrics},
+            int(snap["k"]), snap["s"], snap["theta"][:, local], None if lam is None else lam[:, local], critic, links,
+            {k: snap[f"metrics/{k}"] for k in self.metrics},
         )  # fmt: skip
 
 
@@ -145,6 +148,7 @@ class _Plan:
     betas: np.ndarray
     nus: np.ndarray
     at: np.ndarray
+    rows: Any  # where the agents are held: `dgtd.run.layout.learner_layout`
 
 
 def learn(
@@ -174,7 +178,7 @@ def learn(
     started = time.perf_counter()
     run = _start(plan)
     if resume is not None:
-        run = run.restored(resume)
+        run = run.restored(resume, plan.rows)
     draws: tuple = ()
     first = run.k
     for k in range(first, settings.iterations):
@@ -183,15 +187,17 @@ def learn(
         _step(plan, run, draws, k)
         if k + 1 in plan.at:
             c = int(np.searchsorted(plan.at, k + 1))
-            _measure(mdp, run.theta, critic.estimate(run.critic), run.metrics, c, settings.values)
+            theta, W = plan.rows.gather(run.theta), plan.rows.gather(critic.estimate(run.critic))
+            _measure(mdp, theta, W, run.metrics, c, settings.values)
             run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
-            on_checkpoint(run.snapshot())
+            on_checkpoint(run.snapshot(plan.rows))
         if progress is not None:
             progress(1)
     best = mdp.best_return()
     return LearnResult(
-        plan.at, run.metrics, policy(run.theta), critic.estimate(run.critic), best[0], best[1], run.links.messages,
+        plan.at, run.metrics, policy(plan.rows.gather(run.theta)), plan.rows.gather(critic.estimate(run.critic)),
+        best[0], best[1], run.links.messages,
         run.links.bits, time.perf_counter() - started,
     )  # fmt: skip
 
@@ -212,21 +218,24 @@ def _plan(mdp, network, critic, actor, settings, channel) -> _Plan:
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
         1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0)),  # the reward regression's steps: |f|^2 = N
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]),
+        learner_layout(N),
     )  # fmt: skip
 
 
 def _start(plan: _Plan) -> Learners:
-    mdp, B = plan.mdp, plan.settings.seeds
+    """A fresh run: uniform policies (or a problem file's), zero critics and estimates, the first state drawn; each
+    agent's rows those held here (``plan.rows``)."""
+    mdp, B, local = plan.mdp, plan.settings.seeds, plan.rows.local
     theta = plan.actor.init(B, mdp.actions, mdp.n_states)
     if getattr(mdp, "policies", None) is not None:  # a problem file's starting policies
         theta = plan.actor.starting_at(theta, mdp.policies)
-    N, S, A = mdp.n_agents, mdp.n_states, theta.shape[-1]
+    N, S, A, n = mdp.n_agents, mdp.n_states, theta.shape[-1], len(local)
     return Learners(
         0,
         team.draw(np.cumsum(mdp.start), uniforms(plan.keys, SHARED_START, 0, 0)[0]),
-        theta,
-        np.zeros((B, N, N * S * A)) if plan.settings.actor == "networked" and plan.settings.values == "state" else None,
-        plan.critic.init(B, N, N * S * A if plan.settings.values == "action" else mdp.n_features),
+        np.ascontiguousarray(theta[:, local]),
+        np.zeros((B, n, N * S * A)) if plan.settings.actor == "networked" and plan.settings.values == "state" else None,
+        plan.critic.init(B, n, N * S * A if plan.settings.values == "action" else mdp.n_features),
         plan.channel.init(B, plan.arcs, plan.settings.seed),
         {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
     )
@@ -236,29 +245,31 @@ def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
     """Step k of the module's docstring, in place on ``run``: draw and act; the sample's critic directions, actor
     increments and reward-regression increments added to the round's (`Learners.pending`); at a round's last step
     (every ``batch`` steps, Chen et al.'s mini-batches; every step by default) hear and move (`_round`)."""
-    mdp, critic, kind = plan.mdp, plan.critic, plan.settings.actor
+    mdp, critic, kind, local = plan.mdp, plan.critic, plan.settings.actor, plan.rows.local
     t = k % BLOCK
     B, N, S, A = run.theta.shape[0], mdp.n_agents, mdp.n_states, run.theta.shape[-1]
-    b, agents, s = np.arange(B)[:, None], np.arange(N), run.s
-    rows = policy(run.theta[b, agents[None, :], s[:, None]])  # (B, N, A)
-    a = np.minimum(team.draw(np.cumsum(rows, axis=-1), draws[0][t]), np.array(mdp.actions) - 1)
-    s_next, r = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # r (B, N): each agent's own reward
-    own = np.broadcast_to(r.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
-    W = critic.estimate(run.critic)  # (B, N or 1, q)
-    pending = run.pending
+    b, mine, s = np.arange(B)[:, None], np.arange(len(local)), run.s
+    rows = policy(run.theta[b, mine[None, :], s[:, None]])  # (B, n, A): the agents held here
+    a_here = np.minimum(team.draw(np.cumsum(rows, axis=-1), draws[0][t][:, local]), np.array(mdp.actions)[local] - 1)
+    a = plan.rows.gather(a_here)  # (B, N): every agent's action moves the state
+    s_next, r_all = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # (B, N): each agent's own reward
+    r = r_all[:, local]
+    own = np.broadcast_to(r_all.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
+    W = critic.estimate(run.critic)  # (B, n, q)
     if plan.settings.values == "action":
-        phi, phi_next, delta = _action_values(run, s, a, s_next, W)
-        _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a, delta, k)
+        phi, phi_next, delta = _action_values(plan, run, s, a, s_next, W)
+        _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a_here, delta, k)
         return _end_of(plan, run, draws, k, s_next)
     phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
     rhat = own
     if run.lam is not None:
         f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
-        rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, N, N)), axis=-1).sum(-1)
-        lam = pending.setdefault("lam", np.zeros_like(run.lam))
-        lam[b[:, :, None], agents[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
+        n = len(local)
+        rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, n, N)), axis=-1).sum(-1)
+        lam = run.pending.setdefault("lam", np.zeros_like(run.lam))
+        lam[b[:, :, None], mine[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
     delta = rhat + mdp.gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
-    _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a, delta, k)
+    _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a_here, delta, k)
     _end_of(plan, run, draws, k, s_next)
 
 
@@ -281,39 +292,60 @@ def _end_of(plan: _Plan, run: Learners, draws: tuple, k: int, s_next) -> None:
         _round(plan, run, up, k)
 
 
-def _action_values(run: Learners, s, a, s_next, W) -> tuple:
+def _action_values(plan: _Plan, run: Learners, s, a, s_next, W) -> tuple:
     """(f(s, a), E_pi f(s', .), agent i's advantage) of the action-value critic (Zhang et al.'s Algorithm 1): the
     features dense (B, 1, N S A), the next ones expected under the current policies (expected SARSA), and
     A_i = Q_i(s, a) - sum_b pi_i(b | s) Q_i(s, b, a_-i), which on additive features is agent i's own block:
-    w_i[i, s, a_i] - sum_b pi_i(b | s) w_i[i, s, b]."""
-    B, N, S, A = run.theta.shape
-    b, agents = np.arange(B)[:, None], np.arange(N)[None, :]
+    w_i[i, s, a_i] - sum_b pi_i(b | s) w_i[i, s, b]. ``a`` every agent's actions; ``W`` and the advantage the
+    agents held here (`plan.rows`)."""
+    B, n, S, A = run.theta.shape
+    N, local = a.shape[1], plan.rows.local
+    b, mine = np.arange(B)[:, None], np.arange(n)[None, :]
     F = N * S * A
     phi, phi_next = np.zeros((B, 1, F)), np.zeros((B, 1, F))
     phi[b, 0, team.action_features(N, S, A, s, a)] = 1.0
-    block = agents[:, :, None] * S * A + np.arange(A)[None, None, :]  # (1, N, A): agent j's actions at state 0
-    phi_next[b[:, :, None], 0, block + (s_next * A)[:, None, None]] = policy(run.theta[b, agents, s_next[:, None]])
-    w = np.broadcast_to(W, (B, N, F))
-    own = np.take_along_axis(w, block + (s * A)[:, None, None], axis=2)  # (B, N, A): w_i[i, s, .]
-    here = policy(run.theta[b, agents, s[:, None]])
-    advantage = np.take_along_axis(own, a[:, :, None], axis=2)[:, :, 0] - (here * np.where(here > 0, own, 0.0)).sum(-1)
+    block = np.arange(N)[None, :, None] * S * A + np.arange(A)[None, None, :]  # (1, N, A): agent j's block, state 0
+    after = plan.rows.gather(policy(run.theta[b, mine, s_next[:, None]]))  # (B, N, A): every agent's next policy
+    phi_next[b[:, :, None], 0, block + (s_next * A)[:, None, None]] = after
+    w = np.broadcast_to(W, (B, n, F))
+    own = np.take_along_axis(w, block[:, local] + (s * A)[:, None, None], axis=2)  # (B, n, A): w_i[i, s, .]
+    here = policy(run.theta[b, mine, s[:, None]])
+    mine_a = a[:, local]
+    advantage = np.take_along_axis(own, mine_a[:, :, None], axis=2)[:, :, 0] - (
+        here * np.where(here > 0, own, 0.0)
+    ).sum(-1)
     return phi, phi_next, advantage
 
 
 def _round(plan: _Plan, run: Learners, up, k: int) -> None:
     """A round's end: what every agent sends delivered once (independent agents send nothing), then the critics, the
     reward estimates and the actors moved by their round's mean (one sample's own, a round of one step)."""
-    critic, pending = plan.critic, run.pending
+    critic, pending, rows = plan.critic, run.pending, plan.rows
     n = pending.pop("n")
     sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
-    inbox, run.links = plan.channel.deliver(run.links, plan.arcs, sent, up)
-    new = critic.moved(run.critic, tuple(x / n for x in pending.pop("d")), inbox, plan.alphas[k])
-    if inbox.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
-        new = new._make(np.where(inbox.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
+    inbox, run.links = plan.channel.deliver(run.links, plan.arcs, {m: rows.gather(x) for m, x in sent.items()}, up)
+    here = Held(inbox, rows.local)
+    new = critic.moved(run.critic, tuple(x / n for x in pending.pop("d")), here, plan.alphas[k])
+    if here.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
+        new = new._make(np.where(here.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
     run.critic = new
     if run.lam is not None:
-        run.lam = run.lam - metropolis(inbox, plan.arcs, "team") + pending.pop("lam") / n
+        run.lam = run.lam - metropolis(inbox, plan.arcs, "team")[:, rows.local] + pending.pop("lam") / n
     run.theta = run.theta + pending.pop("theta") / n
+
+
+class Held:
+    """What the agents held here heard: an `Inbox` of every agent, its aggregates' rows ``local``."""
+
+    def __init__(self, inbox, local: np.ndarray):
+        self.inbox, self.local = inbox, local
+        self.awake = None if inbox.awake is None else inbox.awake[:, local]
+
+    def laplacian(self, name: str) -> np.ndarray:
+        return self.inbox.laplacian(name)[:, self.local]
+
+    def metropolis(self, name: str) -> np.ndarray:
+        return self.inbox.metropolis(name)[:, self.local]
 
 
 BLOCK = 512  # steps whose random numbers are drawn together

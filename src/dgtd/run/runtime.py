@@ -33,11 +33,12 @@ def speaks() -> bool:
 
 
 def check_command(command: str | None) -> None:
-    """Under mpiexec with more than one rank, `dgtd run` alone spreads its agents over the ranks; any other command
-    would run once on every rank and write the same files from each: one line."""
-    if in_job() and mpi.spread() and command not in (None, "run"):
+    """Under mpiexec with more than one rank, `dgtd run` and `dgtd learn` spread their agents over the ranks; any
+    other command would run once on every rank and write the same files from each: one line."""
+    if in_job() and mpi.spread() and command not in (None, "run", "learn"):
         raise DgtdInputError(
-            f"under mpiexec only `dgtd run` spreads a run's agents over the ranks; run `dgtd {command}` in one process"
+            f"under mpiexec only `dgtd run` and `dgtd learn` spread their agents over the ranks; run `dgtd {command}` "
+            "in one process"
         )
 
 
