@@ -48,9 +48,11 @@ def _choices(name: str):
     "critics and estimates; the numbers are one process's, bit for bit).",
 )
 def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **values):
-    """Agents that learn their policies on TASK (pull-away), each with its own softmax policy and one of dgtd's
+    """Agents that learn their policies on TASK (pull-away, zhang-20, factored) or --problem FILE (a multi-agent MDP
+    file, P (S, A, S), with one starting policy per agent), each with its own softmax policy and one of dgtd's
     distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd run`; writes
-    summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png."""
+    summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png
+    (docs/control.md)."""
     from tqdm import tqdm
 
     from dgtd.learning import resolve_learning
