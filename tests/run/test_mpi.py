@@ -296,14 +296,14 @@ def test_what_the_runtime_does_not_run_is_one_line_and_exit_2_on_every_rank(tmp_
     assert len(errors) == 1 and words in errors[0]  # rank 0's line only
 
 
-def test_only_run_spreads_over_ranks(tmp_path):
+def test_only_run_and_learn_spread_over_ranks(tmp_path):
     """Another command under mpiexec would run once on every rank, each writing the same files: refused."""
     cmd = [MPIEXEC, "-n", "2", *DGTD, "compare", "paper-example-1", "-T", "100", "--out", str(tmp_path / "c")]
     done = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert [line for line in done.stderr.splitlines() if line.startswith("dgtd:")] == [
-        "dgtd: error: under mpiexec only `dgtd run` spreads a run's agents over the ranks; run `dgtd compare` in one "
-        "process"
+        "dgtd: error: under mpiexec only `dgtd run` and `dgtd learn` spread their agents over the ranks; run `dgtd "
+        "compare` in one process"
     ]
 
 
