@@ -203,11 +203,33 @@ def _ranks_of(tag: str) -> dict[int, int]:
     return found
 
 
-def _wait_for_a_checkpoint(job: subprocess.Popen, out: Path) -> None:
+def _wait_for_a_checkpoint(job: subprocess.Popen, out: Path, name: str = "checkpoint.npz") -> None:
     deadline = time.monotonic() + 120
-    while not (out / "checkpoint.npz").exists():
+    while not (out / name).exists():
         assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
         time.sleep(0.1)
+
+
+def _interrupted(cmd: list, out: Path, checkpoint: str = "checkpoint.npz", group: bool = True) -> tuple[int, str]:
+    """(exit code, stderr) of ``cmd`` sent SIGINT once its first checkpoint is written: to its process group, as a
+    terminal's Ctrl-C, or to the launcher alone; every process it started is killed if it outlives 30 s."""
+    job = subprocess.Popen(
+        cmd,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's shell leaves it
+    )
+    try:
+        _wait_for_a_checkpoint(job, out, checkpoint)
+        (os.killpg if group else os.kill)(job.pid, signal.SIGINT)
+        _, err = job.communicate(timeout=30)
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)
+    return job.returncode, err
 
 
 def _killed_after_a_checkpoint(run: list, out: Path, ranks: int = 2) -> list:
@@ -329,23 +351,8 @@ def test_ctrl_c_ends_every_rank_at_once_and_keeps_the_checkpoint(tmp_path, to):
     ranks ran on, and the launcher ended in a TimeoutExpired traceback, exit 1)."""
     out = tmp_path / "run"
     cmd = [*DGTD, "run", "garnet", "-T", "100000", "--ranks", "2", "--checkpoint-every", "5000", "--out", str(out)]
-    job = subprocess.Popen(
-        cmd,
-        env=env(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's shell leaves it
-    )
-    try:
-        _wait_for_a_checkpoint(job, out)
-        (os.killpg if to == "group" else os.kill)(job.pid, signal.SIGINT)
-        _, err = job.communicate(timeout=30)
-    finally:
-        if job.poll() is None:
-            os.killpg(job.pid, signal.SIGKILL)
-    assert job.returncode == 130 and "dgtd: interrupted" in err, err
+    code, err = _interrupted(cmd, out, group=to == "group")
+    assert code == 130 and "dgtd: interrupted" in err, err
     assert not (out / "summary.json").exists()
     cut = subprocess.run([*cmd[:5], "-T", "20000", *cmd[7:]], env=env(), capture_output=True, text=True, timeout=300)
     assert cut.returncode == 2 and "checkpoint of another run" in cut.stderr  # not thrown away: another config
@@ -393,26 +400,8 @@ def test_learners_interrupted_on_2_ranks_resume_on_2_to_the_uninterrupted_number
     same command again resumes and ends with the uninterrupted one-process run's metrics, byte for byte."""
     run = [*LEARN, "-T", 30000, "--checkpoint-every", 1000]
     out = tmp_path / "cut"
-    job = subprocess.Popen(
-        [*DGTD, *map(str, run), "--ranks", "2", "--out", str(out)],
-        env=env(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's shell leaves it
-    )
-    try:
-        deadline = time.monotonic() + 120
-        while not (out / "learning-checkpoint.npz").exists():
-            assert time.monotonic() < deadline and job.poll() is None, "no checkpoint written"
-            time.sleep(0.1)
-        os.killpg(job.pid, signal.SIGINT)
-        _, err = job.communicate(timeout=60)
-    finally:
-        if job.poll() is None:
-            os.killpg(job.pid, signal.SIGKILL)
-    assert job.returncode == 130 and not (out / "summary.json").exists(), err
+    code, err = _interrupted([*DGTD, *map(str, run), "--ranks", "2", "--out", str(out)], out, "learning-checkpoint.npz")
+    assert code == 130 and not (out / "summary.json").exists(), err
     again = alone(*run, "--ranks", 2, "--out", out)
     assert again.returncode == 0 and "resuming" in again.stdout, again.stderr
     whole = alone(*run, "--out", tmp_path / "whole")

@@ -31,8 +31,23 @@ from dgtd.problems.model import check_stochastic
 JOINT_LIMIT = 1 << 20  # states x joint actions beyond which no joint table is built
 
 
+class _Team:
+    """What every team MDP has: its agents' rewards ``R`` (N, ...) and the critics' features ``Phi`` (S, q)."""
+
+    R: np.ndarray
+    Phi: np.ndarray
+
+    @property
+    def n_agents(self) -> int:
+        return self.R.shape[0]
+
+    @property
+    def n_features(self) -> int:
+        return self.Phi.shape[1]
+
+
 @dataclass(frozen=True, eq=False)
-class TeamMDP:
+class TeamMDP(_Team):
     """``P`` (S, A, S) over joint actions, ``R`` (N, S, A) each agent's mean local reward, ``actions`` (N,) each
     agent's action count (their product A), ``Phi`` (S, q) the critics' features, ``gamma`` their discount,
     ``start`` (S,) the first state's distribution; ``best`` (S,) where the task knows the team's best joint action in
@@ -51,14 +66,6 @@ class TeamMDP:
     @property
     def n_states(self) -> int:
         return self.P.shape[0]
-
-    @property
-    def n_agents(self) -> int:
-        return self.R.shape[0]
-
-    @property
-    def n_features(self) -> int:
-        return self.Phi.shape[1]
 
     def joint(self, a: np.ndarray) -> np.ndarray:
         """The joint action's index of the agents' actions ``a`` (..., N)."""
@@ -265,7 +272,7 @@ def pull_away(n_agents: int = 4, n_states: int = 3, bonus: float = 1.0, gamma: f
 
 
 @dataclass(frozen=True, eq=False)
-class FactoredMDP:
+class FactoredMDP(_Team):
     """A team MDP whose joint table is never built: the agents form G groups of m (``groups`` (G, m), a partition);
     at every step one group, drawn uniformly, moves the state by its own table, so that
 
@@ -290,14 +297,6 @@ class FactoredMDP:
     @property
     def n_states(self) -> int:
         return self.Pg.shape[1]
-
-    @property
-    def n_agents(self) -> int:
-        return self.R.shape[0]
-
-    @property
-    def n_features(self) -> int:
-        return self.Phi.shape[1]
 
     def _group_actions(self) -> tuple:
         return (self.actions[0],) * self.groups.shape[1]
