@@ -124,7 +124,7 @@ def _write(out: Path, result, job, plots: bool) -> list:
     import numpy as np
 
     from dgtd.run.atomic import atomic_write, atomic_write_json
-    from dgtd.run.learn import metrics_rows, summary
+    from dgtd.run.learn import metrics_csv, summary
     from dgtd.run.results import npz_bytes
 
     mdp, s = job.mdp, job.settings
@@ -132,9 +132,7 @@ def _write(out: Path, result, job, plots: bool) -> list:
     arrays = {"policies": result.policies, "actions": np.asarray(mdp.actions)}  # (B, N, S, A_max), (N,)
     atomic_write(out / "policies.npz", npz_bytes(arrays))
     atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
-    rows = metrics_rows(result, s.actor)
-    text = "actor,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
-    atomic_write(out / "metrics.csv", text.encode())
+    atomic_write(out / "metrics.csv", metrics_csv({s.actor: result}, "actor"))
     written = ["policies.npz", "summary.json", "metrics.csv"]
     if plots:
         from dgtd.plots.learning import learning_figure
@@ -210,7 +208,7 @@ def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, g
     from dgtd.errors import DgtdInputError
     from dgtd.learning import CRITIC_STEPS, resolve_learning
     from dgtd.run.atomic import atomic_write, atomic_write_json
-    from dgtd.run.learn import DISTRIBUTED, learn, metrics_rows
+    from dgtd.run.learn import DISTRIBUTED, learn, metrics_csv
     from dgtd.run.owner import Owner
 
     job = resolve_learning(task, {**given, "seeds": seeds})
@@ -236,9 +234,7 @@ def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, g
                 )
         finally:
             bar.close()
-        rows = [row for label, r in results.items() for row in metrics_rows(r, label)]
-        text = "learners,seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)
-        atomic_write(out / "metrics.csv", text.encode())
+        atomic_write(out / "metrics.csv", metrics_csv(results, "learners"))
         atomic_write_json(out / "summary.json", _compared(results, job))
         written = ["metrics.csv", "summary.json"]
         if plots:

@@ -442,11 +442,14 @@ def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
     }
 
 
-def metrics_rows(result: LearnResult, actor: str) -> list:
-    """metrics.csv's rows: (actor, seed, step, metric, value), every checkpoint of every seed."""
-    return [
-        (actor, b, int(k), name, repr(float(values[b, c])))
+def metrics_csv(results: dict, column: str) -> bytes:
+    """metrics.csv of learning runs {label: `LearnResult`}: a row (label, seed, step, metric, value) for every
+    checkpoint of every seed, the label's column named ``column`` ("actor" for one run, "learners" for a comparison)."""
+    rows = [
+        (label, b, int(k), name, repr(float(values[b, c])))
+        for label, result in results.items()
         for name, values in result.metrics.items()
         for b in range(values.shape[0])
         for c, k in enumerate(result.steps)
     ]
+    return (f"{column},seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)).encode()
