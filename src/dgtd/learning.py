@@ -33,10 +33,12 @@ class LearnConfig:
         default=None,
         metadata=option(
             "The actor's steps step / (1 + k / offset)^power: step (default 0.5; 0.1 with --values action, whose "
-            "critic's first steps favour the actions sampled most and need the slower actor)."
+            "critic's first steps favour the actions sampled most and need the slower actor; 0.002 in mpe-spread)."
         ),
     )
-    actor_offset: float = field(default=1000.0, metadata=option("The actor's steps: offset."))
+    actor_offset: float | None = field(
+        default=None, metadata=option("The actor's steps: offset (default 1000; 10000 in mpe-spread).")
+    )
     actor_power: float = field(
         default=0.8, metadata=option("The actor's steps: power, in (1/2, 1] so that the critic is the faster.")
     )
@@ -60,7 +62,7 @@ class LearnConfig:
 
 SHARED = (
     "problem_file", "algorithm", "alpha0", "beta", "schedule", "graph", "edge_prob", "loss", "burst", "reweight",
-    "delay", "wake", "bits", "top_k", "error_feedback", "iterations", "seeds", "seed", "checkpoints",
+    "delay", "wake", "bits", "top_k", "error_feedback", "iterations", "seeds", "seed", "checkpoints", "backend",
 )  # fmt: skip
 """The options `dgtd learn` shares with `dgtd run`."""
 
@@ -77,19 +79,18 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
     own = {f.name: values.get(f.name) for f in fields(LearnConfig)}
     file = values.get("problem_file")
     if (task is None) == (file is None):
-        raise DgtdInputError(f"name one learning task ({', '.join(TASKS)}) or --problem FILE.npz; got {task!r}")
-    if file is not None:
-        from dgtd.problems.io import load_team_mdp
-
-        if own["agents"] is not None or own["states"] is not None:
-            raise DgtdInputError("--agents and --states size a named task; a problem file's sizes are its arrays'")
-        mdp = load_team_mdp(file)
-    elif task not in TASKS:
-        raise DgtdInputError(f"name a learning task: {', '.join(TASKS)}; got {task!r}")
+        raise DgtdInputError(
+            f"name one learning task ({', '.join([*TASKS, *ENV_TASKS])}) or --problem FILE.npz; got {task!r}"
+        )
+    mdp, env = None, None
+    if task in ENV_TASKS:
+        env = _env_task(task, own)
+        n_agents, defaults, actor_defaults = env.n_agents, ENV_CRITIC_STEPS, ENV_ACTOR_STEPS
     else:
-        sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}
-        mdp = TASKS[task](**sizes)
-    network = _network(values.get("graph") or "ring", mdp.n_agents, _given(values, "edge_prob", 1.0))
+        mdp = _team_mdp(task, file, own)
+        n_agents, defaults = mdp.n_agents, CRITIC_STEPS
+        actor_defaults = {"step": ACTOR_STEP[_given(own, "values", "state")], "offset": 1000.0}
+    network = _network(values.get("graph") or "ring", n_agents, _given(values, "edge_prob", 1.0))
     links = {k: values.get(k) for k in ("delay", "wake", "bits", "top_k", "error_feedback")}
     channel = channel_for(values.get("loss"), values.get("burst"), network, values.get("reweight"), links)
     spec = SimpleNamespace(
@@ -97,9 +98,12 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         algorithm_params=None,
         **{k: values.get(k) for k in ("alpha0", "beta", "schedule", "kappa", "rho")},
     )
-    critic = build_algorithm(spec, make_algorithm("dgtd", **CRITIC_STEPS))
-    step = _given(own, "actor_step", ACTOR_STEP[_given(own, "values", "state")])
-    actor = SoftmaxActor(step, _given(own, "actor_offset", 1000.0), _given(own, "actor_power", 0.8))
+    critic = build_algorithm(spec, make_algorithm("dgtd", **defaults))
+    actor = SoftmaxActor(
+        _given(own, "actor_step", actor_defaults["step"]),
+        _given(own, "actor_offset", actor_defaults["offset"]),
+        _given(own, "actor_power", 0.8),
+    )
     settings = LearnSettings(
         iterations=_given(values, "iterations", 20_000),
         seeds=_given(values, "seeds", 2),
@@ -108,6 +112,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         actor=_given(own, "actor", "networked"),
         batch=_given(own, "batch", 1),
         values=_given(own, "values", "state"),
+        backend=_given(values, "backend", "numba" if env is None else "numpy"),
     )
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
     if file is not None:
@@ -115,8 +120,51 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
 
         record["problem_sha256"] = file_digest(file)
     return SimpleNamespace(
-        mdp=mdp, network=network, channel=channel, critic=critic, actor=actor, settings=settings, record=record
-    )
+        mdp=mdp, env=env, network=network, channel=channel, critic=critic, actor=actor, settings=settings,
+        record=record,
+    )  # fmt: skip
+
+
+def _team_mdp(task: str | None, file, own: dict):
+    """The team MDP of a named task or a problem file."""
+    from dgtd.problems.team import TASKS
+
+    if file is not None:
+        from dgtd.problems.io import load_team_mdp
+
+        if own["agents"] is not None or own["states"] is not None:
+            raise DgtdInputError("--agents and --states size a named task; a problem file's sizes are its arrays'")
+        mdp = load_team_mdp(file)
+    elif task not in TASKS:
+        raise DgtdInputError(f"name a learning task: {', '.join([*TASKS, *ENV_TASKS])}; got {task!r}")
+    else:
+        sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}
+        mdp = TASKS[task](**sizes)
+    return mdp
+
+
+ENV_TASKS = {"mpe-spread": "MPE2's simple_spread (cooperative navigation), --agents particles (3)"}
+ENV_CRITIC_STEPS = {"alpha0": 0.1, "beta": 100.0}  # the critics' steps on spread's features (|phi|^2 about 10)
+# linear softmax actors on 19 observation features: at 0.02 the policies collapse within 10 000 steps (measured)
+ENV_ACTOR_STEPS = {"step": 0.002, "offset": 10_000.0}
+
+
+def _env_task(task: str, own: dict):
+    """A simulator to learn in (`dgtd.run.learn_env.EnvTask`), sized by --agents."""
+    from functools import partial
+
+    from dgtd.run.learn_env import EnvTask
+    from dgtd.scenarios.mpe import make_spread, spread_features
+
+    if own["states"] is not None or own["values"] not in (None, "state") or own["batch"] not in (None, 1):
+        raise DgtdInputError(
+            f"{task} is a simulator: its states are its own, and its critics evaluate state values a step at a time "
+            "(no --states, --values action or --batch)"
+        )
+    N = 3 if own["agents"] is None else int(own["agents"])
+    if N < 2:
+        raise DgtdInputError(f"{task} needs at least 2 agents, got {N}")
+    return EnvTask(partial(make_spread, N), spread_features(N), 0.9, task, N)
 
 
 def _given(values: dict, name: str, default):

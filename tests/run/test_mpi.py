@@ -380,11 +380,13 @@ def test_more_ranks_than_agents_is_refused(tmp_path):
 LEARN = ["learn", "pull-away", "--seeds", 2, "--loss", 0.2, "--no-plots", "--no-progress"]
 
 
-@pytest.mark.parametrize("extra", [[], ["--values", "action"], ["--actor", "centralised", "--batch", 4]])
+@pytest.mark.parametrize(
+    "extra", [[], ["--values", "action"], ["--actor", "centralised", "--batch", 4], ["--backend", "numpy"]]
+)
 def test_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, extra):
     """`dgtd learn --ranks R`: each rank holds its agents' actors, critics and reward estimates (4 agents on 3 ranks:
     one rank holds two); their actions, messages and rows gathered in agent order, the policies and metrics are one
-    process's, byte for byte, on 2 and 3 ranks, over links that lose 20 % of messages."""
+    process's, byte for byte, on 2 and 3 ranks, over links that lose 20 % of messages (compiled, and NumPy)."""
     run = [*LEARN, "-T", 800, *extra]
     base = alone(*run, "--out", tmp_path / "one")
     assert base.returncode == 0, base.stderr

@@ -10,7 +10,8 @@ import click
 
 from dgtd.cli.options import declared_option, make_option, output_options, run_options
 from dgtd.config import field_types
-from dgtd.learning import SHARED, LearnConfig
+from dgtd.errors import DgtdInputError
+from dgtd.learning import ENV_TASKS, SHARED, LearnConfig
 
 
 def learn_options():
@@ -48,10 +49,10 @@ def _choices(name: str):
     "critics and estimates; the numbers are one process's, bit for bit).",
 )
 def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **values):
-    """Agents that learn their policies on TASK (pull-away, zhang-20, factored) or --problem FILE (a multi-agent MDP
-    file, P (S, A, S), with one starting policy per agent), each with its own softmax policy and one of dgtd's
-    distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd run`; writes
-    summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png
+    """Agents that learn their policies on TASK (pull-away, zhang-20, factored; the simulator mpe-spread) or --problem
+    FILE (a multi-agent MDP file, P (S, A, S), with one starting policy per agent), each with its own softmax policy
+    and one of dgtd's distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd
+    run`; writes summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png
     (docs/control.md)."""
     from tqdm import tqdm
 
@@ -61,11 +62,18 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     from dgtd.run.owner import Owner
     from dgtd.run.results import refuse_other_results
 
+    if task in ENV_TASKS and (ranks is not None or checkpoint_every):
+        raise DgtdInputError(
+            f"{task} is a simulator, run in one process: its state cannot be saved or split (no --ranks, "
+            "--checkpoint-every)"
+        )
     if ranks is not None:
         from dgtd.cli.launch import ARGV, launch
 
         raise SystemExit(launch(ranks, None, ARGV))
     job = resolve_learning(task, values)
+    if job.env is not None:
+        return _learn_env(job, out, progress, plots, overwrite, values.get("backend"))
     out = Path(out) if out else Path("runs") / f"learn-{job.mdp.name}-{job.settings.actor}"
     s, mdp = job.settings, job.mdp
     click.echo(
@@ -74,15 +82,21 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     )
     click.echo(
         f"{s.actor} actors with the {job.critic.name} critic ({job.critic.describe()}); {job.actor.describe()}; "
-        f"{s.iterations:,} steps x {s.seeds} seed(s)"
+        f"{s.iterations:,} steps x {s.seeds} seed(s) on the {s.backend} backend"
     )
+    if s.backend == "numba":
+        from dgtd.run.learn import fallback
+
+        why = fallback(job.critic, job.channel)
+        if why is not None:
+            click.echo(f"note: {why}", err=True)
     size = mdp.n_agents * mdp.n_states * max(mdp.actions)
     if s.actor == "networked" and mdp.n_agents * size > ESTIMATE_NOTE:
         click.echo(
             f"note: networked agents each keep an estimate of the team's reward of N S A = {size:,} numbers, "
             f"{mdp.n_agents * size:,} in all, mixed at every step (Zhang et al.'s Algorithm 2 with additive features): "
-            "slow at this size (1 000 agents of 10 states: about 0.5 s a step on 2 cores); --actor centralised or "
-            "independent send none",
+            "slow at this size (1 000 agents of 10 states: about 0.2 s a step on 2 cores, compiled); --actor "
+            "centralised or independent send none",
             err=True,
         )
     held: list = []  # the results folder's lock, held by the process that writes
@@ -116,6 +130,54 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
         for owner in held:
             owner.__exit__(None, None, None)
     _report(result, mdp)
+    click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+
+
+def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) -> None:
+    """`dgtd learn` in a simulator (`dgtd.run.learn_env`): no model, so the return is estimated from the run's own
+    rewards; summary.json, metrics.csv, actors.npz (each agent's linear softmax weights) and returns.png."""
+    from tqdm import tqdm
+
+    from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run.learn import metrics_csv
+    from dgtd.run.learn_env import env_summary, learn_env
+    from dgtd.run.owner import Owner
+    from dgtd.run.results import npz_bytes, refuse_other_results
+
+    task, s = job.env, job.settings
+    out = Path(out) if out else Path("runs") / f"learn-{task.name}-{s.actor}"
+    click.echo(f"{task.name}: {task.n_agents} agents, gamma {task.gamma}; network: {job.network.describe()}; "
+               f"{job.channel.describe()}")  # fmt: skip
+    click.echo(
+        f"{s.actor} actors (softmax linear in their own observations) with the {job.critic.name} critic "
+        f"({job.critic.describe()}); {job.actor.describe()}; {s.iterations:,} steps x {s.seeds} seed(s)"
+    )
+    if backend == "numba":
+        click.echo(
+            "note: learners in a simulator run on the NumPy backend (the simulator's step is the cost)", err=True
+        )
+    with Owner(out, "learning run", overwrite):
+        if not overwrite:
+            refuse_other_results(out, job.record, "learning run")
+        bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True)
+        try:
+            result = learn_env(task, job.network, job.critic, job.actor, s, job.channel, progress=bar.update)
+        finally:
+            bar.close()
+        atomic_write(out / "actors.npz", npz_bytes({"theta": result.policies}))
+        atomic_write_json(out / "summary.json", env_summary(result, task, job.record))
+        atomic_write(out / "metrics.csv", metrics_csv({s.actor: result}, "actor"))
+        written = ["actors.npz", "summary.json", "metrics.csv"]
+        if plots:
+            from dgtd.plots.learning import learning_figure
+
+            written.append(learning_figure(out, result, f"{task.name}, {s.actor}, {job.critic.name} critic"))
+    last = result.metrics["return"][:, -1]
+    first = result.metrics["return"][:, 0]
+    click.echo(
+        f"team's mean reward a step (estimated from the run's own steps), first checkpoint -> last, per seed: "
+        f"{', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(first, last))}"
+    )
     click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
 
 
@@ -206,9 +268,9 @@ def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, g
 
     from dgtd.algorithms import make_algorithm
     from dgtd.errors import DgtdInputError
-    from dgtd.learning import CRITIC_STEPS, resolve_learning
+    from dgtd.learning import CRITIC_STEPS, ENV_CRITIC_STEPS, resolve_learning
     from dgtd.run.atomic import atomic_write, atomic_write_json
-    from dgtd.run.learn import DISTRIBUTED, learn, metrics_csv
+    from dgtd.run.learn import DISTRIBUTED, metrics_csv
     from dgtd.run.owner import Owner
 
     job = resolve_learning(task, {**given, "seeds": seeds})
@@ -219,18 +281,19 @@ def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, g
             f"learners' critics are distributed methods ({', '.join(DISTRIBUTED)}); got {', '.join(bad)}"
         )
     runs = [("networked", n) for n in names] + [("independent", "dgtd"), ("centralised", "dgtd")]
-    out = Path(out) if out else Path("runs") / f"compare-learners-{job.mdp.name}"
+    name, n_agents, run = _learner_runs(job)
+    out = Path(out) if out else Path("runs") / f"compare-learners-{name}"
     s = job.settings
-    click.echo(f"{job.mdp.name}: {job.mdp.n_agents} agents; {job.network.describe()}; {job.channel.describe()}")
+    click.echo(f"{name}: {n_agents} agents; {job.network.describe()}; {job.channel.describe()}")
     click.echo(f"{', '.join(f'{a} ({n} critic)' for a, n in runs)}: {s.iterations:,} steps x {s.seeds} seed(s) each")
     results = {}
     with Owner(out, "learning run", overwrite):
         bar = tqdm(total=s.iterations * len(runs), disable=not progress, file=sys.stderr, unit="it", unit_scale=True)
         try:
-            for actor, name in runs:
-                critic = make_algorithm(name, **CRITIC_STEPS)
-                results[f"{actor}/{name}"] = learn(
-                    job.mdp, job.network, critic, job.actor, replace(s, actor=actor), job.channel, progress=bar.update
+            for actor, critic_name in runs:
+                critic = make_algorithm(critic_name, **(CRITIC_STEPS if job.env is None else ENV_CRITIC_STEPS))
+                results[f"{actor}/{critic_name}"] = run(
+                    job.network, critic, job.actor, replace(s, actor=actor), job.channel, progress=bar.update
                 )
         finally:
             bar.close()
@@ -240,15 +303,29 @@ def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, g
         if plots:
             from dgtd.plots.learning import learners_figure
 
-            written.append(learners_figure(out, results, job.mdp.name))
+            written.append(learners_figure(out, results, name))
     click.echo(_learners_table(results))
     click.echo(f"wrote {out}/{', '.join(written)}")
+
+
+def _learner_runs(job) -> tuple:
+    """(the task's name, its agents, run(network, critic, actor, settings, channel, progress) -> `LearnResult`): a
+    model's `dgtd.run.learn.learn`, or a simulator's `dgtd.run.learn_env.learn_env`."""
+    from functools import partial
+
+    if job.env is not None:
+        from dgtd.run.learn_env import learn_env
+
+        return job.env.name, job.env.n_agents, partial(learn_env, job.env)
+    from dgtd.run.learn import learn
+
+    return job.mdp.name, job.mdp.n_agents, partial(learn, job.mdp)
 
 
 def _compared(results: dict, job) -> dict:
     import numpy as np
 
-    out = {"task": job.mdp.name, "config": job.record, "return_best": next(iter(results.values())).return_best}
+    out = {"task": _learner_runs(job)[0], "config": job.record, "return_best": next(iter(results.values())).return_best}
     for label, r in results.items():
         J = r.metrics["return"][:, -1]
         out[label] = {
@@ -280,9 +357,14 @@ def _learners_table(results: dict) -> str:
     J = results[best].metrics["return"][:, -1]
     J_star = next(iter(results.values())).return_best
     of = "" if J_star is None else f" of J* = {J_star:.4g}"
+    estimated = next(iter(results.values())).info.get("estimated", False)
     rows.append(
-        "each number: at the end of the run, median over seeds; J is the exact long-run average team reward of the "
-        "policies"
+        "each number: at the end of the run, median over seeds; J is "
+        + (
+            "the team's mean reward a step since the last checkpoint, estimated from the run's own rewards (no model)"
+            if estimated
+            else "the exact long-run average team reward of the policies"
+        )
     )
     rows.append(f"highest return: {best}, {np.median(J):.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})")
     return "\n".join(rows)

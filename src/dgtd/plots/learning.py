@@ -14,15 +14,27 @@ from dgtd.plots.bands import BAND_WORDS, band  # noqa: E402
 
 
 def learning_figure(out: Path, result, title: str) -> str:
-    """returns.png: J(pi_t) against steps (samples per agent) with J*, and the critics' error (log scale)."""
+    """returns.png: J(pi_t) against steps (samples per agent) with J*, and the critics' error (log scale); in a
+    simulator (no model: ``result.info["estimated"]``), the team's mean reward a step estimated from the run's own
+    steps, and the policies' entropy."""
     fig, (ax, ay) = plt.subplots(1, 2, figsize=(11, 4))
-    band(ax, result.steps, result.metrics["return"].T, "J(pi_t), exact")
+    estimated = result.info.get("estimated", False)
+    band(
+        ax,
+        result.steps,
+        result.metrics["return"].T,
+        "mean reward since the last checkpoint" if estimated else "J(pi_t), exact",
+    )
     if result.return_best is not None:
         ax.axhline(result.return_best, color="k", linestyle="--", label="J*, the best joint policy")
     ax.set(xlabel="step (one sample per agent)", ylabel="average team reward", title=title)
     ax.legend()
-    band(ay, result.steps, result.metrics["critic_error"].T, "critics' error")
-    ay.set(xlabel="step", ylabel="|W - W*(pi_t)|^2 / (N |W*|^2)", yscale="log", title=BAND_WORDS)
+    if estimated:
+        band(ay, result.steps, result.metrics["entropy"].T, "policies' entropy")
+        ay.set(xlabel="step", ylabel="mean entropy at the observations met (nats)", title=BAND_WORDS)
+    else:
+        band(ay, result.steps, result.metrics["critic_error"].T, "critics' error")
+        ay.set(xlabel="step", ylabel="|W - W*(pi_t)|^2 / (N |W*|^2)", yscale="log", title=BAND_WORDS)
     fig.tight_layout()
     fig.savefig(Path(out) / "returns.png", dpi=110)
     plt.close(fig)
@@ -43,7 +55,9 @@ def learners_figure(out: Path, results: dict, title: str) -> str:
     best = next(iter(results.values())).return_best
     if best is not None:
         ax.axhline(best, color="k", linestyle=":", label="J*")
-    ax.set(xlabel="step (one sample per agent)", ylabel="J(pi_t), exact", title=title)
+    estimated = next(iter(results.values())).info.get("estimated", False)
+    ax.set(xlabel="step (one sample per agent)", ylabel="mean reward, estimated" if estimated else "J(pi_t), exact")
+    ax.set_title(title)
     ay.set(xlabel="megabytes delivered (all agents)", ylabel="J(pi_t), median over seeds", title=BAND_WORDS)
     ax.legend(fontsize=7)
     fig.tight_layout()

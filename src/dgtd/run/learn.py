@@ -44,6 +44,7 @@ from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys,
 
 ACTORS = ("networked", "independent", "centralised")
 VALUES = ("state", "action")
+LEARN_BACKENDS = ("numpy", "numba")  # the NumPy arithmetic below, or the agents' part compiled (equal to 1e-12)
 DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have
 METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", "bits")
 
@@ -51,10 +52,12 @@ METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", 
 @dataclass(frozen=True)
 class LearnSettings:
     """How long and how many: ``iterations`` steps of ``seeds`` seeds of base seed ``seed``, ``checkpoints`` of them
-    measured; ``actor`` one of `ACTORS`; ``batch`` the steps of a round (Chen, Zhou, Chen and Zou 2022's
-    mini-batches: the agents communicate and move once a round, by the mean of its samples; 1 by default); ``values``
-    what the critics evaluate: "state" values V with a consensus estimate of the team's reward (Zhang et al.'s
-    Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their Algorithm 1)."""
+    measured; ``actor`` one of `ACTORS`; ``backend`` one of `LEARN_BACKENDS` (the agents' arithmetic in NumPy, or
+    compiled: `dgtd.backends.compiled.learner`, the same numbers to rounding); ``batch`` the steps of a round (Chen,
+    Zhou, Chen and Zou 2022's mini-batches: the agents communicate and move once a round, by the mean of its samples;
+    1 by default); ``values`` what the critics evaluate: "state" values V with a consensus estimate of the team's
+    reward (Zhang et al.'s Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their
+    Algorithm 1)."""
 
     iterations: int = 20_000
     seeds: int = 2
@@ -63,8 +66,11 @@ class LearnSettings:
     actor: str = "networked"
     batch: int = 1
     values: str = "state"
+    backend: str = "numba"
 
     def __post_init__(self):
+        if self.backend not in LEARN_BACKENDS:
+            raise DgtdInputError(f"learners run on the {' or '.join(LEARN_BACKENDS)} backend, not {self.backend!r}")
         if self.actor not in ACTORS:
             raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
         if self.values not in VALUES:
@@ -133,7 +139,7 @@ class Learners:
 
 
 @dataclass(frozen=True)
-class _Plan:
+class LearnPlan:
     """What does not change over a learning run: the pieces, the keys, the step sizes and the checkpoints."""
 
     mdp: Any
@@ -149,6 +155,7 @@ class _Plan:
     nus: np.ndarray
     at: np.ndarray
     rows: Any  # where the agents are held: `dgtd.run.layout.learner_layout`
+    kernels: Any = None  # the compiled agents' arithmetic (`dgtd.backends.compiled.learner.LearnerKernels`), or None
 
 
 def learn(
@@ -198,11 +205,11 @@ def learn(
     return LearnResult(
         plan.at, run.metrics, policy(plan.rows.gather(run.theta)), plan.rows.gather(critic.estimate(run.critic)),
         best[0], best[1], run.links.messages,
-        run.links.bits, time.perf_counter() - started,
+        run.links.bits, time.perf_counter() - started, {"backend": "numpy" if plan.kernels is None else "numba"},
     )  # fmt: skip
 
 
-def _plan(mdp, network, critic, actor, settings, channel) -> _Plan:
+def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
     if getattr(critic, "centralised", False):
         raise DgtdInputError(
             f"{critic.name} is one centralised learner; the agents' critics are a distributed method's: "
@@ -212,17 +219,39 @@ def _plan(mdp, network, critic, actor, settings, channel) -> _Plan:
     if network.n_nodes != mdp.n_agents:
         raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {mdp.n_agents}")
     T, N = settings.iterations, mdp.n_agents
-    return _Plan(
-        mdp, network, critic, actor, settings, channel if channel is not None else Perfect(),
-        Arcs.of(network.base.edges, N), seed_keys(settings.seed, range(settings.seeds)),
+    channel, arcs, rows = (
+        channel if channel is not None else Perfect(),
+        Arcs.of(network.base.edges, N),
+        learner_layout(N),
+    )
+    return LearnPlan(
+        mdp, network, critic, actor, settings, channel, arcs, seed_keys(settings.seed, range(settings.seeds)),
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
         1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0)),  # the reward regression's steps: |f|^2 = N
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]),
-        learner_layout(N),
+        rows, _kernels(settings.backend, critic, channel, arcs, rows.local),
     )  # fmt: skip
 
 
-def _start(plan: _Plan) -> Learners:
+def _kernels(backend: str, critic, channel, arcs, local):
+    """The compiled agents' arithmetic where asked and able (`LearnSettings.backend`); None: NumPy's, as for a run
+    the compiled kernels cannot take (`fallback`)."""
+    if backend == "numpy" or fallback(critic, channel) is not None:
+        return None
+    from dgtd.backends.compiled.learner import LearnerKernels
+
+    return LearnerKernels(critic, arcs, local)
+
+
+def fallback(critic, channel) -> str | None:
+    """Why learners with ``critic`` over ``channel`` run on the NumPy backend though the compiled one was asked (one
+    line), or None."""
+    from dgtd.backends.compiled.learner import learner_fallback
+
+    return learner_fallback(critic, channel if channel is not None else Perfect())
+
+
+def _start(plan: LearnPlan) -> Learners:
     """A fresh run: uniform policies (or a problem file's), zero critics and estimates, the first state drawn; each
     agent's rows those held here (``plan.rows``)."""
     mdp, B, local = plan.mdp, plan.settings.seeds, plan.rows.local
@@ -241,10 +270,10 @@ def _start(plan: _Plan) -> Learners:
     )
 
 
-def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
+def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
     """Step k of the module's docstring, in place on ``run``: draw and act; the sample's critic directions, actor
     increments and reward-regression increments added to the round's (`Learners.pending`); at a round's last step
-    (every ``batch`` steps, Chen et al.'s mini-batches; every step by default) hear and move (`_round`)."""
+    (every ``batch`` steps, Chen et al.'s mini-batches; every step by default) hear and move (`round_end`)."""
     mdp, critic, kind, local = plan.mdp, plan.critic, plan.settings.actor, plan.rows.local
     t = k % BLOCK
     B, N, S, A = run.theta.shape[0], mdp.n_agents, mdp.n_states, run.theta.shape[-1]
@@ -255,6 +284,9 @@ def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
     s_next, r_all = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # (B, N): each agent's own reward
     r = r_all[:, local]
     own = np.broadcast_to(r_all.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
+    if plan.kernels is not None:
+        _compiled_sample(plan, run, s, a, s_next, r, own, k)
+        return _end_of(plan, run, draws, k, s_next)
     W = critic.estimate(run.critic)  # (B, n, q)
     if plan.settings.values == "action":
         phi, phi_next, delta = _action_values(plan, run, s, a, s_next, W)
@@ -273,7 +305,21 @@ def _step(plan: _Plan, run: Learners, draws: tuple, k: int) -> None:
     _end_of(plan, run, draws, k, s_next)
 
 
-def _add(plan: _Plan, run: Learners, sample: Sample, s, a, advantage, k: int) -> None:
+def _compiled_sample(plan: LearnPlan, run: Learners, s, a, s_next, r, own, k: int) -> None:
+    """`_step`'s arithmetic per agent, compiled (`dgtd.backends.compiled.learner`): the features of the seeds'
+    transitions (rows phi(s), phi(s') of each seed in turn) handed to the kernel with the step's numbers."""
+    mdp, (B, _, S, A) = plan.mdp, run.theta.shape
+    if plan.settings.values == "action":
+        phi, phi_next = _action_rows(plan, run, s, a, s_next)
+        rows = np.stack([phi[:, 0], phi_next[:, 0]], axis=1)
+    else:
+        rows = np.stack([mdp.Phi[s], mdp.Phi[s_next]], axis=1)
+    scal = (float(plan.betas[k]), float(plan.nus[k]), float(mdp.gamma), S, A, plan.settings.values == "state")
+    plan.kernels.sample(run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), s, a, r, own, scal)
+    run.pending["n"] = run.pending.get("n", 0) + 1
+
+
+def _add(plan: LearnPlan, run: Learners, sample: Sample, s, a, advantage, k: int) -> None:
     """A sample's critic directions and its actor step beta_k advantage psi added to the round's."""
     pending = run.pending
     d = plan.critic.directions(run.critic, sample)
@@ -282,24 +328,21 @@ def _add(plan: _Plan, run: Learners, sample: Sample, s, a, advantage, k: int) ->
     pending["n"] = pending.get("n", 0) + 1
 
 
-def _end_of(plan: _Plan, run: Learners, draws: tuple, k: int, s_next) -> None:
-    """Step k done: the next state; at a round's end, `_round` with the links up at step k."""
+def _end_of(plan: LearnPlan, run: Learners, draws: tuple, k: int, s_next) -> None:
+    """Step k done: the next state; at a round's end, `round_end` with the links up at step k."""
     run.s, run.k = s_next, k + 1
     if run.k % plan.settings.batch == 0 or run.k == plan.settings.iterations:
         up = None if draws[2] is None else draws[2][k % BLOCK]
         if plan.settings.actor == "independent":
             up = np.zeros((run.s.shape[0], plan.network.n_edges), bool)  # they send nothing
-        _round(plan, run, up, k)
+        round_end(plan, run, up, k)
 
 
-def _action_values(plan: _Plan, run: Learners, s, a, s_next, W) -> tuple:
-    """(f(s, a), E_pi f(s', .), agent i's advantage) of the action-value critic (Zhang et al.'s Algorithm 1): the
-    features dense (B, 1, N S A), the next ones expected under the current policies (expected SARSA), and
-    A_i = Q_i(s, a) - sum_b pi_i(b | s) Q_i(s, b, a_-i), which on additive features is agent i's own block:
-    w_i[i, s, a_i] - sum_b pi_i(b | s) w_i[i, s, b]. ``a`` every agent's actions; ``W`` and the advantage the
-    agents held here (`plan.rows`)."""
+def _action_rows(plan: LearnPlan, run: Learners, s, a, s_next) -> tuple:
+    """(f(s, a), E_pi f(s', .)) of the action-value critic (Zhang et al.'s Algorithm 1): the features dense
+    (B, 1, N S A), the next ones expected under the current policies (expected SARSA). ``a`` every agent's actions."""
     B, n, S, A = run.theta.shape
-    N, local = a.shape[1], plan.rows.local
+    N = a.shape[1]
     b, mine = np.arange(B)[:, None], np.arange(n)[None, :]
     F = N * S * A
     phi, phi_next = np.zeros((B, 1, F)), np.zeros((B, 1, F))
@@ -307,7 +350,19 @@ def _action_values(plan: _Plan, run: Learners, s, a, s_next, W) -> tuple:
     block = np.arange(N)[None, :, None] * S * A + np.arange(A)[None, None, :]  # (1, N, A): agent j's block, state 0
     after = plan.rows.gather(policy(run.theta[b, mine, s_next[:, None]]))  # (B, N, A): every agent's next policy
     phi_next[b[:, :, None], 0, block + (s_next * A)[:, None, None]] = after
-    w = np.broadcast_to(W, (B, n, F))
+    return phi, phi_next
+
+
+def _action_values(plan: LearnPlan, run: Learners, s, a, s_next, W) -> tuple:
+    """(f(s, a), E_pi f(s', .), agent i's advantage) of the action-value critic (`_action_rows`), the advantage
+    A_i = Q_i(s, a) - sum_b pi_i(b | s) Q_i(s, b, a_-i), which on additive features is agent i's own block:
+    w_i[i, s, a_i] - sum_b pi_i(b | s) w_i[i, s, b]. ``W`` and the advantage the agents held here (`plan.rows`)."""
+    B, n, S, A = run.theta.shape
+    N, local = a.shape[1], plan.rows.local
+    b, mine = np.arange(B)[:, None], np.arange(n)[None, :]
+    phi, phi_next = _action_rows(plan, run, s, a, s_next)
+    block = np.arange(N)[None, :, None] * S * A + np.arange(A)[None, None, :]  # (1, N, A): agent j's block, state 0
+    w = np.broadcast_to(W, (B, n, N * S * A))
     own = np.take_along_axis(w, block[:, local] + (s * A)[:, None, None], axis=2)  # (B, n, A): w_i[i, s, .]
     here = policy(run.theta[b, mine, s[:, None]])
     mine_a = a[:, local]
@@ -317,13 +372,19 @@ def _action_values(plan: _Plan, run: Learners, s, a, s_next, W) -> tuple:
     return phi, phi_next, advantage
 
 
-def _round(plan: _Plan, run: Learners, up, k: int) -> None:
+def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
     """A round's end: what every agent sends delivered once (independent agents send nothing), then the critics, the
     reward estimates and the actors moved by their round's mean (one sample's own, a round of one step)."""
     critic, pending, rows = plan.critic, run.pending, plan.rows
     n = pending.pop("n")
     sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
     inbox, run.links = plan.channel.deliver(run.links, plan.arcs, {m: rows.gather(x) for m, x in sent.items()}, up)
+    if plan.kernels is not None:
+        run.critic = plan.kernels.move(run.critic, inbox, pending.pop("D") / n, plan.alphas[k])
+        if run.lam is not None:
+            run.lam = run.lam - plan.kernels.mixed(inbox, inbox.sent["team"], True) + pending.pop("lam") / n
+        run.theta = run.theta + pending.pop("theta") / n
+        return
     here = Held(inbox, rows.local)
     new = critic.moved(run.critic, tuple(x / n for x in pending.pop("d")), here, plan.alphas[k])
     if here.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`

@@ -192,22 +192,37 @@ class EnvSource:
                 }
                 if self.positions is not None:
                     up[t, b] = self.proximity.masks(self._positions(env))
-                what = f"the env's step() ({self.name})"
-                result = api_checked(call_user(what, env.step, actions), 5, what, PARALLEL_API)
-                obs, rewards, terms, truncs, _ = result
-                env._dgtd_last_obs = obs
-                states[t, b] = self.current[b]
-                r[t, b] = self._rewards(rewards, actions)
-                nexts[t, b] = env_state(env, self.agents)
-                terminated = any(terms.get(a, False) for a in self.agents)
-                cont_next[t, b] = 0.0 if terminated else 1.0  # a terminal transition's target is its reward alone
-                if terminated or not env.agents or any(truncs.get(a, False) for a in self.agents):
-                    self.current[b] = self._reset(env, b)
-                else:
-                    self.current[b] = nexts[t, b]
+                states[t, b], r[t, b], nexts[t, b], cont_next[t, b] = self.act(b, actions)
         self.step += T
+        M = T * B
+        phi = self.features_of(list(states.ravel()) + list(nexts.ravel()))
+        index = np.arange(M).reshape(T, B, 1)
+        table = SampleTable(phi, np.ones((2 * M, 1)), np.concatenate([np.ones(M), cont_next.ravel()]))
+        return Block(index, np.zeros_like(index), index + M, r, up, table)
+
+    def observations(self, b: int) -> dict:
+        """Seed b's env's newest observations, agent -> observation."""
+        return self.envs[b]._dgtd_last_obs
+
+    def act(self, b: int, actions: dict) -> tuple:
+        """One step of seed b's env with ``actions`` (agent -> action): (the state, every agent's reward (N,), the
+        state reached, 0.0 where it is terminal else 1.0); a finished episode is followed by a new one."""
+        env = self.envs[b]
+        what = f"the env's step() ({self.name})"
+        obs, rewards, terms, truncs, _ = api_checked(call_user(what, env.step, actions), 5, what, PARALLEL_API)
+        env._dgtd_last_obs = obs
+        state, r, reached = self.current[b], self._rewards(rewards, actions), env_state(env, self.agents)
+        terminated = any(terms.get(a, False) for a in self.agents)  # a terminal transition's target: its reward
+        if terminated or not env.agents or any(truncs.get(a, False) for a in self.agents):
+            self.current[b] = self._reset(env, b)
+        else:
+            self.current[b] = reached
+        return state, r, reached, 0.0 if terminated else 1.0
+
+    def features_of(self, states: list) -> np.ndarray:
+        """The features (K, q) of states (K of one shape), each checked: finite, of the width every batch has."""
         try:
-            rows = np.stack(list(states.ravel()) + list(nexts.ravel()))
+            rows = np.stack(states)
         except ValueError:
             raise DgtdInputError(
                 "the environment's states change size from step to step; its state() (or its "
@@ -231,10 +246,7 @@ class EnvSource:
                 f"{'' if np.isfinite(phi).all() else ' and NaN or infinite entries'}; features(states "
                 "(K, dim)) must return finite (K, q), q >= 1"
             )
-        M = T * B
-        index = np.arange(M).reshape(T, B, 1)
-        table = SampleTable(phi, np.ones((2 * M, 1)), np.concatenate([np.ones(M), cont_next.ravel()]))
-        return Block(index, np.zeros_like(index), index + M, r, up, table)
+        return phi
 
     def _rewards(self, rewards, acted) -> np.ndarray:
         """Each agent's reward of a step, checked: every agent that acted has one, and each is a number. An agent

@@ -181,10 +181,10 @@ _DRIVERS: dict = {}
 
 def _copies(compiled: CompiledStep) -> tuple:
     space, suffix, cache = _template_space(compiled), compiled.key, compiled.cache
-    _copy(_learner, space, suffix, inline="always")
-    seeds = _copy(_seeds, space, suffix, cache, nogil=True, _nrt=False)
-    chunk = _copy(_chunk, space, suffix, cache, nogil=True, _nrt=False)
-    agents = _copy(_agents, space, suffix, cache, parallel=True)
+    compiled_copy(_learner, space, suffix, inline="always")
+    seeds = compiled_copy(_seeds, space, suffix, cache, nogil=True, _nrt=False)
+    chunk = compiled_copy(_chunk, space, suffix, cache, nogil=True, _nrt=False)
+    agents = compiled_copy(_agents, space, suffix, cache, parallel=True)
     load_quickly(seeds, chunk, agents)
     return seeds, agents
 
@@ -194,7 +194,7 @@ def _template_space(compiled: CompiledStep) -> dict:
     return dict(globals(), agent_step=compiled.step, NEEDS_DEGREES=compiled.degrees)
 
 
-def _copy(fn, space: dict, suffix: str, cache: bool = True, **options):
+def compiled_copy(fn, space: dict, suffix: str, cache: bool = True, **options):
     """Template ``fn`` compiled in ``space`` under the name ``{fn.__name__}_{suffix}`` (its disk cache's name), and
     put there under its own name for the copies that call it."""
     import types
@@ -412,8 +412,8 @@ def _held_driver(compiled: CompiledStep):
     key = ("held", compiled.key)
     if key not in _DRIVERS:
         space, suffix = _template_space(compiled), "held_" + compiled.key
-        _copy(_learner, space, suffix, inline="always")
-        _DRIVERS[key] = _copy(_seeds_held, space, suffix, compiled.cache, nogil=True)
+        compiled_copy(_learner, space, suffix, inline="always")
+        _DRIVERS[key] = compiled_copy(_seeds_held, space, suffix, compiled.cache, nogil=True)
         load_quickly(_DRIVERS[key])
     return _DRIVERS[key]
 

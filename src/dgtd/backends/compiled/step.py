@@ -81,6 +81,19 @@ def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
     cached on disk where ``cache``. It depends on the class only (the hyperparameters are the step's argument ``p``);
     the instance gives the state's fields and the number of directions."""
     cls = type(algorithm)
+    space, own, n_terms, generated = algorithm_space(algorithm)
+    space["features"] = _in(space, features, "features")  # it reads the constants of the space
+    step = _in(space, _centralised if cls.centralised else _agent, f"step_{name}")
+    work = TERMS + n_terms if cls.centralised else PHI_NEXT + 1
+    return CompiledStep(step, own, cls.mixing == "metropolis", work, name, cache, "\n".join(generated))
+
+
+def algorithm_space(algorithm) -> tuple[dict, tuple[str, ...], int, list[str]]:
+    """(the globals a template of this module runs with for ``algorithm``'s class, the state's fields it keeps to
+    itself, its number of directions, the accessors' text): its functions compiled and its accessors spelled out
+    (`COEFFICIENTS` ... `N_TERMS` above), for the templates here and the learners'
+    (`dgtd.backends.compiled.learner`)."""
+    cls = type(algorithm)
     fields = tuple(algorithm.init(1, 1, 1)._fields)
     own = tuple(f for f in fields if f not in cls.messages)
     sent = tuple(f for f in fields if f in cls.messages)
@@ -124,10 +137,7 @@ def compiled_step(algorithm, name: str, cache: bool = True) -> CompiledStep:
         METROPOLIS=cls.mixing == "metropolis",
         N_TERMS=n_terms,
     )
-    space["features"] = _in(space, features, "features")  # it reads the constants above
-    step = _in(space, _centralised if cls.centralised else _agent, f"step_{name}")
-    work = TERMS + n_terms if cls.centralised else PHI_NEXT + 1
-    return CompiledStep(step, own, cls.mixing == "metropolis", work, name, cache, "\n".join(generated))
+    return space, own, n_terms, generated
 
 
 def _tuple(items: list[str]) -> str:
