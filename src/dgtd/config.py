@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 from dgtd.algorithms.dgtd import DGTD
 from dgtd.errors import DgtdInputError
 from dgtd.fields import STEP_SIZES, option
-from dgtd.graphs import topologies
+from dgtd.graphs import chunked, topologies
 from dgtd.graphs.random import random_edges
 from dgtd.problems.io import file_digest, load_problem
 from dgtd.problems.model import with_restarts, with_reward_noise
@@ -97,8 +97,26 @@ class NetworkConfig:
     graph: str | None = field(
         default=None,
         metadata=option(
-            "ring, path, star, complete, erdos-renyi, or a file of 'i j' edge lines (default: the scenario's, else "
-            "ring)."
+            "ring, path, star, complete, erdos-renyi (complete, each link up with --edge-prob), small-world "
+            "(Watts-Strogatz), sparse-random (a fixed Erdos-Renyi graph of --mean-degree), or a file of 'i j' edge "
+            "lines (default: the scenario's, else ring)."
+        ),
+    )
+    mean_degree: float | None = field(
+        default=None,
+        metadata=option(
+            "small-world: the ring lattice's links an agent, k (even; default 4); sparse-random: the mean degree "
+            "(default 2 ln N, rounded up)."
+        ),
+    )
+    rewire: float | None = field(
+        default=None, metadata=option("small-world: the probability that a lattice link is moved (default 0.1).")
+    )
+    graph_seed: int | None = field(
+        default=None,
+        metadata=option(
+            "The seed of a small-world or sparse-random graph, drawn once from keyed streams: the same graph for "
+            "every seed of the run (default 0)."
         ),
     )
     edge_prob: float | None = field(
@@ -432,9 +450,22 @@ def field_types(cls) -> dict:
     return {f.name: hints[f.name] for f in fields(cls)}
 
 
-def _network(graph: str, n_agents: int, edge_prob: float):
+SHAPE = ("mean_degree", "rewire", "graph_seed")  # what shapes a chunked graph
+
+
+def _network(graph: str, n_agents: int, edge_prob: float, shape: dict | None = None):
+    """The network of --graph over ``n_agents``, each link up with ``edge_prob``; ``shape`` the chunked graphs'
+    fields (`SHAPE`: None where not given), refused for a graph they do not shape."""
     from pathlib import Path
 
+    given = [f"--{k.replace('_', '-')}" for k, v in (shape or {}).items() if v is not None]
+    if graph in chunked.NAMES:
+        base = chunked.whole(
+            chunked.ChunkedGraph(chunked.NAMES[graph], n_agents, **chunked_shape(graph, n_agents, shape or {}))
+        )
+        return random_edges(topologies.from_edges(n_agents, base.edges, graph), edge_prob)
+    if given:
+        raise DgtdInputError(f"{', '.join(given)} shape a small-world or sparse-random graph, not {graph!r}")
     if graph in topologies.TOPOLOGIES:
         base = topologies.TOPOLOGIES[graph](n_agents)
     elif not Path(graph).is_file():
@@ -450,6 +481,23 @@ def _network(graph: str, n_agents: int, edge_prob: float):
             )
         base = topologies.from_edges(n_agents, base.edges, base.name)
     return random_edges(base, edge_prob)
+
+
+def chunked_shape(graph: str, n_agents: int, shape: dict) -> dict:
+    """The fields of a chunked graph (`dgtd.graphs.chunked.ChunkedGraph`) from the options, defaults filled in."""
+    import math
+
+    degree = shape.get("mean_degree")
+    if degree is None:
+        degree = 4 if graph == "small-world" else float(min(n_agents - 1, math.ceil(2 * math.log(n_agents))))
+    rewire = shape.get("rewire")
+    if graph != "small-world" and rewire is not None:
+        raise DgtdInputError("--rewire moves a small-world graph's links; a sparse-random graph has none to move")
+    return {
+        "mean_degree": float(degree),
+        "rewire": 0.1 if rewire is None else float(rewire),
+        "seed": int(shape.get("graph_seed") or 0),
+    }
 
 
 PROBLEM_FIELDS = ("scenario", "problem_file", "env", "data")
@@ -483,7 +531,9 @@ def resolve(config: RunConfig) -> ResolvedRun:
     if spec.graph is not None or network is None:
         graph = spec.graph or graph
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
-        network = _network(graph or "ring", problem.n_agents, edge_prob)
+        network = _network(graph or "ring", problem.n_agents, edge_prob, {k: getattr(spec, k) for k in SHAPE})
+    elif any(getattr(spec, k) is not None for k in SHAPE):
+        raise DgtdInputError("--mean-degree, --rewire and --graph-seed shape a --graph small-world or sparse-random")
     loss = _loss(spec.loss)
     wake = _loss(spec.wake)  # a probability or a list, as a loss is written
     channel = channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # built once, here
@@ -778,6 +828,7 @@ def scenario_of(config):
             # names those defaults, share one scenario and its reference is estimated once
             "graph": spec.graph or "ring",
             "edge_prob": 1.0 if spec.edge_prob is None else spec.edge_prob,
+            **{k: getattr(spec, k) for k in SHAPE},
         }
         if spec.data is not None:
             from pathlib import Path
@@ -800,7 +851,7 @@ def _scenario(key: str):
         return get_scenario(d.pop("scenario"), **d)
 
     def network_for(n_agents: int):
-        return _network(d["graph"], n_agents, d["edge_prob"])
+        return _network(d["graph"], n_agents, d["edge_prob"], {k: d.get(k) for k in SHAPE})
 
     if d["env"] is not None:
         return env_scenario(EnvSpec(**d["env"]), d["gamma"], network_for)
@@ -836,6 +887,8 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
         get_scenario(name)  # raises the error that lists the known names
     sig = inspect.signature(SCENARIOS[name])
     names = [p.name for p in sig.parameters.values() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    if "agents" in params and "agents" not in names and "n_agents" in names:  # --agents sizes a generated task
+        params = {("n_agents" if k == "agents" else k): v for k, v in params.items()}
     for k in params:
         if k == "edge_prob":
             raise DgtdInputError("edge_prob is a field of its own: write it at the top level, not under params")

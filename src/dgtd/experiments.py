@@ -60,6 +60,7 @@ from dgtd.config import (
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option, option_of
 from dgtd.files import text_of
+from dgtd.graphs.chunked import NAMES
 from dgtd.graphs.topologies import TOPOLOGIES
 from dgtd.scenarios.user import EnvSpec
 
@@ -273,7 +274,7 @@ def absolute_paths(config: RunConfig) -> RunConfig:
     if p.data is not None:
         over["data"] = _absolute(p.data)
     graph = config.network.graph
-    if graph is not None and graph not in TOPOLOGIES:
+    if graph is not None and graph not in TOPOLOGIES and graph not in NAMES:
         over["graph"] = _absolute(graph)
     module, _, cls = (config.algorithm.name or "").rpartition(":")
     if module.endswith(".py"):  # a user's algorithm, path/to/file.py:Class

@@ -61,7 +61,8 @@ class LearnConfig:
 
 
 SHARED = (
-    "problem_file", "algorithm", "alpha0", "beta", "schedule", "graph", "edge_prob", "loss", "burst", "reweight",
+    "problem_file", "algorithm", "alpha0", "beta", "schedule", "graph", "edge_prob", "mean_degree", "rewire",
+    "graph_seed", "loss", "burst", "reweight",
     "delay", "wake", "bits", "top_k", "error_feedback", "iterations", "seeds", "seed", "checkpoints", "backend",
 )  # fmt: skip
 """The options `dgtd learn` shares with `dgtd run`."""
@@ -72,7 +73,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
     the network, the channel, the critic, the actor and the settings, and the record of what was asked."""
     from dgtd.algorithms import make_algorithm
     from dgtd.algorithms.actor import SoftmaxActor
-    from dgtd.config import _network, build_algorithm, channel_for
+    from dgtd.config import SHAPE, _network, build_algorithm, channel_for
     from dgtd.problems.team import TASKS
     from dgtd.run.learn import LearnSettings
 
@@ -90,7 +91,8 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         mdp = _team_mdp(task, file, own)
         n_agents, defaults = mdp.n_agents, CRITIC_STEPS
         actor_defaults = {"step": ACTOR_STEP[_given(own, "values", "state")], "offset": 1000.0}
-    network = _network(values.get("graph") or "ring", n_agents, _given(values, "edge_prob", 1.0))
+    shape = {k: values.get(k) for k in SHAPE}
+    network = _network(values.get("graph") or "ring", n_agents, _given(values, "edge_prob", 1.0), shape)
     links = {k: values.get(k) for k in ("delay", "wake", "bits", "top_k", "error_feedback")}
     channel = channel_for(values.get("loss"), values.get("burst"), network, values.get("reweight"), links)
     spec = SimpleNamespace(

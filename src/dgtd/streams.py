@@ -52,6 +52,7 @@ ROUNDING = 11  # the stochastic rounding of arc a's numbers at a step: index j g
 ORDER = 12  # the order of a recording's rows for a seed (step 0, entity = row)
 SIMULATOR = 13  # the seeds of a simulator's episodes and its policy's generator (entity = episode, step 0)
 ACTION = 14  # agent i's action drawn from its own policy at a step, while it learns (paired: `singles`)
+GRAPH = 15  # a keyed random graph's chunk (entity: the chunk, or an agent's links; step: the number's place)
 
 PURPOSES = {
     "seed": SEED,
@@ -69,6 +70,7 @@ PURPOSES = {
     "order": ORDER,
     "simulator": SIMULATOR,
     "action": ACTION,
+    "graph": GRAPH,
 }
 
 

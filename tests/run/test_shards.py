@@ -1,5 +1,5 @@
-"""A run's numbers do not depend on how its agents are laid out: sums over the agents continued from rank to rank are
-one process's bit for bit, and a checkpoint written as shards (one a rank) resumes in one process, or on any number
+"""A run's numbers do not depend on how its agents are laid out: sums over the agents up their fixed tree are one
+process's bit for bit, and a checkpoint written as shards (one a rank) resumes in one process, or on any number
 of ranks, with the numbers of an uninterrupted run. (The MPI runs themselves: tests/run/test_mpi.py.)"""
 
 from __future__ import annotations
@@ -17,19 +17,21 @@ from dgtd.run.checkpoint import AGENT_AXES, assemble, load_checkpoint, save_chec
 from dgtd.run.loop import run as run_loop
 
 
-def test_a_sum_continued_from_rank_to_rank_is_one_process_sum_bit_for_bit():
-    """Rows split at any points, each part's sum started from the sum of the parts before it, ends with the sum of all
-    rows in order, bit for bit (a pairwise sum would not); the consensus error so taken is the plain one to 1e-12."""
-    rng = np.random.default_rng(0)
-    x = rng.standard_normal((3, 1001, 4)) * 10.0 ** rng.integers(-8, 8, (1, 1001, 1))
-    whole = exact.ordered_sum(x)
-    for cuts in ([500], [1, 2, 999], [100, 300, 301, 800]):
-        total = None
-        for part in np.split(x, cuts, axis=1):
-            total = exact.ordered_sum(part, total)
-        assert np.array_equal(total, whole)
-    W = rng.standard_normal((2, 50, 3))
-    np.testing.assert_allclose(exact.ordered_consensus_error(W, 50), exact.consensus_error(W), rtol=1e-12)
+@pytest.mark.parametrize("n", [1, 2, 7, 1000, 1024, 1025])
+def test_a_sum_over_the_fixed_tree_of_agents_is_the_same_however_the_rows_are_split(n):
+    """The consensus metric's sums over a fixed tree of the agents (`dgtd.problems.exact.tree_sum`): each rank sums
+    the aligned power-of-two blocks within its rows, the blocks of every rank are combined up the same tree: bit for
+    bit the sum of one process, for any split (contiguous, as ranks hold them), and the plain sum to 1e-12."""
+    rng = np.random.default_rng(n)
+    x = rng.standard_normal((3, n, 4)) * 10.0 ** rng.integers(-8, 8, (1, n, 1))
+    whole = exact.tree_sum(x)
+    np.testing.assert_allclose(whole, x.sum(axis=1), rtol=1e-12, atol=1e-300 + 1e-12 * np.abs(x).sum(axis=1).max())
+    for ranks in (2, 3, 8):
+        bounds = np.linspace(0, n, ranks + 1).astype(int)
+        pieces = [p for lo, hi in zip(bounds[:-1], bounds[1:]) for p in exact.tree_pieces(x[:, lo:hi], lo)]
+        assert np.array_equal(exact.tree_total(pieces, n, x.shape[:1] + x.shape[2:]), whole)
+    W = rng.standard_normal((2, n, 3))
+    np.testing.assert_allclose(exact.ordered_consensus_error(W, n), exact.consensus_error(W), rtol=1e-12, atol=1e-12)
 
 
 class _Ranks:

@@ -486,15 +486,14 @@ def _rows_of_block(blk, S):
     return Block(rows(blk.s), rows(blk.a), rows(blk.s_next), np.ascontiguousarray(blk.r[:, :, S.rows]), up, blk.table)
 
 
-CHAIN = 17  # the tag of the sums passed from rank to rank in storage order (`Ranks.ordered_sum`)
 
 
 class Ranks:
     """The run loop's view of a run spread over the ranks (`dgtd.run.layout.Whole`'s for one process): which rows this
     rank holds (``agents``: its own, in storage order; ``arc_ids``: the arcs it draws, of which ``counted``, the arcs
     into its own agents, are its to report and save) and how the ranks combine what each holds: the worst agent by a
-    max, the consensus error by sums added in the agents' storage order from rank to rank, so that every number is
-    that of one process bit for bit; and every agent's rows on rank 0 where the output asks for them (`whole`)."""
+    max, the consensus error by sums up a fixed tree of the agents in storage order (`tree_sum`), so that every number
+    is that of one process bit for bit; and every agent's rows on rank 0 where the output asks for them (`whole`)."""
 
     def __init__(self, ctx, kernel=None, asynchronous: bool = False):
         self.ctx, self.kernel, self.asynchronous = ctx, kernel, asynchronous
@@ -546,26 +545,22 @@ class Ranks:
     def any(self, x: np.ndarray) -> np.ndarray:
         return self.max(x.astype(np.uint8)).astype(bool)
 
-    def ordered_sum(self, x: np.ndarray) -> np.ndarray:
-        """x (B, own, ...) summed over the agents of every rank, one after another in storage order
-        (`dgtd.problems.exact.ordered_sum`): each rank continues the sum of the ranks before it."""
-        from dgtd.problems.exact import ordered_sum
+    def tree_sum(self, x: np.ndarray) -> np.ndarray:
+        """x (B, own, ...) summed over every rank's agents up the fixed tree of the agents in storage order
+        (`dgtd.problems.exact.tree_pieces`): each rank's pieces (O(log N)), one allgather (log R rounds), the same
+        total on every rank, one process's bit for bit."""
+        from dgtd.problems.exact import tree_pieces, tree_total
 
-        def chain():
-            comm, r, R = world(), self.partition.rank, world().Get_size()
-            start = comm.recv(source=r - 1, tag=CHAIN) if r > 0 else None
-            total = ordered_sum(x, start)
-            if r < R - 1:
-                comm.send(total, dest=r + 1, tag=CHAIN)
-            return comm.bcast(total, root=R - 1)
-
-        return self._timed(chain, "reduce")
+        P = self.partition
+        mine = tree_pieces(x, int(P.bounds[P.rank]))
+        every = self._timed(lambda: world().allgather(mine), "reduce")
+        return tree_total([piece for part in every for piece in part], self.n_agents, x.shape[:1] + x.shape[2:])
 
     def consensus(self, W: np.ndarray) -> np.ndarray:
         """The consensus error (B,) of every agent's estimate, from this rank's rows W (B, own, q)."""
         from dgtd.problems.exact import ordered_consensus_error
 
-        return ordered_consensus_error(W, self.n_agents, self.ordered_sum)
+        return ordered_consensus_error(W, self.n_agents, self.tree_sum)
 
     def init_channel(self, channel, seeds: int, seed: int):
         """The channel's state over the arcs this rank draws (`arc_ids`), as the whole network's run begins it."""

@@ -347,21 +347,52 @@ def consensus_error(W: np.ndarray) -> np.ndarray:
     return ((W - W.mean(axis=-2, keepdims=True)) ** 2).sum(axis=(-2, -1))
 
 
-def ordered_sum(x: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
-    """x (B, n, ...) summed over axis 1 one row after another (after ``start`` (B, ...), where given): a sum that
-    ranks holding consecutive rows continue from one to the next and end with one process's number bit for bit (a
-    cumulative sum is sequential by definition; a plain sum may add pairwise)."""
-    if start is not None:
-        x = np.concatenate([np.asarray(start)[:, None], x], axis=1)
-    return np.cumsum(x, axis=1)[:, -1]
+def tree_pieces(x: np.ndarray, first: int) -> list:
+    """The pieces of the fixed tree over the agents that rows x (B, n, ...) of agents first .. first + n - 1 hold
+    whole: [(level, index, sum)], the aligned blocks [index 2^level, (index + 1) 2^level) within them (at most two a
+    level), each summed up its own pairwise tree. Any holder of the same rows makes the same pieces."""
+    pieces, lo, hi = [], int(first), int(first) + x.shape[1]
+    while lo < hi:
+        level = (lo & -lo).bit_length() - 1 if lo else (hi - lo).bit_length() - 1
+        while lo + (1 << level) > hi:
+            level -= 1
+        block = x[:, lo - first : lo - first + (1 << level)]
+        while block.shape[1] > 1:  # pairwise up the block's own tree
+            block = block[:, 0::2] + block[:, 1::2]
+        pieces.append((level, lo >> level, block[:, 0]))
+        lo += 1 << level
+    return pieces
 
 
-def ordered_consensus_error(W: np.ndarray, n_agents: int, ordered_sum=ordered_sum) -> np.ndarray:
-    """`consensus_error` of ``n_agents`` agents' rows W (B, n, q), each sum over the agents taken by ``ordered_sum``
-    (B, n, ...) -> (B, ...): in a fixed order (this one's: as W comes), or the ranks' (`dgtd.backends.mpi.Ranks`),
-    where W is a rank's rows. The run loop's consensus metric, the same bit for bit however the agents are spread."""
-    mean = ordered_sum(W) / n_agents
-    return ordered_sum(((W - mean[:, None]) ** 2).sum(axis=-1))
+def tree_total(pieces: list, n_agents: int, shape: tuple) -> np.ndarray:
+    """The sum (``shape``) of every agent's rows from the pieces (`tree_pieces`) of every holder: combined up the
+    fixed tree over agents 0 .. N - 1 (padded to a power of two with nothing: a node missing its right half is its
+    left one), so that the total does not depend on who held what."""
+    nodes = {(level, index): value for level, index, value in pieces}
+    top = max(1, int(n_agents) - 1).bit_length()
+    for level in range(top):
+        for index in sorted(i for (lv, i) in list(nodes) if lv == level and i % 2 == 0):
+            left, right = nodes.pop((level, index)), nodes.pop((level, index + 1), None)
+            nodes[(level + 1, index // 2)] = left if right is None else left + right
+        for index in sorted(i for (lv, i) in list(nodes) if lv == level):  # a right half whose left is absent
+            nodes[(level + 1, index // 2)] = nodes.pop((level, index))
+    return nodes.get((top, 0), np.zeros(shape))
+
+
+def tree_sum(x: np.ndarray) -> np.ndarray:
+    """x (B, N, ...) summed over the agents' fixed tree (`tree_pieces`, `tree_total`): the consensus metric's sums,
+    the same bit for bit however the agents are spread over ranks (each rank its pieces, one exchange of O(log N)
+    of them)."""
+    return tree_total(tree_pieces(x, 0), x.shape[1], x.shape[:1] + x.shape[2:])
+
+
+def ordered_consensus_error(W: np.ndarray, n_agents: int, agents_sum=tree_sum) -> np.ndarray:
+    """`consensus_error` of ``n_agents`` agents' rows W (B, n, q), each sum over the agents taken by ``agents_sum``
+    (B, n, ...) -> (B, ...): up the agents' fixed tree (this one's: W every agent's), or the ranks'
+    (`dgtd.backends.mpi.Ranks.tree_sum`), where W is a rank's rows. The run loop's consensus metric, the same bit for
+    bit however the agents are spread."""
+    mean = agents_sum(W) / n_agents
+    return agents_sum(((W - mean[:, None]) ** 2).sum(axis=-1))
 
 
 def relative_error(W: np.ndarray, w_ref: np.ndarray, of: np.ndarray | None = None) -> np.ndarray:

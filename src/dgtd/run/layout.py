@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 
-from dgtd.problems.exact import ordered_consensus_error, ordered_sum
+from dgtd.problems.exact import ordered_consensus_error, tree_sum
 
 
 class Whole:
@@ -50,13 +50,15 @@ class Whole:
     def any(self, x: np.ndarray) -> np.ndarray:
         return x
 
-    def ordered_sum(self, x: np.ndarray) -> np.ndarray:
+    def tree_sum(self, x: np.ndarray) -> np.ndarray:
+        """x (B, N, ...) summed over the agents up their fixed tree in storage order (`dgtd.problems.exact.tree_sum`),
+        as the ranks sum it."""
         stored = self.order is not None and x.shape[1] == len(self.order)  # (a centralised learner: one row)
-        return ordered_sum(x[:, self.order] if stored else x)
+        return tree_sum(x[:, self.order] if stored else x)
 
     def consensus(self, W: np.ndarray) -> np.ndarray:
         """The consensus error (B,) of the agents' estimates W (B, N, q) (`ordered_consensus_error`)."""
-        return ordered_consensus_error(W, W.shape[1], self.ordered_sum)
+        return ordered_consensus_error(W, W.shape[1], self.tree_sum)
 
     def init_channel(self, channel, seeds: int, seed: int):
         return channel.init(seeds, self.arcs, seed)

@@ -1,0 +1,116 @@
+"""Sparse random graphs from keyed chunks (`dgtd.graphs.chunked`): the edges touching any contiguous set of agents
+are the same whatever the grouping (as ranks would make them: 1, 2, 3 or 8), each family has the law it claims, and
+a seed's graph is its own."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dgtd.errors import DgtdInputError
+from dgtd.graphs.chunked import ChunkedGraph, edges_touching, whole
+
+GRAPHS = [
+    ChunkedGraph("erdos-renyi", 1000, 6.0, block=64),
+    ChunkedGraph("erdos-renyi", 130, 129.0, block=50),  # p = 1: every pair
+    ChunkedGraph("small-world", 1001, 6, rewire=0.2, block=64),
+]
+
+
+@pytest.mark.parametrize("g", GRAPHS, ids=lambda g: f"{g.kind}-{g.n_agents}")
+@pytest.mark.parametrize("ranks", [1, 2, 3, 8])
+def test_each_ranks_edges_are_the_whole_graphs_edges_touching_its_agents(g, ranks):
+    """Contiguous blocks of agents as `np.array_split` gives ranks (bounds mid-block): each one's edges are, byte for
+    byte, the whole graph's edges with an end among its agents, and together they are the whole graph."""
+    edges = whole(g).edges
+    bounds = np.linspace(0, g.n_agents, ranks + 1).astype(int)
+    union = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        mine = edges_touching(g, range(lo, hi))
+        touching = edges[((edges >= lo) & (edges < hi)).any(axis=1)]
+        assert mine.tobytes() == touching.tobytes()
+        union.append(mine)
+    assert np.array_equal(np.unique(np.concatenate(union), axis=0), edges)
+
+
+def test_erdos_renyi_edges_are_every_pair_with_the_same_probability():
+    """G(N, p), p = d / (N - 1): the edge count is Binomial(N (N - 1) / 2, p), within 4 standard deviations over
+    5 seeds; each pair of blocks gets its share of the pairs (a chi-square over the 120 block pairs of 15 blocks, below
+    its 99.9 % point for 119 degrees of freedom, 164)."""
+    N, d = 960, 8.0
+    pairs, p = N * (N - 1) / 2, d / (N - 1)
+    counts = np.zeros((15, 15))
+    for seed in range(5):
+        edges = whole(ChunkedGraph("erdos-renyi", N, d, seed=seed, block=64)).edges
+        assert abs(len(edges) - pairs * p) < 4 * np.sqrt(pairs * p * (1 - p)), len(edges)
+        assert (edges[:, 0] < edges[:, 1]).all()
+        np.add.at(counts, (edges[:, 0] // 64, edges[:, 1] // 64), 1)
+    expected = np.triu(np.full((15, 15), 64 * 64.0)) - np.diag(np.full(15, 64 * 64 - 64 * 63 / 2))
+    expected *= 5 * p
+    upper = np.triu_indices(15)
+    chi2 = ((counts[upper] - expected[upper]) ** 2 / expected[upper]).sum()
+    assert chi2 < 164, chi2
+
+
+def test_a_small_world_graph_is_the_ring_lattice_rewired():
+    """rewire 0: exactly the ring lattice (each agent linked to its k / 2 next); rewire 1: every link moved, so about
+    k / (N - 1) of them land on the lattice again (within 4 standard deviations); the edges about N k / 2 less the
+    few repeats dropped."""
+    N, k = 500, 6
+    lattice = whole(ChunkedGraph("small-world", N, k, rewire=0.0, block=64)).edges
+    expected = {(min(u, (u + j) % N), max(u, (u + j) % N)) for u in range(N) for j in range(1, k // 2 + 1)}
+    assert set(map(tuple, lattice.tolist())) == expected
+    moved = whole(ChunkedGraph("small-world", N, k, rewire=1.0, block=64)).edges
+    assert N * k / 2 - 20 < len(moved) <= N * k / 2
+    on_lattice = len(set(map(tuple, moved.tolist())) & expected)
+    mean = N * k / 2 * k / (N - 1)
+    assert abs(on_lattice - mean) < 4 * np.sqrt(mean), on_lattice
+
+
+def test_a_seeds_graph_is_its_own():
+    one, again, other = (whole(ChunkedGraph("erdos-renyi", 300, 5.0, seed=s, block=64)).edges for s in (3, 3, 4))
+    assert np.array_equal(one, again) and not np.array_equal(one, other)
+
+
+@pytest.mark.parametrize(
+    "kind, n, d, words",
+    [
+        ("small-world", 100, 5, "k even"),
+        ("erdos-renyi", 100, 0.0, "mean degree"),
+        ("erdos-renyi", 1, 1.0, "at least 2 agents"),
+        ("lattice", 100, 4, "chunked graphs are"),
+    ],
+)
+def test_a_graph_that_cannot_be_made_is_refused(kind, n, d, words):
+    with pytest.raises(DgtdInputError, match=words):
+        ChunkedGraph(kind, n, d)
+
+
+def test_dgtd_run_garnet_on_a_small_world_graph_by_agents(run_cli, tmp_path):
+    """`dgtd run garnet --agents N --graph small-world`: the generated task sized by --agents, its agents linked by
+    the chunked graph (the header names it), the resolved config recording what made it."""
+    import json
+
+    code, out, err = run_cli(
+        "run", "garnet", "--agents", 40, "--graph", "small-world", "--mean-degree", 6, "--rewire", 0.2, "-T", 300,
+        "--no-progress", "--no-plots", "--out", tmp_path / "g",
+    )  # fmt: skip
+    assert code == 0, err
+    assert len(json.loads((tmp_path / "g" / "summary.json").read_text())["w_last"][0]) == 40  # [seeds][agents]
+    edges = whole(ChunkedGraph("small-world", 40, 6, rewire=0.2)).edges
+    assert f"small-world on 40 agents, {len(edges)} edges" in out
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--graph", "ring", "--mean-degree", 4], ["--mean-degree", "small-world or sparse-random", "ring"]),
+        (["--graph", "sparse-random", "--rewire", 0.2], ["--rewire", "sparse-random graph has none"]),
+        (["--graph", "small-world", "--mean-degree", 3], ["k even"]),
+        (["--mean-degree", 4], ["--graph small-world or sparse-random"]),
+    ],
+)
+def test_a_chunked_graphs_options_where_they_do_not_apply_are_one_line(run_cli, tmp_path, args, words):
+    from helpers import one_line_error
+
+    one_line_error(*run_cli("run", "garnet", "--agents", 30, *args, "-T", 10, "--out", tmp_path / "o"), *words)
