@@ -62,7 +62,7 @@ class LearnConfig:
 
 SHARED = (
     "problem_file", "algorithm", "alpha0", "beta", "schedule", "graph", "edge_prob", "mean_degree", "rewire",
-    "graph_seed", "loss", "burst", "reweight",
+    "graph_seed", "env_make", "features", "rewards", "split", "gamma", "pilot_steps", "loss", "burst", "reweight",
     "delay", "wake", "bits", "top_k", "error_feedback", "iterations", "seeds", "seed", "checkpoints", "backend",
 )  # fmt: skip
 """The options `dgtd learn` shares with `dgtd run`."""
@@ -79,20 +79,25 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
 
     own = {f.name: values.get(f.name) for f in fields(LearnConfig)}
     file = values.get("problem_file")
-    if (task is None) == (file is None):
+    if [task is not None, file is not None, values.get("env_make") is not None].count(True) != 1:
         raise DgtdInputError(
-            f"name one learning task ({', '.join([*TASKS, *ENV_TASKS])}) or --problem FILE.npz; got {task!r}"
+            f"name one learning task ({', '.join([*TASKS, *ENV_TASKS])}), --problem FILE.npz or --env "
+            f"module:make_env; got {task!r}" + ("" if file is None else f" and --problem {file}")
         )
     mdp, env = None, None
-    if task in ENV_TASKS:
-        env = _env_task(task, own)
+    shape = {k: values.get(k) for k in SHAPE}
+
+    def network_for(n: int):
+        return _network(values.get("graph") or "ring", n, _given(values, "edge_prob", 1.0), shape)
+
+    if values.get("env_make") is not None or task in ENV_TASKS:
+        env, network = _env_task(task, own, values, network_for)
         n_agents, defaults, actor_defaults = env.n_agents, ENV_CRITIC_STEPS, ENV_ACTOR_STEPS
     else:
         mdp = _team_mdp(task, file, own)
         n_agents, defaults = mdp.n_agents, CRITIC_STEPS
         actor_defaults = {"step": ACTOR_STEP[_given(own, "values", "state")], "offset": 1000.0}
-    shape = {k: values.get(k) for k in SHAPE}
-    network = _network(values.get("graph") or "ring", n_agents, _given(values, "edge_prob", 1.0), shape)
+        network = network_for(n_agents)
     links = {k: values.get(k) for k in ("delay", "wake", "bits", "top_k", "error_feedback")}
     channel = channel_for(values.get("loss"), values.get("burst"), network, values.get("reweight"), links)
     spec = SimpleNamespace(
@@ -151,22 +156,36 @@ ENV_CRITIC_STEPS = {"alpha0": 0.1, "beta": 100.0}  # the critics' steps on sprea
 ENV_ACTOR_STEPS = {"step": 0.002, "offset": 10_000.0}
 
 
-def _env_task(task: str, own: dict):
-    """A simulator to learn in (`dgtd.run.learn_env.EnvTask`), sized by --agents."""
+ENV_FIELDS = ("features", "rewards", "split", "pilot_steps")  # what `dgtd learn --env` reads of `EnvSpec`
+
+
+def _env_task(task: str | None, own: dict, values: dict, network_for) -> tuple:
+    """(a simulator to learn in, `dgtd.run.learn_env.EnvTask`; its network): a named one sized by --agents, or a
+    user's (--env module:make_env, its --features)."""
     from functools import partial
 
     from dgtd.run.learn_env import EnvTask
     from dgtd.scenarios.mpe import make_spread, spread_features
 
+    name = task or values["env_make"]
     if own["states"] is not None or own["values"] not in (None, "state") or own["batch"] not in (None, 1):
         raise DgtdInputError(
-            f"{task} is a simulator: its states are its own, and its critics evaluate state values a step at a time "
+            f"{name} is a simulator: its states are its own, and its critics evaluate state values a step at a time "
             "(no --states, --values action or --batch)"
         )
+    if task is not None and values.get("env_make") is not None:
+        raise DgtdInputError(f"name one simulator: the task {task} or --env {values['env_make']}, not both")
+    if task is None:
+        from dgtd.config import env_spec
+        from dgtd.scenarios.user import learning_env
+
+        table = {"make": values["env_make"], "agents": own["agents"]} | {k: values.get(k) for k in ENV_FIELDS}
+        env, network, _ = learning_env(env_spec(table), _given(values, "gamma", 0.9), network_for)
+        return env, network
     N = 3 if own["agents"] is None else int(own["agents"])
     if N < 2:
         raise DgtdInputError(f"{task} needs at least 2 agents, got {N}")
-    return EnvTask(partial(make_spread, N), spread_features(N), 0.9, task, N)
+    return EnvTask(partial(make_spread, N), spread_features(N), 0.9, task, N), network_for(N)
 
 
 def _given(values: dict, name: str, default):

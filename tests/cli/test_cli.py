@@ -253,6 +253,25 @@ def test_final_table_columns_line_up_however_long_the_vectors(capsys, tmp_path):
         assert len(row) == len(header), (header, row)
 
 
+def test_the_final_table_of_many_agents_shows_the_first_and_the_worst():
+    """200 000 agents printed one line each took minutes and buried the run's words: beyond `TABLE_AGENTS` agents the
+    table shows the first few and the worst few by their tail-averaged error, and says where every agent's rows are."""
+    from types import SimpleNamespace
+
+    from dgtd.cli import TABLE_AGENTS, final_table
+
+    N, w_star = 5000, np.array([1.0, 2.0])
+    w = np.broadcast_to(w_star, (1, N, 2)).copy()
+    w[0, 4321] *= 1.5  # the worst agent
+    w[0, 17] *= 1.2  # the second worst
+    result = SimpleNamespace(w_star=w_star, w_ref=w_star[None], w_last=w, w_avg=w, w_tail=w, info={}, report={})
+    lines = final_table(result).splitlines()
+    assert len(lines) <= TABLE_AGENTS + 6
+    agents = [int(line.split()[0]) for line in lines[2:] if line.split()[0].isdigit()]
+    assert agents[:5] == [1, 2, 3, 4, 5] and {4322, 18} <= set(agents)
+    assert any(f"{N - len(agents):,} agents more" in line for line in lines)
+
+
 def test_compare_on_a_problem_file_says_which_steps_each_method_gets_and_why(capsys, tmp_path, problem_file):
     """The baselines' steps on a user's problem come from a rule: the line names each alpha0, the rule (garnet's
     tuned steps over the features' scale E|phi|^2) and --tune."""
@@ -289,3 +308,26 @@ def test_compare_names_its_winner_by_the_tail_average_with_the_spread_over_seeds
     assert "median over 3 seed(s)" in said
     assert "lowest value tail: dgtd, 0.0024 (seeds 0.002 to 0.0031); then td0, 0.0057" in said
     assert "not ranked (a seed diverged or has no tail average): tdrc" in said
+
+
+def test_many_agents_rows_go_to_agents_npz_and_read_back(run_cli, tmp_path, monkeypatch):
+    """Beyond `INLINE_NUMBERS` per-agent numbers (a million agents' rows as JSON took minutes), summary.json names
+    agents.npz, which holds them; `read_results` reads them back as the summary's arrays: equal to the numbers a
+    summary.json of a small enough run holds itself."""
+    import json
+
+    import dgtd
+    from dgtd.run import results
+
+    common = ["run", "garnet", "--agents", 12, "-T", 200, "--no-progress", "--no-plots", "--backend", "numpy"]
+    assert run_cli(*common, "--out", tmp_path / "inline")[0] == 0
+    monkeypatch.setattr(results, "INLINE_NUMBERS", 100)
+    assert run_cli(*common, "--out", tmp_path / "file")[0] == 0
+    small = json.loads((tmp_path / "inline" / "summary.json").read_text())
+    large = json.loads((tmp_path / "file" / "summary.json").read_text())
+    assert "w_last" not in large and large["per_agent"]["file"] == "agents.npz"
+    assert {k for k in small if k not in large} == set(large["per_agent"]["arrays"])
+    read = dgtd.read_results(tmp_path / "file").summary
+    for name in large["per_agent"]["arrays"]:
+        np.testing.assert_array_equal(read[name], np.asarray(small[name]), err_msg=name)
+    assert large["max_error_tail"] == small["max_error_tail"]

@@ -114,3 +114,20 @@ def test_a_chunked_graphs_options_where_they_do_not_apply_are_one_line(run_cli, 
     from helpers import one_line_error
 
     one_line_error(*run_cli("run", "garnet", "--agents", 30, *args, "-T", 10, "--out", tmp_path / "o"), *words)
+
+
+def test_an_experiment_file_names_a_chunked_graph_as_the_options_do(run_cli, tmp_path):
+    """[network] graph = "small-world" with its mean_degree, rewire and graph_seed gives the run the flags give, and
+    the resolved config.toml records them so that it runs again to the same numbers."""
+    (tmp_path / "exp.toml").write_text(
+        '[problem]\nscenario = "garnet"\nparams = { n_agents = 24 }\n[network]\ngraph = "small-world"\n'
+        'mean_degree = 4\nrewire = 0.3\ngraph_seed = 3\n[run]\niterations = 200\nbackend = "numpy"\n'
+        "[output]\nplots = false\n"
+    )
+    flags = ["--graph", "small-world", "--mean-degree", 4, "--rewire", 0.3, "--graph-seed", 3]
+    common = ["-T", 200, "--backend", "numpy", "--no-plots", "--no-progress"]
+    assert run_cli("run", tmp_path / "exp.toml", "--no-progress", "--out", tmp_path / "a")[0] == 0
+    assert run_cli("run", "garnet", "--agents", 24, *flags, *common, "--out", tmp_path / "b")[0] == 0
+    assert run_cli("run", tmp_path / "a" / "config.toml", "--no-progress", "--out", tmp_path / "c")[0] == 0
+    for other in ("b", "c"):
+        assert (tmp_path / other / "metrics.csv").read_bytes() == (tmp_path / "a" / "metrics.csv").read_bytes()

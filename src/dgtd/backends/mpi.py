@@ -486,8 +486,6 @@ def _rows_of_block(blk, S):
     return Block(rows(blk.s), rows(blk.a), rows(blk.s_next), np.ascontiguousarray(blk.r[:, :, S.rows]), up, blk.table)
 
 
-
-
 class Ranks:
     """The run loop's view of a run spread over the ranks (`dgtd.run.layout.Whole`'s for one process): which rows this
     rank holds (``agents``: its own, in storage order; ``arc_ids``: the arcs it draws, of which ``counted``, the arcs

@@ -283,6 +283,20 @@ def _vec(x, n=4) -> str:
     return f"({s}{', ...' if len(x) > n else ''})"
 
 
+TABLE_AGENTS = 20  # agents the final table shows at most: the first half of them, then the worst
+
+
+def _shown_agents(tail_error: np.ndarray) -> list[int]:
+    """Every agent where there are at most `TABLE_AGENTS`; else the first TABLE_AGENTS / 2 and the worst as many of
+    the others by their tail-averaged error (seed 0)."""
+    N = len(tail_error)
+    if N <= TABLE_AGENTS:
+        return list(range(N))
+    first = list(range(TABLE_AGENTS // 2))
+    order = np.argsort(-tail_error[TABLE_AGENTS // 2 :], kind="stable") + TABLE_AGENTS // 2
+    return first + order[: TABLE_AGENTS - len(first)].tolist()
+
+
 def final_table(result) -> str:
     """Every agent's last and averaged w beside w* (seed 0), then the worst errors over seeds."""
     from dgtd.problems import exact
@@ -306,18 +320,23 @@ def final_table(result) -> str:
             f"w* = {_vec(result.w_star, 8)}; with the messages lost, the run converges to w_fixed = {_vec(ref[0], 8)} "
             f"(each agent's reward weighted as its links let it be heard: docs/links.md), and the errors are against it"
         )
-    agents = range(result.w_last.shape[1])
-    last, avg = [_vec(result.w_last[0, i]) for i in agents], [_vec(result.w_avg[0, i]) for i in agents]
-    width = max(34, *(len(v) + 2 for v in last + avg))  # every row's columns line up, however long a vector
+    N = result.w_last.shape[1]
+    agents = _shown_agents(e_tail[0])
+    last, avg = {i: _vec(result.w_last[0, i]) for i in agents}, {i: _vec(result.w_avg[0, i]) for i in agents}
+    width = max(34, *(len(v) + 2 for v in [*last.values(), *avg.values()]))  # columns line up, however long a vector
     rows.append(
         f"{'agent':>5}  {'w_last (seed 0)':<{width}}{'err':>8}  {'w_avg (seed 0)':<{width}}{'err':>8}  "
         f"{'w_tail err':>10}"
     )
-    for i in agents:
+    for k, i in enumerate(agents):
+        if k == TABLE_AGENTS // 2 and len(agents) < N:
+            rows.append(f"{'...':>5}  the worst {len(agents) - k} by their tail-averaged error:")
         rows.append(
             f"{i + 1:>5}  {last[i]:<{width}}{e_last[0, i]:>8.2%}  {avg[i]:<{width}}{e_avg[0, i]:>8.2%}  "
             f"{e_tail[0, i]:>10.2%}"
         )
+    if len(agents) < N:
+        rows.append(f"{'':>5}  ({N - len(agents):,} agents more: every agent's rows in summary.json or agents.npz)")
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
     moments = result.info.get("moments")
     if moments is not None and not moments.model:

@@ -136,9 +136,7 @@ class PreparedRun:
         also = {}
         if sc is not None and hasattr(sc.report, "arrays"):  # what the scenario's figures need, for `dgtd plot`
             also[SCENARIO_ARRAYS] = lambda: npz_bytes(sc.report.arrays(self.source))
-        write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
-        names = ["summary.json", "metrics.csv", "bands.csv", "trajectory.npz", *also]
-        names += ["message_ages.csv"] if "message_ages" in result.info else []
+        names = write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
         if self.config.output.log:
             from dgtd.run.logs import log_kinds, write_logs
             from dgtd.run.results import metrics_rows

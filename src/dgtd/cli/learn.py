@@ -49,8 +49,9 @@ def _choices(name: str):
     "critics and estimates; the numbers are one process's, bit for bit).",
 )
 def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **values):
-    """Agents that learn their policies on TASK (pull-away, zhang-20, factored; the simulator mpe-spread) or --problem
-    FILE (a multi-agent MDP file, P (S, A, S), with one starting policy per agent), each with its own softmax policy
+    """Agents that learn their policies on TASK (pull-away, zhang-20, factored; the simulator mpe-spread), --problem
+    FILE (a multi-agent MDP file, P (S, A, S), with one starting policy per agent) or --env module:make_env (a user's
+    PettingZoo simulator, its critics' --features as for `dgtd run`), each with its own softmax policy
     and one of dgtd's distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd
     run`; writes summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png
     (docs/control.md)."""
@@ -62,9 +63,10 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     from dgtd.run.owner import Owner
     from dgtd.run.results import refuse_other_results
 
-    if task in ENV_TASKS and (ranks is not None or checkpoint_every):
+    simulator = task if task in ENV_TASKS else values.get("env_make")
+    if simulator is not None and (ranks is not None or checkpoint_every):
         raise DgtdInputError(
-            f"{task} is a simulator, run in one process: its state cannot be saved or split (no --ranks, "
+            f"{simulator} is a simulator, run in one process: its state cannot be saved or split (no --ranks, "
             "--checkpoint-every)"
         )
     if ranks is not None:

@@ -54,6 +54,8 @@ def load_run(directory: Path) -> SimpleNamespace:
     if missing:
         raise DgtdInputError(f"results file {path} lacks the metric(s) {', '.join(missing)} (cut off?); {fix}")
     summary = read_json(directory / "summary.json", "results file", fix, required=("w_star",))
+    if "per_agent" in summary:  # many agents: their rows in agents.npz (`dgtd.run.results.summary`)
+        summary |= read_npz(directory / summary["per_agent"]["file"], "results file", fix)
     trajectory = {}
     if (directory / "trajectory.npz").exists():
         trajectory = read_npz(directory / "trajectory.npz", "results file", fix)

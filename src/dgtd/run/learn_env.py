@@ -38,13 +38,14 @@ class EnvTask:
     """A simulator to learn in: ``make()`` a fresh PettingZoo ParallelEnv whose agents have the same discrete
     actions; ``features(states (K, dim)) -> (K, q)`` the critics' features of its global state (``env.state()``, else
     the observations joined); ``gamma`` the critics' discount; ``name`` as results name it; ``n_agents`` its
-    agents."""
+    agents; ``reward_map`` (rewards dict) -> (N,) where the env's rewards are not each agent's own."""
 
     make: Any
     features: Any
     gamma: float
     name: str
     n_agents: int
+    reward_map: Any = None
 
 
 def learn_env(
@@ -59,7 +60,10 @@ def learn_env(
         raise DgtdInputError(
             "in a simulator the critics evaluate state values, a step at a time (no --values, --batch)"
         )
-    src = EnvSource(task.make, task.features, settings.seed, range(settings.seeds), network=network, name=task.name)
+    src = EnvSource(
+        task.make, task.features, settings.seed, range(settings.seeds), network=network, name=task.name,
+        reward_map=task.reward_map,
+    )  # fmt: skip
     src.start()
     agents, B = src.agents, settings.seeds
     N, A = len(agents), _actions(src)

@@ -111,11 +111,42 @@ def problem_fields(problem) -> dict:
     return fields
 
 
+INLINE_NUMBERS = 1_000_000  # per-agent numbers summary.json holds itself; beyond, agents.npz holds them (`summary`)
+AGENTS_FILE = "agents.npz"
+
+
+def per_agent(result: RunResult) -> dict:
+    """Every per-agent array of a run's results (name -> array, agents on the axis after the seeds', or first where
+    there is no seeds axis): the last, averaged and tail-averaged iterates, their errors (relative, value, to the true
+    values where there is a model, projected Bellman), what each agent sent that arrived, and what the algorithm
+    reports per agent (DGTD's theta*, mu*)."""
+    moments, ref = result.info["moments"], reference(result)
+    outputs = (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))
+    arrays = {f"w_{k}": np.asarray(W) for k, W in outputs}
+    arrays |= {f"error_{k}": exact.relative_error(W, ref) for k, W in outputs}
+    arrays |= {f"value_error_{k}": exact.value_error(moments, W, ref) for k, W in outputs}
+    if moments.model:
+        arrays |= {f"true_value_error_{k}": exact.true_value_error(moments, W) for k, W in outputs}
+    arrays["rmspbe_tail"] = exact.rmspbe(moments, result.w_tail)
+    arrays |= {f"{k}_per_agent": v.mean(axis=0) for k, v in result.info.get("per_agent", {}).items()}
+    N = result.w_last.shape[1]
+    report = {k: v for k, v in result.report.items() if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == N > 1}
+    return arrays | report
+
+
 def summary(result: RunResult, config: dict) -> dict:
-    """What summary.json holds: the exact solution, each seed's and agent's estimates and errors, the config."""
-    rel = lambda W: exact.relative_error(W, reference(result)).tolist()  # noqa: E731
+    """What summary.json holds: the exact solution, each seed's and agent's estimates and errors (`per_agent`; where
+    they pass `INLINE_NUMBERS` numbers, agents.npz holds them and ``per_agent`` names it: a million agents' rows as
+    JSON took minutes), the worst of each over seeds and agents, the config."""
     moments = result.info["moments"]
-    verr = lambda W: exact.value_error(moments, W, reference(result)).tolist()  # noqa: E731
+    agents = per_agent(result)
+    inline = sum(a.size for a in agents.values()) <= INLINE_NUMBERS
+    worst = {f"max_{name}": float(np.max(agents[name])) for name in agents if "error_" in name and "true" not in name}
+    rows = (
+        {k: v.tolist() for k, v in agents.items()}
+        if inline
+        else {"per_agent": {"file": AGENTS_FILE, "arrays": sorted(agents)}}
+    )
     return {
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
@@ -127,28 +158,20 @@ def summary(result: RunResult, config: dict) -> dict:
         else None,
         "regularisation_shift": result.info.get("regularisation_shift", 0.0),
         # what the algorithm says of its fixed point and its run (DGTD: theta*, mu*, boxes, KKT)
-        **plain(result.report),
+        **plain({k: v for k, v in result.report.items() if k not in agents}),
         "mspbe_w_star": result.info["mspbe_w_star"],
-        "w_last": result.w_last.tolist(),
-        "w_avg": result.w_avg.tolist(),
-        "w_tail": result.w_tail.tolist(),
+        **rows,
         "tail_window": result.tail_window,
-        **per_output("error", rel, result),
-        # the d-weighted value error (RMSVE relative to |Phi w*|_d; `exact.value_error`), and the error to the true
-        # value function, which the features may not represent
-        **per_output("value_error", verr, result),
+        **worst,
         # no model: the reference is estimated, and says how well
-        **(true_value_errors(moments, result) if moments.model else {"reference": moments.problem.summary()}),
-        "rmspbe_tail": exact.rmspbe(moments, result.w_tail).tolist(),
+        **(
+            {"true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0])}
+            if moments.model
+            else {"reference": moments.problem.summary()}
+        ),
         "consensus_last": exact.consensus_error(result.w_last).tolist(),
         "messages": result.info["messages"].tolist(),
         "bits": result.info["bits"].tolist(),
-        # what each agent sent that arrived, mean over seeds, where the channel counts it per link
-        **(
-            {f"{k}_per_agent": v.mean(axis=0).tolist() for k, v in result.info["per_agent"].items()}
-            if "per_agent" in result.info
-            else {}
-        ),
         **({"message_ages": age_summary(result.info["message_ages"])} if "message_ages" in result.info else {}),
         "stationary_distribution": None if result.info["d"] is None else result.info["d"].tolist(),
         "seconds": result.seconds,
@@ -186,31 +209,14 @@ def ages_csv(ages: dict) -> bytes:
     return ("age_steps,count\n" + "".join(f"{a},{n}\n" for a, n in steps.items())).encode()
 
 
-def per_output(name: str, error, result: RunResult) -> dict:
-    """NAME_last, NAME_avg, NAME_tail (each agent's ``error`` of the last, averaged and tail-averaged iterates, per
-    seed), then max_NAME_... (the worst over seeds and agents)."""
-    outputs = (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))
-    out = {f"{name}_{k}": error(W) for k, W in outputs}
-    return out | {f"max_{name}_{k}": float(np.max(out[f"{name}_{k}"])) for k, _ in outputs}
-
-
-def true_value_errors(moments, result: RunResult) -> dict:
-    """Each agent's error to the true value function (`exact.true_value_error`), where there is a model."""
-    out = {
-        f"true_value_error_{k}": exact.true_value_error(moments, W).tolist()
-        for k, W in (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))
-    }
-    return out | {"true_value_error_w_star": float(exact.true_value_error(moments, result.w_star[None])[0])}
-
-
 def write_results(
     out: Path, result: RunResult, config: dict, algorithm: str, extra: dict | None = None, also: dict | None = None
-) -> None:
+) -> list[str]:
     """summary.json, metrics.csv (per seed), bands.csv (median and 90 % band over seeds) and trajectory.npz in
     ``out``; summary.json is written last.
 
     ``extra``: scenario-specific numbers, stored in summary.json under "scenario"; ``also``: more files (name ->
-    a function returning its bytes), written with the others, before summary.json.
+    a function returning its bytes), written with the others, before summary.json. Returns the names written.
     """
     out = Path(out)
     arrays = {
@@ -226,10 +232,17 @@ def write_results(
         "bands.csv": lambda: bands_csv({algorithm: result}),
         "trajectory.npz": lambda: npz_bytes(arrays),
         **({"message_ages.csv": lambda: ages_csv(ages)} if ages is not None else {}),
+        **({AGENTS_FILE: lambda: npz_bytes(per_agent(result))} if _outside(result) else {}),
         **(also or {}),
         "summary.json": lambda: json_bytes(summary(result, config) | ({"scenario": extra} if extra else {})),
     }
     write_all(out, files)
+    return list(files)
+
+
+def _outside(result: RunResult) -> bool:
+    """Whether the run's per-agent arrays go to agents.npz rather than into summary.json (`summary`)."""
+    return sum(a.size for a in per_agent(result).values()) > INLINE_NUMBERS
 
 
 def npz_bytes(arrays: dict) -> bytes:
@@ -310,4 +323,6 @@ def read_results(out) -> Results:
         "value": numbers(rows, "value", float, out / "metrics.csv", "results file", fix),
     }
     trajectory = read_npz(out / "trajectory.npz", "results file", fix) if (out / "trajectory.npz").exists() else {}
+    if "per_agent" in summary:  # many agents: their rows in agents.npz, read back into the summary as arrays
+        summary |= read_npz(out / summary["per_agent"]["file"], "results file", fix)
     return Results(summary, metrics, trajectory)

@@ -530,13 +530,7 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
         )
 
     def pilot_states(steps=None):
-        src = source(lambda x: np.asarray(x, dtype=np.float64), 0, [0], REFERENCE_SEED_OFFSET - 1)
-        src.start()
-        blk = src.next_block(min(steps or spec.pilot_steps, spec.pilot_steps))
-        states = blk.table.phi
-        if not np.isfinite(states).all():
-            raise DgtdInputError(f"--env {spec.make}: the environment's states hold NaN or infinite values")
-        return states
+        return _pilot(source(_as_numbers, 0, [0], REFERENCE_SEED_OFFSET - 1), spec, steps)
 
     features, q, about = build_features(spec.features, probe, pilot_states)
     reference, frequency = reference_from_env(
@@ -565,6 +559,47 @@ def env_scenario(spec: EnvSpec, gamma: float, network_for):
         compare_settings=compare_steps(reference.moments),
         compare_note=compare_note(reference.moments),
     )
+
+
+def _as_numbers(states) -> np.ndarray:
+    return np.asarray(states, dtype=np.float64)
+
+
+def _pilot(src, spec: EnvSpec, steps=None) -> np.ndarray:
+    """The states of a pilot run of ``src`` (at most ``spec.pilot_steps``): what box features are fitted to."""
+    src.start()
+    states = src.next_block(min(steps or spec.pilot_steps, spec.pilot_steps)).table.phi
+    if not np.isfinite(states).all():
+        raise DgtdInputError(f"--env {spec.make}: the environment's states hold NaN or infinite values")
+    return states
+
+
+def learning_env(spec: EnvSpec, gamma: float, network_for):
+    """(`dgtd.run.learn_env.EnvTask`, network, what the features are) of a user's environment for learners (`dgtd
+    learn --env`): its factory, the critics' features (`build_features`, fitted where need be to a pilot run under
+    uniform actions, on streams of their own), its rewards mapped where ``spec.rewards`` says; linked by the run's
+    graph (``network_for(N)``): positions are `dgtd run`'s."""
+    from dgtd.run.learn_env import EnvTask
+    from dgtd.sources.env import EnvSource
+
+    if spec.positions is not None or spec.radius is not None:
+        raise DgtdInputError(
+            "learners are linked by --graph and --edge-prob; --positions and --radius link `dgtd run`'s agents"
+        )
+    make, probe, label = env_factory(spec)
+    N = len(probe.possible_agents)
+    network = network_for(N)
+    reward_map = None if spec.rewards is None else load_callable(spec.rewards, "rewards")
+
+    def pilot_states(steps=None):
+        src = EnvSource(
+            make, _as_numbers, 0, [0], network=network, reward_map=reward_map,
+            seed_offset=REFERENCE_SEED_OFFSET - 1, name=env_name(str(spec.make)),
+        )  # fmt: skip
+        return _pilot(src, spec, steps)
+
+    features, _, about = build_features(spec.features, probe, pilot_states)
+    return EnvTask(make, features, gamma, label, N, reward_map), network, about
 
 
 def data_scenario(path: str, gamma: float, network_for):
