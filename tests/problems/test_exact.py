@@ -198,3 +198,21 @@ def test_rmspbe_is_the_projected_bellman_error_in_the_d_norm():
     Pi = p.Phi @ np.linalg.solve(m.M, p.Phi.T @ D)
     err = Pi @ (p.R.mean(0) + p.gamma * p.P @ p.Phi @ w) - p.Phi @ w
     assert np.isclose(exact.rmspbe(m, w), np.sqrt(err @ D @ err))
+
+
+def test_mu_star_is_solved_once_for_the_same_laplacian(rng, monkeypatch):
+    """The saddle point and the boxes' bounds both ask for mu* (each with its own copy of the mean Laplacian): above
+    DENSE_N agents a solve took 50 s at a million agents, so it is kept for a Laplacian of the same numbers, and
+    solved again for another."""
+    p = random_problem(6, 30, 3, rng)
+    G = topologies.ring_with_chords(30, 7)
+    m = exact.Moments(p)
+    monkeypatch.setattr(exact, "DENSE_N", 10)
+    solves = []
+    real = exact.lap_pinv_apply
+    monkeypatch.setattr(exact, "lap_pinv_apply", lambda L, Y: solves.append(1) or real(L, Y))
+    first = exact.mu_star(m, G.laplacian_sparse(np.ones(G.n_edges)))
+    again = exact.mu_star(m, G.laplacian_sparse(np.ones(G.n_edges)))  # another object, the same numbers
+    assert again is first and len(solves) == 1
+    other = exact.mu_star(m, G.laplacian_sparse(np.full(G.n_edges, 0.5)))
+    assert len(solves) == 2 and not np.allclose(other, first)

@@ -39,6 +39,7 @@ from dgtd.backends.mailbox import AGES, Mailbox
 from dgtd.channels import Arcs
 from dgtd.channels.base import copied, per_arc_fields
 from dgtd.errors import DgtdInputError
+from dgtd.graphs.topologies import unique_ints
 
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_RANK")  # what mpiexec (MPICH's, Open MPI's) sets in its ranks
 TIMEOUT = 300.0  # seconds a rank waits for its neighbours before it gives up (DGTD_MPI_TIMEOUT)
@@ -177,21 +178,21 @@ class Partition:
         owner[order] = np.searchsorted(bounds, np.arange(N), side="right") - 1
         own = order[bounds[r] : bounds[r + 1]]
         into = np.flatnonzero(owner[arcs.dst] == r)  # arcs into my agents, in global order
-        ghosts = np.unique(arcs.src[into][owner[arcs.src[into]] != r])
+        ghosts = unique_ints(arcs.src[into][owner[arcs.src[into]] != r])
         local = np.concatenate([own, ghosts])
         around = np.flatnonzero(np.isin(arcs.dst, ghosts)) if halo else np.zeros(0, np.int64)
-        edges = np.unique(np.concatenate([into, around]) // 2)
+        edges = unique_ints(np.concatenate([into, around]) // 2)
         sub = _share(arcs, local, into, edges)
         out_arcs = np.flatnonzero((owner[arcs.src] == r) & (owner[arcs.dst] != r))  # my agents heard elsewhere
         neighbours = sorted(set(owner[ghosts].tolist()) | set(owner[arcs.dst[out_arcs]].tolist()))
         row = np.full(N, -1, np.int64)
         row[local] = np.arange(len(local))
-        send = [row[np.unique(arcs.src[out_arcs][owner[arcs.dst[out_arcs]] == k])] for k in neighbours]
+        send = [row[unique_ints(arcs.src[out_arcs][owner[arcs.dst[out_arcs]] == k])] for k in neighbours]
         recv = [row[ghosts[owner[ghosts] == k]] for k in neighbours]
         graph = comm.Create_dist_graph_adjacent(neighbours, neighbours, reorder=False)
         around_rows = halo_ghosts = None
         if halo:
-            outer = np.setdiff1d(np.unique(arcs.src[around]), ghosts)
+            outer = np.setdiff1d(unique_ints(arcs.src[around]), ghosts, assume_unique=True)
             around_rows = _share(arcs, np.concatenate([ghosts, outer]), around, edges)
             halo_ghosts = np.arange(len(ghosts))
         return cls(

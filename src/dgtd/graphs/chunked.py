@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.graphs.topologies import unique_edges
 from dgtd.streams import GRAPH, seed_key, uniforms
 
 BLOCK = 1 << 16  # agents a block: chunks of 2^32 pairs at most; chunk ids below 2^32 up to 2^32 agents
@@ -165,6 +166,4 @@ def whole(g: ChunkedGraph):
 
 def _sorted_unique(edges: np.ndarray, n: int) -> np.ndarray:
     """Edges (u, v), u < v < n, without self-loops or repeats, in increasing (u, v)."""
-    edges = edges[edges[:, 0] != edges[:, 1]]
-    code = np.unique(edges[:, 0] * np.int64(n) + edges[:, 1])
-    return np.stack([code // n, code % n], axis=1).astype(np.int64)
+    return unique_edges(edges[edges[:, 0] != edges[:, 1]], n)

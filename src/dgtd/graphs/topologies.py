@@ -70,9 +70,22 @@ def from_edges(n_nodes: int, edges, name: str = "edges") -> Graph:
         raise DgtdInputError(f"edge endpoints must lie in 0..{n_nodes - 1}, got {e.min()}..{e.max()}")
     if np.any(e[:, 0] == e[:, 1]):
         raise DgtdInputError("self-loops are not allowed in a communication graph")
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = unique_edges(np.sort(e, axis=1), int(n_nodes))
     e.setflags(write=False)
     return Graph(int(n_nodes), e, name)
+
+
+def unique_ints(x: np.ndarray) -> np.ndarray:
+    """``np.unique`` of whole numbers (sorted, each once) by a sort: NumPy 2.4's own took 1.3-5.8 s on 4 million
+    (hashing), a sort 0.08 s (measured on this machine)."""
+    s = np.sort(np.asarray(x).ravel())
+    return s[np.concatenate([[True], s[1:] != s[:-1]])] if s.size else s
+
+
+def unique_edges(edges: np.ndarray, n_nodes: int) -> np.ndarray:
+    """Rows (u, v) of whole numbers below ``n_nodes``, sorted and each once (``np.unique(edges, axis=0)``)."""
+    code = unique_ints(edges[:, 0].astype(np.int64) * np.int64(n_nodes) + edges[:, 1])
+    return np.stack([code // n_nodes, code % n_nodes], axis=1).astype(np.int64).reshape(-1, 2)
 
 
 def path(n: int) -> Graph:
