@@ -297,6 +297,29 @@ def _shown_agents(tail_error: np.ndarray) -> list[int]:
     return first + order[: TABLE_AGENTS - len(first)].tolist()
 
 
+def _agent_rows(result, e_last, e_avg, e_tail) -> list[str]:
+    """The table's header and its rows of the agents shown (`_shown_agents`), seed 0, the columns lined up however
+    long a vector; where some are left out, which and where they are."""
+    N = result.w_last.shape[1]
+    agents = _shown_agents(e_tail[0])
+    last, avg = {i: _vec(result.w_last[0, i]) for i in agents}, {i: _vec(result.w_avg[0, i]) for i in agents}
+    width = max(34, *(len(v) + 2 for v in [*last.values(), *avg.values()]))
+    rows = [
+        f"{'agent':>5}  {'w_last (seed 0)':<{width}}{'err':>8}  {'w_avg (seed 0)':<{width}}{'err':>8}  "
+        f"{'w_tail err':>10}"
+    ]
+    for k, i in enumerate(agents):
+        if k == TABLE_AGENTS // 2 and len(agents) < N:
+            rows.append(f"{'...':>5}  the worst {len(agents) - k} by their tail-averaged error:")
+        rows.append(
+            f"{i + 1:>5}  {last[i]:<{width}}{e_last[0, i]:>8.2%}  {avg[i]:<{width}}{e_avg[0, i]:>8.2%}  "
+            f"{e_tail[0, i]:>10.2%}"
+        )
+    if len(agents) < N:
+        rows.append(f"{'':>5}  ({N - len(agents):,} agents more: every agent's rows in summary.json or agents.npz)")
+    return rows
+
+
 def final_table(result) -> str:
     """Every agent's last and averaged w beside w* (seed 0), then the worst errors over seeds."""
     from dgtd.problems import exact
@@ -320,23 +343,7 @@ def final_table(result) -> str:
             f"w* = {_vec(result.w_star, 8)}; with the messages lost, the run converges to w_fixed = {_vec(ref[0], 8)} "
             f"(each agent's reward weighted as its links let it be heard: docs/links.md), and the errors are against it"
         )
-    N = result.w_last.shape[1]
-    agents = _shown_agents(e_tail[0])
-    last, avg = {i: _vec(result.w_last[0, i]) for i in agents}, {i: _vec(result.w_avg[0, i]) for i in agents}
-    width = max(34, *(len(v) + 2 for v in [*last.values(), *avg.values()]))  # columns line up, however long a vector
-    rows.append(
-        f"{'agent':>5}  {'w_last (seed 0)':<{width}}{'err':>8}  {'w_avg (seed 0)':<{width}}{'err':>8}  "
-        f"{'w_tail err':>10}"
-    )
-    for k, i in enumerate(agents):
-        if k == TABLE_AGENTS // 2 and len(agents) < N:
-            rows.append(f"{'...':>5}  the worst {len(agents) - k} by their tail-averaged error:")
-        rows.append(
-            f"{i + 1:>5}  {last[i]:<{width}}{e_last[0, i]:>8.2%}  {avg[i]:<{width}}{e_avg[0, i]:>8.2%}  "
-            f"{e_tail[0, i]:>10.2%}"
-        )
-    if len(agents) < N:
-        rows.append(f"{'':>5}  ({N - len(agents):,} agents more: every agent's rows in summary.json or agents.npz)")
+    rows += _agent_rows(result, e_last, e_avg, e_tail)
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
     moments = result.info.get("moments")
     if moments is not None and not moments.model:
