@@ -98,15 +98,16 @@ class NetworkConfig:
         default=None,
         metadata=option(
             "ring, path, star, complete, erdos-renyi (complete, each link up with --edge-prob), small-world "
-            "(Watts-Strogatz), sparse-random (a fixed Erdos-Renyi graph of --mean-degree), or a file of 'i j' edge "
-            "lines (default: the scenario's, else ring)."
+            "(Watts-Strogatz), sparse-random (a fixed Erdos-Renyi graph of --mean-degree), geometric (agents uniform "
+            "in the unit square, linked within the radius of --mean-degree), or a file of 'i j' edge lines (default: "
+            "the scenario's, else ring)."
         ),
     )
     mean_degree: float | None = field(
         default=None,
         metadata=option(
-            "small-world: the ring lattice's links an agent, k (even; default 4); sparse-random: the mean degree "
-            "(default 2 ln N, rounded up)."
+            "small-world: the ring lattice's links an agent, k (even; default 4); sparse-random and geometric: the "
+            "mean degree (default 2 ln N, rounded up)."
         ),
     )
     rewire: float | None = field(
@@ -115,8 +116,8 @@ class NetworkConfig:
     graph_seed: int | None = field(
         default=None,
         metadata=option(
-            "The seed of a small-world or sparse-random graph, drawn once from keyed streams: the same graph for "
-            "every seed of the run (default 0)."
+            "The seed of a small-world, sparse-random or geometric graph, drawn once from keyed streams: the same "
+            "graph for every seed of the run (default 0)."
         ),
     )
     edge_prob: float | None = field(
@@ -465,7 +466,7 @@ def _network(graph: str, n_agents: int, edge_prob: float, shape: dict | None = N
         )
         return random_edges(topologies.from_edges(n_agents, base.edges, graph), edge_prob)
     if given:
-        raise DgtdInputError(f"{', '.join(given)} shape a small-world or sparse-random graph, not {graph!r}")
+        raise DgtdInputError(f"{', '.join(given)} shape a small-world, sparse-random or geometric graph, not {graph!r}")
     if graph in topologies.TOPOLOGIES:
         base = topologies.TOPOLOGIES[graph](n_agents)
     elif not Path(graph).is_file():
@@ -492,7 +493,7 @@ def chunked_shape(graph: str, n_agents: int, shape: dict) -> dict:
         degree = 4 if graph == "small-world" else float(min(n_agents - 1, math.ceil(2 * math.log(n_agents))))
     rewire = shape.get("rewire")
     if graph != "small-world" and rewire is not None:
-        raise DgtdInputError("--rewire moves a small-world graph's links; a sparse-random graph has none to move")
+        raise DgtdInputError(f"--rewire moves a small-world graph's links; a {graph} graph has none to move")
     return {
         "mean_degree": float(degree),
         "rewire": 0.1 if rewire is None else float(rewire),
@@ -533,7 +534,9 @@ def resolve(config: RunConfig) -> ResolvedRun:
         edge_prob = spec.edge_prob if spec.edge_prob is not None else (edge_prob if edge_prob is not None else 1.0)
         network = _network(graph or "ring", problem.n_agents, edge_prob, {k: getattr(spec, k) for k in SHAPE})
     elif any(getattr(spec, k) is not None for k in SHAPE):
-        raise DgtdInputError("--mean-degree, --rewire and --graph-seed shape a --graph small-world or sparse-random")
+        raise DgtdInputError(
+            "--mean-degree, --rewire and --graph-seed shape a --graph small-world, sparse-random or geometric"
+        )
     loss = _loss(spec.loss)
     wake = _loss(spec.wake)  # a probability or a list, as a loss is written
     channel = channel_for(loss, spec.burst, network, spec.reweight, _links(spec, wake))  # built once, here

@@ -19,7 +19,10 @@ from dgtd.graphs.random import random_edges
 from dgtd.problems import team
 from dgtd.run.learn import LearnSettings, learn
 
-BUDGET = 10_000  # steps: DGTD's networked learners pass 0.9 on every agent's best action by 7 000 (measured 0.952)
+BUDGET = 10_000  # steps of a learning run here
+# steps and seeds within which networked learners with the DGTD critic put 0.9 on the team's best action: 4 seeds at
+# 10 000 steps measured 0.982, 0.988, 0.715 (still climbing), 0.992; at 20 000: 0.993, 0.994, 0.992, 0.995
+REACH, REACH_SEEDS = 20_000, 4
 
 
 def run(
@@ -78,11 +81,11 @@ def test_compiled_learners_are_the_numpy_learners(critic, actor, values, batch, 
 
 @pytest.mark.parametrize("actor, reaches", [("networked", True), ("independent", False), ("centralised", True)])
 def test_only_learners_of_the_teams_reward_find_its_best_joint_action(actor, reaches):
-    """Within 10 000 steps, 2 seeds, links up with probability 0.8: networked (DGTD critic, the team's reward by
+    """Within 20 000 steps, 4 seeds, links up with probability 0.8: networked (DGTD critic, the team's reward by
     consensus) and centralised learners put at least 0.9 on their part of the team's best action in every state
-    (measured 0.97 and 0.99); independent ones, which each learn their own reward, put at most 0.1 on it (measured
-    0.0), and their return is the all-deviate one, J = 1 of J* = 2."""
-    result = run(actor)
+    (measured at least 0.992 and 0.994); independent ones, which each learn their own reward, put at most 0.1 on it
+    (measured 0.0), and their return is the all-deviate one, J = 1 of J* = 2."""
+    result = run(actor, seeds=REACH_SEEDS, iterations=REACH)
     least = result.metrics["best_probability"][:, -1]
     if reaches:
         assert least.min() >= 0.9, least

@@ -15,6 +15,9 @@ streams), a chunk's numbers are a pure function of (seed, chunk): no two seeds s
   are keyed by u (chunk: u's block); a moved link that repeats another, or one of the lattice's, is dropped, so the
   graph has about N k / 2 edges. Where a link lands is anyone's: the edges touching a block need every block's draws
   (N k / 2 numbers, streamed a block at a time; O(block) memory).
+- `geometric` (a random geometric graph: agents uniform in the unit square, linked within the radius whose expected
+  degree is d): the agents are numbered by cells of the square, so a range of them is a band of cells, and its edges
+  need only the band and the rows of cells either side (`dgtd.graphs.geometric`).
 
 `edges_touching(spec, agents)` gives the edges with an end among ``agents`` (sorted, each (u, v) with u < v), made from
 the chunks that can touch them; `whole(spec)` the whole edge list as a `Graph` (the same function over every agent).
@@ -27,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.graphs import geometric
 from dgtd.graphs.topologies import unique_edges
 from dgtd.streams import GRAPH, seed_key, uniforms
 
@@ -35,7 +39,7 @@ BLOCK = 1 << 16  # agents a block: chunks of 2^32 pairs at most; chunk ids below
 
 @dataclass(frozen=True)
 class ChunkedGraph:
-    """A keyed random graph: ``kind`` ("erdos-renyi" or "small-world") on ``n_agents``, mean degree
+    """A keyed random graph: ``kind`` ("erdos-renyi", "small-world" or "geometric") on ``n_agents``, mean degree
     ``mean_degree`` (small-world: the lattice's k, even), small-world's ``rewire`` probability, drawn from base seed
     ``seed``'s streams, in blocks of ``block`` agents."""
 
@@ -70,11 +74,17 @@ class ChunkedGraph:
     def describe(self) -> str:
         if self.kind == "small-world":
             return f"small-world (k = {int(self.mean_degree)}, rewired with p = {self.rewire:g})"
+        if self.kind == "geometric":
+            return f"random geometric (mean degree {self.mean_degree:g}, radius {geometric.radius(self):.3g})"
         return f"sparse Erdos-Renyi (mean degree {self.mean_degree:g})"
 
 
-KINDS = ("erdos-renyi", "small-world")
-NAMES = {"small-world": "small-world", "sparse-random": "erdos-renyi"}  # as --graph names them -> their kind
+KINDS = ("erdos-renyi", "small-world", "geometric")
+NAMES = {
+    "small-world": "small-world",
+    "sparse-random": "erdos-renyi",
+    "geometric": "geometric",
+}  # as --graph names them -> their kind
 
 
 def _block(g: ChunkedGraph, b: int) -> tuple[int, int]:
@@ -142,11 +152,13 @@ def small_world_chunk(g: ChunkedGraph, bi: int) -> np.ndarray:
 
 def edges_touching(g: ChunkedGraph, agents: range) -> np.ndarray:
     """The edges (E, 2), sorted and unique, with an end among the contiguous ``agents``: made from the chunks that can
-    touch them (Erdos-Renyi: the chunks of their blocks; small-world: every block's, streamed), the same whatever the
-    grouping of the agents (tested)."""
+    touch them (Erdos-Renyi: the chunks of their blocks; small-world: every block's, streamed; geometric: their band
+    of cells and the rows either side), the same whatever the grouping of the agents (tested)."""
     lo, hi = agents.start, agents.stop
     if hi <= lo:
         return np.zeros((0, 2), np.int64)
+    if g.kind == "geometric":
+        return _sorted_unique(geometric.edges_touching(g, lo, hi), g.n_agents)
     mine = range(lo // g.block, (hi - 1) // g.block + 1)
     if g.kind == "erdos-renyi":
         chunks = [(min(bi, bj), max(bi, bj)) for bi in mine for bj in range(g.n_blocks) if bj >= bi or bj not in mine]
