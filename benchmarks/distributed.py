@@ -3,9 +3,9 @@
     python benchmarks/distributed.py [--weak 50000] [--weak-ranks 1,2,4,8] [--agents 100000,1000000] [--ranks 1,2]
 
 Every measurement starts ``mpiexec -n R`` on this machine (loopback only) running DGTD on the garnet task (30 states,
-8 features) with N agents on a small-world graph (networkx's connected Watts-Strogatz graph: each agent linked to its
-6 nearest in a ring, 2 % of the links rewired at random, so that most links stay inside a rank and the graph is well
-connected), each link up with probability 0.9, one seed, for ``--steps`` steps, with compiled ranks (the default; or
+8 features) with N agents on a small-world graph (the keyed chunked Watts-Strogatz graph of `--graph small-world`:
+each agent linked to its 6 nearest in a ring, 2 % of the links rewired at random, so that most links stay inside a
+rank), each link up with probability 0.9, one seed, for ``--steps`` steps, with compiled ranks (the default; or
 ``--backend numpy``, the reference's), and reads back from every rank: the loop's seconds and CPU seconds, how the
 seconds split (`dgtd.backends.mpi.SECONDS`) between stepping its share (its own agents and ghosts: samples drawn in
 the kernel), exchanging the messages of the links that cross ranks (waiting for the others included), setting up and
@@ -43,6 +43,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs"
 # it loads (imported first, 100 000 agents' setup took 84 s on each of 2 ranks instead of 6 s)
 FEATURES, STATES = 8, 30
 HOP = 5e-6  # seconds of one small MPI message between cluster machines (assumed, for the projection)
+BANDWIDTH = 10e9  # bytes a second a rank receives over a cluster's network (assumed, for the projection)
 CHECKPOINTS = 10  # metrics measured (and combined over the ranks) about every tenth of the run, as a run's are
 
 
@@ -87,21 +88,14 @@ def worker(n_agents: int, steps: int, asynchronous: int = 0, compiled: int = 1) 
         )
 
 
-def small_world(n: int, k: int = 3, rewired: float = 0.02, seed: int = 0):
-    """A Watts-Strogatz small world built in NumPy (networkx's takes 0.9 KB an agent, on every rank): agent i linked
-    to i + 1 .. i + k around a ring, and a fraction ``rewired`` of the links but the ring's own (i, i + 1), which keep
-    it connected, moved to an agent drawn at random."""
-    import numpy as np
-
+def small_world(n: int, k: int = 6, rewired: float = 0.02, seed: int = 0):
+    """The keyed chunked Watts-Strogatz graph (`dgtd.graphs.chunked`, as `--graph small-world` makes it): agent i
+    linked to its k / 2 next around a ring, a fraction ``rewired`` of the links moved to an agent drawn at random."""
+    from dgtd.graphs import chunked
     from dgtd.graphs.topologies import from_edges
 
-    rng = np.random.default_rng(seed)
-    i = np.repeat(np.arange(n), k)
-    j = (i + np.tile(np.arange(1, k + 1), n)) % n
-    moved = (np.tile(np.arange(1, k + 1), n) > 1) & (rng.random(n * k) < rewired)
-    j[moved] = rng.integers(0, n, moved.sum())
-    keep = i != j
-    return from_edges(n, np.stack([i[keep], j[keep]], 1), "small world")
+    graph = chunked.ChunkedGraph("small-world", n, k, rewire=rewired, seed=seed)
+    return from_edges(n, chunked.whole(graph).edges, "small world")
 
 
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
@@ -163,13 +157,33 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def tree_seconds(n_agents: int, ranks: int) -> tuple[float, int]:
+    """(seconds, bytes) of one of the consensus metric's sums over the fixed tree of agents on ``ranks`` ranks of
+    ``n_agents`` (`dgtd.backends.mpi.Ranks.tree_sum`), measured in this process: the pieces of every rank's block
+    combined (`dgtd.problems.exact.tree_total`, which every rank does), and the bytes every rank receives."""
+    import numpy as np
+
+    from dgtd.problems.exact import joined, tree_pieces, tree_total
+
+    bounds = np.linspace(0, n_agents, ranks + 1).astype(np.int64)
+    x = np.ones((1, int(np.diff(bounds).max()), FEATURES))
+    pieces = joined([tree_pieces(x[:, : hi - lo], int(lo)) for lo, hi in zip(bounds[:-1], bounds[1:])])
+    t0 = time.perf_counter()
+    for _ in range(5):
+        tree_total(pieces, n_agents, (1, FEATURES))
+    return (time.perf_counter() - t0) / 5, sum(a.nbytes for a in pieces)
+
+
 def projection(rows: list[dict], agents=(10**6, 10**8), ranks=(64, 1024)) -> str:
     """Seconds a step on R cluster ranks of N agents, from the 2-rank compiled measurement of the most agents: each rank
     steps N / R agents at the measured cost per agent-step and exchanges a boundary that does not grow with N / R (the
     measured exchange a step, waiting included); at checkpoints it measures its own agents' errors and the ranks
     combine them (the measured seconds per own agent and checkpoint, `dgtd.backends.mpi.Ranks`), and the consensus
-    sums pass along the R ranks in order, twice: 2 R messages of a few numbers, at ``HOP`` seconds each (a cluster
-    network's latency, assumed: one machine's ranks cannot measure it)."""
+    metric's two sums over the fixed tree of agents each gather every rank's pieces (4 allgathers of log2 R rounds at
+    ``HOP`` seconds a message, a cluster network's latency, assumed: one machine's ranks cannot measure it; their
+    bytes at ``BANDWIDTH``, assumed) and combine them on every rank (`tree_seconds`, measured)."""
+    import math
+
     two = [r for r in rows if r["ranks"] == 2 and r["backend"] == "numba" and r["mode"] == "synchronous"]
     if not two:
         return ""
@@ -181,18 +195,23 @@ def projection(rows: list[dict], agents=(10**6, 10**8), ranks=(64, 1024)) -> str
     lines = [
         f"From {m['agents']:,} agents on 2 ranks: {per_agent_step * 1e9:.0f} ns an agent-step, {exchange * 1e3:.2f} ms "
         f"of exchange a step, {per_agent_checkpoint * 1e9:.0f} ns an own agent for the metrics at a checkpoint, "
-        f"every {every:.0f} steps; {HOP * 1e6:.0f} us a message from rank to rank (assumed).",
+        f"every {every:.0f} steps; {HOP * 1e6:.0f} us a message from rank to rank and {BANDWIDTH / 1e9:.0f} GB/s "
+        "(assumed); the tree's combine measured here.",
         "",
-        "| agents | ranks | stepping (ms a step) | exchange | metrics, per step | rounds/s |",
-        "| ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| agents | ranks | stepping (ms a step) | exchange | tree sums (ms a checkpoint) | metrics, per step | "
+        "rounds/s |",
+        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for n in agents:
         for R in ranks:
             step = n / R * per_agent_step
-            metrics = (n / R * per_agent_checkpoint + 2 * R * HOP) / every
+            combine, nbytes = tree_seconds(n, R)
+            tree = 2 * (4 * math.ceil(math.log2(R)) * HOP + nbytes / BANDWIDTH + combine)
+            metrics = (n / R * per_agent_checkpoint + tree) / every
             total = step + exchange + metrics
             lines.append(
-                f"| {n:,} | {R:,} | {step * 1e3:.2f} | {exchange * 1e3:.2f} | {metrics * 1e3:.2f} | {1 / total:,.1f} |"
+                f"| {n:,} | {R:,} | {step * 1e3:.2f} | {exchange * 1e3:.2f} | {tree * 1e3:.2f} | {metrics * 1e3:.2f} | "
+                f"{1 / total:,.1f} |"
             )
     return "\n".join(lines)
 

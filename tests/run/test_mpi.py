@@ -287,6 +287,43 @@ def test_a_run_killed_on_two_ranks_resumes_on_three_and_in_one_process_with_the_
     assert (tmp_path / "alone" / "metrics.csv").read_bytes() == expected
 
 
+CHUNKED = {
+    "small-world": ["--graph", "small-world", "--mean-degree", 4, "--rewire", 0.3],
+    "sparse-random": ["--graph", "sparse-random", "--mean-degree", 9],
+    "geometric": ["--graph", "geometric", "--mean-degree", 8, "--graph-seed", 1],
+}
+
+
+@pytest.mark.parametrize("graph", CHUNKED)
+def test_generated_tasks_on_chunked_graphs_give_the_same_bytes_on_1_2_3_and_8_ranks(tmp_path, graph):
+    """garnet sized by --agents on each keyed chunked graph, links up with probability 0.8: metrics.csv byte for byte
+    a one-process run's on 1, 2, 3 and 8 ranks (compiled ranks, as one compiled process)."""
+    run = ["run", "garnet", "--agents", 64, *CHUNKED[graph], "-T", 400, "--seeds", 2, "--no-plots"]
+    base = alone(*run, "--out", tmp_path / "one")
+    assert base.returncode == 0, base.stderr
+    expected = (tmp_path / "one" / "metrics.csv").read_bytes()
+    for ranks in (1, 2, 3, 8):
+        done = mpirun(ranks, *run, "--out", tmp_path / f"r{ranks}")
+        assert done.returncode == 0, done.stderr
+        assert (tmp_path / f"r{ranks}" / "metrics.csv").read_bytes() == expected, ranks
+
+
+def test_a_run_on_a_chunked_graph_killed_on_four_ranks_resumes_on_two_with_the_same_numbers(tmp_path):
+    """A garnet run of 40 agents on a geometric graph, rank 1 of 4 killed after a checkpoint: the same command on 2
+    ranks resumes from the 4 shards and ends with the uninterrupted run's numbers, byte for byte."""
+    out = tmp_path / "run"
+    run = ["run", "garnet", "--agents", 40, *CHUNKED["geometric"], "-T", 40_000, "--seeds", 2, "--no-plots"]
+    run += ["--checkpoint-every", 2000, "--loss", 0.2]
+    cmd = _killed_after_a_checkpoint(run, out, ranks=4)
+    assert len(list(out.glob("checkpoint*.npz"))) == 4
+    cmd[cmd.index("-n") + 1] = "2"
+    resumed = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0 and "resuming" in resumed.stdout, resumed.stderr
+    whole = alone(*run, "--out", tmp_path / "whole")
+    assert whole.returncode == 0, whole.stderr
+    assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+
+
 def test_an_asynchronous_run_resumes_with_its_message_ages(tmp_path):
     """The same after-a-kill resume of an asynchronous run: the ages counted before the checkpoint come back with
     it, so that every step's ghosts are counted once (garnet's ring of 10 agents on 2 ranks: 2 ghosts on each, 4 a
@@ -309,6 +346,7 @@ def test_an_asynchronous_run_resumes_with_its_message_ages(tmp_path):
     [
         (["paper-example-1", "--delay", "2", "--asynchronous"], "not with --asynchronous"),
         (["paper-example-1", "--backend", "numba", "--asynchronous"], "NumPy reference"),
+        (["garnet", "--agents", "1000", "--seeds", "10000000"], "the 2 ranks on this machine need about"),
     ],
 )
 def test_what_the_runtime_does_not_run_is_one_line_and_exit_2_on_every_rank(tmp_path, args, words):

@@ -24,11 +24,20 @@ def test_a_sum_over_the_fixed_tree_of_agents_is_the_same_however_the_rows_are_sp
     bit the sum of one process, for any split (contiguous, as ranks hold them), and the plain sum to 1e-12."""
     rng = np.random.default_rng(n)
     x = rng.standard_normal((3, n, 4)) * 10.0 ** rng.integers(-8, 8, (1, n, 1))
+
+    def tree(lo: int, size: int) -> np.ndarray:  # the fixed tree by its definition: halves of [lo, lo + size)
+        return (
+            x[:, lo]
+            if size == 1
+            else tree(lo, size // 2) + (tree(lo + size // 2, size // 2) if lo + size // 2 < n else 0.0)
+        )
+
     whole = exact.tree_sum(x)
+    assert np.array_equal(whole, tree(0, 1 << max(1, n - 1).bit_length()))
     np.testing.assert_allclose(whole, x.sum(axis=1), rtol=1e-12, atol=1e-300 + 1e-12 * np.abs(x).sum(axis=1).max())
-    for ranks in (2, 3, 8):
+    for ranks in (2, 3, 8, 64):
         bounds = np.linspace(0, n, ranks + 1).astype(int)
-        pieces = [p for lo, hi in zip(bounds[:-1], bounds[1:]) for p in exact.tree_pieces(x[:, lo:hi], lo)]
+        pieces = exact.joined([exact.tree_pieces(x[:, lo:hi], lo) for lo, hi in zip(bounds[:-1], bounds[1:])])
         assert np.array_equal(exact.tree_total(pieces, n, x.shape[:1] + x.shape[2:]), whole)
     W = rng.standard_normal((2, n, 3))
     np.testing.assert_allclose(exact.ordered_consensus_error(W, n), exact.consensus_error(W), rtol=1e-12, atol=1e-12)

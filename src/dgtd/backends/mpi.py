@@ -92,6 +92,29 @@ def abort(code: int, line: str) -> None:
         _WORLD["comm"].Abort(code)
 
 
+def on_this_machine() -> int:
+    """How many ranks of the job share this rank's machine (its memory): MPI's shared-memory split, once (a
+    collective: every rank asks, at the same point)."""
+    if "here" not in _WORLD:
+        from mpi4py import MPI
+
+        node = world().Split_type(MPI.COMM_TYPE_SHARED)
+        _WORLD["here"] = node.Get_size()
+        node.Free()
+    return _WORLD["here"]
+
+
+def tightest_share(available: int | None) -> int | None:
+    """The least memory free a rank over the job's machines (each machine's free memory over its ranks), the same on
+    every rank (a collective), so that a run too large for one machine is refused by every rank at once; None where
+    no rank knows its machine's."""
+    from mpi4py import MPI
+
+    mine = float("inf") if available is None else available / on_this_machine()
+    least = world().allreduce(mine, op=MPI.MIN)
+    return None if least == float("inf") else int(least)
+
+
 def spread() -> bool:
     """Whether a run's agents are spread over more than one rank."""
     return size() > 1
@@ -546,14 +569,28 @@ class Ranks:
 
     def tree_sum(self, x: np.ndarray) -> np.ndarray:
         """x (B, own, ...) summed over every rank's agents up the fixed tree of the agents in storage order
-        (`dgtd.problems.exact.tree_pieces`): each rank's pieces (O(log N)), one allgather (log R rounds), the same
-        total on every rank, one process's bit for bit."""
-        from dgtd.problems.exact import tree_pieces, tree_total
+        (`dgtd.problems.exact.tree_pieces`): each rank's pieces (O(log N)) gathered by every rank as buffers (their
+        counts, then their levels, indices and sums: no pickling, log R rounds each), combined the same way on every
+        rank: one process's total bit for bit."""
+        from dgtd.problems.exact import Pieces, tree_pieces, tree_total
 
         P = self.partition
         mine = tree_pieces(x, int(P.bounds[P.rank]))
-        every = self._timed(lambda: world().allgather(mine), "reduce")
-        return tree_total([piece for part in every for piece in part], self.n_agents, x.shape[:1] + x.shape[2:])
+        every = self._timed(lambda: Pieces(*(self._allgather(a) for a in mine)), "reduce")
+        return tree_total(every, self.n_agents, x.shape[:1] + x.shape[2:])
+
+    @staticmethod
+    def _allgather(x: np.ndarray) -> np.ndarray:
+        """Every rank's rows of ``x`` (any number a rank), concatenated in rank order on every rank."""
+        from mpi4py.util.dtlib import from_numpy_dtype
+
+        x = np.ascontiguousarray(x)
+        width = int(np.prod(x.shape[1:]))
+        counts = np.array(world().allgather(x.shape[0]), np.int64)
+        out = np.empty((int(counts.sum()), *x.shape[1:]), x.dtype)
+        displacements = np.r_[0, np.cumsum(counts)[:-1]] * width
+        world().Allgatherv(x, [out, counts * width, displacements, from_numpy_dtype(x.dtype)])
+        return out
 
     def consensus(self, W: np.ndarray) -> np.ndarray:
         """The consensus error (B,) of every agent's estimate, from this rank's rows W (B, own, q)."""

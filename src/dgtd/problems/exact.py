@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -367,11 +368,21 @@ def consensus_error(W: np.ndarray) -> np.ndarray:
     return ((W - W.mean(axis=-2, keepdims=True)) ** 2).sum(axis=(-2, -1))
 
 
-def tree_pieces(x: np.ndarray, first: int) -> list:
+class Pieces(NamedTuple):
+    """Nodes of the fixed tree over the agents (`tree_pieces`): node j is the aligned block of agents
+    [indices[j] 2^levels[j], (indices[j] + 1) 2^levels[j]), its sum values[j]; arrays, so that ranks exchange them as
+    three buffers."""
+
+    levels: np.ndarray  # (k,) int64
+    indices: np.ndarray  # (k,) int64
+    values: np.ndarray  # (k, B, ...)
+
+
+def tree_pieces(x: np.ndarray, first: int) -> Pieces:
     """The pieces of the fixed tree over the agents that rows x (B, n, ...) of agents first .. first + n - 1 hold
-    whole: [(level, index, sum)], the aligned blocks [index 2^level, (index + 1) 2^level) within them (at most two a
-    level), each summed up its own pairwise tree. Any holder of the same rows makes the same pieces."""
-    pieces, lo, hi = [], int(first), int(first) + x.shape[1]
+    whole: the aligned blocks within them (at most two a level), each summed up its own pairwise tree. Any holder of
+    the same rows makes the same pieces."""
+    levels, indices, values, lo, hi = [], [], [], int(first), int(first) + x.shape[1]
     while lo < hi:
         level = (lo & -lo).bit_length() - 1 if lo else (hi - lo).bit_length() - 1
         while lo + (1 << level) > hi:
@@ -379,24 +390,44 @@ def tree_pieces(x: np.ndarray, first: int) -> list:
         block = x[:, lo - first : lo - first + (1 << level)]
         while block.shape[1] > 1:  # pairwise up the block's own tree
             block = block[:, 0::2] + block[:, 1::2]
-        pieces.append((level, lo >> level, block[:, 0]))
+        levels.append(level)
+        indices.append(lo >> level)
+        values.append(block[:, 0])
         lo += 1 << level
-    return pieces
+    shape = x.shape[:1] + x.shape[2:]
+    return Pieces(
+        np.array(levels, np.int64), np.array(indices, np.int64), np.stack(values) if values else np.zeros((0, *shape))
+    )
 
 
-def tree_total(pieces: list, n_agents: int, shape: tuple) -> np.ndarray:
+def joined(parts: list[Pieces]) -> Pieces:
+    """The pieces of several holders as one."""
+    return Pieces(*(np.concatenate([getattr(p, f) for p in parts]) for f in Pieces._fields))
+
+
+def tree_total(pieces: Pieces, n_agents: int, shape: tuple) -> np.ndarray:
     """The sum (``shape``) of every agent's rows from the pieces (`tree_pieces`) of every holder: combined up the
     fixed tree over agents 0 .. N - 1 (padded to a power of two with nothing: a node missing its right half is its
-    left one), so that the total does not depend on who held what."""
-    nodes = {(level, index): value for level, index, value in pieces}
+    left one), so that the total does not depend on who held what. A level at a time over arrays: O(pieces) work
+    (1 024 ranks' 17 000 pieces: 4 ms, where a dictionary of nodes took 34)."""
     top = max(1, int(n_agents) - 1).bit_length()
-    for level in range(top):
-        for index in sorted(i for (lv, i) in list(nodes) if lv == level and i % 2 == 0):
-            left, right = nodes.pop((level, index)), nodes.pop((level, index + 1), None)
-            nodes[(level + 1, index // 2)] = left if right is None else left + right
-        for index in sorted(i for (lv, i) in list(nodes) if lv == level):  # a right half whose left is absent
-            nodes[(level + 1, index // 2)] = nodes.pop((level, index))
-    return nodes.get((top, 0), np.zeros(shape))
+    index, value = np.zeros(0, np.int64), np.zeros((0, *shape))
+    for level in range(top + 1):
+        at = pieces.levels == level
+        index, value = np.concatenate([index, pieces.indices[at]]), np.concatenate([value, pieces.values[at]])
+        if level == top:
+            break
+        if not len(index):  # nothing at this level yet: every piece is a larger block
+            continue
+        order = np.argsort(index, kind="stable")
+        index, value = index[order], value[order]
+        parent = index // 2
+        first = np.flatnonzero(np.r_[True, parent[1:] != parent[:-1]])  # each parent's first child
+        pair = np.r_[first[1:], len(index)] - first == 2  # both halves present: left + right
+        combined = value[first].copy()
+        combined[pair] = value[first[pair]] + value[first[pair] + 1]
+        index, value = parent[first], combined
+    return value[0] if len(value) else np.zeros(shape)
 
 
 def tree_sum(x: np.ndarray) -> np.ndarray:

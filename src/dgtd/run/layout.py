@@ -97,6 +97,19 @@ def layout_for(ctx, settings, resume: dict | None = None):
     return Whole(ctx, settings.backend)
 
 
+def spread_over(algorithm, available: int | None) -> tuple[int, int, int | None]:
+    """(the ranks a run of ``algorithm`` spreads its agents over, those on this machine, the memory they have free
+    there, ``available`` in one process): for the memory check, the same verdict on every rank (the tightest
+    machine's share a rank, `dgtd.backends.mpi.tightest_share`). (1, 1, available) in one process, or where every rank
+    runs the algorithm whole."""
+    from dgtd.backends import mpi
+
+    if not mpi.spreads(algorithm):
+        return 1, 1, available
+    here, least = mpi.on_this_machine(), mpi.tightest_share(available)
+    return mpi.size(), here, None if least is None else here * least
+
+
 def kernel_for(backend: str, algorithm, channel=None):
     """The block kernel of ``algorithm`` over ``channel`` on ``backend`` (`dgtd.backends.reference.run_block`
     contract): the compiled driver where the algorithm has a compiled step and the channel a compiled twin; else the

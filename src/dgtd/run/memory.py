@@ -45,21 +45,40 @@ def run_bytes(algorithm, seeds: int, agents: int, features: int, arcs: int, chec
     return BYTES * numbers
 
 
-def check_memory(algorithm, seeds: int, agents: int, features: int, arcs: int, checkpoints: int, backend: str) -> None:
+def check_memory(
+    algorithm,
+    seeds: int,
+    agents: int,
+    features: int,
+    arcs: int,
+    checkpoints: int,
+    backend: str,
+    ranks: int = 1,
+    here: int = 1,
+    free: int | None = -1,
+) -> None:
     """Refuse, in one line with the estimate and the most seeds that fit, a run that needs more memory than the
-    machine has free."""
-    free = available_bytes()
-    need = run_bytes(algorithm, seeds, agents, features, arcs, checkpoints, backend)
+    machine has ``free`` (default: `available_bytes`; None: unknown, no check). Agents spread over ``ranks`` ranks: a
+    rank holds its share of them and of their arcs (N / R, rounded up), and the ``here`` ranks on this machine need
+    that share each, together."""
+    free = available_bytes() if free == -1 else free
+    own, own_arcs = -(-agents // ranks), -(-arcs // ranks)
+    need = here * run_bytes(algorithm, seeds, own, features, own_arcs, checkpoints, backend)
     if free is None or need <= free:
         return
-    one = run_bytes(algorithm, 1, agents, features, arcs, checkpoints, backend)
-    fit = free // one
+    fit = free // (here * run_bytes(algorithm, 1, own, features, own_arcs, checkpoints, backend))
     lower = (
         f"lower --seeds to at most {fit:,}"
         if fit >= 1
         else "a single seed does not fit: fewer agents or features, or --checkpoints lower"
+        + (", or more machines for the ranks" if ranks > 1 else "")
     )
+    size = f"{seeds:,} seeds x {agents:,} agents x {features:,} features"
+    who = (
+        "this run needs" if ranks == 1 else "this rank needs" if here == 1 else f"the {here} ranks on this machine need"
+    )
+    share = "" if ranks == 1 else f", {own:,} agents a rank of {ranks}"
     raise DgtdInputError(
-        f"this run needs about {need / 1e9:,.1f} GB ({seeds:,} seeds x {agents:,} agents x "
-        f"{features:,} features), more than the {free / 1e9:,.1f} GB free on this machine; {lower}"
+        f"{who} about {need / 1e9:,.1f} GB ({size}{share}), more than the {free / 1e9:,.1f} GB free on this "
+        f"machine; {lower}"
     )

@@ -18,9 +18,9 @@ from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import RandomEdges
 from dgtd.problems import exact
 from dgtd.problems.model import Problem, chain_period
-from dgtd.run.layout import layout_for
+from dgtd.run.layout import layout_for, spread_over
 from dgtd.run.measure import DIVERGENCE_FACTOR
-from dgtd.run.memory import SUM_TRACE_MAX, TRACE_MAX, check_memory
+from dgtd.run.memory import SUM_TRACE_MAX, TRACE_MAX, available_bytes, check_memory
 from dgtd.run.settings import RunSettings, block_steps, checkpoint_steps
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
@@ -228,7 +228,8 @@ def plan_run(
     steps = checkpoint_steps(int(settings.iterations), int(settings.checkpoints))
     B, N, q = int(settings.seeds), problem.n_agents, problem.n_features
     check_contract(algorithm)  # before anything compiles
-    check_memory(algorithm, B, N, q, 2 * network.n_edges, len(steps), settings.backend)
+    ranks, here, free = spread_over(algorithm, available_bytes())
+    check_memory(algorithm, B, N, q, 2 * network.n_edges, len(steps), settings.backend, ranks, here, free)
     reference = prepare(problem, network, algorithm, sampling, settings, channel)
     ctx = reference.ctx
     source = model_source(ctx, settings) if source is None else source
