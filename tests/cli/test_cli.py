@@ -245,7 +245,9 @@ def test_final_table_columns_line_up_however_long_the_vectors(capsys, tmp_path):
 
     w_star = np.array([0.0383, 0.06664, 0.1223, 0.2484, 0.547])
     w = np.broadcast_to(w_star * (1 + 1e-5 * np.arange(3)[:, None]), (1, 3, 5)).copy()
-    result = SimpleNamespace(w_star=w_star, w_ref=w_star[None], w_last=w, w_avg=w, w_tail=w, info={}, report={})
+    result = SimpleNamespace(
+        w_star=w_star, w_ref=w_star[None], w_last=w, w_avg=w, w_tail=w, info={}, report={}, rows=None
+    )
     lines = final_table(result).splitlines()
     header = lines[1]
     for row in lines[2:5]:
@@ -264,7 +266,9 @@ def test_the_final_table_of_many_agents_shows_the_first_and_the_worst():
     w = np.broadcast_to(w_star, (1, N, 2)).copy()
     w[0, 4321] *= 1.5  # the worst agent
     w[0, 17] *= 1.2  # the second worst
-    result = SimpleNamespace(w_star=w_star, w_ref=w_star[None], w_last=w, w_avg=w, w_tail=w, info={}, report={})
+    result = SimpleNamespace(
+        w_star=w_star, w_ref=w_star[None], w_last=w, w_avg=w, w_tail=w, info={}, report={}, rows=None
+    )
     lines = final_table(result).splitlines()
     assert len(lines) <= TABLE_AGENTS + 6
     agents = [int(line.split()[0]) for line in lines[2:] if line.split()[0].isdigit()]
@@ -331,3 +335,49 @@ def test_many_agents_rows_go_to_agents_npz_and_read_back(run_cli, tmp_path, monk
     for name in large["per_agent"]["arrays"]:
         np.testing.assert_array_equal(read[name], np.asarray(small[name]), err_msg=name)
     assert large["max_error_tail"] == small["max_error_tail"]
+
+
+@pytest.mark.parametrize("n_agents", [7, 20, 21, 500])
+def test_the_agents_the_table_shows_are_the_same_picked_by_parts(n_agents):
+    """`_shown_agents` on each rank's agents, then on every rank's picks, picks what it picks over all the agents
+    (the first ten, then the worst ten by their tail error, ties to the lower id), whatever the split."""
+    from dgtd.cli import _shown_agents
+
+    rng = np.random.default_rng(n_agents)
+    ids = rng.permutation(n_agents)
+    tail = rng.integers(0, 5, n_agents).astype(float)  # many ties
+    tail[ids == 13] = np.nan if n_agents > 13 else tail[ids == 13]
+    whole = _shown_agents(ids, tail, n_agents)
+    of = dict(zip(ids.tolist(), tail))
+    for parts in (2, 3, 8):
+        picks = np.concatenate(
+            [_shown_agents(p, np.array([of[i] for i in p]), n_agents) for p in np.array_split(ids, parts)]
+        )
+        assert np.array_equal(_shown_agents(picks, np.array([of[i] for i in picks]), n_agents), whole)
+    if n_agents > 20:
+        assert whole[:10].tolist() == list(range(10))
+
+
+def test_agents_files_of_the_ranks_are_read_back_in_the_agents_order(tmp_path):
+    """Each rank's agents' file holds its rows in its own order with their ids (``agent``); `read_agents` puts every
+    file's rows together in the agents' order, on each array's agent axis."""
+    from dgtd.run.results import npz_bytes, read_agents
+
+    rng = np.random.default_rng(0)
+    w = rng.standard_normal((2, 9, 3))  # (seeds, agents, features)
+    theta = rng.standard_normal((9, 3))  # (agents, features)
+    trace = rng.standard_normal((4, 2, 9))  # (checkpoints, seeds, agents)
+    held = [np.array([4, 0, 7]), np.array([2, 8, 1, 5]), np.array([6, 3])]
+    names = ["agents.npz", "agents.1.npz", "agents.2.npz"]
+    for name, ids in zip(names, held):
+        rows = {"w_last": w[:, ids], "theta_star": theta[ids], "agent_error_last": trace[:, :, ids], "agent": ids}
+        (tmp_path / name).write_bytes(npz_bytes(rows))
+    per_agent = {
+        "file": "agents.npz",
+        "parts": names,
+        "arrays": ["agent_error_last", "theta_star", "w_last"],
+        "axes": {"w_last": 1, "theta_star": 0, "agent_error_last": 2},
+    }
+    read = read_agents(tmp_path, per_agent, "run it again")
+    assert np.array_equal(read["w_last"], w) and np.array_equal(read["theta_star"], theta)
+    assert np.array_equal(read["agent_error_last"], trace)

@@ -324,6 +324,43 @@ def test_a_run_on_a_chunked_graph_killed_on_four_ranks_resumes_on_two_with_the_s
     assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
 
 
+def test_many_agents_rows_are_written_by_the_ranks_that_hold_them(tmp_path):
+    """16 000 agents x 8 seeds x 8 features (past `GATHER_MAX`): rank 0 gathers no agent's rows; each rank writes its
+    agents' file (agents.npz, agents.1.npz, ...), and `read_results` puts them together into exactly the one-process
+    run's per-agent arrays and traces, the worst errors the same numbers, the consensus error to rounding (summed up
+    the agents' tree, where one process takes the plain sum), the final table the same lines."""
+    import json
+
+    import numpy as np
+
+    from dgtd.run.results import read_results
+
+    run = ["run", "garnet", "--agents", 16_000, "--seeds", 8, "-T", 20, "--checkpoints", 2, "--no-plots"]
+    base = alone(*run, "--no-progress", "--out", tmp_path / "one")
+    assert base.returncode == 0, base.stderr
+    one = read_results(tmp_path / "one")
+    table = lambda out: [line for line in out.splitlines() if not line.startswith(("wrote", "resuming"))][1:]  # noqa: E731
+    for ranks in (2, 3):
+        out = tmp_path / f"r{ranks}"
+        done = mpirun(ranks, *run, "--no-progress", "--out", out)
+        assert done.returncode == 0, done.stderr
+        parts = json.loads((out / "summary.json").read_text())["per_agent"]["parts"]
+        assert parts == ["agents.npz", *(f"agents.{r}.npz" for r in range(1, ranks))]
+        assert all((out / name).is_file() for name in parts)
+        assert (out / "metrics.csv").read_bytes() == (tmp_path / "one" / "metrics.csv").read_bytes()
+        spread = read_results(out)
+        for name in one.summary["per_agent"]["arrays"]:  # (theta*, mu*: solved by each process, its own threads)
+            exact = not name.endswith("_star")
+            assert np.array_equal(spread.summary[name], one.summary[name]) or not exact, name
+            np.testing.assert_allclose(spread.summary[name], one.summary[name], rtol=1e-9, atol=1e-9, err_msg=name)
+        for name in ("agent_error_last", "agent_error_avg"):
+            assert np.array_equal(spread.trajectory[name], one.trajectory[name]), name
+        for name in (k for k in one.summary if k.startswith("max_")):
+            assert spread.summary[name] == one.summary[name], name
+        np.testing.assert_allclose(spread.summary["consensus_last"], one.summary["consensus_last"], rtol=1e-12)
+        assert table(done.stdout) == table(base.stdout)
+
+
 def test_an_asynchronous_run_resumes_with_its_message_ages(tmp_path):
     """The same after-a-kill resume of an asynchronous run: the ages counted before the checkpoint come back with
     it, so that every step's ghosts are counted once (garnet's ring of 10 agents on 2 ranks: 2 ghosts on each, 4 a

@@ -521,6 +521,7 @@ class Ranks:
         self.ctx, self.kernel, self.asynchronous = ctx, kernel, asynchronous
         self.partition = P = partition(ctx)
         self.agents, self.n_agents, self.root = P.own, int(P.bounds[-1]), P.rank == 0
+        self.rank, self.n_ranks = P.rank, len(P.bounds) - 1
         if ctx.__dict__["_mpi"].get("compiled"):
             S = share(ctx)
             self.arc_ids, self.counted = S.arc_ids, S.counted.astype(bool)
@@ -566,6 +567,19 @@ class Ranks:
 
     def any(self, x: np.ndarray) -> np.ndarray:
         return self.max(x.astype(np.uint8)).astype(bool)
+
+    def total(self, x: np.ndarray) -> np.ndarray:
+        """Whole numbers (int64) summed over the ranks: exact, so in any order."""
+        from mpi4py import MPI
+
+        x = np.ascontiguousarray(x, dtype=np.int64)
+        out = np.empty_like(x)
+        self._timed(lambda: world().Allreduce(x, out, op=MPI.SUM), "reduce")
+        return out
+
+    def collect(self, x) -> list | None:
+        """Every rank's ``x`` (a few numbers: pickled) in rank order on rank 0; None on the others."""
+        return self._timed(lambda: world().gather(x, root=0), "gather")
 
     def tree_sum(self, x: np.ndarray) -> np.ndarray:
         """x (B, own, ...) summed over every rank's agents up the fixed tree of the agents in storage order

@@ -159,7 +159,12 @@ def _run_job(job, t_start: float) -> None:
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
-    if not runtime.writes():  # one process writes the results and reports them
+    if not runtime.writes() and result.rows is None:  # one process writes the results and reports them
+        return
+    if result.rows is not None and not runtime.writes():  # its agents' rows, and its part of what the table combines
+        job.save(result)
+        final_table(result)
+        report_notes(job, result)
         return
     t_ran = time.perf_counter()
     if job.config.output.plots:
@@ -227,13 +232,15 @@ def not_converged(job, result) -> str:
     as its start (w0, or 0: 100 %) or more without having diverged, with what to change on compressed links; else
     ""."""
     from dgtd.problems import exact
-    from dgtd.run.results import reference
+    from dgtd.run.results import held_reference, over_agents, reference
 
     ref = reference(result)
-    tail = exact.relative_error(result.w_tail, ref)
+    tail = exact.relative_error(result.w_tail, held_reference(result), of=ref)
     w0 = job.problem.w0 if job.problem.w0 is not None else np.zeros(ref.shape[-1])
     start = float(exact.relative_error(w0, ref, of=ref).max())
-    worst = float(np.nanmax(tail, initial=0.0)) if np.isfinite(tail).any() else 0.0
+    largest = float(np.max(np.where(np.isnan(tail), 0.0, tail), initial=0.0))
+    worst, any_finite = over_agents(result, np.array([[largest], [float(np.isfinite(tail).any())]]))
+    worst = float(worst) if any_finite else 0.0
     if worst <= FARTHER * max(start, 1.0):  # (a run that barely moved ends near its start: no word)
         return ""
     channel = job.channel
@@ -286,50 +293,81 @@ def _vec(x, n=4) -> str:
 TABLE_AGENTS = 20  # agents the final table shows at most: the first half of them, then the worst
 
 
-def _shown_agents(tail_error: np.ndarray) -> list[int]:
-    """Every agent where there are at most `TABLE_AGENTS`; else the first TABLE_AGENTS / 2 and the worst as many of
-    the others by their tail-averaged error (seed 0)."""
-    N = len(tail_error)
-    if N <= TABLE_AGENTS:
-        return list(range(N))
-    first = list(range(TABLE_AGENTS // 2))
-    order = np.argsort(-tail_error[TABLE_AGENTS // 2 :], kind="stable") + TABLE_AGENTS // 2
-    return first + order[: TABLE_AGENTS - len(first)].tolist()
+def _shown_agents(ids: np.ndarray, tail_error: np.ndarray, n_agents: int) -> np.ndarray:
+    """Of the agents ``ids`` (with their tail-averaged errors, seed 0) those the table shows: every agent where there
+    are at most `TABLE_AGENTS`; else the first TABLE_AGENTS / 2 and the worst as many of the others by their
+    tail-averaged error (ties: the lower id), in that order. Applied to a rank's agents, then to what every rank
+    picked, it picks the same."""
+    if n_agents <= TABLE_AGENTS:
+        return np.sort(ids)
+    half = TABLE_AGENTS // 2
+    first = np.sort(ids[ids < half])
+    rest = np.flatnonzero(ids >= half)
+    order = rest[np.lexsort((ids[rest], -tail_error[rest]))][: TABLE_AGENTS - half]
+    return np.concatenate([first, ids[order]])
 
 
-def _agent_rows(result, e_last, e_avg, e_tail) -> list[str]:
-    """The table's header and its rows of the agents shown (`_shown_agents`), seed 0, the columns lined up however
-    long a vector; where some are left out, which and where they are."""
-    N = result.w_last.shape[1]
-    agents = _shown_agents(e_tail[0])
-    last, avg = {i: _vec(result.w_last[0, i]) for i in agents}, {i: _vec(result.w_avg[0, i]) for i in agents}
+def _table_rows(result, e_last, e_avg, e_tail) -> list | None:
+    """(agent, w_last, w_avg, its three errors) of the agents the table shows (`_shown_agents`, seed 0), in its
+    order: picked among this process's rows, and where the rows stay on their ranks, among every rank's picks on
+    rank 0 (None on the others)."""
+    ids = np.arange(result.w_last.shape[1]) if result.rows is None else np.asarray(result.rows.agents)
+    N = int(result.info.get("n_agents") or len(ids))
+    at = {int(i): k for k, i in enumerate(ids)}
+    picked = [
+        (int(i), result.w_last[0, at[i]], result.w_avg[0, at[i]], e_last[0, at[i]], e_avg[0, at[i]], e_tail[0, at[i]])
+        for i in _shown_agents(ids, e_tail[0], N)
+    ]
+    every = [picked] if result.rows is None else result.rows.collect(picked)
+    if every is None:
+        return None
+    rows = {r[0]: r for part in every for r in part}
+    return [rows[i] for i in _shown_agents(np.array(list(rows)), np.array([r[5] for r in rows.values()]), N)]
+
+
+def _agent_rows(result, e_last, e_avg, e_tail) -> list[str] | None:
+    """The table's header and its rows of the agents shown (`_table_rows`), seed 0, the columns lined up however
+    long a vector; where some are left out, which and where they are. None on a rank that does not write."""
+    shown = _table_rows(result, e_last, e_avg, e_tail)
+    if shown is None:
+        return None
+    N = int(result.info.get("n_agents") or result.w_last.shape[1])
+    last, avg = {r[0]: _vec(r[1]) for r in shown}, {r[0]: _vec(r[2]) for r in shown}
     width = max(34, *(len(v) + 2 for v in [*last.values(), *avg.values()]))
     rows = [
         f"{'agent':>5}  {'w_last (seed 0)':<{width}}{'err':>8}  {'w_avg (seed 0)':<{width}}{'err':>8}  "
         f"{'w_tail err':>10}"
     ]
-    for k, i in enumerate(agents):
-        if k == TABLE_AGENTS // 2 and len(agents) < N:
-            rows.append(f"{'...':>5}  the worst {len(agents) - k} by their tail-averaged error:")
+    for k, (i, _, _, err_last, err_avg, err_tail) in enumerate(shown):
+        if k == TABLE_AGENTS // 2 and len(shown) < N:
+            rows.append(f"{'...':>5}  the worst {len(shown) - k} by their tail-averaged error:")
         rows.append(
-            f"{i + 1:>5}  {last[i]:<{width}}{e_last[0, i]:>8.2%}  {avg[i]:<{width}}{e_avg[0, i]:>8.2%}  "
-            f"{e_tail[0, i]:>10.2%}"
+            f"{i + 1:>5}  {last[i]:<{width}}{err_last:>8.2%}  {avg[i]:<{width}}{err_avg:>8.2%}  {err_tail:>10.2%}"
         )
-    if len(agents) < N:
-        rows.append(f"{'':>5}  ({N - len(agents):,} agents more: every agent's rows in summary.json or agents.npz)")
+    if len(shown) < N:
+        rows.append(f"{'':>5}  ({N - len(shown):,} agents more: every agent's rows in summary.json or agents.npz)")
     return rows
 
 
 def final_table(result) -> str:
     """Every agent's last and averaged w beside w* (seed 0), then the worst errors over seeds."""
     from dgtd.problems import exact
-    from dgtd.run.results import reference
+    from dgtd.run.results import consensus_of, held_reference, over_agents, reference
 
-    ref = reference(result)
-    e_last = exact.relative_error(result.w_last, ref)
-    e_avg = exact.relative_error(result.w_avg, ref)
-    e_tail = exact.relative_error(result.w_tail, ref)
-    cons = exact.consensus_error(result.w_last)
+    ref, held = reference(result), held_reference(result)
+    e_last = exact.relative_error(result.w_last, held, of=ref)
+    e_avg = exact.relative_error(result.w_avg, held, of=ref)
+    e_tail = exact.relative_error(result.w_tail, held, of=ref)
+    cons = consensus_of(result, result.w_last)
+    agent_rows = _agent_rows(result, e_last, e_avg, e_tail)  # (collectives first, where the rows are spread)
+    moments = result.info.get("moments")
+    v = {
+        k: over_agents(result, exact.value_error(moments, W, held, of=ref)).max()
+        for k, W in (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))
+    } if moments is not None else None  # fmt: skip
+    worst = [over_agents(result, e).max() for e in (e_last, e_avg, e_tail)]
+    if agent_rows is None:  # a rank that does not write: its part is done
+        return ""
     shift = result.info.get("regularisation_shift", 0.0)
     moved = not shift and not np.array_equal(ref[0], result.w_star)  # lost messages move the fixed point
     rows = [
@@ -343,9 +381,8 @@ def final_table(result) -> str:
             f"w* = {_vec(result.w_star, 8)}; with the messages lost, the run converges to w_fixed = {_vec(ref[0], 8)} "
             f"(each agent's reward weighted as its links let it be heard: docs/links.md), and the errors are against it"
         )
-    rows += _agent_rows(result, e_last, e_avg, e_tail)
+    rows += agent_rows
     rows.append(f"consensus error sum_i |w_i - mean w|^2 (last, seed 0): {cons[0]:.3g}")
-    moments = result.info.get("moments")
     if moments is not None and not moments.model:
         est = moments.problem.summary()
         rows.insert(
@@ -362,19 +399,15 @@ def final_table(result) -> str:
                 else ""
             ),
         )
-    if moments is not None:
-        v = {
-            k: exact.value_error(moments, W, ref).max()
-            for k, W in (("last", result.w_last), ("averaged", result.w_avg), ("tail-averaged", result.w_tail))
-        }
+    if v is not None:
         rows.append(
             "value error |Phi (w_i - w*)|_d / |Phi w*|_d (d: the sampled states' distribution), worst agent "
             "over seeds: " + ", ".join(f"{k} {x:.2%}" for k, x in v.items())
         )
     if result.w_last.shape[0] > 1:
         rows.append(
-            f"over {result.w_last.shape[0]} seeds, worst agent: last {e_last.max():.2%}, averaged {e_avg.max():.2%}, "
-            f"tail-averaged {e_tail.max():.2%}; consensus error max {cons.max():.3g}"
+            f"over {result.w_last.shape[0]} seeds, worst agent: last {worst[0]:.2%}, averaged {worst[1]:.2%}, "
+            f"tail-averaged {worst[2]:.2%}; consensus error max {cons.max():.3g}"
         )
     div = np.asarray(result.info.get("diverged_at", []))
     if np.any(div >= 0):  # stopped seeds: their estimates are NaN from then on

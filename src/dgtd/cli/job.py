@@ -131,12 +131,16 @@ class PreparedRun:
         plots = self.config.output.plots if plots is None else plots
         sc = scenario_of(self.resolved)
         extra = None
+        if result.rows is not None:  # every agent's rows stay on their ranks: a scenario's report takes them all
+            sc = None
         if sc is not None and sc.report is not None:  # a scenario's own numbers (e.g. the robots' map correlations)
             extra, self.report_text = sc.report(result, self.source)
         also = {}
         if sc is not None and hasattr(sc.report, "arrays"):  # what the scenario's figures need, for `dgtd plot`
             also[SCENARIO_ARRAYS] = lambda: npz_bytes(sc.report.arrays(self.source))
         names = write_results(self.out, result, self.record, algorithm=self.algorithm.name, extra=extra, also=also)
+        if not runtime.writes():  # a rank that wrote its agents' rows (`RunResult.rows`): rank 0 does the rest
+            return names
         if self.config.output.log:
             from dgtd.run.logs import log_kinds, write_logs
             from dgtd.run.results import metrics_rows
@@ -189,7 +193,7 @@ def execute(config: RunConfig):
 
             return read_results(job.out)
         result = job.run()
-        if runtime.writes():
+        if runtime.writes() or result.rows is not None:  # (spread rows: every rank writes its agents')
             job.save(result)
         return result
     finally:

@@ -16,6 +16,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.files import numbers, read_csv, read_json, read_npz
 from dgtd.plots import BAND_WORDS, _save, band, median_band, plot_errors, plot_iterates, plt
+from dgtd.run.results import with_agents
 
 # What each metric of a run is, in words, for titles and axes.
 METRIC_WORDS = {
@@ -54,11 +55,10 @@ def load_run(directory: Path) -> SimpleNamespace:
     if missing:
         raise DgtdInputError(f"results file {path} lacks the metric(s) {', '.join(missing)} (cut off?); {fix}")
     summary = read_json(directory / "summary.json", "results file", fix, required=("w_star",))
-    if "per_agent" in summary:  # many agents: their rows in agents.npz (`dgtd.run.results.summary`)
-        summary |= read_npz(directory / summary["per_agent"]["file"], "results file", fix)
     trajectory = {}
     if (directory / "trajectory.npz").exists():
         trajectory = read_npz(directory / "trajectory.npz", "results file", fix)
+    summary, trajectory = with_agents(directory, summary, trajectory, fix)  # many agents' rows, kept outside
 
     def saved(key):  # an array of summary.json, None where it is not there (older results)
         return None if summary.get(key) is None else np.asarray(summary[key], dtype=np.float64)

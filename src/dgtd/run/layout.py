@@ -50,6 +50,14 @@ class Whole:
     def any(self, x: np.ndarray) -> np.ndarray:
         return x
 
+    def total(self, x: np.ndarray) -> np.ndarray:
+        """Whole numbers summed over the processes: this one's alone."""
+        return x
+
+    def collect(self, x) -> list:
+        """Every process's ``x`` (a few numbers), on the one that writes: this one's."""
+        return [x]
+
     def tree_sum(self, x: np.ndarray) -> np.ndarray:
         """x (B, N, ...) summed over the agents up their fixed tree in storage order (`dgtd.problems.exact.tree_sum`),
         as the ranks sum it."""

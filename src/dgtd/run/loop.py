@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -66,6 +67,9 @@ class RunResult:
     # What the algorithm reports of itself (its hooks `fixed_point`, `prepare` and `diagnostics`): DGTD's theta*, mu*,
     # projection boxes and KKT residuals; summary.json carries it
     report: dict = field(default_factory=dict)
+    # Where the per-agent arrays hold only this rank's agents (a spread run too large to gather: `GATHER_MAX`): the
+    # run's layout, whose ``agents`` are their ids and whose methods combine over the ranks; None: every agent's rows
+    rows: Any = None
 
     @property
     def w_ref(self) -> np.ndarray:
@@ -238,14 +242,29 @@ def save(plan: Plan, rs: RunState, on_checkpoint) -> None:
         on_checkpoint(snapshot(rs, plan.layout, rs.seconds + time.perf_counter() - plan.t_start))
 
 
+GATHER_MAX = 1_000_000  # seeds x agents x features of a spread run's final iterates that rank 0 gathers at most
+
+
+def by_rank(plan: Plan) -> bool:
+    """Whether a spread run's per-agent results stay on the ranks that hold them (each rank writes its agents' rows:
+    `dgtd.run.results`): where its final iterates pass `GATHER_MAX` numbers, so that rank 0 holds nothing of size N.
+    The same verdict on every rank (sizes alone)."""
+    B, q = int(plan.settings.seeds), plan.ctx.problem.n_features
+    return plan.layout.agents is not None and plan.estimates > 1 and B * plan.n_agents * q > GATHER_MAX
+
+
 def results(plan: Plan, rs: RunState, timing: dict) -> RunResult:
-    """The `RunResult`: every agent's rows gathered on the process that writes (`gathered`), the averaged and tail
-    averaged iterates, what the algorithm reports of itself, the counts."""
+    """The `RunResult`: every agent's rows gathered on the process that writes (`gathered`), or left on their ranks
+    (`by_rank`), the averaged and tail averaged iterates, what the algorithm reports of itself, the counts."""
     ref, ctx, layout, algorithm = plan.reference, plan.ctx, plan.layout, plan.algorithm
     T = int(plan.settings.iterations)
-    rs = gathered(rs, layout, ctx.arcs.n_arcs, ctx.channel.holds)
+    spread = by_rank(plan)
+    if not spread:
+        rs = gathered(rs, layout, ctx.arcs.n_arcs, ctx.channel.holds)
     report = ref.report
-    if layout.root:
+    if spread:  # (the diagnostics take every agent's state: KKT residuals over the whole network)
+        report = {**ref.fixed.report, **report}
+    elif layout.root:
         report = {**ref.fixed.report, **report, **algorithm.diagnostics(rs.state, ref.moments, ref.L_mean)}
     tail_sum = np.nan if rs.tail_base is None else rs.tail_base
     return RunResult(
@@ -263,11 +282,12 @@ def results(plan: Plan, rs: RunState, timing: dict) -> RunResult:
         final_state=rs.state._asdict(),
         report=report,
         seconds=rs.seconds + time.perf_counter() - plan.t_start,
-        info=run_info(plan, rs, timing),
+        info=run_info(plan, rs, timing, spread),
+        rows=layout if spread else None,
     )
 
 
-def run_info(plan: Plan, rs: RunState, timing: dict) -> dict:
+def run_info(plan: Plan, rs: RunState, timing: dict, spread: bool = False) -> dict:
     """`RunResult.info`: the distribution d, the moments, the counts, the divergence steps and the timings."""
     ref, algorithm = plan.reference, plan.algorithm
     ages = plan.layout.message_ages()
@@ -280,7 +300,8 @@ def run_info(plan: Plan, rs: RunState, timing: dict) -> dict:
         "messages": rs.messages,
         "bits": rs.bits,
         "counts": rs.counts,
-        **(per_agent_counts(plan.ctx, rs.per_arc) if plan.layout.root else {}),
+        "n_agents": plan.n_agents,
+        **(per_agent_counts(plan.ctx, rs.per_arc) if plan.layout.root and not spread else {}),
         # how far DGTD's regularised saddle point (rho > 0) is from w* (|.|_inf relative); lost messages move the
         # fixed point too, which the results report as w_fixed
         "regularisation_shift": float(exact.relative_error(ref.fixed.w, ref.w_star).max())

@@ -49,6 +49,26 @@ def reference(result: RunResult) -> np.ndarray:
     return result.w_ref
 
 
+def held_reference(result: RunResult) -> np.ndarray:
+    """The reference rows of the agents whose rows ``result`` holds (`reference`'s, cut to a rank's agents where
+    the rows stay on their ranks: `RunResult.rows`)."""
+    ref = reference(result)
+    return ref if result.rows is None else result.rows.rows(ref)
+
+
+def over_agents(result: RunResult, x: np.ndarray) -> np.ndarray:
+    """The largest value of x (..., n) over every agent of the run (its last axis), however the rows are held: the
+    ranks combined where each holds its own."""
+    m = np.asarray(np.max(x, axis=-1), dtype=np.float64)
+    return m if result.rows is None else result.rows.max(np.atleast_1d(m)).reshape(m.shape)
+
+
+def consensus_of(result: RunResult, W: np.ndarray) -> np.ndarray:
+    """The consensus error (B,) of every agent's W (B, n, q) (`dgtd.problems.exact.consensus_error`), up the
+    agents' fixed tree across the ranks where the rows stay on them."""
+    return exact.consensus_error(W) if result.rows is None else result.rows.consensus(W)
+
+
 def plain(report: dict) -> dict:
     """An algorithm's report (`RunResult.report`) as JSON-ready data: arrays as nested lists."""
     return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in report.items()}
@@ -113,40 +133,69 @@ def problem_fields(problem) -> dict:
 
 INLINE_NUMBERS = 1_000_000  # per-agent numbers summary.json holds itself; beyond, agents.npz holds them (`summary`)
 AGENTS_FILE = "agents.npz"
+TRACES = ("agent_error_last", "agent_error_avg")  # trajectory.npz's per-agent arrays (C, B, N): agents on axis 2
 
 
 def per_agent(result: RunResult) -> dict:
     """Every per-agent array of a run's results (name -> array, agents on the axis after the seeds', or first where
-    there is no seeds axis): the last, averaged and tail-averaged iterates, their errors (relative, value, to the true
-    values where there is a model, projected Bellman), what each agent sent that arrived, and what the algorithm
-    reports per agent (DGTD's theta*, mu*)."""
-    moments, ref = result.info["moments"], reference(result)
+    there is no seeds axis) of the agents it holds: the last, averaged and tail-averaged iterates, their errors
+    (relative, value, to the true values where there is a model, projected Bellman), what each agent sent that
+    arrived, and what the algorithm reports per agent (DGTD's theta*, mu*)."""
+    moments, whole, ref = result.info["moments"], reference(result), held_reference(result)
     outputs = (("last", result.w_last), ("avg", result.w_avg), ("tail", result.w_tail))
     arrays = {f"w_{k}": np.asarray(W) for k, W in outputs}
-    arrays |= {f"error_{k}": exact.relative_error(W, ref) for k, W in outputs}
-    arrays |= {f"value_error_{k}": exact.value_error(moments, W, ref) for k, W in outputs}
+    arrays |= {f"error_{k}": exact.relative_error(W, ref, of=whole) for k, W in outputs}
+    arrays |= {f"value_error_{k}": exact.value_error(moments, W, ref, of=whole) for k, W in outputs}
     if moments.model:
         arrays |= {f"true_value_error_{k}": exact.true_value_error(moments, W) for k, W in outputs}
     arrays["rmspbe_tail"] = exact.rmspbe(moments, result.w_tail)
     arrays |= {f"{k}_per_agent": v.mean(axis=0) for k, v in result.info.get("per_agent", {}).items()}
-    N = result.w_last.shape[1]
+    N = int(result.info.get("n_agents") or result.w_last.shape[1])
     report = {k: v for k, v in result.report.items() if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == N > 1}
-    return arrays | report
+    held = report if result.rows is None else {k: result.rows.rows(v) for k, v in report.items()}
+    return arrays | held
 
 
-def summary(result: RunResult, config: dict) -> dict:
+def agent_axes(agents: dict) -> dict:
+    """Each per-agent array's agent axis (`per_agent`'s, then trajectory.npz's `TRACES`): after the seeds', or first
+    where it has none (what the algorithm reports per agent, the counts averaged over seeds)."""
+    first = {k for k in agents if k.endswith("_per_agent") or not (k.startswith(("w_", "rmspbe")) or "error_" in k)}
+    return {k: 0 if k in first else 1 for k in agents} | dict.fromkeys(TRACES, 2)
+
+
+def agent_files(result: RunResult) -> list[str]:
+    """The files of the agents' rows where each rank writes its own (`RunResult.rows`): rank 0's agents.npz, rank
+    r's agents.r.npz, each with ``agent``, the ids of its rows."""
+    return [AGENTS_FILE, *(f"agents.{r}.npz" for r in range(1, result.rows.n_ranks))]
+
+
+def _per_agent_numbers(result: RunResult, agents: dict) -> int:
+    """How many per-agent numbers the run's results hold, over every rank where the rows stay on them."""
+    n = np.array([sum(a.size for a in agents.values())], np.int64)
+    return int((n if result.rows is None else result.rows.total(n))[0])
+
+
+def summary(result: RunResult, config: dict, agents: dict | None = None) -> dict:
     """What summary.json holds: the exact solution, each seed's and agent's estimates and errors (`per_agent`; where
     they pass `INLINE_NUMBERS` numbers, agents.npz holds them and ``per_agent`` names it: a million agents' rows as
-    JSON took minutes), the worst of each over seeds and agents, the config."""
+    JSON took minutes; where they stay on their ranks, each rank's file: `agent_files`), the worst of each over seeds
+    and agents, the config. Where the rows stay on their ranks, every rank computes it (the ranks combine the worst
+    and the consensus), rank 0 writes it."""
     moments = result.info["moments"]
-    agents = per_agent(result)
-    inline = sum(a.size for a in agents.values()) <= INLINE_NUMBERS
-    worst = {f"max_{name}": float(np.max(agents[name])) for name in agents if "error_" in name and "true" not in name}
-    rows = (
-        {k: v.tolist() for k, v in agents.items()}
-        if inline
-        else {"per_agent": {"file": AGENTS_FILE, "arrays": sorted(agents)}}
-    )
+    agents = per_agent(result) if agents is None else agents
+    inline = result.rows is None and _per_agent_numbers(result, agents) <= INLINE_NUMBERS
+    worst = {
+        f"max_{name}": float(over_agents(result, np.atleast_1d(np.max(agents[name]))))
+        for name in agents
+        if "error_" in name and "true" not in name
+    }
+    if inline:
+        rows = {k: v.tolist() for k, v in agents.items()}
+    else:
+        rows = {"per_agent": {"file": AGENTS_FILE, "arrays": sorted(agents)}}
+        if result.rows is not None:  # each rank's file, with its agents' traces (`write_results`)
+            rows["per_agent"] |= {"parts": agent_files(result), "axes": agent_axes(agents)}
+            rows["per_agent"]["arrays"] = sorted([*agents, *TRACES])
     return {
         "w_star": result.w_star.tolist(),
         "w_reference": reference(result).tolist(),
@@ -169,7 +218,7 @@ def summary(result: RunResult, config: dict) -> dict:
             if moments.model
             else {"reference": moments.problem.summary()}
         ),
-        "consensus_last": exact.consensus_error(result.w_last).tolist(),
+        "consensus_last": consensus_of(result, result.w_last).tolist(),
         "messages": result.info["messages"].tolist(),
         "bits": result.info["bits"].tolist(),
         **({"message_ages": age_summary(result.info["message_ages"])} if "message_ages" in result.info else {}),
@@ -213,36 +262,59 @@ def write_results(
     out: Path, result: RunResult, config: dict, algorithm: str, extra: dict | None = None, also: dict | None = None
 ) -> list[str]:
     """summary.json, metrics.csv (per seed), bands.csv (median and 90 % band over seeds) and trajectory.npz in
-    ``out``; summary.json is written last.
+    ``out``; summary.json is written last. Where the rows stay on their ranks (`RunResult.rows`), every rank calls
+    it: each writes its agents' file (`agent_files`), then rank 0 the others.
 
     ``extra``: scenario-specific numbers, stored in summary.json under "scenario"; ``also``: more files (name ->
-    a function returning its bytes), written with the others, before summary.json. Returns the names written.
+    a function returning its bytes), written with the others, before summary.json. Returns the names written (none
+    on a rank other than 0).
     """
     out = Path(out)
-    arrays = {
-        "steps": result.steps,
-        "agent_error_last": result.agent_error_last,
-        "agent_error_avg": result.agent_error_avg,
-    }
+    agents = per_agent(result)
+    spread = result.rows is not None
+    arrays = {"steps": result.steps} | ({} if spread else {k: getattr(result, k) for k in TRACES})
     if result.w_trace is not None:
         arrays["w_trace"] = result.w_trace
     ages = result.info.get("message_ages")  # an asynchronous run's (`age_summary`)
+    failed = _write_own_agents(out, result, agents) if spread else {}
+    content = summary(result, config, agents) | ({"scenario": extra} if extra else {})  # (a collective, spread)
+    if spread and not result.rows.root:
+        return []
+    outside = not spread and _per_agent_numbers(result, agents) > INLINE_NUMBERS
     files = {
         "metrics.csv": lambda: metrics_csv(result, algorithm),
         "bands.csv": lambda: bands_csv({algorithm: result}),
         "trajectory.npz": lambda: npz_bytes(arrays),
         **({"message_ages.csv": lambda: ages_csv(ages)} if ages is not None else {}),
-        **({AGENTS_FILE: lambda: npz_bytes(per_agent(result))} if _outside(result) else {}),
+        **({AGENTS_FILE: lambda: npz_bytes(agents)} if outside else {}),
         **(also or {}),
-        "summary.json": lambda: json_bytes(summary(result, config) | ({"scenario": extra} if extra else {})),
+        "summary.json": lambda: json_bytes(content),
     }
-    write_all(out, files)
-    return list(files)
+    if failed:  # summary.json would name files that are not there
+        failed["summary.json"] = "not written: the agents' files are incomplete"
+        files.pop("summary.json")
+    parts = agent_files(result) if spread else []
+    try:
+        write_all(out, files)
+    except NotWritten as e:
+        failed |= e.failed
+    if failed:
+        raise NotWritten(out, failed, [n for n in [*parts, *files] if n not in failed])
+    return [*parts, *files]
 
 
-def _outside(result: RunResult) -> bool:
-    """Whether the run's per-agent arrays go to agents.npz rather than into summary.json (`summary`)."""
-    return sum(a.size for a in per_agent(result).values()) > INLINE_NUMBERS
+def _write_own_agents(out: Path, result: RunResult, agents: dict) -> dict:
+    """This rank's agents' rows (and trajectory.npz's per-agent traces of them) in its file (`agent_files`), then
+    which files failed on any rank, on rank 0 ({name: reason}; {} on the others: rank 0 says it)."""
+    name = agent_files(result)[result.rows.rank]
+    rows = agents | {k: getattr(result, k) for k in TRACES} | {"agent": np.asarray(result.rows.agents, np.int64)}
+    try:
+        atomic_write(out / name, npz_bytes(rows))
+        reason = None
+    except OSError as e:
+        reason = e.strerror or str(e)
+    every = result.rows.collect((name, reason))
+    return {} if every is None else {n: r for n, r in every if r is not None}
 
 
 def npz_bytes(arrays: dict) -> bytes:
@@ -286,7 +358,10 @@ def pinned_to_boxes(result: RunResult, share: float = 0.5) -> dict:
         x = np.asarray(result.final_state.get(name))
         if x.size == 0 or not np.isfinite(bound) or bound == 0:
             continue
-        frac = float(np.mean(np.abs(x[np.isfinite(x)]) >= bound * (1 - 1e-12))) if np.isfinite(x).any() else 0.0
+        finite = x[np.isfinite(x)]
+        counts = np.array([np.sum(np.abs(finite) >= bound * (1 - 1e-12)), finite.size], np.int64)
+        pinned, n = counts if result.rows is None else result.rows.total(counts)
+        frac = float(pinned / n) if n else 0.0
         if frac >= share:
             out[name] = frac
     return out
@@ -323,6 +398,33 @@ def read_results(out) -> Results:
         "value": numbers(rows, "value", float, out / "metrics.csv", "results file", fix),
     }
     trajectory = read_npz(out / "trajectory.npz", "results file", fix) if (out / "trajectory.npz").exists() else {}
-    if "per_agent" in summary:  # many agents: their rows in agents.npz, read back into the summary as arrays
-        summary |= read_npz(out / summary["per_agent"]["file"], "results file", fix)
+    summary, trajectory = with_agents(out, summary, trajectory, fix)
     return Results(summary, metrics, trajectory)
+
+
+def with_agents(out: Path, summary: dict, trajectory: dict, fix: str) -> tuple[dict, dict]:
+    """summary.json's and trajectory.npz's contents with the agents' rows that many agents' results keep outside
+    them (summary.json's ``per_agent``: agents.npz, or each rank's file) read back in: the per-agent arrays into the
+    summary, the per-agent traces (`TRACES`) into the trajectory."""
+    if "per_agent" not in summary:
+        return summary, trajectory
+    rows = read_agents(out, summary["per_agent"], fix)
+    return summary | {k: v for k, v in rows.items() if k not in TRACES}, trajectory | {
+        k: v for k, v in rows.items() if k in TRACES
+    }
+
+
+def read_agents(out: Path, per_agent: dict, fix: str) -> dict:
+    """The agents' rows a results directory holds outside summary.json (its ``per_agent`` entry): agents.npz, or
+    where each rank wrote its own agents' file (``parts``), every file's rows put together in the agents' order."""
+    from dgtd.files import read_npz
+
+    if "parts" not in per_agent:
+        return read_npz(Path(out) / per_agent["file"], "results file", fix)
+    parts = [read_npz(Path(out) / name, "results file", fix) for name in per_agent["parts"]]
+    order = np.argsort(np.concatenate([p["agent"] for p in parts]), kind="stable")
+    axes = per_agent["axes"]
+    return {
+        name: np.take(np.concatenate([p[name] for p in parts], axis=axes[name]), order, axis=axes[name])
+        for name in per_agent["arrays"]
+    }
