@@ -159,12 +159,11 @@ def _run_job(job, t_start: float) -> None:
     if job.snapshot is not None:
         click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
-    if not runtime.writes() and result.rows is None:  # one process writes the results and reports them
-        return
-    if result.rows is not None and not runtime.writes():  # its agents' rows, and its part of what the table combines
-        job.save(result)
-        final_table(result)
-        report_notes(job, result)
+    if not runtime.writes():  # one process writes the results and reports them
+        if result.rows is not None:  # its agents' rows, and its part of what the table combines
+            job.save(result)
+            final_table(result)
+            report_notes(job, result)
         return
     t_ran = time.perf_counter()
     if job.config.output.plots:
@@ -311,8 +310,10 @@ def _table_rows(result, e_last, e_avg, e_tail) -> list | None:
     """(agent, w_last, w_avg, its three errors) of the agents the table shows (`_shown_agents`, seed 0), in its
     order: picked among this process's rows, and where the rows stay on their ranks, among every rank's picks on
     rank 0 (None on the others)."""
+    from dgtd.run.results import n_agents
+
     ids = np.arange(result.w_last.shape[1]) if result.rows is None else np.asarray(result.rows.agents)
-    N = int(result.info.get("n_agents") or len(ids))
+    N = n_agents(result)
     at = {int(i): k for k, i in enumerate(ids)}
     picked = [
         (int(i), result.w_last[0, at[i]], result.w_avg[0, at[i]], e_last[0, at[i]], e_avg[0, at[i]], e_tail[0, at[i]])
@@ -328,10 +329,12 @@ def _table_rows(result, e_last, e_avg, e_tail) -> list | None:
 def _agent_rows(result, e_last, e_avg, e_tail) -> list[str] | None:
     """The table's header and its rows of the agents shown (`_table_rows`), seed 0, the columns lined up however
     long a vector; where some are left out, which and where they are. None on a rank that does not write."""
+    from dgtd.run.results import n_agents
+
     shown = _table_rows(result, e_last, e_avg, e_tail)
     if shown is None:
         return None
-    N = int(result.info.get("n_agents") or result.w_last.shape[1])
+    N = n_agents(result)
     last, avg = {r[0]: _vec(r[1]) for r in shown}, {r[0]: _vec(r[2]) for r in shown}
     width = max(34, *(len(v) + 2 for v in [*last.values(), *avg.values()]))
     rows = [

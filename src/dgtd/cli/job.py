@@ -129,10 +129,9 @@ class PreparedRun:
         from dgtd.run.results import npz_bytes, write_results
 
         plots = self.config.output.plots if plots is None else plots
-        sc = scenario_of(self.resolved)
+        # where every agent's rows stay on their ranks, no scenario report: it takes them all
+        sc = scenario_of(self.resolved) if result.rows is None else None
         extra = None
-        if result.rows is not None:  # every agent's rows stay on their ranks: a scenario's report takes them all
-            sc = None
         if sc is not None and sc.report is not None:  # a scenario's own numbers (e.g. the robots' map correlations)
             extra, self.report_text = sc.report(result, self.source)
         also = {}

@@ -56,6 +56,11 @@ def held_reference(result: RunResult) -> np.ndarray:
     return ref if result.rows is None else result.rows.rows(ref)
 
 
+def n_agents(result: RunResult) -> int:
+    """The run's agents, however many of their rows ``result`` holds (older results and stand-ins: its rows')."""
+    return int(result.info.get("n_agents") or result.w_last.shape[1])
+
+
 def over_agents(result: RunResult, x: np.ndarray) -> np.ndarray:
     """The largest value of x (..., n) over every agent of the run (its last axis), however the rows are held: the
     ranks combined where each holds its own."""
@@ -150,7 +155,7 @@ def per_agent(result: RunResult) -> dict:
         arrays |= {f"true_value_error_{k}": exact.true_value_error(moments, W) for k, W in outputs}
     arrays["rmspbe_tail"] = exact.rmspbe(moments, result.w_tail)
     arrays |= {f"{k}_per_agent": v.mean(axis=0) for k, v in result.info.get("per_agent", {}).items()}
-    N = int(result.info.get("n_agents") or result.w_last.shape[1])
+    N = n_agents(result)
     report = {k: v for k, v in result.report.items() if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == N > 1}
     held = report if result.rows is None else {k: result.rows.rows(v) for k, v in report.items()}
     return arrays | held
@@ -184,11 +189,9 @@ def summary(result: RunResult, config: dict, agents: dict | None = None) -> dict
     moments = result.info["moments"]
     agents = per_agent(result) if agents is None else agents
     inline = result.rows is None and _per_agent_numbers(result, agents) <= INLINE_NUMBERS
-    worst = {
-        f"max_{name}": float(over_agents(result, np.atleast_1d(np.max(agents[name]))))
-        for name in agents
-        if "error_" in name and "true" not in name
-    }
+    errors = [name for name in agents if "error_" in name and "true" not in name]
+    largest = over_agents(result, np.array([np.max(agents[name]) for name in errors])[:, None])
+    worst = {f"max_{name}": float(x) for name, x in zip(errors, largest, strict=True)}  # (one collective, spread)
     if inline:
         rows = {k: v.tolist() for k, v in agents.items()}
     else:
