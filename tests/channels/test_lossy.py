@@ -306,3 +306,30 @@ def test_reweighting_removes_the_bias_in_long_runs(name):
     run = dgtd.evaluate(sc.problem, net, alg, iterations=300_000, seeds=2, channel=channel)
     m = exact.Moments(sc.problem)
     assert exact.value_error(m, run.w_tail, exact.w_star(m)).max() < 0.03
+
+
+def test_the_mean_metropolis_mixing_is_the_average_over_every_pattern_of_delivered_messages():
+    """E[I - W(k)] by enumeration: on a 4-agent graph (a triangle and a tail: 8 arcs), every one of the 2^8 patterns of
+    delivered arcs weighted by its probability (an arc delivers when its edge is up and its message kept, the two
+    arcs of an edge sharing the edge's draw), W_ij = 1 / (1 + max(d_i, d_j)) over what i heard: equal to
+    `mean_metropolis` to 1e-15, dense and sparse."""
+    import itertools
+
+    graph = topologies.from_edges(4, [(0, 1), (1, 2), (0, 2), (2, 3)])
+    p = np.array([0.9, 0.6, 0.75, 0.5])
+    net = random_edges(graph, p)
+    arcs = Arcs.of(net.base.edges, net.n_nodes)
+    loss = np.array([0.1, 0.3, 0.0, 0.25, 0.2, 0.05, 0.4, 0.15])
+    expected = np.zeros((4, 4))
+    for up in itertools.product([0, 1], repeat=4):
+        for kept in itertools.product([0, 1], repeat=8):
+            heard = np.repeat(up, 2) * np.array(kept)
+            weight = np.prod(np.where(up, p, 1 - p)) * np.prod(np.where(kept, 1 - loss, loss))
+            d = np.bincount(arcs.dst, heard, 4)
+            W = np.zeros((4, 4))
+            for a in np.flatnonzero(heard):
+                i, j = arcs.dst[a], arcs.src[a]
+                W[i, j] = 1 / (1 + max(d[i], d[j]))
+            expected += weight * (np.diag(W.sum(axis=1)) - W)
+    assert_allclose(mean_metropolis(net, loss, arcs), expected, atol=1e-15)
+    assert_allclose(mean_metropolis(net, loss, arcs, sparse=True).toarray(), expected, atol=1e-15)

@@ -99,3 +99,44 @@ def test_all_reachable_matches_scipy(rng):
         assert (topologies.all_reachable(A) and topologies.all_reachable(A.T)) == strong
         sym = A | A.T
         assert topologies.all_reachable(sym) == (connected_components(sym, directed=False)[0] == 1)
+
+
+@pytest.mark.parametrize("lanczos", [True, False])
+def test_the_sparse_spectrum_ends_are_the_dense_ones_or_a_bound_below(monkeypatch, lanczos):
+    """`spectrum_ends` on a mean Laplacian with unequal link probabilities: its largest eigenvalue is the dense
+    eigendecomposition's to 1e-9, its smallest non-zero one too by Lanczos; with no work allowed for Lanczos it is
+    Mohar's bound, 4 w_min / (N D) with D at most twice agent 0's eccentricity: positive and at most the true one."""
+    from dgtd.graphs import random as graph_random
+
+    if not lanczos:
+        monkeypatch.setattr(graph_random, "LANCZOS_WORK", 0.0)
+    graph = topologies.ring_with_chords(300, 7)
+    net = random_edges(graph, np.linspace(0.3, 1.0, graph.n_edges))
+    exact = np.linalg.eigvalsh(net.mean_laplacian())
+    largest, smallest, how = graph_random.spectrum_ends(net.mean_laplacian(sparse=True))
+    assert_allclose(largest, exact[-1], rtol=1e-9)
+    if lanczos:
+        assert how == "Lanczos"
+        assert_allclose(smallest, exact[1], rtol=1e-7)
+    else:
+        assert how == "Mohar's bound"
+        eccentricity = nx.eccentricity(nx.Graph(net.base.edges.tolist()), 0)
+        assert_allclose(smallest, 4 * 0.3 / (300 * 2 * eccentricity), rtol=1e-12)
+        assert 0 < smallest <= exact[1]
+
+
+def test_many_agents_mixing_eigenvalues_are_the_dense_ends_from_the_sparse_matrix(monkeypatch):
+    """Beyond DENSE_N agents the first-step rule's mixing eigenvalues come from the sparse mean mixing: the same
+    spread of points and smallest non-zero one as the dense eigendecomposition gives, for the Laplacian and for
+    Metropolis mixing (DENSE_N lowered to make 400 agents many)."""
+    from dgtd.algorithms import make_algorithm, mean_dynamics
+    from dgtd.problems import exact
+
+    net = random_edges(topologies.ring_with_chords(400, 9), 0.8)
+    for name in ("dgtd", "consensus-td0"):
+        dense = mean_dynamics._mixing_eigenvalues(make_algorithm(name).mixing, net)
+        monkeypatch.setattr(exact, "DENSE_N", 100)
+        sparse = mean_dynamics._mixing_eigenvalues(make_algorithm(name).mixing, net)
+        monkeypatch.undo()
+        assert len(dense) == len(sparse) == mean_dynamics.SPREAD + 1
+        assert_allclose(sparse, dense, rtol=1e-7, atol=1e-12)

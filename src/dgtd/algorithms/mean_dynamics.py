@@ -132,19 +132,43 @@ class MeanMap:
 def mixing_eigenvalues(algorithm, network) -> np.ndarray:
     """The eigenvalues of the mean mixing the algorithm applies to what it hears over perfect links: E[L(k)], or the
     Metropolis E[I - W(k)] (`dgtd.channels.perfect.mean_metropolis`); [0] for one that does not communicate. Beyond
-    `SPREAD` distinct ones, `SPREAD` points spread over their range and the smallest non-zero one."""
+    `SPREAD` distinct ones, `SPREAD` points spread over their range and the smallest non-zero one. Up to
+    `dgtd.problems.exact.DENSE_N` agents all of them, from the dense matrix; beyond, only those two ends, from the
+    sparse one (`dgtd.graphs.random.spectrum_ends`): O(|E|) memory, never N x N."""
     if not algorithm.messages:
         return np.zeros(1)
-    if algorithm.mixing == "metropolis":
+    key = (algorithm.mixing, _digest_of(network.base.edges, network.p, np.array([network.n_nodes])))
+    if key not in _MIXINGS:  # a run asks up to three times (its steps, the growing-mode check, its header)
+        if len(_MIXINGS) >= 8:
+            _MIXINGS.pop(next(iter(_MIXINGS)))
+        _MIXINGS[key] = _mixing_eigenvalues(algorithm.mixing, network)
+    return _MIXINGS[key]
+
+
+_MIXINGS: dict = {}
+
+
+def _mixing_eigenvalues(kind: str, network) -> np.ndarray:
+    from dgtd.problems.exact import DENSE_N
+
+    sparse = network.n_nodes > DENSE_N
+    if kind == "metropolis":
         from dgtd.channels.perfect import mean_metropolis
 
-        mixing = mean_metropolis(network)
+        mixing = mean_metropolis(network, sparse)
     else:
-        mixing = network.mean_laplacian()
-    lams = np.unique(np.round(np.linalg.eigvalsh(mixing), 12))
-    if lams.size <= SPREAD:
-        return lams
-    return np.unique(np.concatenate([np.linspace(0.0, lams[-1], SPREAD), lams[lams > 1e-12][:1]]))
+        mixing = network.mean_laplacian(sparse=sparse)
+    if sparse:
+        from dgtd.graphs.random import spectrum_ends
+
+        largest, smallest, _ = spectrum_ends(mixing)
+        lams = np.array([0.0, largest])
+    else:
+        lams = np.unique(np.round(np.linalg.eigvalsh(mixing), 12))
+        if lams.size <= SPREAD:
+            return lams
+        smallest = lams[lams > 1e-12][0]
+    return np.unique(np.concatenate([np.linspace(0.0, lams[-1], SPREAD), [smallest]]))
 
 
 def contracts(mean_map: MeanMap, alpha: float, lam: float) -> bool:
@@ -223,11 +247,16 @@ _FIRST_STEPS: dict = {}
 
 def _digest(transitions: tuple, lams: np.ndarray) -> str:
     """What the rule reads of a model (or a reference's sample) and its mixing, as one SHA-256."""
+    rows, s, s_next, weight, sample = transitions
+    return _digest_of(rows, s, s_next, weight, sample.ratio, sample.gamma, lams)
+
+
+def _digest_of(*arrays) -> str:
+    """The arrays' numbers and shapes, as one SHA-256."""
     import hashlib
 
-    rows, s, s_next, weight, sample = transitions
     h = hashlib.sha256()
-    for x in (rows, s, s_next, weight, sample.ratio, sample.gamma, lams):
+    for x in arrays:
         h.update(np.ascontiguousarray(x, dtype=np.float64).tobytes() + str(np.shape(x)).encode())
     return h.hexdigest()
 

@@ -224,33 +224,56 @@ def mean_laplacian(network, loss: np.ndarray, arcs: Arcs) -> np.ndarray:
     return L
 
 
-def _poisson_binomial(p: np.ndarray) -> np.ndarray:
-    """pmf (len(p) + 1,) of a sum of independent Bernoulli(p_k)."""
-    pmf = np.array([1.0])
-    for pk in p:
-        pmf = np.concatenate([pmf * (1 - pk), [0.0]]) + np.concatenate([[0.0], pmf * pk])
+def poisson_binomial(p: np.ndarray) -> np.ndarray:
+    """pmf (M, K + 1) of each row's sum of independent Bernoulli(p_k), ``p`` (M, K) (a row padded with zeros has the
+    pmf of its other entries, followed by zeros)."""
+    pmf = np.zeros((p.shape[0], p.shape[1] + 1))
+    pmf[:, 0] = 1.0
+    for k in range(p.shape[1]):
+        pk = p[:, k : k + 1]
+        pmf[:, 1 : k + 2] = pmf[:, : k + 1] * pk + pmf[:, 1 : k + 2] * (1 - pk)
+        pmf[:, 0] *= 1 - pk[:, 0]
     return pmf
 
 
-def mean_metropolis(network, loss: np.ndarray, arcs: Arcs) -> np.ndarray:
-    """E[L_W(k)], (N, N), of the Metropolis mixing of what is heard, I - W(k) with W_ij = 1 / (1 + max(d_i, d_j)) over
-    the messages i heard from j (`dgtd.channels.Inbox.metropolis`), d_i the number i heard. Exact: given that arc
-    j -> i delivers, d_i - 1 and d_j are sums of independent arc events over disjoint edges (d_j's includes i -> j,
-    given the edge up), so E[W_ij] = P(j -> i delivers) E[1 / (1 + max(1 + X_i, B + X_j))] over their
-    Poisson-binomial laws."""
+METROPOLIS_WORK = 1 << 22  # numbers a batch of arcs' Poisson-binomial laws holds at once (`mean_metropolis`)
+
+
+def mean_metropolis(network, loss: np.ndarray, arcs: Arcs, sparse: bool = False):
+    """E[L_W(k)], (N, N) (scipy CSR with ``sparse``), of the Metropolis mixing of what is heard, I - W(k) with
+    W_ij = 1 / (1 + max(d_i, d_j)) over the messages i heard from j (`dgtd.channels.Inbox.metropolis`), d_i the
+    number i heard. Exact: given that arc j -> i delivers, d_i - 1 and d_j are sums of independent arc events over
+    disjoint edges (d_j's includes i -> j, given the edge up), so E[W_ij] = P(j -> i delivers)
+    E[1 / (1 + max(1 + X_i, B + X_j))] over their Poisson-binomial laws. The arcs are taken in batches of the same
+    largest degree, each law one row of an array: O(sum over arcs of degree^2), no N x N array unless asked."""
     N = arcs.n_agents
     q = delivery(network, loss, arcs)
     keep = 1.0 - loss
-    into = [np.flatnonzero(arcs.dst == i) for i in range(N)]
-    W = np.zeros((N, N))
-    for a in range(arcs.n_arcs):
-        i, j = int(arcs.dst[a]), int(arcs.src[a])
-        back = a ^ 1  # the other arc of the same edge: i -> j
-        x_i = _poisson_binomial(q[into[i][into[i] != a]])
-        y = _poisson_binomial(q[into[j][into[j] != back]])
-        y = np.concatenate([y * (1 - keep[back]), [0.0]]) + np.concatenate([[0.0], y * keep[back]])  # + B
-        d_i = 1 + np.arange(x_i.size)
-        d_j = np.arange(y.size)
-        inv = 1.0 / (1.0 + np.maximum(d_i[:, None], d_j[None, :]))
-        W[i, j] += q[a] * float(x_i @ inv @ y)
-    return np.diag(W.sum(axis=1)) - W
+    degree = np.bincount(arcs.dst, minlength=N)
+    into = np.argsort(arcs.dst, kind="stable")  # the arcs into each agent, in arc order, from first[i]
+    first = np.concatenate([[0], np.cumsum(degree)[:-1]])
+    a_all = np.arange(arcs.n_arcs)
+    width = np.maximum(degree[arcs.dst], degree[arcs.src])
+    value = np.zeros(arcs.n_arcs)
+    for K in np.unique(width).tolist():
+        batch, size = a_all[width == K], max(1, METROPOLIS_WORK // (K + 1) ** 2)
+        for a in np.split(batch, np.arange(size, batch.size, size)):
+            back = a ^ 1  # the other arc of the same edge: i -> j
+            x = poisson_binomial(_others(q, into, first, degree, arcs.dst[a], a, K))
+            y = poisson_binomial(np.hstack([_others(q, into, first, degree, arcs.src[a], back, K), keep[back, None]]))
+            d_i, d_j = 1 + np.arange(x.shape[1]), np.arange(y.shape[1])  # y's last column: + B, i -> j kept
+            inv = 1.0 / (1.0 + np.maximum(d_i[:, None], d_j[None, :]))
+            value[a] = q[a] * np.einsum("mx,xy,my->m", x, inv, y)
+    rows, cols = np.concatenate([arcs.dst, np.arange(N)]), np.concatenate([arcs.src, np.arange(N)])
+    entries = np.concatenate([-value, np.bincount(arcs.dst, value, N)])
+    from scipy.sparse import coo_matrix
+
+    L = coo_matrix((entries, (rows, cols)), shape=(N, N)).tocsr()
+    return L if sparse else L.toarray()
+
+
+def _others(q: np.ndarray, into: np.ndarray, first: np.ndarray, degree: np.ndarray, agent, arc, K: int) -> np.ndarray:
+    """(M, K): the delivery probabilities of the arcs into each ``agent`` other than ``arc``, padded with zeros."""
+    slot = np.arange(K)[None, :]
+    at = into[np.minimum(first[agent][:, None] + slot, into.size - 1)]
+    return np.where((slot < degree[agent][:, None]) & (at != arc[:, None]), q[at], 0.0)

@@ -56,10 +56,10 @@ class Perfect:
         return Inbox(arcs, sent, heard)
 
 
-def mean_metropolis(network) -> np.ndarray:
-    """E[I - W(k)] (N, N) of the Metropolis mixing over the network's own links, every message delivered (exact:
-    `dgtd.channels.lossy.mean_metropolis` at loss 0)."""
+def mean_metropolis(network, sparse: bool = False):
+    """E[I - W(k)] (N, N; scipy CSR with ``sparse``) of the Metropolis mixing over the network's own links, every
+    message delivered (exact: `dgtd.channels.lossy.mean_metropolis` at loss 0)."""
     from dgtd.channels.lossy import mean_metropolis as over_lossy_links
 
     arcs = Arcs.of(network.base.edges, network.n_nodes)
-    return over_lossy_links(network, np.zeros(arcs.n_arcs), arcs)
+    return over_lossy_links(network, np.zeros(arcs.n_arcs), arcs, sparse)

@@ -89,6 +89,43 @@ def check_mean_connected(process: RandomEdges) -> None:
         )
 
 
+LANCZOS_WORK = 2e9  # stored entries x products beyond which the smallest non-zero eigenvalue is bounded (~5 s)
+
+
+def spectrum_ends(L) -> tuple[float, float, str]:
+    """(the largest eigenvalue, the smallest non-zero one, how the latter was found) of a connected graph's
+    symmetric mean mixing Laplacian ``L`` (scipy sparse, rows summing to 0), in O(|E|) memory: both by Lanczos
+    (ARPACK's ``eigsh``, from a fixed start vector, so the same on every run), the smallest non-zero one as the
+    smallest of L + lambda_max 11^T / N, whose eigenvalue along 1 is moved to the top (asked for two of L's
+    smallest, ARPACK may return lambda_2 and lambda_3 and miss the 0). Where that does not converge within
+    `LANCZOS_WORK` (a long ring's, about (2 pi / N)^2, would take many thousands of products), Mohar's bound
+    lambda_2 >= 4 w_min / (N D) (Mohar 1991, eq. (6.10); w_min the smallest link weight, D the diameter, at most
+    twice the eccentricity of agent 0, found by one breadth-first search): a smaller value, so a step rule that
+    asks every eigenvalue to contract is the more cautious for it."""
+    from scipy.sparse.csgraph import shortest_path
+    from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
+
+    N = L.shape[0]
+    # a fixed start vector, with a part along every eigenvector (a smooth one, as cos(i), misses a ring's slow modes)
+    start = np.random.default_rng(0).standard_normal(N)
+    largest = float(eigsh(L, k=1, which="LA", tol=1e-10, v0=start, return_eigenvectors=False)[0])
+    restarts = int(LANCZOS_WORK / (20 * max(L.nnz, 1)))  # each restart about 20 products with L
+    if restarts >= 2:
+        lifted = LinearOperator((N, N), matvec=lambda x: L @ x + largest * x.mean(), dtype=np.float64)
+        try:
+            smallest = eigsh(lifted, k=1, which="SA", tol=1e-8, v0=start, maxiter=restarts, return_eigenvectors=False)
+            return largest, float(smallest[0]), "Lanczos"
+        except ArpackNoConvergence:
+            pass
+    links = L.tocoo()
+    off = links.row != links.col
+    weight = -links.data[off]
+    linked = weight > 0
+    adjacency = type(links)((weight[linked], (links.row[off][linked], links.col[off][linked])), shape=L.shape)
+    eccentricity = float(shortest_path(adjacency, unweighted=True, indices=0).max())
+    return largest, 4.0 * float(weight[linked].min()) / (N * 2.0 * eccentricity), "Mohar's bound"
+
+
 def laplacian_pinv(L: np.ndarray) -> np.ndarray:
     """Pseudo-inverse of a connected graph's Laplacian, L^+ = (L + 11^T/N)^-1 - 11^T/N (Lemma 2)."""
     N = L.shape[0]
