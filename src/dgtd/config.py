@@ -607,8 +607,13 @@ def _check_problem_fields(spec) -> None:
         )
     if spec.gamma is not None and spec.env is None and spec.data is None:
         raise DgtdInputError("gamma is the discount of an --env or --data run; a scenario or problem file has its own")
-    if spec.gamma is not None and not 0.0 <= spec.gamma <= 1.0:
-        raise DgtdInputError(f"gamma must be in [0, 1] (1 only for episodes that end), got {spec.gamma}")
+    check_gamma(spec.gamma)
+
+
+def check_gamma(gamma: float | None) -> None:
+    """A discount given for a simulator or recordings: in [0, 1] (NaN refused too)."""
+    if gamma is not None and not 0.0 <= gamma <= 1.0:
+        raise DgtdInputError(f"gamma must be in [0, 1] (1 only for episodes that end), got {gamma}")
 
 
 def _from_scenario(spec) -> _Base:

@@ -95,6 +95,11 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         n_agents, defaults, actor_defaults = env.n_agents, ENV_CRITIC_STEPS, ENV_ACTOR_STEPS
     else:
         mdp = _team_mdp(task, file, own)
+        if values.get("gamma") is not None:  # (it was run at the task's own and recorded as the one given)
+            raise DgtdInputError(
+                f"gamma is the discount of a simulator (--env, {', '.join(ENV_TASKS)}); "
+                f"{task or file} has its own ({mdp.gamma:g})"
+            )
         n_agents, defaults = mdp.n_agents, CRITIC_STEPS
         actor_defaults = {"step": ACTOR_STEP[_given(own, "values", "state")], "offset": 1000.0}
         network = network_for(n_agents)
@@ -164,10 +169,12 @@ def _env_task(task: str | None, own: dict, values: dict, network_for) -> tuple:
     user's (--env module:make_env, its --features)."""
     from functools import partial
 
+    from dgtd.config import check_gamma
     from dgtd.run.learn_env import EnvTask
     from dgtd.scenarios.mpe import make_spread, spread_features
 
     name = task or values["env_make"]
+    check_gamma(values.get("gamma"))
     if own["states"] is not None or own["values"] not in (None, "state") or own["batch"] not in (None, 1):
         raise DgtdInputError(
             f"{name} is a simulator: its states are its own, and its critics evaluate state values a step at a time "
@@ -185,7 +192,7 @@ def _env_task(task: str | None, own: dict, values: dict, network_for) -> tuple:
     N = 3 if own["agents"] is None else int(own["agents"])
     if N < 2:
         raise DgtdInputError(f"{task} needs at least 2 agents, got {N}")
-    return EnvTask(partial(make_spread, N), spread_features(N), 0.9, task, N), network_for(N)
+    return EnvTask(partial(make_spread, N), spread_features(N), _given(values, "gamma", 0.9), task, N), network_for(N)
 
 
 def _given(values: dict, name: str, default):

@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 from helpers import one_line_error
+from numpy.testing import assert_allclose
 
 from dgtd.algorithms import make_algorithm
 from dgtd.algorithms.actor import SoftmaxActor
@@ -156,6 +157,7 @@ def test_lost_messages_are_counted_and_the_critics_messages_carry_the_team_estim
         (["pull-away", "--actor", "lonely"], ["lonely"]),
         (["pull-away", "--agents", "1"], ["at least 2 agents"]),
         (["pull-away", "--backend", "jax"], ["numpy or numba backend", "jax"]),
+        (["pull-away", "--gamma", "0.9"], ["gamma", "pull-away", "its own (0.5)"]),  # it ran at 0.5, recording 0.9
     ],
 )
 def test_bad_learning_input_is_one_line(run_cli, tmp_path, args, words):
@@ -378,3 +380,42 @@ def test_learners_over_links_that_hold_copies_run_on_numpy_and_say_so(run_cli, t
                            "--backend", "numpy", "--out", tmp_path / "n")  # fmt: skip
     assert code == 0 and "note:" not in err
     assert (tmp_path / "d" / "metrics.csv").read_bytes() == (tmp_path / "n" / "metrics.csv").read_bytes()
+
+
+def reducible_team(P) -> team.TeamMDP:
+    """One agent with one action on the chain ``P`` (3 states), rewarded 1 in state 1 alone, from a uniform start."""
+    P = np.asarray(P, dtype=np.float64)[:, None, :]
+    return team.team_mdp(P, np.array([[[0.0], [1.0], [0.0]]]), np.eye(3), 0.5, [1])
+
+
+def test_the_long_run_average_of_a_multichain_team_mdp_is_the_one_from_its_start():
+    """State 0 leaves for the absorbing states 1 (w.p. 1/4) and 2: from the uniform start the chain ends in state 1
+    w.p. 1/3 + 1/3 * 1/4 = 5/12, so J = 5/12 (the least-norm stationary solution said 1/2, a mixture no start gives);
+    the long-run state distribution is (0, 5/12, 7/12)."""
+    mdp = reducible_team([[0, 0.25, 0.75], [0, 1, 0], [0, 0, 1]])
+    policies = [np.ones((3, 1))]
+    assert team.average_return(mdp, policies) == pytest.approx(5 / 12, abs=1e-15)
+    assert_allclose(team.long_run(mdp.chain(policies)[0], mdp.start), [0, 5 / 12, 7 / 12], atol=1e-15)
+
+
+def test_a_transient_state_leaves_the_critic_target_its_recurrent_values(run_cli, tmp_path):
+    """State 0 is left at once for the class {1, 2}: d(0) = 0, so the on-policy fixed point says nothing of state 0's
+    weight (tabular features), and on the recurrent class it is the discounted value there, (I - gamma P_CC)^-1 r_C
+    (it raised LinAlgError: singular matrix); `dgtd learn` on such a file runs."""
+    P = [[0, 0.5, 0.5], [0, 0.3, 0.7], [0, 0.6, 0.4]]
+    mdp = reducible_team(P)
+    policies = [np.ones((3, 1))]
+    target = team.critic_target(mdp, policies)
+    C = np.array(P)[1:, 1:]
+    assert_allclose(target[1:], np.linalg.solve(np.eye(2) - 0.5 * C, [1.0, 0.0]), atol=1e-14)
+    assert team.average_return(mdp, policies) == pytest.approx(6 / 13, abs=1e-15)  # d_C = (6/13, 7/13)
+    arrays = dict(P=mdp.P, R=mdp.R, Phi=mdp.Phi, gamma=0.5, policy_0=np.ones((3, 1)))
+    np.savez(tmp_path / "t.npz", **arrays)
+    code, _, err = run_cli(
+        "learn", "--problem", tmp_path / "t.npz", "-T", 200, "--checkpoints", 2, "--seeds", 1, "--no-progress",
+        "--no-plots", "--out", tmp_path / "o",
+    )  # fmt: skip
+    assert code == 0, err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["return_last"] == pytest.approx([6 / 13], abs=1e-12)
+    assert np.isfinite(summary["critic_error_last"]).all()

@@ -134,12 +134,7 @@ def test_dgtd_learn_env_learns_in_a_users_simulator(run_cli, tmp_path):
     """`dgtd learn --env file.py:make --features linear`: a user's ParallelEnv (the pull-away game, written to a file
     as a user would), its critics' features built as `dgtd run --env`'s; networked learners end cooperating (the
     team's mean reward a step, estimated, above -0.05 at the end in both seeds, from about -0.5 a deviator)."""
-    import inspect
-
-    source = (
-        "import numpy as np\n\n\n" + inspect.getsource(PullAwayGame) + "\n\ndef make():\n    return PullAwayGame()\n"
-    )
-    (tmp_path / "game.py").write_text(source)
+    user_game(tmp_path)
     code, out, err = run_cli(
         "learn", "--env", f"{tmp_path / 'game.py'}:make", "--features", "linear", "-T", 3000, "--actor-step", 0.5,
         "--alpha0", 1, "--beta", 100, "--checkpoints", 3, "--no-progress", "--no-plots", "--out", tmp_path / "u",
@@ -150,3 +145,31 @@ def test_dgtd_learn_env_learns_in_a_users_simulator(run_cli, tmp_path):
     one_line_error(
         *run_cli("learn", "mpe-spread", "--env", f"{tmp_path / 'game.py'}:make", "--out", tmp_path / "x"), "name one"
     )
+
+
+@pytest.mark.parametrize("gamma", ["1.5", "-0.5", "nan", "inf"])
+def test_a_simulators_discount_outside_0_1_is_one_line(run_cli, tmp_path, gamma):
+    """`dgtd learn --env ... --gamma` is checked as `dgtd run --env`'s is (these ran with exit 0, NaN actors too)."""
+    user_game(tmp_path)
+    args = ("learn", "--env", f"{tmp_path / 'game.py'}:make", "--features", "linear", "--gamma", gamma, "-T", 10)
+    one_line_error(*run_cli(*args, "--no-progress", "--out", tmp_path / "o"), "gamma must be in [0, 1]")
+
+
+def test_a_named_simulator_runs_at_the_discount_given(run_cli, tmp_path):
+    """`dgtd learn mpe-spread --gamma 0.7`: the critics' discount is 0.7 (it was 0.9 whatever was given)."""
+    code, _, err = run_cli(
+        "learn", "mpe-spread", "--gamma", 0.7, "-T", 20, "--checkpoints", 1, "--seeds", 1, "--no-progress",
+        "--no-plots", "--out", tmp_path / "g",
+    )  # fmt: skip
+    assert code == 0, err
+    assert json.loads((tmp_path / "g" / "summary.json").read_text())["gamma"] == 0.7
+
+
+def user_game(tmp_path) -> None:
+    """The pull-away game written to game.py with its ``make`` as a user would write it."""
+    import inspect
+
+    source = (
+        "import numpy as np\n\n\n" + inspect.getsource(PullAwayGame) + "\n\ndef make():\n    return PullAwayGame()\n"
+    )
+    (tmp_path / "game.py").write_text(source)

@@ -158,23 +158,54 @@ def stationary(P_pi: np.ndarray) -> np.ndarray:
     return d / d.sum()
 
 
+def long_run(P_pi: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """The long-run state distribution from ``start``, lim (1/T) sum_t start^T P_pi^t (the Cesaro limit: it exists
+    for every finite chain, periodic too). Irreducible: the chain's one stationary d (`stationary`). Else by its
+    classes (Puterman 1994, appendix A.4): each closed communicating class C its own stationary d_C, weighted by the
+    probability that the chain from ``start`` ends in C (1 on C; on the transient states T the solution h_T of
+    (I - P_TT) h_T = P_TC 1); a transient state's share is 0."""
+    from dgtd.graphs.topologies import all_reachable
+
+    A = P_pi > 0
+    if all_reachable(A) and all_reachable(A.T):
+        return stationary(P_pi)
+    from scipy.sparse.csgraph import connected_components
+
+    _, label = connected_components(A, directed=True, connection="strong")
+    leaves = np.zeros(label.max() + 1, bool)
+    tails, heads = np.nonzero(A)
+    leaves[label[tails][label[tails] != label[heads]]] = True  # a class with an arc out of it is not closed
+    transient = leaves[label]
+    T = np.flatnonzero(transient)
+    d = np.zeros(P_pi.shape[0])
+    for c in np.flatnonzero(~leaves):
+        C = np.flatnonzero(label == c)
+        h_T = np.linalg.solve(np.eye(T.size) - P_pi[np.ix_(T, T)], P_pi[np.ix_(T, C)].sum(axis=1))
+        d[C] = (start[C].sum() + start[T] @ h_T) * stationary(P_pi[np.ix_(C, C)])
+    return d
+
+
 def average_return(mdp, policies) -> float:
     """J(pi) = sum_s d_pi(s) rbar_pi(s): the long-run average team reward of the agents' policies (the module's
-    docstring), by linear algebra on the model."""
+    docstring) from the MDP's start (`long_run`: where the policies' chain has more than one closed class the start
+    decides which it ends in), by linear algebra on the model."""
     P_pi, R_pi = chain_of(mdp, policies)
-    return float(stationary(P_pi) @ R_pi.mean(axis=0))
+    return float(long_run(P_pi, mdp.start) @ R_pi.mean(axis=0))
 
 
 def critic_target(mdp, policies) -> np.ndarray:
     """w*(pi) (q,): the fixed point every critic reaches on-policy under the current policies, A w* = b with
     A = Phi^T D (I - gamma P_pi) Phi and b = Phi^T D rbar_pi, D = diag(d_pi) (the paper's section 6, on the chain
-    the policies make)."""
+    the policies make; d_pi the long-run distribution from the start, `long_run`). Where d_pi leaves states out (a
+    transient state) A may be singular: the least-norm solution, the weights the long run says nothing of at 0."""
     P_pi, R_pi = chain_of(mdp, policies)
-    d = stationary(P_pi)
+    d = long_run(P_pi, mdp.start)
     Phi = mdp.Phi
     A = Phi.T @ (d[:, None] * (Phi - mdp.gamma * P_pi @ Phi))
     b = Phi.T @ (d * R_pi.mean(axis=0))
-    return np.linalg.solve(A, b)
+    if d.min() > 0:
+        return np.linalg.solve(A, b)
+    return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
 def action_features(n_agents: int, n_states: int, n_actions: int, s, a) -> np.ndarray:
@@ -199,7 +230,7 @@ def action_critic_target(mdp: TeamMDP, policies) -> tuple[np.ndarray, np.ndarray
     F = mdp.n_agents * S * A
     Phi_Q = np.zeros((S * A_joint, F))
     np.put_along_axis(Phi_Q, action_features(mdp.n_agents, S, A, s, mdp.local(joint)), 1.0, axis=1)
-    d = stationary(np.einsum("sa,sat->st", pi, mdp.P))[s] * pi[s, joint]
+    d = long_run(np.einsum("sa,sat->st", pi, mdp.P), mdp.start)[s] * pi[s, joint]
     next_features = np.einsum("pt,ta,taf->pf", mdp.P[s, joint], pi, Phi_Q.reshape(S, A_joint, F))
     lhs = Phi_Q.T @ (d[:, None] * (Phi_Q - mdp.gamma * next_features))
     rhs = Phi_Q.T @ (d * mdp.R.mean(axis=0)[s, joint])

@@ -456,7 +456,7 @@ def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict,
         metrics["critic_error"][b, c] = _critic_error(
             mdp, policies, np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1])), values
         )
-        metrics["entropy"][b, c] = team.entropy(policies, team.stationary(P_pi)).mean()
+        metrics["entropy"][b, c] = team.entropy(policies, team.long_run(P_pi, mdp.start)).mean()
         if mdp.best is not None:
             best = mdp.local(mdp.best)  # (S, N)
             metrics["best_probability"][b, c] = min(
