@@ -497,7 +497,7 @@ def chunked_shape(graph: str, n_agents: int, shape: dict) -> dict:
     return {
         "mean_degree": float(degree),
         "rewire": 0.1 if rewire is None else float(rewire),
-        "seed": int(shape.get("graph_seed") or 0),
+        "seed": check_count("graph_seed", shape.get("graph_seed") or 0, 0),
     }
 
 
@@ -897,6 +897,8 @@ def scenario_arguments(name: str, params: dict, edge_prob: float | None):
     names = [p.name for p in sig.parameters.values() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
     if "agents" in params and "agents" not in names and "n_agents" in names:  # --agents sizes a generated task
         params = {("n_agents" if k == "agents" else k): v for k, v in params.items()}
+    if "n_agents" in params:
+        params = {**params, "n_agents": check_count("n_agents", params["n_agents"], 1)}
     for k in params:
         if k == "edge_prob":
             raise DgtdInputError("edge_prob is a field of its own: write it at the top level, not under params")

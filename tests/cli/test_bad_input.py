@@ -107,6 +107,10 @@ ENV = {
     "rewards that are not numbers": (("--env", f"{ENVS}:make_text_reward"), ("agent_0", "'high'", "number")),
     "a reward for an agent that does not exist": (("--env", f"{ENVS}:make_extra_reward"), ("agent_9",)),
     "no rewards dictionary": (("--env", f"{ENVS}:make_no_rewards"), ("rewards", "dict")),
+    "agents other than its possible_agents": (  # a KeyError
+        ("--env", f"{ENVS}:make_stranger_agents"),
+        ("StrangerAgents", "no observation of agent_0", "stranger_0", "possible_agents"),
+    ),
     "the policy raises": (
         ("--env", f"{ENVS}:make_chain", "--policy", f"{ENVS}:raising_policy"),
         ("raising_policy", "KeyError", "--debug"),
@@ -484,3 +488,44 @@ def test_a_changed_edge_list_is_blamed_not_the_step_derived_from_it(tmp_path, ru
     edges.write_text("0 1\n1 2\n2 3\n3 4\n4 5\n5 0\n0 3\n1 4\n2 5\n")
     code, _, err = run_cli(*command)
     assert code == 2 and "the graph file" in err and "changed since the checkpoint" in err and "beta" not in err, err
+
+
+def _learning_file(path: Path, **change) -> Path:
+    """pull-away's team MDP as a learning problem file, every agent starting at (0.9, 0.1), change applied."""
+    from dgtd.problems import team
+
+    mdp = team.pull_away()
+    arrays = dict(P=mdp.P, R=mdp.R, Phi=mdp.Phi, gamma=mdp.gamma, **{f"policy_{i}": [[0.9, 0.1]] * 3 for i in range(4)})
+    np.savez(path, **{**arrays, **change})
+    return path
+
+
+TRACEBACKS = {  # each ended in a traceback
+    "a NaN in a starting policy": (
+        lambda d: ("learn", "--problem", _learning_file(d / "p.npz", policy_0=[[np.nan, 0.1], [0.9, 0.1], [0.9, 0.1]])),
+        ("policy 0", "NaN"),
+    ),
+    "R over s' of the wrong length": (
+        lambda d: ("learn", "--problem", _learning_file(d / "p.npz", R=np.zeros((4, 3, 16, 2)))),
+        ("R", "(4, 3, 16, 2)", "(N, S, A, S)"),
+    ),
+    "a negative graph seed": (
+        lambda d: ("run", "paper-example-1", "--graph", "small-world", "--graph-seed", -1),
+        ("graph_seed must be >= 0",),
+    ),
+    "no agents": (lambda d: ("run", "garnet", "--agents", 0), ("n_agents must be >= 1",)),
+    "fewer than no agents": (lambda d: ("run", "garnet", "--agents", -5), ("n_agents must be >= 1",)),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TRACEBACKS))
+def test_inputs_that_ended_in_a_traceback_are_one_line(run_cli, tmp_path, case):
+    args, words = TRACEBACKS[case]
+    one_line_error(*run_cli(*args(tmp_path), "-T", 10, "--no-progress", "--no-plots", "--out", tmp_path / "o"), *words)
+
+
+def test_a_policy_row_that_does_not_sum_to_1_is_called_a_distribution_not_a_transition_matrix(run_cli, tmp_path):
+    path = _learning_file(tmp_path / "p.npz", policy_1=[[0.5, 0.1], [0.9, 0.1], [0.9, 0.1]])
+    code, out, err = run_cli("learn", "--problem", path, "-T", 10, "--no-progress", "--out", tmp_path / "o")
+    one_line_error(code, out, err, "row 0 of policy 1 sums to 0.6", "distribution")
+    assert "transition matrix" not in err

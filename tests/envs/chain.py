@@ -180,3 +180,19 @@ class TextChain(Chain):
 
 def make_text_chain():
     return TextChain(3)
+
+
+class StrangerAgents(Chain):
+    """reset() makes agents other than its possible_agents, and observes them (no state(): the observations are it)."""
+
+    def state(self):
+        raise NotImplementedError
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed, options)
+        self.agents = [f"stranger_{i}" for i in range(len(self.possible_agents))]
+        return {a: self.s for a in self.agents}, {a: {} for a in self.agents}
+
+
+def make_stranger_agents():
+    return StrangerAgents()

@@ -187,6 +187,9 @@ def load_team_mdp(path: str):
     policies = _numbered(arrays, "policy_")
     R = np.asarray(arrays["R"], dtype=np.float64)
     if R.ndim == 4:
+        S = np.shape(arrays["P"])[0]
+        if R.shape[1:] != np.shape(arrays["P"]):
+            raise DgtdInputError(f"R in {path} has shape {R.shape}; R over next states is (N, S, A, S), S = {S}")
         R = np.einsum("sat,nsat->nsa", arrays["P"], R)
     if len(policies) != R.shape[0]:
         raise DgtdInputError(

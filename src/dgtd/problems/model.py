@@ -136,7 +136,11 @@ def _as_float_array(name: str, x, ndim: int) -> np.ndarray:
 
 
 def check_stochastic(name: str, P: np.ndarray) -> None:
-    """Refuse negative entries and rows that do not sum to one."""
+    """Refuse NaN or infinite entries, negative ones and rows that do not sum to one: each row is a probability
+    distribution (a transition matrix's, a policy's)."""
+    if not np.isfinite(P).all():
+        s = int(np.argwhere(~np.isfinite(P))[0][0])
+        raise DgtdInputError(f"{name} holds NaN or infinite values (first in row {s}); probabilities must be finite")
     if np.any(P < 0):
         s = int(np.argwhere(P < 0)[0][0])
         raise DgtdInputError(f"{name} has negative entries (first in row {s}); probabilities must be >= 0")
@@ -145,7 +149,7 @@ def check_stochastic(name: str, P: np.ndarray) -> None:
     if bad.size:
         s = int(bad[0])
         raise DgtdInputError(
-            f"row {s} of {name} sums to {sums[s]:.10g}, not 1; every row of a transition matrix must sum to 1"
+            f"row {s} of {name} sums to {sums[s]:.10g}, not 1; each row is a probability distribution and must sum to 1"
         )
 
 

@@ -85,6 +85,13 @@ def env_state(env, agents) -> np.ndarray:
     name = type(env).__name__
     if state is None:
         obs = env._dgtd_last_obs  # set by `EnvSource` at every reset and step
+        missing = [a for a in agents if a not in obs]
+        if missing:
+            raise DgtdInputError(
+                f"the env {name} gave no observation of {missing[0]} (its observations are of "
+                f"{', '.join(map(str, list(obs)[:4]))}): its state is its possible_agents' observations, so every "
+                "agent it makes must be one of its possible_agents"
+            )
         state = np.concatenate(
             [np.ravel(user_numbers(f"the env's observation of {a} ({name})", obs[a])) for a in agents]
         )
