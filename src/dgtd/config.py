@@ -470,9 +470,10 @@ def _network(graph: str, n_agents: int, edge_prob: float, shape: dict | None = N
     if graph in topologies.TOPOLOGIES:
         base = topologies.TOPOLOGIES[graph](n_agents)
     elif not Path(graph).is_file():
+        known = [*topologies.TOPOLOGIES, *chunked.NAMES]
         raise DgtdInputError(
             f"graph {graph!r} is neither a known graph nor an edge-list file (known graphs: "
-            f"{', '.join(topologies.TOPOLOGIES)}){closest(Path(graph).name, topologies.TOPOLOGIES)}"
+            f"{', '.join(known)}){closest(Path(graph).name.lower(), known)}"
         )
     else:
         base = topologies.read_edge_list(graph)

@@ -500,7 +500,7 @@ def _learning_file(path: Path, **change) -> Path:
     return path
 
 
-TRACEBACKS = {  # each ended in a traceback
+NEW_USERS_INPUTS = {  # each ended in a traceback, or ran and said nothing of what was wrong
     "a NaN in a starting policy": (
         lambda d: ("learn", "--problem", _learning_file(d / "p.npz", policy_0=[[np.nan, 0.1], [0.9, 0.1], [0.9, 0.1]])),
         ("policy 0", "NaN"),
@@ -514,13 +514,21 @@ TRACEBACKS = {  # each ended in a traceback
         ("graph_seed must be >= 0",),
     ),
     "no agents": (lambda d: ("run", "garnet", "--agents", 0), ("n_agents must be >= 1",)),
+    "a round longer than the run": (  # (it learned nothing, exit 0)
+        lambda d: ("learn", "pull-away", "--batch", 1000),
+        ("--batch 1000", "-T 10", "first round"),
+    ),
+    "a graph's name in capitals": (  # (its list of known graphs left the chunked ones out)
+        lambda d: ("run", "paper-example-1", "--graph", "Small-World"),
+        ("small-world, sparse-random, geometric", "did you mean 'small-world'"),
+    ),
     "fewer than no agents": (lambda d: ("run", "garnet", "--agents", -5), ("n_agents must be >= 1",)),
 }
 
 
-@pytest.mark.parametrize("case", sorted(TRACEBACKS))
-def test_inputs_that_ended_in_a_traceback_are_one_line(run_cli, tmp_path, case):
-    args, words = TRACEBACKS[case]
+@pytest.mark.parametrize("case", sorted(NEW_USERS_INPUTS))
+def test_what_new_users_typed_is_one_line(run_cli, tmp_path, case):
+    args, words = NEW_USERS_INPUTS[case]
     one_line_error(*run_cli(*args(tmp_path), "-T", 10, "--no-progress", "--no-plots", "--out", tmp_path / "o"), *words)
 
 

@@ -78,6 +78,11 @@ class LearnSettings:
         for name in ("iterations", "seeds", "checkpoints", "batch"):
             if int(getattr(self, name)) < 1:
                 raise DgtdInputError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.batch > self.iterations:  # (no round would end: nothing learned, and it said nothing)
+            raise DgtdInputError(
+                f"--batch {self.batch} steps a round need at least that many steps; -T {self.iterations} ends before "
+                "the first round does: lower --batch or raise -T"
+            )
 
 
 @dataclass
