@@ -621,6 +621,7 @@ def _from_scenario(spec) -> _Base:
     """A named scenario's problem, network, algorithm and sampling, with the config's edge probability, reward noise
     and restarts."""
     kwargs, params, edge_prob = scenario_arguments(spec.scenario, spec.params or {}, spec.edge_prob)
+    _check_task_memory(spec, kwargs)
     sc = scenario_of(spec)
     problem, network = sc.problem, sc.network
     if sc.source is not None:
@@ -637,6 +638,30 @@ def _from_scenario(spec) -> _Base:
         problem = with_restarts(problem, spec.restarts)
     # graph None: the scenario's own network, rebuilt from the same parameters
     return _Base(spec, problem, network, sc.algorithm, sc.sampling, sc.iterations, None, edge_prob, params, None)
+
+
+def _check_task_memory(spec, kwargs: dict) -> None:
+    """A generated task of many agents (`dgtd.run.memory.PROBE_FROM`) refused before it is built where it and its
+    run's state would not fit in the memory free (`dgtd.run.memory.probed_bytes`: it was killed by the kernel)."""
+    from dgtd.run import memory
+
+    n = kwargs.get("n_agents")
+    if not isinstance(n, int) or n < memory.PROBE_FROM:
+        return
+
+    def make(agents: int):
+        return get_scenario(spec.scenario, **{**kwargs, "n_agents": agents})
+
+    task = memory.probed_bytes(make, n)
+    if task is None:
+        return
+    small, defaults = make(memory.PROBE_AGENTS[0]), RunSettings()
+    arcs = 2 * getattr(small.network, "n_edges", 0) * n // memory.PROBE_AGENTS[0]
+    state = memory.run_bytes(
+        small.algorithm, spec.seeds or defaults.seeds, n, small.problem.n_features, arcs,
+        spec.checkpoints or defaults.checkpoints, spec.backend or defaults.backend,
+    )  # fmt: skip
+    memory.check_task_memory(f"{spec.scenario} with {n:,} agents", task + state, "lower --agents")
 
 
 def _from_problem_file(spec) -> _Base:

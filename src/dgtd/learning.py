@@ -94,7 +94,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         env, network = _env_task(task, own, values, network_for)
         n_agents, defaults, actor_defaults = env.n_agents, ENV_CRITIC_STEPS, ENV_ACTOR_STEPS
     else:
-        mdp = _team_mdp(task, file, own)
+        mdp = _team_mdp(task, file, own, _given(values, "seeds", 2))
         if values.get("gamma") is not None:  # (it was run at the task's own and recorded as the one given)
             raise DgtdInputError(
                 f"gamma is the discount of a simulator (--env, {', '.join(ENV_TASKS)}); "
@@ -137,8 +137,9 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
     )  # fmt: skip
 
 
-def _team_mdp(task: str | None, file, own: dict):
-    """The team MDP of a named task or a problem file."""
+def _team_mdp(task: str | None, file, own: dict, seeds: int):
+    """The team MDP of a named task or a problem file (a task of many agents refused first where it and ``seeds``
+    seeds of its learners would not fit in memory: `_check_memory`)."""
     from dgtd.problems.team import TASKS
 
     if file is not None:
@@ -151,8 +152,43 @@ def _team_mdp(task: str | None, file, own: dict):
         raise DgtdInputError(f"name a learning task: {', '.join([*TASKS, *ENV_TASKS])}; got {task!r}")
     else:
         sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}
+        _check_memory(task, sizes, own, seeds)
         mdp = TASKS[task](**sizes)
     return mdp
+
+
+def _check_memory(task: str, sizes: dict, own: dict, seeds: int) -> None:
+    """Refuse before it is built a named task sized by --agents whose team MDP (`dgtd.run.memory.probed_bytes`, from
+    `dgtd.run.memory.PROBE_FROM` agents) and learners would not fit in the memory free: per seed and agent its actor
+    (S A numbers), its critic (about 8 q), and networked, its estimate of the team's reward over the additive
+    features (N S A: O(N^2) in all), or with action values its critic's N S A weights (it ended in numpy's "Unable
+    to allocate 14.2 PiB" after 21 s at 24 GB)."""
+    from dgtd.problems.team import TASKS
+    from dgtd.run import memory
+
+    n = sizes.get("n_agents")
+    if n is None or n < memory.PROBE_AGENTS[0]:
+        return
+
+    def make(agents: int):
+        return TASKS[task](**{**sizes, "n_agents": agents})
+
+    try:
+        small = make(memory.PROBE_AGENTS[0])
+    except DgtdInputError:
+        return  # (a task with a joint table refuses so many agents itself)
+    S, A, q = small.n_states, max(small.actions), small.n_features
+    networked, action_values = _given(own, "actor", "networked") == "networked", own["values"] == "action"
+    per_agent = S * A + 8 * q + (n * S * A if networked and not action_values else 0) + 8 * n * S * A * action_values
+    task_bytes = memory.probed_bytes(make, n) if n >= memory.PROBE_FROM else 0
+    lower = "lower --agents"
+    if networked:
+        lower += "; --actor centralised or independent keep no estimate of the team's reward"
+    memory.check_task_memory(
+        f"{task} with {n:,} agents and {seeds} seed(s) of {_given(own, 'actor', 'networked')} learners",
+        (task_bytes or 0) + memory.BYTES * seeds * n * per_agent,
+        lower,
+    )
 
 
 ENV_TASKS = {"mpe-spread": "MPE2's simple_spread (cooperative navigation), --agents particles (3)"}

@@ -36,3 +36,34 @@ def test_the_ranks_on_one_machine_share_its_memory(monkeypatch):
         memory.check_memory(DGTD, **RUN, ranks=8, here=4)
     one = memory.run_bytes(DGTD, 1, 125_000, 8, 750_000, 10, "numba")
     assert f"at most {(4 * share - 1) // (4 * one):,}" in str(refused.value)
+
+
+def test_a_generated_tasks_memory_is_measured_on_two_small_builds():
+    """garnet's arrays grow linearly in the agents (its rewards' rows, its network's links): the estimate from 200 and
+    400 agents is within 1 % of the arrays of the task built at 5 000."""
+    from dgtd.scenarios import get_scenario
+
+    def make(n):
+        return get_scenario("garnet", n_agents=n)
+
+    built = memory.array_bytes(make(5000))
+    assert abs(memory.probed_bytes(make, 5000) - built) < 0.01 * built
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("run", "garnet", "--agents", 100_000_000, "--graph", "small-world"), ("garnet with 100,000,000 agents",)),
+        (("learn", "factored", "--agents", 10_000_000), ("factored with 10,000,000 agents", "--actor centralised")),
+        (("learn", "factored", "--agents", 30_000), ("networked learners",)),  # their estimates: N^2 S A numbers
+    ],
+)
+def test_a_task_too_large_is_refused_before_it_is_built(run_cli, monkeypatch, tmp_path, args, words):
+    """With 8 GB free, garnet of 10^8 agents (it grew to 23.6 GB and was killed by the kernel) and factored learners
+    of 10^7 agents (numpy's "Unable to allocate 14.2 PiB" after 21 s), and networked ones of 30 000 (288 GB of
+    team-reward estimates), are refused in one line naming the memory needed and free, before anything is built."""
+    from helpers import one_line_error
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 8 * 10**9)
+    code, out, err = run_cli(*args, "-T", 10, "--no-progress", "--out", tmp_path / "o")
+    one_line_error(code, out, err, "GB, more than the 8.0 GB free", *words)

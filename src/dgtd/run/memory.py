@@ -82,3 +82,46 @@ def check_memory(
         f"{who} about {need / 1e9:,.1f} GB ({size}{share}), more than the {free / 1e9:,.1f} GB free on this "
         f"machine; {lower}"
     )
+
+
+PROBE_FROM = 100_000  # agents from which a generated task's memory is measured before it is built
+PROBE_AGENTS = (200, 400)  # the sizes it is built at for that: its bytes a agent are their difference's
+
+
+def array_bytes(obj, seen: set | None = None) -> int:
+    """The bytes of the NumPy arrays ``obj`` holds: itself, its attributes, tuples, lists and dicts, recursively,
+    each array counted once."""
+    import numpy as np
+
+    seen = set() if seen is None else seen
+    if id(obj) in seen or obj is None or isinstance(obj, (str, bytes, int, float, bool)):
+        return 0
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes if obj.base is None or id(obj.base) not in seen else 0
+    if isinstance(obj, (tuple, list)):
+        return sum(array_bytes(x, seen) for x in obj)
+    held = obj if isinstance(obj, dict) else getattr(obj, "__dict__", {})
+    return sum(array_bytes(x, seen) for x in held.values())
+
+
+def probed_bytes(make, n_agents: int) -> int | None:
+    """About the bytes of ``make(n_agents)``, a generated task, from two small builds (`PROBE_AGENTS`): its arrays'
+    bytes linear in the agents (every generated task here holds rows per agent, and per link of a sparse graph);
+    None where the small builds are refused (a task that cannot have that many agents refuses the large one too)."""
+    small, large = PROBE_AGENTS
+    try:
+        a, b = array_bytes(make(small)), array_bytes(make(large))
+    except DgtdInputError:
+        return None
+    return int(a + max(b - a, 0) * (n_agents - small) / (large - small))
+
+
+def check_task_memory(what: str, need: int, lower: str, free: int | None = -1) -> None:
+    """Refuse, in one line, a task that needs more memory than is free, before it is built."""
+    free = available_bytes() if free == -1 else free
+    if free is not None and need > free:
+        raise DgtdInputError(
+            f"{what} needs about {need / 1e9:,.1f} GB, more than the {free / 1e9:,.1f} GB free on this machine "
+            f"(measured on the task built at {PROBE_AGENTS[0]} and {PROBE_AGENTS[1]} agents); {lower}"
+        )
