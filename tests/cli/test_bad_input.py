@@ -505,6 +505,22 @@ NEW_USERS_INPUTS = {  # each ended in a traceback, or ran and said nothing of wh
         lambda d: ("learn", "--problem", _learning_file(d / "p.npz", policy_0=[[np.nan, 0.1], [0.9, 0.1], [0.9, 0.1]])),
         ("policy 0", "NaN"),
     ),
+    "a 1-D starting policy": (  # (blamed on the action counts)
+        lambda d: ("learn", "--problem", _learning_file(d / "p.npz", policy_0=[0.9, 0.1])),
+        ("policy_0", "shape (2,)", "(S, A_0)", "3 states"),
+    ),
+    "a 3-D starting policy": (
+        lambda d: ("learn", "--problem", _learning_file(d / "p.npz", policy_0=np.full((3, 2, 1), 0.5))),
+        ("policy_0", "shape (3, 2, 1)"),
+    ),
+    "a NaN reward of a learning file": (  # (said "must be finite with shape (4, 3, 16), got (4, 3, 16)")
+        lambda d: (
+            "learn",
+            "--problem",
+            _learning_file(d / "p.npz", R=np.pad([[[np.nan]]], ((0, 3), (0, 2), (0, 15)))),
+        ),
+        ("R holds NaN", "agent 0, state 0, joint action 0"),
+    ),
     "R over s' of the wrong length": (
         lambda d: ("learn", "--problem", _learning_file(d / "p.npz", R=np.zeros((4, 3, 16, 2)))),
         ("R", "(4, 3, 16, 2)", "(N, S, A, S)"),

@@ -61,6 +61,10 @@ def test_read_results_gives_back_what_dgtd_run_wrote(run_cli, tmp_path):
     np.testing.assert_allclose(by_seed, worst_agent, rtol=1e-12)
     assert np.allclose(results.summary["w_star"], [15.903, 21.028], atol=1e-3)
     assert results.trajectory and all(isinstance(v, np.ndarray) for v in results.trajectory.values())
+    steps, error = results.series("error_avg", seed=1)  # read_results' own example (it raised KeyError)
+    assert steps[-1] == 500 and error[-1] == by_seed[1]
+    with pytest.raises(DgtdInputError, match="no metric 'error_average'.*error_avg"):
+        results.series("error_average")
     (out / "metrics.csv").write_text("algorithm,seed\n")
     with pytest.raises(DgtdInputError, match="lacks the column"):
         dgtd.read_results(out)

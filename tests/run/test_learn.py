@@ -419,3 +419,19 @@ def test_a_transient_state_leaves_the_critic_target_its_recurrent_values(run_cli
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["return_last"] == pytest.approx([6 / 13], abs=1e-12)
     assert np.isfinite(summary["critic_error_last"]).all()
+
+
+def test_the_python_api_takes_a_bare_graph_as_its_fixed_network():
+    """`dgtd.learn(..., dgtd.ring(4), ...)` and `dgtd.evaluate(..., dgtd.ring(5), ...)` raised AttributeError: a bare
+    graph is its network with every link up, the same numbers as `random_edges(graph, 1.0)`; anything else one line."""
+    import dgtd
+
+    settings = dgtd.LearnSettings(iterations=50, seeds=1, checkpoints=2, backend="numpy")
+    args = (team.pull_away(), make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(), settings)
+    bare = dgtd.learn(args[0], dgtd.ring(4), *args[1:])
+    assert np.array_equal(bare.policies, dgtd.learn(args[0], random_edges(dgtd.ring(4), 1.0), *args[1:]).policies)
+    sc = dgtd.scenario("paper-example-1")
+    result = dgtd.evaluate(sc.problem, dgtd.ring(5), dgtd.DGTD(alpha0=1.0), iterations=20, backend="numpy")
+    assert result.w_last.shape == (1, 5, 2)
+    with pytest.raises(DgtdInputError, match="a network is dgtd.random_edges"):
+        dgtd.evaluate(sc.problem, [(0, 1)], dgtd.DGTD(), iterations=20, backend="numpy")

@@ -51,6 +51,18 @@ class RandomEdges:
         return f"{self.base.name} on {self.n_nodes} agents, {self.n_edges} edges, each up with {ps}"
 
 
+def as_network(network) -> RandomEdges:
+    """A network as the runs take it: a `RandomEdges` as it is, a bare `Graph` as its fixed network (every link up);
+    anything else one line."""
+    if isinstance(network, Graph):
+        return random_edges(network, 1.0)
+    if not (hasattr(network, "base") and hasattr(network, "p")):
+        raise DgtdInputError(
+            f"a network is dgtd.random_edges(graph, p) (or a graph, every link up), not {type(network).__name__}"
+        )
+    return network
+
+
 def random_edges(base: Graph, p=1.0) -> RandomEdges:
     """Build and validate a `RandomEdges` process, refusing a disconnected mean graph."""
     p = np.broadcast_to(np.asarray(p, dtype=np.float64), (base.n_edges,)).copy()

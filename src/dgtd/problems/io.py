@@ -200,5 +200,11 @@ def load_team_mdp(path: str):
         gamma = float(np.asarray(arrays["gamma"]).reshape(()))
     except (TypeError, ValueError):
         raise DgtdInputError(f"gamma in {path} must be a number") from None
-    actions = [np.shape(x)[1] if np.ndim(x) == 2 else 0 for x in policies]
+    for i, x in enumerate(policies):
+        if np.ndim(x) != 2:
+            raise DgtdInputError(
+                f"policy_{i} in {path} has shape {np.shape(x)}: a policy is (S, A_{i}), a row of action probabilities "
+                f"for each of the {np.shape(arrays['P'])[0]} states"
+            )
+    actions = [np.shape(x)[1] for x in policies]
     return team_mdp(arrays["P"], R, arrays["Phi"], gamma, actions, name=p.stem, policies=policies)

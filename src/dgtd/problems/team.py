@@ -113,8 +113,11 @@ def team_mdp(P, R, Phi, gamma: float, actions, *, start=None, name: str = "team"
     S, A, _ = P.shape
     if not actions or min(actions) < 1 or int(np.prod(actions)) != A:
         raise DgtdInputError(f"the agents' action counts {actions} must multiply to P's {A} joint actions")
-    if R.shape != (len(actions), S, A) or not np.isfinite(R).all():
-        raise DgtdInputError(f"R must be finite with shape (N, S, A) = ({len(actions)}, {S}, {A}), got {R.shape}")
+    if R.shape != (len(actions), S, A):
+        raise DgtdInputError(f"R must have shape (N, S, A) = ({len(actions)}, {S}, {A}), got {R.shape}")
+    if not np.isfinite(R).all():
+        i, s, a = np.argwhere(~np.isfinite(R))[0]
+        raise DgtdInputError(f"R holds NaN or infinite values (first at agent {i}, state {s}, joint action {a})")
     check_stochastic("P(s, a, .)", P.reshape(S * A, S))
     if Phi.ndim != 2 or Phi.shape[0] != S or np.linalg.matrix_rank(Phi) < Phi.shape[1]:
         raise DgtdInputError(f"Phi must be (S, q) = ({S}, q) of full column rank, got shape {Phi.shape}")

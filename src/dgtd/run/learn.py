@@ -37,6 +37,7 @@ from dgtd.algorithms.actor import SoftmaxActor, actor_increment, policy, two_tim
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
+from dgtd.graphs.random import as_network
 from dgtd.problems import team
 from dgtd.run.layout import learner_layout
 from dgtd.samples import Sample
@@ -181,6 +182,7 @@ def learn(
     ``checkpoint_every`` steps ``on_checkpoint(snapshot)`` is given the run's `Learners.snapshot`; ``resume`` (one)
     continues from it to the numbers of the uninterrupted run, bit for bit (every random number is keyed by its
     step)."""
+    network = as_network(network)  # (a bare graph: its fixed network; it raised AttributeError)
     plan = _plan(mdp, network, critic, actor, settings, channel)
     if checkpoint_every % settings.batch:
         raise DgtdInputError(

@@ -25,7 +25,7 @@ import numpy as np
 
 from dgtd.algorithms.base import FixedPoint
 from dgtd.algorithms.stepsizes import step_sizes
-from dgtd.graphs.random import RandomEdges
+from dgtd.graphs.random import RandomEdges, as_network
 from dgtd.problems import exact
 from dgtd.problems.model import Problem
 from dgtd.run.checkpoint import assemble
@@ -350,7 +350,7 @@ def evaluate(
     """
     return run(
         problem,
-        network,
+        as_network(network),  # (a bare graph: its fixed network; it raised AttributeError)
         algorithm,
         sampling,
         RunSettings(iterations=iterations, seeds=seeds, seed=seed, backend=backend, **settings),

@@ -379,6 +379,17 @@ class Results:
     metrics: dict
     trajectory: dict
 
+    def series(self, metric: str, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(the checkpoints' steps, the values) of one metric of metrics.csv (its long rows: seed, step, metric,
+        value) for one seed; a `DgtdInputError` naming the metrics there are where it has none such."""
+        names = np.asarray(self.metrics["metric"])
+        rows = (names == metric) & (np.asarray(self.metrics["seed"]) == seed)
+        if not rows.any():
+            raise DgtdInputError(
+                f"no metric {metric!r} of seed {seed} in these results; they hold {', '.join(dict.fromkeys(names))}"
+            )
+        return np.asarray(self.metrics["step"])[rows], np.asarray(self.metrics["value"])[rows]
+
 
 def read_results(out) -> Results:
     """The results of a run directory, or a `DgtdInputError` saying which file is missing or damaged.
@@ -386,7 +397,8 @@ def read_results(out) -> Results:
     Example, after ``dgtd run paper-example-1``::
 
         results = dgtd.read_results("runs/paper-example-1")
-        results.metrics["error_avg"][-1], results.summary["w_star"]
+        steps, error = results.series("error_avg")  # seed 0's averaged iterates' worst relative error
+        error[-1], results.summary["w_star"]
     """
     from dgtd.files import numbers, read_csv, read_json, read_npz
 
