@@ -435,3 +435,14 @@ def test_the_python_api_takes_a_bare_graph_as_its_fixed_network():
     assert result.w_last.shape == (1, 5, 2)
     with pytest.raises(DgtdInputError, match="a network is dgtd.random_edges"):
         dgtd.evaluate(sc.problem, [(0, 1)], dgtd.DGTD(), iterations=20, backend="numpy")
+
+
+def test_compare_refuses_to_tune_learners_and_learns_help_gives_its_own_defaults(run_cli, tmp_path):
+    """`dgtd compare pull-away --tune` tuned nothing and said nothing; `dgtd learn --help` described --problem in the
+    evaluation form and the critics' steps as DGTD's 10 and 1000 (learners take 1 and 100)."""
+    code, out, err = run_cli("compare", "pull-away", "--tune", "-T", 10, "--no-progress", "--out", tmp_path / "c")
+    one_line_error(code, out, err, "--tune", "learners are compared at the critics' steps given")
+    code, out, _ = run_cli("learn", "--help")
+    text = " ".join(out.split())
+    assert code == 0 and "one starting policy policy_i (S, A_i) per agent" in text
+    assert "(default 1 on a task or problem file, 0.1 in a simulator)" in text and "DGTD's 1000" not in text

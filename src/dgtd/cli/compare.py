@@ -84,6 +84,12 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, learn, out, progress,
     if learn or scenario in TASKS:
         from dgtd.cli.learn import compare_learners
 
+        if tune:  # (it tuned nothing and said nothing)
+            raise DgtdInputError(
+                "--tune picks the step sizes of methods that evaluate a fixed policy; learners are compared at the "
+                "critics' steps given (--alpha0, --beta) and the actors' (--actor-step)"
+            )
+
         return compare_learners(scenario, algorithms, seeds, out, progress, plots, overwrite, given)
     config = override(Experiment(unflat({"scenario": scenario, "seeds": seeds})), given).config
     if all(getattr(config.problem, name) is None for name in PROBLEM_FIELDS):

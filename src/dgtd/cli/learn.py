@@ -30,6 +30,16 @@ def learn_options():
     return decorate
 
 
+LEARN_HELP = {  # the options shared with `dgtd run` whose meaning or default differs here (its help described run's)
+    "problem_file": "A multi-agent MDP file (.npz): P (S, A, S) over joint actions, R (N, S, A) or (N, S, A, S), Phi "
+    "(S, q), gamma and one starting policy policy_i (S, A_i) per agent.",
+    "alpha0": "The critics' step-size scale alpha0 (default 1 on a task or problem file, 0.1 in a simulator).",
+    "beta": "The critics' step-size offset beta in alpha0/sqrt(k+beta) (default 100).",
+    "gamma": "The critics' discount in a simulator (--env, mpe-spread; default 0.9); a team MDP task or problem "
+    "file has its own.",
+}
+
+
 def _choices(name: str):
     from dgtd.run.learn import ACTORS, VALUES
 
@@ -370,3 +380,7 @@ def _learners_table(results: dict) -> str:
     )
     rows.append(f"highest return: {best}, {np.median(J):.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})")
     return "\n".join(rows)
+
+
+for _param in learn.params:
+    _param.help = LEARN_HELP.get(_param.name or "", getattr(_param, "help", None))
