@@ -196,3 +196,25 @@ class StrangerAgents(Chain):
 
 def make_stranger_agents():
     return StrangerAgents()
+
+
+class BoxActions(Chain):
+    """The chain with continuous actions."""
+
+    def action_space(self, agent):
+        return spaces.Box(-1.0, 1.0, (2,))
+
+
+def make_box_actions():
+    return BoxActions()
+
+
+class NoAgents(Chain):
+    """The chain with nobody in it."""
+
+    def __init__(self):
+        super().__init__(0)
+
+
+def make_no_agents():
+    return NoAgents()

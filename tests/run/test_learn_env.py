@@ -173,3 +173,19 @@ def user_game(tmp_path) -> None:
         "import numpy as np\n\n\n" + inspect.getsource(PullAwayGame) + "\n\ndef make():\n    return PullAwayGame()\n"
     )
     (tmp_path / "game.py").write_text(source)
+
+
+@pytest.mark.parametrize(
+    "make, words",
+    [
+        ("make_box_actions", ["make_box_actions", "same discrete actions", "softmax actor", "Box"]),  # (--policy)
+        ("make_no_agents", ["make_no_agents", "has no agents"]),  # (said "a graph needs at least one node")
+    ],
+)
+def test_a_simulator_learners_cannot_act_in_is_one_line(run_cli, tmp_path, make, words):
+    from pathlib import Path
+
+    chain = Path(__file__).resolve().parents[1] / "envs" / "chain.py"
+    one_line_error(
+        *run_cli("learn", "--env", f"{chain}:{make}", "-T", 10, "--no-progress", "--out", tmp_path / "o"), *words
+    )

@@ -66,7 +66,7 @@ def learn_env(
     )  # fmt: skip
     src.start()
     agents, B = src.agents, settings.seeds
-    N, A = len(agents), _actions(src)
+    N, A = len(agents), discrete_actions(src.spaces[0], src.name)
     if network.n_nodes != N or task.n_agents != N:
         raise DgtdInputError(f"the network has {network.n_nodes} agents, the env {N} (its task says {task.n_agents})")
     x = _observed(src, range(B))  # (B, N, d)
@@ -102,13 +102,15 @@ def learn_env(
     )  # fmt: skip
 
 
-def _actions(src) -> int:
-    """The agents' common number of discrete actions."""
-    counts = {int(getattr(space, "n", 0)) for space in src.spaces[0].values()}
+def discrete_actions(spaces: dict, name: str) -> int:
+    """The agents' common number of discrete actions, of their action ``spaces`` (agent -> space) in simulator
+    ``name``: a softmax actor chooses among a Discrete space's actions, so anything else is one line."""
+    discrete = [any(c.__name__ == "Discrete" for c in type(space).__mro__) for space in spaces.values()]
+    counts = {int(getattr(space, "n", 0)) * ok for space, ok in zip(spaces.values(), discrete)}
     if len(counts) != 1 or min(counts) < 2:
         raise DgtdInputError(
-            f"learners in {src.name} need every agent to have the same discrete actions (2 or more); its action "
-            f"spaces: {', '.join(map(str, src.spaces[0].values()))}"
+            f"learners in {name} need every agent to have the same discrete actions (2 or more: a softmax actor "
+            f"chooses among them); its action spaces: {', '.join(map(str, spaces.values()))}"
         )
     return counts.pop()
 

@@ -579,7 +579,7 @@ def learning_env(spec: EnvSpec, gamma: float, network_for):
     learn --env`): its factory, the critics' features (`build_features`, fitted where need be to a pilot run under
     uniform actions, on streams of their own), its rewards mapped where ``spec.rewards`` says; linked by the run's
     graph (``network_for(N)``): positions are `dgtd run`'s."""
-    from dgtd.run.learn_env import EnvTask
+    from dgtd.run.learn_env import EnvTask, discrete_actions
     from dgtd.sources.env import EnvSource
 
     if spec.positions is not None or spec.radius is not None:
@@ -588,6 +588,9 @@ def learning_env(spec: EnvSpec, gamma: float, network_for):
         )
     make, probe, label = env_factory(spec)
     N = len(probe.possible_agents)
+    if N == 0:  # (it was said as "a graph needs at least one node")
+        raise DgtdInputError(f"{env_name(str(spec.make))} has no agents (its possible_agents is empty): nothing learns")
+    discrete_actions({a: probe.action_space(a) for a in probe.possible_agents}, env_name(str(spec.make)))
     network = network_for(N)
     reward_map = None if spec.rewards is None else load_callable(spec.rewards, "rewards")
 
