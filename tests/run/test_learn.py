@@ -273,6 +273,8 @@ def test_dgtd_learn_killed_after_a_checkpoint_resumes_to_the_uninterrupted_numbe
     code, _, _ = run_cli(*command, "--out", tmp_path / "cut")
     assert code != 0 and kept == [300, 600] and (tmp_path / "cut" / "learning-checkpoint.npz").exists()
     monkeypatch.setattr(cli_learn, "_keep", keep)
+    other = run_cli(*command, "--seed", 3, "--out", tmp_path / "cut")  # the refusal says which setting differs
+    one_line_error(*other, "checkpoint of another learning run (seed = None there, 3 here)")
     code, text, err = run_cli(*command, "--out", tmp_path / "cut")
     assert code == 0 and "resuming" in text, err
     for name in ("metrics.csv",):

@@ -114,10 +114,16 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     held: list = []  # the results folder's lock, held by the process that writes
 
     def claim():
-        held.append(Owner(out, "learning run", overwrite).__enter__())
-        if not overwrite:
-            refuse_other_results(out, job.record, "learning run")
-        return _checkpoint(out, job.record, overwrite)
+        owner = Owner(out, "learning run", overwrite).__enter__()
+        try:
+            if not overwrite:
+                refuse_other_results(out, job.record, "learning run")
+            resume = _checkpoint(out, job.record, overwrite)
+        except BaseException:  # a refusal leaves the folder as it found it, unclaimed (as `dgtd run`'s does)
+            owner.__exit__(None, None, None)
+            raise
+        held.append(owner)
+        return resume
 
     resume = runtime.claimed(claim, lambda: _checkpoint(out, job.record, overwrite))
     try:
@@ -242,10 +248,14 @@ def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:
     path = out / CHECKPOINT
     if not path.exists() or overwrite:
         return None
+    from dgtd.run.results import first_difference
+
     saved = read_npz(path, "checkpoint", "remove it, or pass --overwrite to start afresh")
-    if json.loads(str(saved.pop("record", "{}"))) != json.loads(json.dumps(record, sort_keys=True)):
+    there, here = json.loads(str(saved.pop("record", "{}"))), json.loads(json.dumps(record, sort_keys=True))
+    if there != here:  # (it did not say which setting differs; `dgtd run`'s refusal does)
         raise DgtdInputError(
-            f"{out} holds the checkpoint of another learning run; choose another --out, or pass --overwrite"
+            f"{out} holds the checkpoint of another learning run ({first_difference(there, here)}); choose another "
+            "--out, or pass --overwrite"
         )
     return saved
 
