@@ -390,3 +390,28 @@ def test_run_help_says_where_the_steps_come_from():
 
     text = " ".join(CliRunner().invoke(cli, ["run", "--help"]).output.split())
     assert "the others 0.1" not in text and "whatever --algorithm" in text and "from the problem" in text
+
+
+def test_ctrl_c_during_the_run_keeps_the_metrics_measured_so_far(run_cli, tmp_path, monkeypatch):
+    """Ctrl-C in the middle of a run left only config.toml: metrics.csv now holds every checkpoint measured before it,
+    each row the uninterrupted run's."""
+    import dgtd.run.loop as loop
+
+    command = ("run", "paper-example-1", "-T", 4000, "--checkpoints", 10, "--no-progress", "--no-plots")
+    code, _, err = run_cli(*command, "--out", tmp_path / "whole")
+    assert code == 0, err
+    save = loop.save
+
+    def interrupted_at_the_sixth(plan, rs, on_checkpoint):
+        if rs.c == 6:
+            raise KeyboardInterrupt
+        save(plan, rs, on_checkpoint)
+
+    monkeypatch.setattr(loop, "save", interrupted_at_the_sixth)
+    code, _, err = run_cli(*command, "--out", tmp_path / "cut")
+    assert code == 130, err
+    whole, cut = ((tmp_path / d / "metrics.csv").read_text().splitlines() for d in ("whole", "cut"))
+    steps = sorted({int(row.split(",")[2]) for row in whole[1:]})
+    assert cut[0] == whole[0] and set(cut[1:]) <= set(whole[1:])
+    assert sorted({int(row.split(",")[2]) for row in cut[1:]}) == steps[:6]
+    assert not (tmp_path / "cut" / "summary.json").exists()

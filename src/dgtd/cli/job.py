@@ -28,7 +28,7 @@ from dgtd.run import runtime
 from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint
 from dgtd.run.logs import remove_logs
 from dgtd.run.owner import Owner
-from dgtd.run.results import atomic_write, first_difference, refuse_other_results
+from dgtd.run.results import MeasuredSoFar, atomic_write, first_difference, refuse_other_results
 
 CONFIG, CHECKPOINT, SCENARIO_ARRAYS = "config.toml", "checkpoint.npz", "scenario.npz"
 HEADER = "The fully resolved config of a dgtd run: `dgtd run THIS_FILE` reproduces it exactly."
@@ -104,6 +104,7 @@ class PreparedRun:
         runtime.watch(self.algorithm, every)
         # one copy of the run's files: the writing process's, or where the agents are spread, a shard of it a rank
         saver = runtime.checkpoint_saver(self.algorithm, ckpt, self.record)
+        measured = MeasuredSoFar(self.out, self.algorithm.name) if runtime.writes() else None
         try:
             return run_loop(
                 self.problem,
@@ -118,7 +119,12 @@ class PreparedRun:
                 resume=self.snapshot,
                 kernel_ready=start_bar,
                 channel=self.channel,
+                on_measured=measured,
             )
+        except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
+            if measured is not None:
+                measured.write()
+            raise
         finally:
             for bar in bars:
                 bar.close()

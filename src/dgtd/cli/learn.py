@@ -70,8 +70,6 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     from dgtd.learning import resolve_learning
     from dgtd.run import runtime
     from dgtd.run.learn import learn as run_learning
-    from dgtd.run.owner import Owner
-    from dgtd.run.results import refuse_other_results
 
     simulator = task if task in ENV_TASKS else values.get("env_make")
     if simulator is not None and (ranks is not None or checkpoint_every):
@@ -112,20 +110,9 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
             err=True,
         )
     held: list = []  # the results folder's lock, held by the process that writes
-
-    def claim():
-        owner = Owner(out, "learning run", overwrite).__enter__()
-        try:
-            if not overwrite:
-                refuse_other_results(out, job.record, "learning run")
-            resume = _checkpoint(out, job.record, overwrite)
-        except BaseException:  # a refusal leaves the folder as it found it, unclaimed (as `dgtd run`'s does)
-            owner.__exit__(None, None, None)
-            raise
-        held.append(owner)
-        return resume
-
-    resume = runtime.claimed(claim, lambda: _checkpoint(out, job.record, overwrite))
+    resume = runtime.claimed(
+        lambda: _claim(out, job.record, overwrite, held), lambda: _checkpoint(out, job.record, overwrite)
+    )
     try:
         if resume is not None:
             click.echo(f"resuming {out} at step {int(resume['k']):,}")
@@ -235,6 +222,24 @@ def _keep(out: Path, snapshot: dict, record: dict) -> None:
     from dgtd.run.results import npz_bytes
 
     atomic_write(out / CHECKPOINT, npz_bytes(snapshot | {"record": np.asarray(json.dumps(record, sort_keys=True))}))
+
+
+def _claim(out: Path, record: dict, overwrite: bool, held: list) -> dict | None:
+    """The results folder claimed (its lock appended to ``held``), another run's results refused, and the checkpoint
+    to resume from (`_checkpoint`); a refusal leaves the folder as it found it, unclaimed, as `dgtd run`'s does."""
+    from dgtd.run.owner import Owner
+    from dgtd.run.results import refuse_other_results
+
+    owner = Owner(out, "learning run", overwrite).__enter__()
+    try:
+        if not overwrite:
+            refuse_other_results(out, record, "learning run")
+        resume = _checkpoint(out, record, overwrite)
+    except BaseException:
+        owner.__exit__(None, None, None)
+        raise
+    held.append(owner)
+    return resume
 
 
 def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:

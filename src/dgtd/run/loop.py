@@ -93,6 +93,7 @@ def run(
     resume: dict | None = None,
     kernel_ready=None,
     channel=None,
+    on_measured=None,
 ) -> RunResult:
     """Run ``algorithm`` for ``settings.seeds`` seeds at once; ``progress(n_steps)`` is called after each block.
 
@@ -107,6 +108,9 @@ def run(
     With ``checkpoint_every`` = K > 0, ``on_checkpoint(snapshot)`` is called at every multiple of K below T with
     the run's whole state (`dgtd.run.state.snapshot`). Passing a snapshot as ``resume`` continues from it; the
     samples are a function of the step only, so the result equals that of an uninterrupted run bit for bit.
+
+    ``on_measured(steps, metrics)`` is called as each checkpoint is measured, with the steps measured so far (c,) and
+    each metric's values there (c, seeds), so that what was measured can be kept before the run ends.
     """
     plan = plan_run(problem, network, algorithm, sampling, settings, source, channel, checkpoint_every, resume)
     rs = start(plan, resume)
@@ -121,6 +125,8 @@ def run(
             progress(rs.k - k)
         if rs.k == plan.steps[rs.c]:
             rs = record(plan, rs)
+            if on_measured is not None:
+                on_measured(plan.steps[: rs.c], {m: v[: rs.c] for m, v in rs.metrics.items()})
             if not (rs.diverged_at < 0).any():  # every seed has diverged: nothing left to run
                 stopped(rs)
                 break

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import csv
 import io
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -110,6 +113,29 @@ def bands_csv(results: dict) -> bytes:
                 for k, m, a, b, n in zip(result.steps, med, lo, hi, alive)
             )
     return buf.getvalue().encode()
+
+
+class MeasuredSoFar:
+    """metrics.csv of the checkpoints measured so far, kept as a run goes (`dgtd.run.loop.run`'s ``on_measured``):
+    rewritten whole and atomically, at most a tenth of the time (the next write waits nine times the last one's
+    duration: a run of many seeds and checkpoints is not slowed by it), and at once by ``write()`` (on Ctrl-C)."""
+
+    def __init__(self, out: Path, algorithm: str):
+        self.out, self.algorithm = Path(out), algorithm
+        self.latest: Any = None
+        self.next_at = 0.0
+
+    def __call__(self, steps: np.ndarray, metrics: dict) -> None:
+        self.latest = SimpleNamespace(steps=steps, metrics=metrics)
+        if time.perf_counter() >= self.next_at:
+            self.write()
+
+    def write(self) -> None:
+        if self.latest is None:
+            return
+        started = time.perf_counter()
+        atomic_write(self.out / "metrics.csv", metrics_csv(self.latest, self.algorithm))
+        self.next_at = time.perf_counter() + 9.0 * (time.perf_counter() - started)
 
 
 def metrics_csv(result: RunResult, algorithm: str) -> bytes:
