@@ -652,10 +652,13 @@ def _check_task_memory(spec, kwargs: dict) -> None:
     def make(agents: int):
         return get_scenario(spec.scenario, **{**kwargs, "n_agents": agents})
 
-    task = memory.probed_bytes(make, n)
+    try:
+        small = make(memory.PROBE_AGENTS[0])
+    except DgtdInputError:
+        return  # (a task that cannot have so many agents refuses them itself)
+    task, defaults = memory.probed_bytes(make, n, small), RunSettings()
     if task is None:
         return
-    small, defaults = make(memory.PROBE_AGENTS[0]), RunSettings()
     arcs = 2 * getattr(small.network, "n_edges", 0) * n // memory.PROBE_AGENTS[0]
     state = memory.run_bytes(
         small.algorithm, spec.seeds or defaults.seeds, n, small.problem.n_features, arcs,

@@ -180,7 +180,7 @@ def _check_memory(task: str, sizes: dict, own: dict, seeds: int) -> None:
     S, A, q = small.n_states, max(small.actions), small.n_features
     networked, action_values = _given(own, "actor", "networked") == "networked", own["values"] == "action"
     per_agent = S * A + 8 * q + (n * S * A if networked and not action_values else 0) + 8 * n * S * A * action_values
-    task_bytes = memory.probed_bytes(make, n) if n >= memory.PROBE_FROM else 0
+    task_bytes = memory.probed_bytes(make, n, small) if n >= memory.PROBE_FROM else 0
     lower = "lower --agents"
     if networked:
         lower += "; --actor centralised or independent keep no estimate of the team's reward"

@@ -252,11 +252,10 @@ def mean_metropolis(network, loss: np.ndarray, arcs: Arcs, sparse: bool = False)
     degree = np.bincount(arcs.dst, minlength=N)
     into = np.argsort(arcs.dst, kind="stable")  # the arcs into each agent, in arc order, from first[i]
     first = np.concatenate([[0], np.cumsum(degree)[:-1]])
-    a_all = np.arange(arcs.n_arcs)
     width = np.maximum(degree[arcs.dst], degree[arcs.src])
     value = np.zeros(arcs.n_arcs)
     for K in np.unique(width).tolist():
-        batch, size = a_all[width == K], max(1, METROPOLIS_WORK // (K + 1) ** 2)
+        batch, size = np.flatnonzero(width == K), max(1, METROPOLIS_WORK // (K + 1) ** 2)
         for a in np.split(batch, np.arange(size, batch.size, size)):
             back = a ^ 1  # the other arc of the same edge: i -> j
             x = poisson_binomial(_others(q, into, first, degree, arcs.dst[a], a, K))

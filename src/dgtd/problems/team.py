@@ -178,8 +178,7 @@ def long_run(P_pi: np.ndarray, start: np.ndarray) -> np.ndarray:
     leaves = np.zeros(label.max() + 1, bool)
     tails, heads = np.nonzero(A)
     leaves[label[tails][label[tails] != label[heads]]] = True  # a class with an arc out of it is not closed
-    transient = leaves[label]
-    T = np.flatnonzero(transient)
+    T = np.flatnonzero(leaves[label])  # the transient states: those of a class that is left
     d = np.zeros(P_pi.shape[0])
     for c in np.flatnonzero(~leaves):
         C = np.flatnonzero(label == c)

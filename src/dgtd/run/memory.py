@@ -105,13 +105,14 @@ def array_bytes(obj, seen: set | None = None) -> int:
     return sum(array_bytes(x, seen) for x in held.values())
 
 
-def probed_bytes(make, n_agents: int) -> int | None:
-    """About the bytes of ``make(n_agents)``, a generated task, from two small builds (`PROBE_AGENTS`): its arrays'
-    bytes linear in the agents (every generated task here holds rows per agent, and per link of a sparse graph);
-    None where the small builds are refused (a task that cannot have that many agents refuses the large one too)."""
+def probed_bytes(make, n_agents: int, built=None) -> int | None:
+    """About the bytes of ``make(n_agents)``, a generated task, from two small builds (`PROBE_AGENTS`; ``built``, the
+    caller's own build at the smaller size, where it has one): its arrays' bytes linear in the agents (every
+    generated task here holds rows per agent, and per link of a sparse graph); None where the small builds are
+    refused (a task that cannot have that many agents refuses the large one too)."""
     small, large = PROBE_AGENTS
     try:
-        a, b = array_bytes(make(small)), array_bytes(make(large))
+        a, b = array_bytes(make(small) if built is None else built), array_bytes(make(large))
     except DgtdInputError:
         return None
     return int(a + max(b - a, 0) * (n_agents - small) / (large - small))
