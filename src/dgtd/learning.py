@@ -42,12 +42,27 @@ class LearnConfig:
     actor_power: float = field(
         default=0.8, metadata=option("The actor's steps: power, in (1/2, 1] so that the critic is the faster.")
     )
+    actor_warmup: int | None = field(
+        default=None,
+        metadata=option(
+            "Steps for which the actors hold still while the critics learn the starting policies' values (default: "
+            "2000, at most a tenth of the run)."
+        ),
+    )
     values: str | None = field(
         default=None,
         metadata=option(
             "What the critics evaluate: state (values V and a consensus estimate of the team's reward, Zhang et al.'s "
             "Algorithm 2; the default) or action (values Q on additive features of the state and joint action, their "
             "Algorithm 1)."
+        ),
+    )
+    objective: str = field(
+        default="average",
+        metadata=option(
+            "What the actors ascend and J, J* measure: average, the long-run average team reward (differential "
+            "critics, Zhang et al.'s Algorithm 2), or discounted, the normalised discounted return from the start "
+            "(critics discounted by the task's gamma, or --gamma in a simulator)."
         ),
     )
     batch: int | None = field(
@@ -115,6 +130,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         _given(own, "actor_step", actor_defaults["step"]),
         _given(own, "actor_offset", actor_defaults["offset"]),
         _given(own, "actor_power", 0.8),
+        own["actor_warmup"],
     )
     settings = LearnSettings(
         iterations=_given(values, "iterations", 20_000),
@@ -124,6 +140,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         actor=_given(own, "actor", "networked"),
         batch=_given(own, "batch", 1),
         values=_given(own, "values", "state"),
+        objective=_given(own, "objective", "average"),
         backend=_given(values, "backend", "numba" if env is None else "numpy"),
     )
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
@@ -211,6 +228,11 @@ def _env_task(task: str | None, own: dict, values: dict, network_for) -> tuple:
 
     name = task or values["env_make"]
     check_gamma(values.get("gamma"))
+    if values.get("gamma") is not None and _given(own, "objective", "average") == "average":  # (recorded, unused)
+        raise DgtdInputError(
+            "gamma discounts the critics of the discounted objective; under --objective average (the default) they "
+            "are differential: give --objective discounted with --gamma"
+        )
     if own["states"] is not None or own["values"] not in (None, "state") or own["batch"] not in (None, 1):
         raise DgtdInputError(
             f"{name} is a simulator: its states are its own, and its critics evaluate state values a step at a time "

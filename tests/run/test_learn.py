@@ -348,10 +348,13 @@ def test_an_action_value_critic_finds_the_teams_best_action_too(actor, reaches):
     the additive features f(s, a) by expected SARSA, the advantage is agent i's own block of them, no reward
     estimate is sent. Actor steps 0.1 (the default for action values): within 10 000 steps networked learners put at
     least 0.9 on the team's best action (measured 0.955, 0.973), independent ones at most 0.1 (measured 0.003); the
-    critics' error against the exact expected-SARSA fixed point ends below 1e-2 (in values)."""
+    critics' error against the exact expected-SARSA fixed point ends below 1e-2 (in values). Discounted critics, as
+    the measured numbers were (the average objective's: tests/run/test_objective.py)."""
     mdp = team.pull_away()
     net = random_edges(topologies.ring(4), 0.8)
-    settings = LearnSettings(iterations=BUDGET, seeds=2, actor=actor, checkpoints=4, values="action")
+    settings = LearnSettings(
+        iterations=BUDGET, seeds=2, actor=actor, checkpoints=4, values="action", objective="discounted"
+    )
     result = learn(mdp, net, make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(step=0.1), settings)
     least = result.metrics["best_probability"][:, -1]
     assert (least.min() >= 0.9) if reaches else (least.max() <= 0.1), least
@@ -380,7 +383,7 @@ def test_learners_over_links_that_hold_copies_run_on_numpy_and_say_so(run_cli, t
     assert "no compiled twin for learners: they run on the NumPy backend" in err
     code, _, err = run_cli("learn", "pull-away", "--delay", 2, "-T", 200, "--no-progress", "--no-plots",
                            "--backend", "numpy", "--out", tmp_path / "n")  # fmt: skip
-    assert code == 0 and "note:" not in err
+    assert code == 0 and "no compiled twin" not in err
     assert (tmp_path / "d" / "metrics.csv").read_bytes() == (tmp_path / "n" / "metrics.csv").read_bytes()
 
 

@@ -156,13 +156,15 @@ def test_a_simulators_discount_outside_0_1_is_one_line(run_cli, tmp_path, gamma)
 
 
 def test_a_named_simulator_runs_at_the_discount_given(run_cli, tmp_path):
-    """`dgtd learn mpe-spread --gamma 0.7`: the critics' discount is 0.7 (it was 0.9 whatever was given)."""
+    """`dgtd learn mpe-spread --objective discounted --gamma 0.7`: the critics' discount is 0.7 (it was 0.9 whatever
+    was given)."""
     code, _, err = run_cli(
-        "learn", "mpe-spread", "--gamma", 0.7, "-T", 20, "--checkpoints", 1, "--seeds", 1, "--no-progress",
-        "--no-plots", "--out", tmp_path / "g",
+        "learn", "mpe-spread", "--objective", "discounted", "--gamma", 0.7, "-T", 20, "--checkpoints", 1, "--seeds",
+        1, "--no-progress", "--no-plots", "--out", tmp_path / "g",
     )  # fmt: skip
     assert code == 0, err
-    assert json.loads((tmp_path / "g" / "summary.json").read_text())["gamma"] == 0.7
+    summary = json.loads((tmp_path / "g" / "summary.json").read_text())
+    assert summary["gamma"] == 0.7 and summary["objective"] == "discounted"
 
 
 def user_game(tmp_path) -> None:

@@ -8,10 +8,18 @@ their Algorithm 2,
     theta_i <- theta_i + beta_k delta_i psi_i,
 
 takes the TD error delta_i = rhat_i + gamma V(s'; w_i) - V(s; w_i) of agent i's critic w_i as its advantage (rhat_i
-the team's reward as agent i knows it: `dgtd.run.learn`). Two timescales: beta_k = step / (1 + k / offset)^power with
-power in (1/2, 1], so that beta_k / alpha_k -> 0 for the critics' alpha_k = alpha0 / sqrt(k + beta): the critic is
-the faster (`two_timescales` checks it). Agents and seeds are array axes: theta is (B, N, S, A_max), an agent with
-fewer actions padded with -inf (probability 0, and its score 0 there).
+the team's reward as agent i knows it: `dgtd.run.learn`). Two timescales: the actor holds still for its first
+``warmup`` steps while the critics learn the starting policies' values, then beta_k = step / (1 + k / offset)^power
+with power in (1/2, 1], so that beta_k / alpha_k -> 0 for the critics' alpha_k = alpha0 / sqrt(k + beta): the critic
+is the faster in the limit (`two_timescales` refuses steps where it is not, and `timescales` says up to which step
+the actor's step is the larger). Borkar's two-timescale theorem (Borkar 1997; Zhang et al. 2018, Assumption 4.3) also
+asks sum alpha_k^2 < infinity, which the critics' sqrt schedule does not meet (its harmonic one does, but then no
+actor's steps fall faster and still sum to infinity): with alpha_k ~ k^-1/2 the critic's error falls in mean square,
+not almost surely. Without the warm-up, a delayed reward is lost: on a task where two agents must advance together 4
+times to earn 3 (else 0.3 a step), actors that move from the first step commit to the 0.3 before the critics have
+seen the prize (J 0.30 of J* 0.75), and after 2 000 steps of warm-up reach 0.747 (`docs/control.md`). Agents and seeds
+are array axes: theta is (B, N, S, A_max), an agent with fewer actions padded with -inf (probability 0, and its score
+0 there).
 """
 
 from __future__ import annotations
@@ -23,16 +31,19 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 
 FLOOR = 1e-6  # the least probability a starting policy's action keeps
+WARMUP = 2000  # the actor's default warm-up: at most this many steps, and a tenth of the run
 CRITIC_POWER = {"sqrt": 0.5, "harmonic": 1.0, "constant": 0.0}  # alpha_k's decay, k^-p, of the critics' schedules
 
 
 @dataclass(frozen=True)
 class SoftmaxActor:
-    """``step``, ``offset`` and ``power`` of the actor's steps beta_k = step / (1 + k / offset)^power."""
+    """``step``, ``offset`` and ``power`` of the actor's steps beta_k = step / (1 + k / offset)^power from step
+    ``warmup`` on (0 before; None: `WARMUP` steps, at most a tenth of the run)."""
 
     step: float = 0.5
     offset: float = 1000.0
     power: float = 0.8
+    warmup: int | None = None
 
     def __post_init__(self):
         if not (np.isfinite(self.step) and self.step > 0 and self.offset > 0 and 0.0 < self.power <= 1.0):
@@ -40,6 +51,8 @@ class SoftmaxActor:
                 f"the actor's steps step / (1 + k / offset)^power need step > 0, offset > 0 and power in (0, 1]; got "
                 f"{self.step}, {self.offset}, {self.power}"
             )
+        if self.warmup is not None and not (isinstance(self.warmup, int | np.integer) and self.warmup >= 0):
+            raise DgtdInputError(f"the actor's warm-up is a number of steps >= 0, got {self.warmup!r}")
 
     def init(self, seeds: int, actions, states: int) -> np.ndarray:
         """theta (B, N, S, A_max): uniform policies; -inf where an agent has no such action."""
@@ -57,13 +70,19 @@ class SoftmaxActor:
             theta[:, i, :, : p.shape[1]] = np.log(np.maximum(p, FLOOR))[None]
         return theta
 
-    def steps(self, k0: int, k1: int) -> np.ndarray:
-        """beta_k for k in [k0, k1)."""
-        k = np.arange(k0, k1, dtype=np.float64)
-        return self.step / (1.0 + k / self.offset) ** self.power
+    def held_for(self, T: int) -> int:
+        """The steps of a run of T for which the actor holds still."""
+        return min(WARMUP, T // 10) if self.warmup is None else int(self.warmup)
 
-    def describe(self) -> str:
-        return f"softmax actors, beta_k = {self.step:g}/(1+k/{self.offset:g})^{self.power:g}"
+    def steps(self, k0: int, k1: int, T: int | None = None) -> np.ndarray:
+        """beta_k for k in [k0, k1) of a run of T steps (default k1): 0 during the warm-up (`held_for`)."""
+        k = np.arange(k0, k1, dtype=np.float64)
+        beta = self.step / (1.0 + k / self.offset) ** self.power
+        return np.where(k < self.held_for(k1 if T is None else T), 0.0, beta)
+
+    def describe(self, T: int | None = None) -> str:
+        held = "" if T is None else f"still for {self.held_for(T):,} steps, then "
+        return f"softmax actors, {held}beta_k = {self.step:g}/(1+k/{self.offset:g})^{self.power:g}"
 
 
 def two_timescales(actor: SoftmaxActor, critic) -> None:
@@ -74,6 +93,28 @@ def two_timescales(actor: SoftmaxActor, critic) -> None:
             f"the actor's steps must fall faster than the critic's (two timescales, the critic the faster): the "
             f"critic's alpha_k falls as k^-{p:g}, the actor's as k^-{actor.power:g}; give --actor-power above {p:g}"
         )
+
+
+def timescales(actor: SoftmaxActor, critic, T: int) -> str:
+    """One line on the run's two timescales, or "" where the critic's step is the larger at every step the actor
+    moves: the largest ratio beta_k / alpha_k and the step from which the critic's is the larger for good (found on a
+    geometric grid to 10^13 steps, beyond the run where need be)."""
+    from dgtd.algorithms.stepsizes import step_sizes
+
+    two_timescales(actor, critic)  # (refused first: steps that never put the critic ahead)
+    start = actor.held_for(T)
+    k = np.unique(np.concatenate([np.arange(start, min(T, start + 4096)), np.geomspace(max(start, 1), 1e13, 4000)]))
+    k = k[k >= start].astype(np.int64)
+    ratio = np.array([actor.steps(int(x), int(x) + 1, T)[0] for x in k]) / np.array(
+        [step_sizes(critic.schedule, critic.alpha0, critic.beta, int(x), int(x) + 1)[0] for x in k]
+    )
+    if ratio.max() <= 1.0:
+        return ""
+    faster = k[ratio > 1.0]
+    return (
+        f"the actor's step is up to {ratio.max():.3g} times the critic's after its warm-up, the larger until step "
+        f"{int(faster.max()) + 1:,.3g} (beta_k / alpha_k -> 0): --actor-step, --actor-warmup or --alpha0 change it"
+    )
 
 
 def policy(theta: np.ndarray) -> np.ndarray:

@@ -41,9 +41,9 @@ LEARN_HELP = {  # the options shared with `dgtd run` whose meaning or default di
 
 
 def _choices(name: str):
-    from dgtd.run.learn import ACTORS, VALUES
+    from dgtd.run.learn import ACTORS, OBJECTIVES, VALUES
 
-    return {"actor": ACTORS, "values": VALUES}.get(name)
+    return {"actor": ACTORS, "values": VALUES, "objective": OBJECTIVES}.get(name)
 
 
 @click.command()
@@ -87,12 +87,12 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     out = Path(out) if out else Path("runs") / f"learn-{job.mdp.name}-{job.settings.actor}"
     s, mdp = job.settings, job.mdp
     click.echo(
-        f"{mdp.name}: {mdp.n_states} states, {mdp.n_agents} agents, {_actions(mdp.actions)}, "
-        f"gamma {mdp.gamma}; network: {job.network.describe()}; {job.channel.describe()}"
+        f"{mdp.name}: {mdp.n_states} states, {mdp.n_agents} agents, {_actions(mdp.actions)}; objective: "
+        f"{_objective(s.objective, mdp.gamma)}; network: {job.network.describe()}; {job.channel.describe()}"
     )
     click.echo(
-        f"{s.actor} actors with the {job.critic.name} critic ({job.critic.describe()}); {job.actor.describe()}; "
-        f"{s.iterations:,} steps x {s.seeds} seed(s) on the {s.backend} backend"
+        f"{s.actor} actors with the {job.critic.name} critic ({job.critic.describe()}); "
+        f"{job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} seed(s) on the {s.backend} backend"
     )
     if s.backend == "numba":
         from dgtd.run.learn import fallback
@@ -114,6 +114,7 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
         lambda: _claim(out, job.record, overwrite, held), lambda: _checkpoint(out, job.record, overwrite)
     )
     try:
+        _timescales(job)  # (after the folder's checks: a refusal is one line)
         if resume is not None:
             click.echo(f"resuming {out} at step {int(resume['k']):,}")
         bar = tqdm(
@@ -151,11 +152,11 @@ def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) 
 
     task, s = job.env, job.settings
     out = Path(out) if out else Path("runs") / f"learn-{task.name}-{s.actor}"
-    click.echo(f"{task.name}: {task.n_agents} agents, gamma {task.gamma}; network: {job.network.describe()}; "
-               f"{job.channel.describe()}")  # fmt: skip
+    click.echo(f"{task.name}: {task.n_agents} agents; critics: {_critics_of(s.objective, task.gamma)}; network: "
+               f"{job.network.describe()}; {job.channel.describe()}")  # fmt: skip
     click.echo(
         f"{s.actor} actors (softmax linear in their own observations) with the {job.critic.name} critic "
-        f"({job.critic.describe()}); {job.actor.describe()}; {s.iterations:,} steps x {s.seeds} seed(s)"
+        f"({job.critic.describe()}); {job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} seed(s)"
     )
     if backend == "numba":
         click.echo(
@@ -164,6 +165,7 @@ def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) 
     with Owner(out, "learning run", overwrite):
         if not overwrite:
             refuse_other_results(out, job.record, "learning run")
+        _timescales(job)
         bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True)
         try:
             result = learn_env(task, job.network, job.critic, job.actor, s, job.channel, progress=bar.update)
@@ -265,6 +267,27 @@ def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:
     return saved
 
 
+def _timescales(job) -> None:
+    """The header's note where the actor's step is the larger after its warm-up (`dgtd.algorithms.actor.timescales`)."""
+    from dgtd.algorithms.actor import timescales
+
+    said = timescales(job.actor, job.critic, job.settings.iterations)
+    if said:
+        click.echo(f"note: {said}", err=True)
+
+
+def _critics_of(objective: str, gamma: float) -> str:
+    """A simulator's critics in words: its return is the team's mean reward a step whatever the objective."""
+    return "differential (average objective)" if objective == "average" else f"discounted at gamma {gamma:g}"
+
+
+def _objective(objective: str, gamma: float) -> str:
+    """The objective in words, as the header says it."""
+    if objective == "average":
+        return "the long-run average team reward (differential critics)"
+    return f"the discounted team return at gamma {gamma:g} from the start, normalised by 1 - gamma"
+
+
 def _actions(actions: tuple) -> str:
     return f"{actions[0]} actions each" if len(set(actions)) == 1 else f"actions {' x '.join(map(str, actions))}"
 
@@ -274,12 +297,14 @@ def _report(result, mdp) -> None:
 
     last = result.metrics["return"][:, -1]
     best = "" if result.return_best is None else f" of the best joint policy's J* = {result.return_best:.4g}"
-    click.echo(f"exact return J of the last policies: {', '.join(f'{x:.4g}' for x in last)} (per seed){best}")
-    if mdp.best is not None:
+    kind = "average" if result.info.get("objective", "average") == "average" else "discounted"
+    click.echo(f"exact return J of the last policies ({kind}): {', '.join(f'{x:.4g}' for x in last)} (per seed){best}")
+    if np.isfinite(result.metrics["best_probability"][:, -1]).all():
         p = result.metrics["best_probability"][:, -1]
         click.echo(f"least probability any agent puts on the team's best action in any state: {np.min(p):.3f}")
     worst = np.max(result.metrics["critic_error"][:, -1])
-    click.echo(f"critics' error |W - W*(pi)|^2 / (N |W*|^2), last, worst seed: {worst:.3g}")
+    click.echo(f"critics' error against their exact fixed point under the last policies (relative), worst seed: "
+               f"{worst:.3g}")  # fmt: skip
 
 
 COMPARED = ("dgtd", "consensus-td0", "consensus-tdrc", "td-tracking")  # the networked critics compared by default
@@ -352,7 +377,12 @@ def _learner_runs(job) -> tuple:
 def _compared(results: dict, job) -> dict:
     import numpy as np
 
-    out = {"task": _learner_runs(job)[0], "config": job.record, "return_best": next(iter(results.values())).return_best}
+    out = {
+        "task": _learner_runs(job)[0],
+        "config": job.record,
+        "objective": job.settings.objective,
+        "return_best": next(iter(results.values())).return_best,
+    }
     for label, r in results.items():
         J = r.metrics["return"][:, -1]
         out[label] = {
@@ -391,6 +421,8 @@ def _learners_table(results: dict) -> str:
             "the team's mean reward a step since the last checkpoint, estimated from the run's own rewards (no model)"
             if estimated
             else "the exact long-run average team reward of the policies"
+            if next(iter(results.values())).info.get("objective", "average") == "average"
+            else "the exact discounted team return of the policies from the start, times 1 - gamma"
         )
     )
     rows.append(f"highest return: {best}, {np.median(J):.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})")

@@ -13,9 +13,12 @@ ascend):
     J(pi) = sum_s d_pi(s) sum_a pi(a | s) rbar(s, a),     d_pi the stationary distribution of P_pi,
 
 computed here by linear algebra on the model (`average_return`), and its maximum over joint policies J* by relative
-value iteration over the joint actions (`best_return`: exact to 1e-10 where S x A fits). The critics evaluate the
-discounted value of the team reward, V_pi = Phi w; their fixed point under the current policy, w*(pi), is the
-exact one of the paper's section 6 on the Markov reward process (P_pi, R_pi) (`critic_target`).
+value iteration over the joint actions (`best_return`: exact to 1e-10 where S x A fits). The other objective a run
+may choose is the normalised discounted return from the start, J_gamma(pi) = (1 - gamma) start^T (I - gamma
+P_pi)^-1 rbar_pi (`discounted_return`), its maximum by value iteration (``best_discounted``). The critics evaluate
+the differential (average objective) or discounted value of the team reward, V_pi = Phi w; their fixed point under
+the current policy, w*(pi), is the exact one of the paper's section 6 on the Markov reward process (P_pi, R_pi)
+(`critic_target`).
 """
 
 from __future__ import annotations
@@ -101,6 +104,19 @@ class TeamMDP(_Team):
             return Q.max(axis=1), Q.argmax(axis=1)
 
         return relative_value_iteration(self.n_states, sweep)
+
+    def best_discounted(self) -> tuple[float | None, np.ndarray | None]:
+        """(J*_gamma, the best joint action in every state) by `value_iteration`, or (None, None) where the table is
+        too large."""
+        if self.n_states * self.P.shape[1] > JOINT_LIMIT:
+            return None, None
+
+        def sweep(v):
+            Q = self.R.mean(axis=0) + self.gamma * self.P @ v
+            return Q.max(axis=1), Q.argmax(axis=1)
+
+        v, action = value_iteration(self.n_states, self.gamma, sweep)
+        return float((1.0 - self.gamma) * self.start @ v), action
 
 
 def team_mdp(P, R, Phi, gamma: float, actions, *, start=None, name: str = "team", best=None, policies=None) -> TeamMDP:
@@ -195,17 +211,56 @@ def average_return(mdp, policies) -> float:
     return float(long_run(P_pi, mdp.start) @ R_pi.mean(axis=0))
 
 
-def critic_target(mdp, policies) -> np.ndarray:
+def discounted_return(mdp, policies) -> float:
+    """J_gamma(pi) = (1 - gamma) start^T (I - gamma P_pi)^-1 rbar_pi: the normalised discounted team return from the
+    MDP's start (the discounted objective), by linear algebra on the model."""
+    P_pi, R_pi = chain_of(mdp, policies)
+    v = np.linalg.solve(np.eye(P_pi.shape[0]) - mdp.gamma * P_pi, R_pi.mean(axis=0))
+    return float((1.0 - mdp.gamma) * mdp.start @ v)
+
+
+def objective_return(mdp, policies, objective: str) -> float:
+    """The return of the policies under ``objective``: "average" (`average_return`) or "discounted"
+    (`discounted_return`)."""
+    return average_return(mdp, policies) if objective == "average" else discounted_return(mdp, policies)
+
+
+def best_of(mdp, objective: str) -> tuple[float | None, np.ndarray | None]:
+    """(the best joint policy's return under ``objective``, its joint action in every state where one index): J* by
+    relative value iteration (`best_return`), J*_gamma = (1 - gamma) start^T V* by value iteration on the MDP's own
+    Bellman maximum (``best_discounted``)."""
+    return mdp.best_return() if objective == "average" else mdp.best_discounted()
+
+
+def value_iteration(S: int, gamma: float, sweep, tol: float = 1e-12, max_sweeps: int = 1_000_000) -> tuple:
+    """(V* (S,), the maximising action in every state or None) of a discounted MDP whose Bellman maximum is
+    ``sweep(v)`` = (max_a [rbar(s, a) + gamma sum_s' P(s, a, s') v(s')], argmax or None): a contraction by gamma,
+    stopped once a sweep changes v by less than ``tol`` (1 - gamma) (V* then within ``tol`` in every state)."""
+    v = np.zeros(S)
+    for _ in range(max_sweeps):
+        new, action = sweep(v)
+        if np.abs(new - v).max() < tol * (1.0 - gamma):
+            return new, action
+        v = new
+    raise DgtdInputError("value iteration did not converge")
+
+
+def critic_target(mdp, policies, objective: str = "discounted", agent: int | None = None) -> np.ndarray:
     """w*(pi) (q,): the fixed point every critic reaches on-policy under the current policies, A w* = b with
     A = Phi^T D (I - gamma P_pi) Phi and b = Phi^T D rbar_pi, D = diag(d_pi) (the paper's section 6, on the chain
-    the policies make; d_pi the long-run distribution from the start, `long_run`). Where d_pi leaves states out (a
-    transient state) A may be singular: the least-norm solution, the weights the long run says nothing of at 0."""
+    the policies make; d_pi the long-run distribution from the start, `long_run`). Under the average objective the
+    differential critic's: gamma = 1 and b = Phi^T D (rbar_pi - J(pi)) (Zhang et al. 2018, Algorithm 2's critic),
+    whose A is singular where the features hold the constants (the values are defined up to one): the least-norm
+    solution. Where d_pi leaves states out (a transient state) A may be singular too: the least-norm solution, the
+    weights the long run says nothing of at 0. ``agent``: the target of a critic of that agent's own reward (an
+    independent learner's), not the team's."""
     P_pi, R_pi = chain_of(mdp, policies)
     d = long_run(P_pi, mdp.start)
-    Phi = mdp.Phi
-    A = Phi.T @ (d[:, None] * (Phi - mdp.gamma * P_pi @ Phi))
-    b = Phi.T @ (d * R_pi.mean(axis=0))
-    if d.min() > 0:
+    Phi, rbar = mdp.Phi, R_pi.mean(axis=0) if agent is None else R_pi[agent]
+    gamma = mdp.gamma if objective == "discounted" else 1.0
+    A = Phi.T @ (d[:, None] * (Phi - gamma * P_pi @ Phi))
+    b = Phi.T @ (d * (rbar if objective == "discounted" else rbar - d @ rbar))
+    if d.min() > 0 and objective == "discounted":
         return np.linalg.solve(A, b)
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
@@ -216,12 +271,16 @@ def action_features(n_agents: int, n_states: int, n_actions: int, s, a) -> np.nd
     return np.arange(n_agents) * n_states * n_actions + np.asarray(s)[..., None] * n_actions + np.asarray(a)
 
 
-def action_critic_target(mdp: TeamMDP, policies) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def action_critic_target(
+    mdp: TeamMDP, policies, objective: str = "discounted", agent: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(Phi_Q (S A, F), d_sa (S A,), w*): the expected-SARSA fixed point of the team reward's action values on the
     additive features, A w* = b with A = Phi_Q^T D (Phi_Q - gamma P_sa Pi Phi_Q), b = Phi_Q^T D rbar (the paper's
     section 6 on the chain of state-action pairs, D = diag(d_pi(s) pi(a | s)), P_sa Pi the next pair's law); the
     features are dependent (each agent's block sums to the state's indicator), so w* is the least-norm solution and
-    the critics' error is measured in values. None where the joint table is not built (a factored MDP)."""
+    the critics' error is measured in values; under the average objective gamma = 1 and rbar - J(pi) (differential
+    values, as `critic_target`'s); ``agent``: of that agent's own reward. None where the joint table is not built (a
+    factored MDP)."""
     if not isinstance(mdp, TeamMDP):
         return None
     S, A_joint = mdp.n_states, mdp.P.shape[1]
@@ -234,8 +293,10 @@ def action_critic_target(mdp: TeamMDP, policies) -> tuple[np.ndarray, np.ndarray
     np.put_along_axis(Phi_Q, action_features(mdp.n_agents, S, A, s, mdp.local(joint)), 1.0, axis=1)
     d = long_run(np.einsum("sa,sat->st", pi, mdp.P), mdp.start)[s] * pi[s, joint]
     next_features = np.einsum("pt,ta,taf->pf", mdp.P[s, joint], pi, Phi_Q.reshape(S, A_joint, F))
-    lhs = Phi_Q.T @ (d[:, None] * (Phi_Q - mdp.gamma * next_features))
-    rhs = Phi_Q.T @ (d * mdp.R.mean(axis=0)[s, joint])
+    gamma = mdp.gamma if objective == "discounted" else 1.0
+    rbar = (mdp.R.mean(axis=0) if agent is None else mdp.R[agent])[s, joint]
+    lhs = Phi_Q.T @ (d[:, None] * (Phi_Q - gamma * next_features))
+    rhs = Phi_Q.T @ (d * (rbar if objective == "discounted" else rbar - d @ rbar))
     return Phi_Q, d, np.linalg.lstsq(lhs, rhs, rcond=None)[0]
 
 
@@ -354,20 +415,35 @@ class FactoredMDP(_Team):
         P_pi = np.einsum("gsk,gskt->st", joint, self.Pg) / len(self.groups)
         return P_pi, (pi * self.R).sum(axis=2)
 
+    def _group_rewards(self) -> np.ndarray:
+        """(G, S, K): each group's part of rbar at each of its joint actions."""
+        ks = np.stack(np.unravel_index(np.arange(self.Pg.shape[2]), self._group_actions()), axis=-1)  # (K, m)
+        return (
+            np.stack([sum(self.R[i][:, ks[:, j]] for j, i in enumerate(members)) for members in self.groups])
+            / self.n_agents
+        )
+
     def best_return(self) -> tuple[float, None]:
         """(J*, None): relative value iteration whose maximum over the 2^N joint actions is a sum of the groups'
         maxima over their K."""
         G, S = len(self.groups), self.n_states
-        ks = np.stack(np.unravel_index(np.arange(self.Pg.shape[2]), self._group_actions()), axis=-1)  # (K, m)
-        reward = (
-            np.stack([sum(self.R[i][:, ks[:, j]] for j, i in enumerate(members)) for members in self.groups])
-            / self.n_agents
-        )  # (G, S, K): each group's part of rbar
+        reward = self._group_rewards()
 
         def sweep(h):
             return (reward + self.Pg @ h / G).max(axis=2).sum(axis=0), None
 
         return relative_value_iteration(S, sweep)[0], None
+
+    def best_discounted(self) -> tuple[float, None]:
+        """(J*_gamma, None): value iteration whose maximum separates over the groups as `best_return`'s does."""
+        G = len(self.groups)
+        reward = self._group_rewards()
+
+        def sweep(v):
+            return (reward + self.gamma * self.Pg @ v / G).max(axis=2).sum(axis=0), None
+
+        v = value_iteration(self.n_states, self.gamma, sweep)[0]
+        return float((1.0 - self.gamma) * self.start @ v), None
 
 
 def factored(
@@ -394,8 +470,34 @@ def zhang_20(n_agents: int = 20, n_states: int = 20, seed: int = 0) -> FactoredM
     return factored(n_agents, n_states, 2, seed=seed, name=f"zhang-{n_agents}")
 
 
+def delayed_reward(
+    n_agents: int = 2, n_states: int = 4, prize: float = 3.0, small: float = 0.3, gamma: float = 0.5
+) -> TeamMDP:
+    """A team MDP whose best reward comes late: binary actions (1: advance); when every agent advances the state moves
+    on, s -> s + 1, paying nothing, and from the last state back to 0 paying ``prize``; any other joint action keeps
+    the state and pays ``small``. Every agent is paid the team's reward. The long-run average is best advancing
+    always, J* = prize / S (0.75), against ``small`` (0.3) for staying; at the task's gamma 1/2 the discounted
+    objective prefers to stay in state 0 (the prize 3 gamma^3 = 0.375 lies beyond 0.3 / (1 - gamma) = 0.6), a
+    policy whose long-run average is 0.3. Actors that move before their critics have met the prize
+    commit to the small reward too (`dgtd.algorithms.actor`)."""
+    if n_agents < 1 or n_states < 2:
+        raise DgtdInputError("delayed-reward needs at least 1 agent and 2 states")
+    most = int(np.log2(JOINT_LIMIT / n_states))
+    if n_agents > most:
+        raise DgtdInputError(f"delayed-reward builds its joint table: take at most {most} agents")
+    A = 2**n_agents
+    P, R = np.zeros((n_states, A, n_states)), np.full((n_agents, n_states, A), float(small))
+    P[np.arange(n_states), :, np.arange(n_states)] = 1.0  # (any joint action but all-advance: stay)
+    P[:, A - 1, :] = np.roll(np.eye(n_states), 1, axis=1)
+    R[:, :, A - 1] = 0.0
+    R[:, n_states - 1, A - 1] = prize
+    best = np.full(n_states, A - 1)
+    return team_mdp(P, R, np.eye(n_states), gamma, (2,) * n_agents, name=f"delayed-reward-{n_agents}", best=best)
+
+
 TASKS: dict[str, Callable[..., TeamMDP | FactoredMDP]] = {
     "pull-away": pull_away,
+    "delayed-reward": delayed_reward,
     "zhang-20": zhang_20,
     "factored": factored,
 }

@@ -8,19 +8,23 @@ One step k, for B seeds at once (agents and seeds are array axes; every random n
               (SHARED_STATE), the links up (EDGE_UP), as `dgtd run` draws a shared trajectory's;
     hear      the channel delivers what every agent sends: its critic's messages, and for networked actors its
               estimate of the team's reward (`dgtd.channels`: lost, late or compressed as asked, counted);
-    advantage delta_i = rhat_i + gamma Phi(s') w_i - Phi(s) w_i, with rhat_i the team's reward as agent i knows it:
-              networked, its consensus estimate lambda_i^T f(s, a) (Zhang et al.'s Algorithm 2); independent, its
-              own r_i; centralised, the true team reward rbar (a ceiling no network gives);
+    advantage delta_i = rhat_i - mu~_i + Phi(s') w_i - Phi(s) w_i, with rhat_i the team's reward as agent i knows
+              it: networked, its consensus estimate lambda_i^T f(s, a) (Zhang et al.'s Algorithm 2); independent,
+              its own r_i; centralised, the true team reward rbar (a ceiling no network gives); mu~_i its running
+              average of rhat_i (the average objective's differential TD error; discounted: gamma Phi(s') w_i and no
+              mu~_i, `objective_terms`);
     critic    the chosen distributed method's update (`algorithm.update`, the paper's Algorithm 1 for DGTD) on each
-              agent's own reward (centralised: on rbar), alpha_k its schedule; independent agents hear no one;
+              agent's own reward less its running average mu_i, undiscounted (centralised: on rbar; discounted: the
+              reward itself at gamma), alpha_k its schedule; independent agents hear no one;
     reward    networked: lambda_i <- lambda_i - sum_j W_ij (lambda_i - lambda_j) + nu_k (r_i - rhat_i) f(s, a)
               (Metropolis mixing over the links up, then a regression step on the agent's own reward: the
               consensus of the regressions of r_i is the regression of rbar);
-    actor     theta_i <- theta_i + beta_k delta_i psi_i (`dgtd.algorithms.actor`), beta_k / alpha_k -> 0.
+    actor     theta_i <- theta_i + beta_k delta_i psi_i (`dgtd.algorithms.actor`), beta_k = 0 for the warm-up's
+              steps, then beta_k / alpha_k -> 0.
 
 f(s, a) is additive over the agents, f = (e_{s, a_1}, ..., e_{s, a_N}) (N S A_max numbers, N of them ones): it
 represents any team reward that is a sum of per-agent terms exactly (the pull-away task's is). At every checkpoint the
-exact return J(pi_t) of the current policies, the critics' error against the exact critic of pi_t (Chen, Zhou, Chen
+exact return J(pi_t) of the current policies under the run's objective (`dgtd.problems.team.objective_return`), the critics' error against the exact critic of pi_t (Chen, Zhou, Chen
 and Zou 2022: ||W - W*(pi_t)||^2 / (N ||W*||^2)) and the policies' entropy are recorded (`dgtd.problems.team`).
 """
 
@@ -45,6 +49,7 @@ from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys,
 
 ACTORS = ("networked", "independent", "centralised")
 VALUES = ("state", "action")
+OBJECTIVES = ("average", "discounted")  # what the actors ascend and J, J* measure (`dgtd.problems.team`)
 LEARN_BACKENDS = ("numpy", "numba")  # the NumPy arithmetic below, or the agents' part compiled (equal to 1e-12)
 DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have
 METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", "bits")
@@ -58,7 +63,9 @@ class LearnSettings:
     Zhou, Chen and Zou 2022's mini-batches: the agents communicate and move once a round, by the mean of its samples;
     1 by default); ``values`` what the critics evaluate: "state" values V with a consensus estimate of the team's
     reward (Zhang et al.'s Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their
-    Algorithm 1)."""
+    Algorithm 1); ``objective`` what the actors ascend and J, J* measure: "average", the long-run average team reward
+    (differential critics, `objective_terms`), or "discounted", the normalised discounted return from the start
+    (critics discounted by the task's gamma)."""
 
     iterations: int = 20_000
     seeds: int = 2
@@ -68,12 +75,15 @@ class LearnSettings:
     batch: int = 1
     values: str = "state"
     backend: str = "numba"
+    objective: str = "average"
 
     def __post_init__(self):
         if self.backend not in LEARN_BACKENDS:
             raise DgtdInputError(f"learners run on the {' or '.join(LEARN_BACKENDS)} backend, not {self.backend!r}")
         if self.actor not in ACTORS:
             raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
+        if self.objective not in OBJECTIVES:
+            raise DgtdInputError(f"the objective is {' or '.join(OBJECTIVES)}, not {self.objective!r}")
         if self.values not in VALUES:
             raise DgtdInputError(f"the critics evaluate {' or '.join(VALUES)} values, not {self.values!r}")
         for name in ("iterations", "seeds", "checkpoints", "batch"):
@@ -110,7 +120,8 @@ class LearnResult:
 class Learners:
     """What a learning run carries from step to step, and what a checkpoint holds: the step ``k``, each seed's state
     ``s`` (B,), the actors' ``theta``, the team-reward estimates ``lam`` (networked), the critics' state, the links'
-    state and the metrics measured so far."""
+    state and the metrics measured so far; under the average objective ``means`` (B, n, 2), each agent's running
+    averages of its critic's reward and of the team's reward as it knows it."""
 
     k: int
     s: np.ndarray
@@ -120,13 +131,15 @@ class Learners:
     links: Any  # the channel's NamedTuple state
     metrics: dict
     pending: dict = field(default_factory=dict)  # a round's sums so far: empty at every checkpoint (a round's end)
+    means: np.ndarray | None = None
 
     def snapshot(self, rows) -> dict:
         """Flat arrays (copies), as an .npz holds them: every agent's rows, gathered from where they are held
         (``rows``, the run's layout: `dgtd.run.layout.learner_layout`)."""
         out = {"k": np.asarray(self.k), "s": self.s.copy(), "theta": rows.gather(self.theta).copy()}
-        if self.lam is not None:
-            out["lam"] = rows.gather(self.lam).copy()
+        for name in ("lam", "means"):
+            if getattr(self, name) is not None:
+                out[name] = rows.gather(getattr(self, name)).copy()
         out |= {f"critic/{k}": rows.gather(np.asarray(v)).copy() for k, v in self.critic._asdict().items()}
         out |= {f"links/{k}": np.array(v) for k, v in self.links._asdict().items()}
         return out | {f"metrics/{k}": v.copy() for k, v in self.metrics.items()}
@@ -137,10 +150,10 @@ class Learners:
 
         critic = type(self.critic)(**{name: snap[f"critic/{name}"][:, local] for name in self.critic._fields})
         links = type(self.links)(**{name: snap[f"links/{name}"] for name in self.links._fields})
-        lam = snap.get("lam")
+        lam, means = snap.get("lam"), snap.get("means")
         return Learners(
             int(snap["k"]), snap["s"], snap["theta"][:, local], None if lam is None else lam[:, local], critic, links,
-            {k: snap[f"metrics/{k}"] for k in self.metrics},
+            {k: snap[f"metrics/{k}"] for k in self.metrics}, means=None if means is None else means[:, local],
         )  # fmt: skip
 
 
@@ -190,6 +203,7 @@ def learn(
             f"--batch {settings.batch}"
         )
     started = time.perf_counter()
+    best = team.best_of(mdp, settings.objective)  # (J*, the best joint action in every state where one index)
     run = _start(plan)
     if resume is not None:
         run = run.restored(resume, plan.rows)
@@ -202,17 +216,16 @@ def learn(
         if k + 1 in plan.at:
             c = int(np.searchsorted(plan.at, k + 1))
             theta, W = plan.rows.gather(run.theta), plan.rows.gather(critic.estimate(run.critic))
-            _measure(mdp, theta, W, run.metrics, c, settings.values)
+            _measure(mdp, theta, W, run.metrics, c, settings, best[1])
             run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
             on_checkpoint(run.snapshot(plan.rows))
         if progress is not None:
             progress(1)
-    best = mdp.best_return()
     return LearnResult(
         plan.at, run.metrics, policy(plan.rows.gather(run.theta)), plan.rows.gather(critic.estimate(run.critic)),
-        best[0], best[1], run.links.messages,
-        run.links.bits, time.perf_counter() - started, {"backend": "numpy" if plan.kernels is None else "numba"},
+        best[0], best[1], run.links.messages, run.links.bits, time.perf_counter() - started,
+        {"backend": "numpy" if plan.kernels is None else "numba", "objective": settings.objective},
     )  # fmt: skip
 
 
@@ -234,7 +247,7 @@ def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
     return LearnPlan(
         mdp, network, critic, actor, settings, channel, arcs, seed_keys(settings.seed, range(settings.seeds)),
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
-        1.0 / (N * np.sqrt(1.0 + np.arange(T) / 100.0)),  # the reward regression's steps: |f|^2 = N
+        mean_step(np.arange(T)) / N,  # the reward regression's steps: |f|^2 = N
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]),
         rows, _kernels(settings.backend, critic, channel, arcs, rows.local),
     )  # fmt: skip
@@ -258,6 +271,24 @@ def fallback(critic, channel) -> str | None:
     return learner_fallback(critic, channel if channel is not None else Perfect())
 
 
+def mean_step(k):
+    """1 / sqrt(1 + k / 100): the step at k of the running averages (the average objective's mu_i) and, over |f|^2,
+    of the team-reward regression; the first sample taken whole, then a window that widens as sqrt(k)."""
+    return 1.0 / np.sqrt(1.0 + np.asarray(k, dtype=np.float64) / 100.0)
+
+
+def objective_terms(plan: LearnPlan, run: Learners, own: np.ndarray, rhat: np.ndarray, k: int) -> tuple:
+    """(the critics' reward, their discount, the advantage's baseline) of step k's sample under the objective.
+    Discounted: (own, gamma, 0). Average (Zhang et al. 2018, Algorithm 2: differential critics): (own - mu_i, 1,
+    mu~_i), with mu_i the agent's running average of ``own`` and mu~_i of ``rhat``, the team's reward as it knows it
+    (both (B, n)); their steps added to the round's, moved at its end (`round_end`)."""
+    if run.means is None:
+        return own, plan.mdp.gamma, 0.0
+    pending = run.pending.setdefault("means", np.zeros_like(run.means))
+    pending += mean_step(k) * (np.stack(np.broadcast_arrays(own, rhat), axis=-1) - run.means)
+    return own - run.means[..., 0], 1.0, run.means[..., 1]
+
+
 def _start(plan: LearnPlan) -> Learners:
     """A fresh run: uniform policies (or a problem file's), zero critics and estimates, the first state drawn; each
     agent's rows those held here (``plan.rows``)."""
@@ -274,6 +305,7 @@ def _start(plan: LearnPlan) -> Learners:
         plan.critic.init(B, n, N * S * A if plan.settings.values == "action" else mdp.n_features),
         plan.channel.init(B, plan.arcs, plan.settings.seed),
         {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
+        means=np.zeros((B, n, 2)) if plan.settings.objective == "average" else None,
     )
 
 
@@ -296,8 +328,9 @@ def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
         return _end_of(plan, run, draws, k, s_next)
     W = critic.estimate(run.critic)  # (B, n, q)
     if plan.settings.values == "action":
+        reward, gamma, _ = objective_terms(plan, run, own, own, k)
         phi, phi_next, delta = _action_values(plan, run, s, a, s_next, W)
-        _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a_here, delta, k)
+        _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), s, a_here, delta, k)
         return _end_of(plan, run, draws, k, s_next)
     phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
     rhat = own
@@ -307,8 +340,9 @@ def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
         rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, n, N)), axis=-1).sum(-1)
         lam = run.pending.setdefault("lam", np.zeros_like(run.lam))
         lam[b[:, :, None], mine[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
-    delta = rhat + mdp.gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
-    _add(plan, run, Sample(phi, phi_next, own, np.ones((B, 1)), mdp.gamma), s, a_here, delta, k)
+    reward, gamma, baseline = objective_terms(plan, run, own, rhat, k)
+    delta = rhat - baseline + gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
+    _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), s, a_here, delta, k)
     _end_of(plan, run, draws, k, s_next)
 
 
@@ -321,8 +355,17 @@ def _compiled_sample(plan: LearnPlan, run: Learners, s, a, s_next, r, own, k: in
         rows = np.stack([phi[:, 0], phi_next[:, 0]], axis=1)
     else:
         rows = np.stack([mdp.Phi[s], mdp.Phi[s_next]], axis=1)
-    scal = (float(plan.betas[k]), float(plan.nus[k]), float(mdp.gamma), S, A, plan.settings.values == "state")
-    plan.kernels.sample(run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), s, a, r, own, scal)
+    reward, gamma, baseline = objective_terms(plan, run, own, own, k)  # (rhat: the kernel's, below)
+    rhat = np.zeros_like(own)  # the kernel's estimates of the team's reward (networked)
+    if run.lam is None:  # (the kernel's rhat is then the critic's reward, baseline and all)
+        baseline = 0.0
+    scal = (float(plan.betas[k]), float(plan.nus[k]), float(gamma), S, A, plan.settings.values == "state")
+    plan.kernels.sample(
+        run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), s, a, r, reward, scal,
+        np.broadcast_to(baseline, own.shape), rhat,
+    )  # fmt: skip
+    if run.means is not None and run.lam is not None:  # mu~_i's step on the estimates the kernel made, not own
+        run.pending["means"][..., 1] += mean_step(k) * (rhat - own)
     run.pending["n"] = run.pending.get("n", 0) + 1
 
 
@@ -386,6 +429,8 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
     n = pending.pop("n")
     sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
     inbox, run.links = plan.channel.deliver(run.links, plan.arcs, {m: rows.gather(x) for m, x in sent.items()}, up)
+    if run.means is not None:
+        run.means = run.means + pending.pop("means") / n
     if plan.kernels is not None:
         run.critic = plan.kernels.move(run.critic, inbox, pending.pop("D") / n, plan.alphas[k])
         if run.lam is not None:
@@ -452,38 +497,68 @@ def local_policies(mdp: team.TeamMDP, pi: np.ndarray) -> list:
     return [pi[i, :, :n] for i, n in enumerate(mdp.actions)]
 
 
-def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int, values: str) -> None:
-    """The exact return of each seed's current policies, its critics' error against their exact critic, the mean
-    entropy, and the least probability any agent puts on its part of the team's best action (where known)."""
+def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int, settings, best_action) -> None:
+    """The exact return of each seed's current policies under the run's objective, its critics' error against their
+    exact critic, the mean entropy, and the least probability any agent puts on its part of the team's best action
+    (where known)."""
     pi = policy(theta)
     for b in range(theta.shape[0]):
         policies = local_policies(mdp, pi[b])
         P_pi, _ = team.chain_of(mdp, policies)
-        metrics["return"][b, c] = team.average_return(mdp, policies)
-        metrics["critic_error"][b, c] = _critic_error(
-            mdp, policies, np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1])), values
-        )
+        metrics["return"][b, c] = team.objective_return(mdp, policies, settings.objective)
+        W_b = np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1]))
+        own = settings.actor == "independent"
+        metrics["critic_error"][b, c] = _critic_error(mdp, policies, W_b, settings.values, settings.objective, own)
         metrics["entropy"][b, c] = team.entropy(policies, team.long_run(P_pi, mdp.start)).mean()
-        if mdp.best is not None:
-            best = mdp.local(mdp.best)  # (S, N)
+        if best_action is not None:  # (the objective's: under the discounted one it may differ)
+            best = mdp.local(best_action)  # (S, N)
             metrics["best_probability"][b, c] = min(
                 float(p[np.arange(mdp.n_states), best[:, i]].min()) for i, p in enumerate(policies)
             )
 
 
-def _critic_error(mdp, policies, W: np.ndarray, values: str) -> float:
-    """|W - W*(pi)|^2 / (N |W*|^2) for state values (Chen et al.'s); for action values, whose additive features are
-    dependent (`dgtd.problems.team.action_critic_target`), the same in values: sum_i |Phi_Q (w_i - w*)|_d^2 /
-    (N |Phi_Q w*|_d^2); NaN where there is no joint table to solve on."""
+def _critic_error(mdp, policies, W: np.ndarray, values: str, objective: str = "discounted", own=False) -> float:
+    """|W - W*(pi)|^2 / |W*|^2 over the agents' critics (Chen et al.'s, W* every agent's target: the team's, or with
+    ``own`` each agent's own reward's, an independent learner's) for discounted state values; for action values,
+    whose additive features are dependent (`dgtd.problems.team.action_critic_target`), and for differential values
+    (the average objective: defined up to a constant), the same in values, each less its d-weighted mean under the
+    average objective: sum_i |Phi (w_i - w_i*)|_d^2 / sum_i |Phi w_i*|_d^2, the denominator at least N times the
+    spread of the rewards the critics are fed there (`_reward_spread`: a policy whose team reward is the same in
+    every state has flat differential values, beside which any error would look huge); NaN where there is no joint
+    table to solve on."""
+    agents = range(mdp.n_agents) if own else [None]
     if values == "state":
-        target = team.critic_target(mdp, policies)
-        return float(((W - target) ** 2).sum() / (mdp.n_agents * max(float(target @ target), 1e-300)))
-    solved = team.action_critic_target(mdp, policies)
-    if solved is None:
-        return float("nan")
-    Phi_Q, d, target = solved
-    gaps = ((Phi_Q @ (W - target).T) ** 2 * d[:, None]).sum()
-    return float(gaps / (mdp.n_agents * max(float(((Phi_Q @ target) ** 2 * d).sum()), 1e-300)))
+        Phi, d = mdp.Phi, team.long_run(team.chain_of(mdp, policies)[0], mdp.start)
+        targets = [team.critic_target(mdp, policies, objective, i) for i in agents]
+    else:
+        solved = [team.action_critic_target(mdp, policies, objective, i) for i in agents]
+        if solved[0] is None:
+            return float("nan")
+        (Phi, d, _), targets = solved[0], [t for _, _, t in solved]  # type: ignore[misc]
+    target = np.broadcast_to(np.array(targets), W.shape)
+    if values == "state" and objective == "discounted":
+        return float(((W - target) ** 2).sum() / max(float((target**2).sum()), 1e-300))
+    gaps, scale = Phi @ (W - target).T, Phi @ target.T
+    size = float((scale**2 * d[:, None]).sum())
+    if objective == "average":  # (differential values: the constant is free)
+        gaps, scale = gaps - d @ gaps, scale - d @ scale
+        size = max(float((scale**2 * d[:, None]).sum()), mdp.n_agents * _reward_spread(mdp, policies))
+    return float((gaps**2 * d[:, None]).sum() / max(size, 1e-300))
+
+
+def _reward_spread(mdp, policies) -> float:
+    """The mean over the agents of E (r_i - J_i)^2, the spread of the rewards each agent's critic is fed, over the
+    long-run states and the policies' actions: R_i(s, a) over joint actions (a joint table), R_i(s, a_i) over the
+    agent's own (a factored MDP)."""
+    P_pi, _ = team.chain_of(mdp, policies)
+    d = team.long_run(P_pi, mdp.start)
+    if isinstance(mdp, team.TeamMDP):
+        weights = np.broadcast_to((d[:, None] * team.joint_policy(policies)).ravel(), (mdp.n_agents, mdp.R[0].size))
+    else:
+        weights = np.stack([(d[:, None] * p).ravel() for p in policies])
+    R = mdp.R.reshape(mdp.n_agents, -1)
+    J = (weights * R).sum(axis=1, keepdims=True)
+    return float(np.mean((weights * (R - J) ** 2).sum(axis=1)))
 
 
 def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
@@ -500,7 +575,11 @@ def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
         "config": record,
         "return_best": result.return_best,
         "best_action": None if result.best_action is None else mdp.local(result.best_action).tolist(),
-        "return_last": [team.average_return(mdp, local_policies(mdp, pi)) for pi in result.policies],
+        "objective": result.info.get("objective", "average"),
+        "return_last": [
+            team.objective_return(mdp, local_policies(mdp, pi), result.info.get("objective", "average"))
+            for pi in result.policies
+        ],
         "critic_error_last": result.metrics["critic_error"][:, -1].tolist(),
         "best_probability_last": result.metrics["best_probability"][:, -1].tolist(),
         "policy_last": policies,

@@ -5,7 +5,8 @@ Each agent's actor is a softmax linear in features of its own observation (Zhang
 differentiable policy): pi_i(a | o_i) = exp(theta_i[a] . x_i) / sum_b exp(theta_i[b] . x_i), x_i = (o_i, 1), its
 score psi_i = (e_a - pi_i(. | o_i)) x_i^T. Everything else is `dgtd.run.learn`'s step on a model: the actions drawn
 from the keyed streams (purpose ACTION), the critics on features phi(s) of the env's global state (its own reward,
-or the team's for centralised actors), the networked agents' consensus estimate of the team's reward on
+or the team's for centralised actors; differential under the average objective, discounted by the task's gamma
+under the discounted one: `dgtd.run.learn.objective_terms`), the networked agents' consensus estimate of the team's reward on
 f(s, a) = (phi(s) e_{a_1}^T, ..., phi(s) e_{a_N}^T) (additive over the agents, as on a model), the same links and
 `round_end`. A time limit is not terminal: the TD target bootstraps from the state reached.
 
@@ -28,7 +29,7 @@ from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
 from dgtd.run.layout import AllAgents
-from dgtd.run.learn import METRICS, Learners, LearnPlan, LearnResult, LearnSettings, round_end
+from dgtd.run.learn import METRICS, Learners, LearnPlan, LearnResult, LearnSettings, objective_terms, round_end
 from dgtd.samples import Sample
 from dgtd.streams import ACTION, EDGE_UP, seed_keys, singles
 
@@ -82,6 +83,7 @@ def learn_env(
         0, np.zeros(B, np.int64), np.zeros((B, N, A, x.shape[-1])),
         np.zeros((B, N, N * A * q)) if settings.actor == "networked" else None, critic.init(B, N, q),
         plan.channel.init(B, plan.arcs, settings.seed), {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
+        means=np.zeros((B, N, 2)) if settings.objective == "average" else None,
     )  # fmt: skip
     started, tally = time.perf_counter(), np.zeros((B, 3))  # per seed: team reward, entropy, steps since a checkpoint
     for k in range(T):
@@ -98,7 +100,8 @@ def learn_env(
             progress(1)
     return LearnResult(
         plan.at, run.metrics, run.theta, critic.estimate(run.critic), None, None, run.links.messages, run.links.bits,
-        time.perf_counter() - started, {"backend": "numpy", "agents": agents, "estimated": True},
+        time.perf_counter() - started,
+        {"backend": "numpy", "agents": agents, "estimated": True, "objective": settings.objective},
     )  # fmt: skip
 
 
@@ -139,7 +142,7 @@ def _step(plan: LearnPlan, run: Learners, src, x: np.ndarray, k: int, q: int, ta
     a = np.minimum(team.draw(np.cumsum(pi, axis=-1), singles(plan.keys[:, None], ACTION, k, np.arange(N))), A - 1)
     steps = [src.act(b, {agent: int(a[b, i]) for i, agent in enumerate(src.agents)}) for b in range(B)]
     phi = src.features_of([s[0] for s in steps] + [s[2] for s in steps])
-    r, gamma = np.stack([s[1] for s in steps]), np.array([s[3] for s in steps]) * plan.mdp.gamma  # (B, N), (B,)
+    r, going = np.stack([s[1] for s in steps]), np.array([s[3] for s in steps], np.float64)  # (B, N), (B,)
     phi, phi_next = phi[:B, None, :], phi[B:, None, :]
     rbar = r.mean(axis=1, keepdims=True)
     own = np.broadcast_to(rbar, r.shape) if plan.settings.actor == "centralised" else r
@@ -155,9 +158,11 @@ def _step(plan: LearnPlan, run: Learners, src, x: np.ndarray, k: int, q: int, ta
         f[np.arange(B)[:, None], np.arange(N)[None, :], a] = phi  # (B, N, A, q): f(s, a) by blocks
         nu = 1.0 / (N * np.maximum((phi[:, 0] ** 2).sum(axis=1), 1e-12) * np.sqrt(1.0 + k / 100.0))  # 1 / |f|^2
         run.pending["lam"] = (nu[:, None] * (r - rhat))[:, :, None] * f.reshape(B, 1, -1)
-    delta = rhat + gamma[:, None] * (W * phi_next).sum(-1) - (W * phi).sum(-1)
-    d = plan.critic.directions(run.critic, Sample(phi, phi_next, own, np.ones((B, 1)), gamma[:, None]))
-    run.pending["d"], run.pending["n"] = d, 1
+    reward, discount, baseline = objective_terms(plan, run, own, rhat, k)
+    gamma = going[:, None] * discount  # (a terminal step's next state is not bootstrapped from)
+    delta = rhat - baseline + gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
+    d = plan.critic.directions(run.critic, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma))
+    run.pending["d"], run.pending["n"] = d, run.pending.get("n", 0) + 1
     score = np.eye(A)[a] - pi  # (B, N, A)
     run.pending["theta"] = plan.betas[k] * (delta[:, :, None] * score)[..., None] * x[:, :, None, :]
     entropy = -(pi * np.log(np.where(pi > 0, pi, 1.0))).sum(axis=-1).mean(axis=1)
@@ -182,6 +187,7 @@ def env_summary(result: LearnResult, task: EnvTask, record: dict) -> dict:
         "n_agents": task.n_agents,
         "agents": result.info["agents"],
         "gamma": task.gamma,
+        "objective": result.info["objective"],
         "config": record,
         "return_estimated": True,
         "return_first": result.metrics["return"][:, 0].tolist(),

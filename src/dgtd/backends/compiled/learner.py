@@ -44,10 +44,14 @@ from dgtd.backends.compiled.step import (
 __all__ = ["LearnerKernels", "aggregates", "learner_fallback"]
 
 
-def _sample_block(p, own, sent, w, D, theta, pending_theta, lam, pending_lam, feat, s, a, local, r, r_critic, scal):
+def _sample_block(
+    p, own, sent, w, D, theta, pending_theta, lam, pending_lam, feat, s, a, local, r, r_critic, scal, baseline, rhat_out
+):
     """Step k's sample for every seed b and agent i held here (rows ``local`` of every agent's ``a``): ``scal`` =
     (beta_k, nu_k, gamma, S, A, state values?) (`dgtd.run.learn`'s docstring: rhat, the regression, delta or the
-    action-value advantage, the critic's directions into D[:, b n + i], the actor's into pending_theta)."""
+    action-value advantage, the critic's directions into D[:, b n + i], the actor's into pending_theta); the
+    advantage's ``baseline`` (B, n) subtracted from rhat (the average objective's mu~_i), rhat written to
+    ``rhat_out``."""
     beta, nu, gamma, S, A, state_values = scal
     B, n, q, N = theta.shape[0], theta.shape[1], w.shape[2], a.shape[1]
     networked = lam.shape[2] > 0
@@ -64,9 +68,10 @@ def _sample_block(p, own, sent, w, D, theta, pending_theta, lam, pending_lam, fe
                     g = nu * (r[b, i] - rhat)
                     for j in range(N):
                         pending_lam[b, i, j * S * A + sb * A + a[b, j]] += g
+                rhat_out[b, i] = rhat
                 ahead: float = dot(feat.Phi, x1, w, (b, i), q)  # type: ignore[call-arg]
                 here: float = dot(feat.Phi, x0, w, (b, i), q)  # type: ignore[call-arg]
-                delta = rhat + gamma * ahead - here
+                delta = rhat - baseline[b, i] + gamma * ahead - here
             else:  # w_i[i, s, a_i] - sum_c pi_i(c | s) w_i[i, s, c]: the advantage on additive features
                 o = agent * S * A + sb * A
                 delta = w[b, i, o + a[b, agent]] - _expected(theta, b, i, sb, w, o)
@@ -211,8 +216,9 @@ class LearnerKernels:
         values = dict(zip(self.own_names, own)) | dict(zip(self.critic.messages, sent))
         return template._make(values[f] for f in template._fields)
 
-    def sample(self, state, pending: dict, theta, lam, rows, s, a, r, r_critic, scal) -> None:
-        """A step's sample added to the round's sums in ``pending`` (`_sample_block`)."""
+    def sample(self, state, pending: dict, theta, lam, rows, s, a, r, r_critic, scal, baseline, rhat) -> None:
+        """A step's sample added to the round's sums in ``pending`` (`_sample_block`); the estimates of the team's
+        reward written to ``rhat`` (B, n)."""
         own, sent = self.stacks(state)
         w = self.critic.estimate(state)
         B, n, q = w.shape
@@ -228,6 +234,7 @@ class LearnerKernels:
             Features(np.ascontiguousarray(rows), False, empty.astype(np.int64), empty.astype(np.int64), empty),
             np.ascontiguousarray(s, np.int64), np.ascontiguousarray(a, np.int64), self.local,
             np.ascontiguousarray(r, np.float64), np.ascontiguousarray(r_critic, np.float64), scal,
+            np.ascontiguousarray(baseline, np.float64), rhat,
         )  # fmt: skip
 
     def _coefficients(self) -> tuple:
