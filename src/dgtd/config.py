@@ -50,6 +50,17 @@ class ProblemConfig:
             flags=("--problem",),
         ),
     )
+    policies: str | None = field(
+        default=None,
+        metadata=option(
+            "A learning run's folder (dgtd learn --out) or its policies.npz: the agents of the multi-agent MDP file "
+            "it learnt on (--problem) evaluate the policies it ended with, not the file's policy_k.",
+            metavar="DIR",
+        ),
+    )
+    policies_seed: int | None = field(
+        default=None, metadata=option("Which seed's policies --policies takes (default 0).", metavar="K")
+    )
     env: dict | None = None  # the fields of EnvSpec, each an option of its own (--env sets make)
     data: str | None = field(
         default=None,
@@ -608,6 +619,11 @@ def _check_problem_fields(spec) -> None:
         )
     if spec.gamma is not None and spec.env is None and spec.data is None:
         raise DgtdInputError("gamma is the discount of an --env or --data run; a scenario or problem file has its own")
+    if (spec.policies is not None or spec.policies_seed is not None) and spec.problem_file is None:
+        raise DgtdInputError(
+            "--policies gives the agents of a multi-agent MDP file a learning run's policies: give the file it learnt "
+            "on with --problem FILE.npz"
+        )
     check_gamma(spec.gamma)
 
 
@@ -669,7 +685,12 @@ def _check_task_memory(spec, kwargs: dict) -> None:
 
 def _from_problem_file(spec) -> _Base:
     """A problem file's model, on a ring by default, with DGTD's defaults."""
-    problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none")
+    policies = None
+    if spec.policies is not None:
+        from dgtd.problems.io import learned_policies
+
+        policies = learned_policies(spec.policies, check_count("policies_seed", spec.policies_seed or 0, 0))
+    problem = load_problem(spec.problem_file, reward_noise=spec.reward_noise or "none", policies=policies)
     if spec.params:
         raise DgtdInputError(
             f"--agents sets the agents of a generated task or a simulator; a problem file's agents are the rows of "
@@ -1077,6 +1098,9 @@ def input_files(config: RunConfig) -> dict:
     """{role: path} of the files a run reads its inputs from (the problem, the recording, the graph's edge list, the
     links' loss), each by its role's name, as ``ROLE_sha256`` in its record."""
     files = {"problem": config.problem.problem_file, "data": config.problem.data}
+    if config.problem.policies is not None:  # (a learning run's folder: the file its policies are in)
+        given = Path(config.problem.policies)
+        files["policies"] = str(given / "policies.npz" if given.is_dir() else given)
     module = (config.algorithm.name or "").rpartition(":")[0]
     files["algorithm"] = module if module.endswith(".py") and Path(module).is_file() else None  # a user's algorithm
     for role in ("graph", "loss"):  # a name or numbers, or a file

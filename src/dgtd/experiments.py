@@ -273,6 +273,8 @@ def absolute_paths(config: RunConfig) -> RunConfig:
         over["problem_file"] = _absolute(p.problem_file)
     if p.data is not None:
         over["data"] = _absolute(p.data)
+    if p.policies is not None:
+        over["policies"] = _absolute(p.policies)
     graph = config.network.graph
     if graph is not None and graph not in TOPOLOGIES and graph not in NAMES:
         over["graph"] = _absolute(graph)

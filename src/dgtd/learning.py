@@ -65,6 +65,18 @@ class LearnConfig:
             "(critics discounted by the task's gamma, or --gamma in a simulator)."
         ),
     )
+    start_from: str | None = field(
+        default=None,
+        metadata=option(
+            "A learning run's folder (or its policies.npz) on the same task: the actors start from the policies it "
+            "ended with (each probability at least 1e-6), not the task's.",
+            flags=("--from",),
+            metavar="DIR",
+        ),
+    )
+    from_seed: int | None = field(
+        default=None, metadata=option("Which seed's policies --from takes (default 0).", metavar="K")
+    )
     batch: int | None = field(
         default=None,
         metadata=option(
@@ -171,7 +183,30 @@ def _team_mdp(task: str | None, file, own: dict, seeds: int):
         sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}
         _check_memory(task, sizes, own, seeds)
         mdp = TASKS[task](**sizes)
+    if own["start_from"] is not None:
+        mdp = _started_from(mdp, own["start_from"], own["from_seed"] or 0)
+    elif own["from_seed"] is not None:
+        raise DgtdInputError("--from-seed picks the seed of a --from DIR: give the learning run's folder")
     return mdp
+
+
+def _started_from(mdp, path: str, seed: int):
+    """The team MDP with a learning run's last policies (`dgtd.problems.io.learned_policies`) as its starting ones,
+    each of the agent's shape (S, A_i)."""
+    from dataclasses import replace
+
+    from dgtd.problems.io import learned_policies
+    from dgtd.run.settings import check_count
+
+    policies = learned_policies(path, check_count("from_seed", seed, 0))
+    shapes = [(mdp.n_states, n) for n in mdp.actions]
+    if [p.shape for p in policies] != shapes:
+        raise DgtdInputError(
+            f"--from {path}: its policies are of {len(policies)} agents, {policies[0].shape[0]} states and "
+            f"{policies[0].shape[1]} actions; {mdp.name} has {mdp.n_agents} agents, {mdp.n_states} states and "
+            f"{max(mdp.actions)} actions: a run on another task"
+        )
+    return replace(mdp, policies=tuple(policies))
 
 
 def _check_memory(task: str, sizes: dict, own: dict, seeds: int) -> None:
@@ -232,6 +267,11 @@ def _env_task(task: str | None, own: dict, values: dict, network_for) -> tuple:
         raise DgtdInputError(
             "gamma discounts the critics of the discounted objective; under --objective average (the default) they "
             "are differential: give --objective discounted with --gamma"
+        )
+    if own["start_from"] is not None or own["from_seed"] is not None:
+        raise DgtdInputError(
+            f"--from starts a team MDP's tabular actors from a learning run's policies; {name}'s actors are linear in "
+            "its observations"
         )
     if own["states"] is not None or own["values"] not in (None, "state") or own["batch"] not in (None, 1):
         raise DgtdInputError(

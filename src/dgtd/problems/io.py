@@ -29,11 +29,14 @@ FORMS = (
 )
 
 
-def load_problem(path: str, reward_noise: str = "none") -> Problem:
-    """Load and validate a problem file of either form; every failure is a one-line `DgtdInputError`."""
+def load_problem(path: str, reward_noise: str = "none", policies: list | None = None) -> Problem:
+    """Load and validate a problem file of either form; every failure is a one-line `DgtdInputError`. ``policies``
+    (each (S, A_k)) replace a multi-agent MDP file's policy_k (`learned_policies`: a learning run's)."""
     p = Path(path)
     arrays = read_npz(p, "problem file", FORMS, required=REQUIRED)
     _refuse_unknown(path, arrays)
+    if policies is not None:
+        arrays = _with_policies(path, arrays, policies)
     arrays = {name: _real(path, name, x) for name, x in arrays.items()}
     for k in ("gamma", "sigma", "signed_rewards"):
         if k in arrays and np.asarray(arrays[k]).size != 1:
@@ -150,6 +153,43 @@ def _load_mdp(path: Path, arrays: dict, gamma: float, sigma, reward_noise: str, 
         terminal=terminal,
         signed_rewards=signed,
     )
+
+
+def _with_policies(path, arrays: dict, policies: list) -> dict:
+    """The file's arrays with ``policies`` in place of its policy_k: as many, each of its shape."""
+    own = _numbered(arrays, "policy_")
+    if np.ndim(arrays["P"]) != 3 or len(own) != len(policies):
+        raise DgtdInputError(
+            f"the policies given are {len(policies)} agents'; {path} "
+            + (f"holds {len(own)} (policy_0, ...)" if np.ndim(arrays["P"]) == 3 else "is no multi-agent MDP file")
+            + ": a learning run's policies replace those of the multi-agent MDP file it learnt on"
+        )
+    for i, (mine, given) in enumerate(zip(own, policies)):
+        if np.shape(mine) != np.shape(given):
+            raise DgtdInputError(
+                f"agent {i}'s policy given has shape {np.shape(given)}, {path}'s policy_{i} {np.shape(mine)}: the "
+                "learning run was of another problem"
+            )
+    return {k: v for k, v in arrays.items() if not k.startswith("policy_")} | {
+        f"policy_{i}": np.asarray(p, np.float64) for i, p in enumerate(policies)
+    }
+
+
+def learned_policies(path: str, seed: int = 0) -> list:
+    """The policies a learning run ended with (its folder, or that folder's policies.npz): seed ``seed``'s, each
+    agent's (S, A_i) (`dgtd learn` writes policies (seeds, N, S, A_max) and actions (N,))."""
+    p = Path(path)
+    p = p / "policies.npz" if p.is_dir() else p
+    fix = "give a folder dgtd learn wrote (its policies.npz), or that file"
+    arrays = read_npz(p, "learning run's policies", fix, required=("policies", "actions"))
+    pi, actions = np.asarray(arrays["policies"], np.float64), np.asarray(arrays["actions"])
+    if pi.ndim != 4 or actions.shape != (pi.shape[1],):
+        raise DgtdInputError(
+            f"{p}: policies must be (seeds, N, S, A) and actions (N,); got {pi.shape}, {actions.shape}"
+        )
+    if not 0 <= seed < pi.shape[0]:
+        raise DgtdInputError(f"{p} holds the policies of seeds 0 to {pi.shape[0] - 1}, not of seed {seed}")
+    return [pi[seed, i, :, : int(n)] for i, n in enumerate(actions)]
 
 
 def save_problem(path: str, problem: Problem) -> None:

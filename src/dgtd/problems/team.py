@@ -387,6 +387,7 @@ class FactoredMDP(_Team):
     start: np.ndarray
     name: str = "factored"
     best: None = None
+    policies: tuple | None = None  # the agents' starting policies (S, A_i), where given (`dgtd learn --from`)
 
     @property
     def n_states(self) -> int:

@@ -23,9 +23,10 @@ One step k, for B seeds at once (agents and seeds are array axes; every random n
               steps, then beta_k / alpha_k -> 0.
 
 f(s, a) is additive over the agents, f = (e_{s, a_1}, ..., e_{s, a_N}) (N S A_max numbers, N of them ones): it
-represents any team reward that is a sum of per-agent terms exactly (the pull-away task's is). At every checkpoint the
-exact return J(pi_t) of the current policies under the run's objective (`dgtd.problems.team.objective_return`), the critics' error against the exact critic of pi_t (Chen, Zhou, Chen
-and Zou 2022: ||W - W*(pi_t)||^2 / (N ||W*||^2)) and the policies' entropy are recorded (`dgtd.problems.team`).
+represents any team reward that is a sum of per-agent terms exactly (the pull-away task's is). At every checkpoint
+the exact return J(pi_t) of the current policies under the run's objective (`dgtd.problems.team.objective_return`),
+the critics' error against the exact critic of pi_t (Chen, Zhou, Chen and Zou 2022: ||W - W*(pi_t)||^2 / (N
+||W*||^2)) and the policies' entropy are recorded (`dgtd.problems.team`).
 """
 
 from __future__ import annotations

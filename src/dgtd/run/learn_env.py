@@ -4,9 +4,9 @@ env through `learn_env`), where there is no model to solve.
 Each agent's actor is a softmax linear in features of its own observation (Zhang et al. 2018, section 3: any
 differentiable policy): pi_i(a | o_i) = exp(theta_i[a] . x_i) / sum_b exp(theta_i[b] . x_i), x_i = (o_i, 1), its
 score psi_i = (e_a - pi_i(. | o_i)) x_i^T. Everything else is `dgtd.run.learn`'s step on a model: the actions drawn
-from the keyed streams (purpose ACTION), the critics on features phi(s) of the env's global state (its own reward,
-or the team's for centralised actors; differential under the average objective, discounted by the task's gamma
-under the discounted one: `dgtd.run.learn.objective_terms`), the networked agents' consensus estimate of the team's reward on
+from the keyed streams (purpose ACTION), the critics on features phi(s) of the env's global state (its own reward, or
+the team's for centralised actors; differential under the average objective, discounted by the task's gamma under the
+discounted one: `dgtd.run.learn.objective_terms`), the networked agents' consensus estimate of the team's reward on
 f(s, a) = (phi(s) e_{a_1}^T, ..., phi(s) e_{a_N}^T) (additive over the agents, as on a model), the same links and
 `round_end`. A time limit is not terminal: the TD target bootstraps from the state reached.
 
