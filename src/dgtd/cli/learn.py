@@ -387,6 +387,7 @@ def _compared(results: dict, job) -> dict:
         J = r.metrics["return"][:, -1]
         out[label] = {
             "return_last": {"median": float(np.median(J)), "min": float(J.min()), "max": float(J.max())},
+            "failed_seeds": int((~np.isfinite(J) | ~np.isfinite(r.metrics["critic_error"][:, -1])).sum()),
             "best_probability_last": r.metrics["best_probability"][:, -1].tolist(),
             "critic_error_last": r.metrics["critic_error"][:, -1].tolist(),
             "messages": r.messages.tolist(),
@@ -397,36 +398,52 @@ def _compared(results: dict, job) -> dict:
 
 
 def _learners_table(results: dict) -> str:
-    """One line per learners: the exact return at the end (median over seeds, and its range), the least probability
-    on the team's best action, the critics' error, what was sent; then which reached the highest return."""
+    """One line per learners, each number at the end of the run: the return J (median over seeds, and its range),
+    the probability on the team's best action (median, and the worst seed's), the critics' error (median), what was
+    sent, and the seeds that failed (J or the critics' error not finite: a diverged run); then the highest median
+    return among the learners without a failed seed, and those tied with it (their seeds' ranges overlap)."""
     import numpy as np
 
-    rows = [f"{'learners':<28}{'J last':>9}{'seeds':>18}{'p(best)':>9}{'critic err':>12}{'messages':>11}{'bits':>11}"]
+    rows = [
+        f"{'learners':<28}{'J last':>9}{'seeds':>18}{'p(best) (worst)':>17}{'critic err':>12}{'messages':>11}"
+        f"{'bits':>11}{'failed':>8}"
+    ]
+    failed = {}
     for label, r in results.items():
         J = r.metrics["return"][:, -1]
-        least = r.metrics["best_probability"][:, -1]
-        shown = f"{np.min(least):.3f}" if np.isfinite(least).all() else "-"
+        least, error = r.metrics["best_probability"][:, -1], r.metrics["critic_error"][:, -1]
+        failed[label] = int((~np.isfinite(J) | ~np.isfinite(error)).sum())
+        shown = f"{np.median(least):.3f} ({np.min(least):.3f})" if np.isfinite(least).all() else "-"
         rows.append(
-            f"{label:<28}{np.median(J):>9.4g}{f'{J.min():.4g} to {J.max():.4g}':>18}{shown:>9}"
-            f"{np.median(r.metrics['critic_error'][:, -1]):>12.3g}{np.max(r.messages):>11.3g}{np.max(r.bits):>11.3g}"
+            f"{label:<28}{np.nanmedian(J):>9.4g}{f'{np.nanmin(J):.4g} to {np.nanmax(J):.4g}':>18}{shown:>17}"
+            f"{np.nanmedian(error):>12.3g}{np.max(r.messages):>11.3g}{np.max(r.bits):>11.3g}"
+            f"{f'{failed[label]} of {len(J)}':>8}"
         )
-    best = max(results, key=lambda label: float(np.median(results[label].metrics["return"][:, -1])))
-    J = results[best].metrics["return"][:, -1]
-    J_star = next(iter(results.values())).return_best
-    of = "" if J_star is None else f" of J* = {J_star:.4g}"
-    estimated = next(iter(results.values())).info.get("estimated", False)
+    first = next(iter(results.values()))
+    estimated = first.info.get("estimated", False)
+    objective = first.info.get("objective", "average")
     rows.append(
         "each number: at the end of the run, median over seeds; J is "
         + (
             "the team's mean reward a step since the last checkpoint, estimated from the run's own rewards (no model)"
             if estimated
             else "the exact long-run average team reward of the policies"
-            if next(iter(results.values())).info.get("objective", "average") == "average"
+            if objective == "average"
             else "the exact discounted team return of the policies from the start, times 1 - gamma"
         )
     )
-    rows.append(f"highest return: {best}, {np.median(J):.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})")
-    return "\n".join(rows)
+    whole = [label for label in results if not failed[label]]
+    if not whole:
+        return "\n".join([*rows, "every learners had a failed seed: none is named the highest"])
+    median = {label: float(np.median(results[label].metrics["return"][:, -1])) for label in whole}
+    best = max(whole, key=median.__getitem__)
+    J = results[best].metrics["return"][:, -1]
+    tied = [label for label in whole if label != best and results[label].metrics["return"][:, -1].max() >= J.min()]
+    of = "" if first.return_best is None else f" of J* = {first.return_best:.4g}"
+    line = f"highest return: {best}, {median[best]:.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})"
+    if tied:
+        line += f"; tied with it (their seeds' ranges overlap): {', '.join(tied)}"
+    return "\n".join([*rows, line])
 
 
 for _param in learn.params:

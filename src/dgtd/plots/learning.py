@@ -27,14 +27,15 @@ def learning_figure(out: Path, result, title: str) -> str:
     )
     if result.return_best is not None:
         ax.axhline(result.return_best, color="k", linestyle="--", label="J*, the best joint policy")
-    ax.set(xlabel="step (one sample per agent)", ylabel="average team reward", title=title)
+    ax.set(xlabel="step (one sample per agent)", ylabel="average team reward")
+    ax.set_title(f"{title}\n{BAND_WORDS}", fontsize=9)
     ax.legend()
     if estimated:
         band(ay, result.steps, result.metrics["entropy"].T, "policies' entropy")
-        ay.set(xlabel="step", ylabel="mean entropy at the observations met (nats)", title=BAND_WORDS)
+        ay.set(xlabel="step", ylabel="mean entropy at the observations met (nats)", title="the policies' entropy")
     else:
         band(ay, result.steps, result.metrics["critic_error"].T, "critics' error")
-        ay.set(xlabel="step", ylabel="|W - W*(pi_t)|^2 / (N |W*|^2)", yscale="log", title=BAND_WORDS)
+        ay.set(xlabel="step", ylabel="relative error", yscale="log", title="the critics' error against W*(pi_t)")
     fig.tight_layout()
     fig.savefig(Path(out) / "returns.png", dpi=110)
     plt.close(fig)
@@ -49,17 +50,19 @@ def learners_figure(out: Path, results: dict, title: str) -> str:
     fig, (ax, ay) = plt.subplots(1, 2, figsize=(11, 4))
     for label, r in results.items():
         line = band(ax, r.steps, r.metrics["return"].T, label)
-        ay.plot(
-            np.median(r.metrics["bits"], axis=0) / 8e6, np.median(r.metrics["return"], axis=0), color=line.get_color()
-        )
+        megabytes, J = np.median(r.metrics["bits"], axis=0) / 8e6, np.median(r.metrics["return"], axis=0)
+        silent = not np.any(megabytes)  # (it sends nothing: one point at 0, which a line would not show)
+        ay.plot(megabytes[-1:] if silent else megabytes, J[-1:] if silent else J, "o" if silent else "-",
+                color=line.get_color(), label=f"{label} (sends nothing)" if silent else label)  # fmt: skip
     best = next(iter(results.values())).return_best
     if best is not None:
         ax.axhline(best, color="k", linestyle=":", label="J*")
     estimated = next(iter(results.values())).info.get("estimated", False)
     ax.set(xlabel="step (one sample per agent)", ylabel="mean reward, estimated" if estimated else "J(pi_t), exact")
-    ax.set_title(title)
-    ay.set(xlabel="megabytes delivered (all agents)", ylabel="J(pi_t), median over seeds", title=BAND_WORDS)
+    ax.set_title(f"{title}\n{BAND_WORDS}", fontsize=9)
+    ay.set(xlabel="megabytes delivered (all agents)", ylabel="median over seeds", title="against what was delivered")
     ax.legend(fontsize=7)
+    ay.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(Path(out) / "learners.png", dpi=110)
     plt.close(fig)

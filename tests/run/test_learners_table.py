@@ -1,0 +1,53 @@
+"""`dgtd compare` on learners says what its numbers are (issue 60): p(best)'s median beside its worst seed, a failed
+seed counted and kept out of "highest", ties called ties, a learner that sends nothing drawn."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dgtd.cli.learn import _learners_table
+from dgtd.plots.learning import learners_figure
+from dgtd.run.learn import METRICS, LearnResult
+
+
+def result(J_last, p_best, sent=1.0) -> LearnResult:
+    B = len(J_last)
+    metrics = {name: np.ones((B, 2)) for name in METRICS}
+    metrics["return"][:, -1], metrics["best_probability"][:, -1] = J_last, p_best
+    metrics["critic_error"][:, -1] = np.where(np.isfinite(J_last), 1e-3, np.nan)
+    metrics["bits"] *= sent
+    return LearnResult(np.array([1, 2]), metrics, np.zeros((B, 2, 3, 2)), np.zeros((B, 2, 3)), 2.0, None,
+                       np.full(B, sent), np.full(B, sent), 0.1, {"objective": "average"})  # fmt: skip
+
+
+def test_the_learners_table_shows_medians_worst_seeds_failures_and_ties():
+    """A: median J 1.99 over seeds 1.98-2.0, p(best) median 0.99 and worst 0.02; B: a failed (NaN) seed and the
+    highest median of the finite ones; C: 1.95-1.981, overlapping A's range; D: far below. The highest is A (B failed),
+    C tied with it, D not."""
+    table = _learners_table({
+        "A": result([1.98, 1.99, 2.0], [0.99, 0.995, 0.02]),
+        "B": result([np.nan, 1.999, 1.999], [0.99, 0.99, 0.99]),
+        "C": result([1.95, 1.96, 1.981], [0.9, 0.9, 0.9]),
+        "D": result([1.0, 1.0, 1.0], [0.0, 0.0, 0.0]),
+    })  # fmt: skip
+    a = next(line for line in table.splitlines() if line.startswith("A "))
+    assert "0.990 (0.020)" in a and "0 of 3" in a
+    assert "1 of 3" in next(line for line in table.splitlines() if line.startswith("B "))
+    last = table.splitlines()[-1]
+    assert last.startswith("highest return: A, 1.99") and "tied with it" in last and "C" in last and "D" not in last
+
+
+def test_a_learner_that_sends_nothing_is_drawn(tmp_path, monkeypatch):
+    """Its point at 0 megabytes carries its label (a line of one x drew nothing)."""
+    import matplotlib.pyplot as plt
+
+    seen = []
+    plot = plt.Axes.plot
+
+    def spy(self, *args, **kwargs):
+        seen.append(kwargs.get("label"))
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(plt.Axes, "plot", spy)
+    learners_figure(tmp_path, {"talks": result([1.0], [1.0]), "quiet": result([1.0], [1.0], sent=0.0)}, "t")
+    assert "quiet (sends nothing)" in seen and (tmp_path / "learners.png").exists()
