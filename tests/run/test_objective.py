@@ -168,3 +168,15 @@ def test_independent_learners_critic_error_is_against_the_critic_they_learn():
     result = learn(mdp, net, make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(),
                    LearnSettings(iterations=10_000, seeds=2, checkpoints=2, actor="independent"))  # fmt: skip
     assert result.metrics["critic_error"][:, -1].max() < 0.02
+
+
+def test_a_diverged_learners_seeds_are_nan_not_a_traceback(run_cli, tmp_path):
+    """Critics at steps 1000/sqrt(k+100) diverge within 600 steps: every metric of the diverged checkpoints is NaN
+    (the exact measures raised LinAlgError on NaN policies) and summary.json's return_last null."""
+    code, out, err = run_cli("learn", "pull-away", "--algorithm", "consensus-td0", "--alpha0", 1000, "-T", 600,
+                             "--checkpoints", 3, "--backend", "numpy", "--no-progress", "--no-plots",
+                             "--out", tmp_path / "d")  # fmt: skip
+    assert code == 0, err
+    summary = json.loads((tmp_path / "d" / "summary.json").read_text())
+    assert summary["return_last"] == [None, None]
+    assert "nan" in out

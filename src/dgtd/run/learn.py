@@ -504,6 +504,10 @@ def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict,
     (where known)."""
     pi = policy(theta)
     for b in range(theta.shape[0]):
+        if not (np.isfinite(pi[b]).all() and np.isfinite(W[b]).all()):  # a diverged seed: NaN, its numbers gone
+            for name in ("return", "critic_error", "entropy", "best_probability"):
+                metrics[name][b, c] = np.nan
+            continue
         policies = local_policies(mdp, pi[b])
         P_pi, _ = team.chain_of(mdp, policies)
         metrics["return"][b, c] = team.objective_return(mdp, policies, settings.objective)
@@ -579,6 +583,8 @@ def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
         "objective": result.info.get("objective", "average"),
         "return_last": [
             team.objective_return(mdp, local_policies(mdp, pi), result.info.get("objective", "average"))
+            if np.isfinite(pi).all()
+            else None  # (a diverged seed)
             for pi in result.policies
         ],
         "critic_error_last": result.metrics["critic_error"][:, -1].tolist(),
