@@ -87,3 +87,29 @@ def test_bad_learned_policy_input_is_one_line(run_cli, tmp_path, learnt, args, w
     names = {"L": str(L), "other": str(other), "file": file, "missing": str(tmp_path / "nowhere")}
     given = [a.format(**names) for a in args]
     one_line_error(*run_cli(*given, "-T", 10, "--no-progress", "--out", tmp_path / "o"), *words)
+
+
+def test_ctrl_c_during_a_learning_run_keeps_the_metrics_measured_so_far(run_cli, tmp_path, monkeypatch):
+    """A learning run without --checkpoint-every kept nothing when interrupted: metrics.csv now holds every checkpoint
+    measured before Ctrl-C, each row the uninterrupted run's."""
+    import dgtd.run.learn as learning
+
+    command = ("learn", "pull-away", "-T", 1000, "--checkpoints", 10, "--no-progress", "--no-plots")
+    code, _, err = run_cli(*command, "--out", tmp_path / "whole")
+    assert code == 0, err
+    measure, seen = learning._measure, []
+
+    def interrupted_at_the_sixth(*args):
+        if len(seen) == 6:
+            raise KeyboardInterrupt
+        seen.append(1)
+        measure(*args)
+
+    monkeypatch.setattr(learning, "_measure", interrupted_at_the_sixth)
+    code, _, err = run_cli(*command, "--out", tmp_path / "cut")
+    assert code == 130, err
+    whole, cut = ((tmp_path / d / "metrics.csv").read_text().splitlines() for d in ("whole", "cut"))
+    steps = sorted({int(row.split(",")[2]) for row in whole[1:]})
+    assert cut[0] == whole[0] and set(cut[1:]) <= set(whole[1:])
+    assert sorted({int(row.split(",")[2]) for row in cut[1:]}) == steps[:6]
+    assert not (tmp_path / "cut" / "summary.json").exists()

@@ -122,11 +122,16 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
         )
         bar.update(0 if resume is None else int(resume["k"]))
         keep = (lambda snap: _keep(out, snap, job.record)) if runtime.writes() else (lambda snap: None)
+        measured = _measured_so_far(out, s.actor) if runtime.writes() else None
         try:
             result = run_learning(
                 mdp, job.network, job.critic, job.actor, s, job.channel, progress=bar.update,
-                checkpoint_every=checkpoint_every or 0, on_checkpoint=keep, resume=resume,
+                checkpoint_every=checkpoint_every or 0, on_checkpoint=keep, resume=resume, on_measured=measured,
             )  # fmt: skip
+        except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
+            if measured is not None:
+                measured.write()
+            raise
         finally:
             bar.close()
         if not runtime.writes():
@@ -167,8 +172,14 @@ def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) 
             refuse_other_results(out, job.record, "learning run")
         _timescales(job)
         bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True)
+        measured = _measured_so_far(out, s.actor)
         try:
-            result = learn_env(task, job.network, job.critic, job.actor, s, job.channel, progress=bar.update)
+            result = learn_env(
+                task, job.network, job.critic, job.actor, s, job.channel, progress=bar.update, on_measured=measured
+            )
+        except KeyboardInterrupt:  # what was measured is kept
+            measured.write()
+            raise
         finally:
             bar.close()
         atomic_write(out / "actors.npz", npz_bytes({"theta": result.policies}))
@@ -208,6 +219,20 @@ def _write(out: Path, result, job, plots: bool) -> list:
 
         written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
     return written
+
+
+def _measured_so_far(out: Path, actor: str):
+    """metrics.csv of the checkpoints measured so far, rewritten as they come (`dgtd.run.results.MeasuredSoFar`, in
+    the learning runs' columns)."""
+    from types import SimpleNamespace
+
+    from dgtd.run.learn import metrics_csv
+    from dgtd.run.results import MeasuredSoFar
+
+    return MeasuredSoFar(
+        out, actor, lambda latest: metrics_csv({actor: SimpleNamespace(steps=latest.steps, metrics=latest.metrics)},
+                                               "actor"),
+    )  # fmt: skip
 
 
 CHECKPOINT = "learning-checkpoint.npz"

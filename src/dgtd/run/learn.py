@@ -190,12 +190,14 @@ def learn(
     checkpoint_every: int = 0,
     on_checkpoint=None,
     resume: dict | None = None,
+    on_measured=None,
 ):
     """Run the actor-critic of the module's docstring; ``critic`` any distributed algorithm of `dgtd.algorithms` (its
     step sizes its own), ``channel`` the links (default perfect), ``progress(n)`` called as steps finish. Every
     ``checkpoint_every`` steps ``on_checkpoint(snapshot)`` is given the run's `Learners.snapshot`; ``resume`` (one)
     continues from it to the numbers of the uninterrupted run, bit for bit (every random number is keyed by its
-    step)."""
+    step). ``on_measured(steps, metrics)`` is called as each checkpoint is measured, with the steps so far (c,) and
+    each metric there (seeds, c), so that what was measured can be kept before the run ends."""
     network = as_network(network)  # (a bare graph: its fixed network; it raised AttributeError)
     plan = _plan(mdp, network, critic, actor, settings, channel)
     if checkpoint_every % settings.batch:
@@ -219,6 +221,8 @@ def learn(
             theta, W = plan.rows.gather(run.theta), plan.rows.gather(critic.estimate(run.critic))
             _measure(mdp, theta, W, run.metrics, c, settings, best[1])
             run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
+            if on_measured is not None:
+                on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
             on_checkpoint(run.snapshot(plan.rows))
         if progress is not None:

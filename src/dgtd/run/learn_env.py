@@ -50,8 +50,9 @@ class EnvTask:
 
 
 def learn_env(
-    task: EnvTask, network, critic, actor: SoftmaxActor, settings: LearnSettings, channel=None, progress=None
-):
+    task: EnvTask, network, critic, actor: SoftmaxActor, settings: LearnSettings, channel=None, progress=None,
+    on_measured=None,
+):  # fmt: skip
     """Learners in ``task``'s simulator (the module's docstring); the arguments as `dgtd.run.learn.learn`'s (no
     checkpoints to resume from, the NumPy backend: the simulator's step is the cost)."""
     from dgtd.sources.env import EnvSource
@@ -96,6 +97,8 @@ def learn_env(
             )
             run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
             tally[:] = 0.0
+            if on_measured is not None:
+                on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
         if progress is not None:
             progress(1)
     return LearnResult(

@@ -120,8 +120,9 @@ class MeasuredSoFar:
     rewritten whole and atomically, at most a tenth of the time (the next write waits nine times the last one's
     duration: a run of many seeds and checkpoints is not slowed by it), and at once by ``write()`` (on Ctrl-C)."""
 
-    def __init__(self, out: Path, algorithm: str):
+    def __init__(self, out: Path, algorithm: str, csv_of=None):
         self.out, self.algorithm = Path(out), algorithm
+        self.csv_of = csv_of or (lambda latest: metrics_csv(latest, algorithm))  # a learning run's: its own writer
         self.latest: Any = None
         self.next_at = 0.0
 
@@ -134,7 +135,7 @@ class MeasuredSoFar:
         if self.latest is None:
             return
         started = time.perf_counter()
-        atomic_write(self.out / "metrics.csv", metrics_csv(self.latest, self.algorithm))
+        atomic_write(self.out / "metrics.csv", self.csv_of(self.latest))
         self.next_at = time.perf_counter() + 9.0 * (time.perf_counter() - started)
 
 
