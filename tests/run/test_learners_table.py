@@ -51,3 +51,17 @@ def test_a_learner_that_sends_nothing_is_drawn(tmp_path, monkeypatch):
     monkeypatch.setattr(plt.Axes, "plot", spy)
     learners_figure(tmp_path, {"talks": result([1.0], [1.0]), "quiet": result([1.0], [1.0], sent=0.0)}, "t")
     assert "quiet (sends nothing)" in seen and (tmp_path / "learners.png").exists()
+
+
+def test_a_long_learning_run_says_how_long_early_and_once():
+    """`dgtd learn factored --agents 1000` said "about 0.2 s a step" and not the 3 hours its defaults take: the probe
+    times steps 5 onwards (past the kernels' compilation) for a second and says the time left once, where it is more
+    than a minute; a short run says nothing."""
+    from dgtd.cli.learn import CostProbe
+
+    for total, per_step, expected in ((20_000, 0.5, "about 2.8 hours"), (1000, 0.01, None)):
+        clock, said = iter(per_step * np.arange(1, total + 1)), []
+        probe = CostProbe(total, clock=lambda clock=clock: next(clock), say=said.append)
+        for _ in range(total):
+            probe(1)
+        assert (said == []) if expected is None else (len(said) == 1 and expected in said[0]), said

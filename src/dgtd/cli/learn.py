@@ -65,11 +65,9 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
     and one of dgtd's distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd
     run`; writes summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png
     (docs/control.md)."""
-    from tqdm import tqdm
 
     from dgtd.learning import resolve_learning
     from dgtd.run import runtime
-    from dgtd.run.learn import learn as run_learning
 
     simulator = task if task in ENV_TASKS else values.get("env_make")
     if simulator is not None and (ranks is not None or checkpoint_every):
@@ -117,23 +115,7 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
         _timescales(job)  # (after the folder's checks: a refusal is one line)
         if resume is not None:
             click.echo(f"resuming {out} at step {int(resume['k']):,}")
-        bar = tqdm(
-            total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5
-        )
-        bar.update(0 if resume is None else int(resume["k"]))
-        keep = (lambda snap: _keep(out, snap, job.record)) if runtime.writes() else (lambda snap: None)
-        measured = _measured_so_far(out, s.actor) if runtime.writes() else None
-        try:
-            result = run_learning(
-                mdp, job.network, job.critic, job.actor, s, job.channel, progress=bar.update,
-                checkpoint_every=checkpoint_every or 0, on_checkpoint=keep, resume=resume, on_measured=measured,
-            )  # fmt: skip
-        except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
-            if measured is not None:
-                measured.write()
-            raise
-        finally:
-            bar.close()
+        result = _learning(job, out, progress, checkpoint_every or 0, resume)
         if not runtime.writes():
             return
         written = _write(out, result, job, plots)
@@ -142,6 +124,38 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
             owner.__exit__(None, None, None)
     _report(result, mdp)
     click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+
+
+def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dict | None):
+    """The learning run of a model (`dgtd.run.learn.learn`) with its progress bar, its time said where long
+    (`CostProbe`), its checkpoints kept, and metrics.csv written as measured (on Ctrl-C too)."""
+    from tqdm import tqdm
+
+    from dgtd.run import runtime
+    from dgtd.run.learn import learn as run_learning
+
+    s, done = job.settings, 0 if resume is None else int(resume["k"])
+    bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5)
+    bar.update(done)
+    probe = CostProbe(s.iterations, done)
+
+    def advance(n: int) -> None:
+        bar.update(n)
+        probe(n)
+
+    keep = (lambda snap: _keep(out, snap, job.record)) if runtime.writes() else (lambda snap: None)
+    measured = _measured_so_far(out, s.actor) if runtime.writes() else None
+    try:
+        return run_learning(
+            job.mdp, job.network, job.critic, job.actor, s, job.channel, progress=advance,
+            checkpoint_every=checkpoint_every, on_checkpoint=keep, resume=resume, on_measured=measured,
+        )  # fmt: skip
+    except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
+        if measured is not None:
+            measured.write()
+        raise
+    finally:
+        bar.close()
 
 
 def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) -> None:
@@ -219,6 +233,51 @@ def _write(out: Path, result, job, plots: bool) -> list:
 
         written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
     return written
+
+
+class CostProbe:
+    """Says once, early, how long a run will take where that is more than `LONG` seconds: the seconds a step measured
+    on steps `PROBE_FROM` onwards (past the kernels' compilation) for at least `PROBE_SECONDS` or `PROBE_STEPS` steps,
+    times the steps left. Call it with each step's count (as a progress bar's update); ``clock`` and ``say`` are the
+    time and the output."""
+
+    LONG, PROBE_FROM, PROBE_SECONDS, PROBE_STEPS = 60.0, 5, 1.0, 200
+
+    def __init__(self, total: int, done: int = 0, clock=None, say=None):
+        import time
+
+        self.total, self.count = total, done
+        self.started: float | None = None
+        self.clock = clock or time.perf_counter
+        self.say = say or (lambda line: click.echo(f"note: {line}", err=True))
+        self.first = done + self.PROBE_FROM
+
+    def __call__(self, n: int = 1) -> None:
+        self.count += n
+        if self.started is None:
+            if self.count >= self.first:
+                self.started, self.first = self.clock(), self.count
+            return
+        if self.first < 0:
+            return
+        elapsed, steps = self.clock() - self.started, self.count - self.first
+        if elapsed < self.PROBE_SECONDS and steps < self.PROBE_STEPS:
+            return
+        per_step, left = elapsed / max(steps, 1), self.total - self.count
+        if per_step * left > self.LONG:
+            self.say(
+                f"about {per_step:.3g} s a step (measured on {steps:,} steps): the {left:,} steps left take about "
+                f"{_duration(per_step * left)}; -T or --agents shorten it, Ctrl-C keeps what was measured"
+            )
+        self.first = -1  # (said once)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} minutes"
+    return f"{seconds / 3600:.1f} hours"
 
 
 def _measured_so_far(out: Path, actor: str):
