@@ -42,6 +42,13 @@ class LearnConfig:
     actor_power: float = field(
         default=0.8, metadata=option("The actor's steps: power, in (1/2, 1] so that the critic is the faster.")
     )
+    entropy: float = field(
+        default=0.0,
+        metadata=option(
+            "The actors' entropy bonus tau: each ascends J + tau H(pi_i(. | s)), its advantage less tau log pi_i(a_i "
+            "| s) (0: none; J is reported without it)."
+        ),
+    )
     actor_warmup: int | None = field(
         default=None,
         metadata=option(
@@ -143,6 +150,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         _given(own, "actor_offset", actor_defaults["offset"]),
         _given(own, "actor_power", 0.8),
         own["actor_warmup"],
+        _given(own, "entropy", 0.0),
     )
     settings = LearnSettings(
         iterations=_given(values, "iterations", 20_000),

@@ -44,6 +44,7 @@ class SoftmaxActor:
     offset: float = 1000.0
     power: float = 0.8
     warmup: int | None = None
+    entropy: float = 0.0  # tau: the actors ascend J + tau H (their policies' entropy), `regularised`
 
     def __post_init__(self):
         if not (np.isfinite(self.step) and self.step > 0 and self.offset > 0 and 0.0 < self.power <= 1.0):
@@ -51,6 +52,8 @@ class SoftmaxActor:
                 f"the actor's steps step / (1 + k / offset)^power need step > 0, offset > 0 and power in (0, 1]; got "
                 f"{self.step}, {self.offset}, {self.power}"
             )
+        if not (np.isfinite(self.entropy) and self.entropy >= 0.0):
+            raise DgtdInputError(f"the actors' entropy bonus is a number >= 0, got {self.entropy}")
         if self.warmup is not None and not (isinstance(self.warmup, int | np.integer) and self.warmup >= 0):
             raise DgtdInputError(f"the actor's warm-up is a number of steps >= 0, got {self.warmup!r}")
 
@@ -82,7 +85,8 @@ class SoftmaxActor:
 
     def describe(self, T: int | None = None) -> str:
         held = "" if T is None else f"still for {self.held_for(T):,} steps, then "
-        return f"softmax actors, {held}beta_k = {self.step:g}/(1+k/{self.offset:g})^{self.power:g}"
+        bonus = f", entropy bonus {self.entropy:g}" if self.entropy else ""
+        return f"softmax actors, {held}beta_k = {self.step:g}/(1+k/{self.offset:g})^{self.power:g}{bonus}"
 
 
 def two_timescales(actor: SoftmaxActor, critic) -> None:
@@ -123,14 +127,27 @@ def policy(theta: np.ndarray) -> np.ndarray:
     return z / z.sum(axis=-1, keepdims=True)
 
 
-def actor_increment(theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float, into=None):
+def regularised(delta, log_pi, tau):
+    """The advantage an actor with entropy bonus tau follows for action a: delta - tau log pi(a | s). Its mean over
+    a ~ pi, times the score, is the gradient of J + tau H(pi(. | s)) (E[psi log pi] = -grad H). Scalars or arrays: the
+    NumPy learners and the compiled ones (`dgtd.backends.compiled.learner`) run this one definition."""
+    return delta - tau * log_pi
+
+
+def actor_increment(
+    theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float, into=None, tau: float = 0.0
+):
     """beta delta psi, the actor step of one sample, added to ``into`` (a new zero array of theta's shape if None):
-    row s_b of every agent of seed b gets beta delta_bi (e_{a_bi} - pi_bi(. | s_b)); ``s`` (B,), ``a`` and ``delta``
-    (B, N). An action an agent does not have (-inf) gets nothing."""
+    row s_b of every agent of seed b gets beta delta_bi (e_{a_bi} - pi_bi(. | s_b)), delta `regularised` by the
+    entropy bonus ``tau``; ``s`` (B,), ``a`` and ``delta`` (B, N). An action an agent does not have (-inf) gets
+    nothing."""
     B, N = a.shape
     b, i = np.arange(B)[:, None], np.arange(N)[None, :]
     rows = theta[b, i, s[:, None]]  # (B, N, A_max)
-    score = -policy(rows)
+    pi = policy(rows)
+    if tau:
+        delta = regularised(delta, np.log(pi[b, i, a]), tau)
+    score = -pi
     score[b, i, a] += 1.0
     into = np.zeros_like(theta) if into is None else into
     into[b, i, s[:, None]] += beta * delta[:, :, None] * np.where(np.isfinite(rows), score, 0.0)

@@ -364,7 +364,10 @@ def _compiled_sample(plan: LearnPlan, run: Learners, s, a, s_next, r, own, k: in
     rhat = np.zeros_like(own)  # the kernel's estimates of the team's reward (networked)
     if run.lam is None:  # (the kernel's rhat is then the critic's reward, baseline and all)
         baseline = 0.0
-    scal = (float(plan.betas[k]), float(plan.nus[k]), float(gamma), S, A, plan.settings.values == "state")
+    scal = (
+        float(plan.betas[k]), float(plan.nus[k]), float(gamma), S, A, plan.settings.values == "state",
+        float(plan.actor.entropy),
+    )  # fmt: skip
     plan.kernels.sample(
         run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), s, a, r, reward, scal,
         np.broadcast_to(baseline, own.shape), rhat,
@@ -379,7 +382,9 @@ def _add(plan: LearnPlan, run: Learners, sample: Sample, s, a, advantage, k: int
     pending = run.pending
     d = plan.critic.directions(run.critic, sample)
     pending["d"] = tuple(x + y for x, y in zip(pending["d"], d)) if "d" in pending else d
-    pending["theta"] = actor_increment(run.theta, s, a, advantage, plan.betas[k], pending.get("theta"))
+    pending["theta"] = actor_increment(
+        run.theta, s, a, advantage, plan.betas[k], pending.get("theta"), plan.actor.entropy
+    )
     pending["n"] = pending.get("n", 0) + 1
 
 

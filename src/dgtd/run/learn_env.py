@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from dgtd.algorithms.actor import SoftmaxActor, policy, two_timescales
+from dgtd.algorithms.actor import SoftmaxActor, policy, regularised, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
@@ -166,6 +166,8 @@ def _step(plan: LearnPlan, run: Learners, src, x: np.ndarray, k: int, q: int, ta
     delta = rhat - baseline + gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
     d = plan.critic.directions(run.critic, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma))
     run.pending["d"], run.pending["n"] = d, run.pending.get("n", 0) + 1
+    if plan.actor.entropy:
+        delta = regularised(delta, np.log(np.take_along_axis(pi, a[:, :, None], axis=2)[:, :, 0]), plan.actor.entropy)
     score = np.eye(A)[a] - pi  # (B, N, A)
     run.pending["theta"] = plan.betas[k] * (delta[:, :, None] * score)[..., None] * x[:, :, None, :]
     entropy = -(pi * np.log(np.where(pi > 0, pi, 1.0))).sum(axis=-1).mean(axis=1)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from dgtd.algorithms.actor import regularised
 from dgtd.backends.compiled.driver import compiled_copy
 from dgtd.backends.compiled.simd import dot
 from dgtd.backends.compiled.step import (
@@ -48,11 +49,11 @@ def _sample_block(
     p, own, sent, w, D, theta, pending_theta, lam, pending_lam, feat, s, a, local, r, r_critic, scal, baseline, rhat_out
 ):
     """Step k's sample for every seed b and agent i held here (rows ``local`` of every agent's ``a``): ``scal`` =
-    (beta_k, nu_k, gamma, S, A, state values?) (`dgtd.run.learn`'s docstring: rhat, the regression, delta or the
-    action-value advantage, the critic's directions into D[:, b n + i], the actor's into pending_theta); the
-    advantage's ``baseline`` (B, n) subtracted from rhat (the average objective's mu~_i), rhat written to
-    ``rhat_out``."""
-    beta, nu, gamma, S, A, state_values = scal
+    (beta_k, nu_k, gamma, S, A, state values?, the entropy bonus) (`dgtd.run.learn`'s docstring: rhat, the
+    regression, delta or the action-value advantage, the critic's directions into D[:, b n + i], the actor's into
+    pending_theta); the advantage's ``baseline`` (B, n) subtracted from rhat (the average objective's mu~_i),
+    rhat written to ``rhat_out``."""
+    beta, nu, gamma, S, A, state_values, tau = scal
     B, n, q, N = theta.shape[0], theta.shape[1], w.shape[2], a.shape[1]
     networked = lam.shape[2] > 0
     for b in range(B):
@@ -79,7 +80,7 @@ def _sample_block(
             at = b * n + i
             for f in range(q):
                 ADD_TERMS(D, at, f, TERMS_OF(p, feat.Phi[x0, f], feat.Phi[x1, f], c, gamma))
-            _actor_step(theta, pending_theta, b, i, sb, a[b, agent], beta * delta)
+            _actor_step(theta, pending_theta, b, i, sb, a[b, agent], beta, delta, tau)
 
 
 @njit(cache=True, inline="always")
@@ -107,10 +108,15 @@ def _expected(theta, b, i, s, w, o):
     return acc
 
 
+_regularised = njit(cache=True, inline="always")(regularised)
+
+
 @njit(cache=True, inline="always")
-def _actor_step(theta, pending, b, i, s, a, step):
-    """pending[b, i, s] += step (e_a - pi_i(. | s)) where agent i has the action (theta finite)."""
+def _actor_step(theta, pending, b, i, s, a, beta, delta, tau):
+    """pending[b, i, s] += beta delta' (e_a - pi_i(. | s)) where agent i has the action (theta finite), delta'
+    the advantage `regularised` by the entropy bonus tau."""
     top, total = _softmax_sum(theta, b, i, s)
+    step = beta * _regularised(delta, theta[b, i, s, a] - top - np.log(total), tau)
     for c in range(theta.shape[3]):
         x = theta[b, i, s, c]
         if np.isfinite(x):
