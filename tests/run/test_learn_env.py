@@ -100,7 +100,7 @@ def test_dgtd_learn_mpe_spread_writes_its_estimated_returns(run_cli, tmp_path):
     theta = np.load(tmp_path / "s" / "actors.npz")["theta"]
     assert theta.shape == (2, 3, 5, 19)  # seeds, agents, MPE's 5 moves, an observation of 18 and a constant
     rows = (tmp_path / "s" / "metrics.csv").read_text().splitlines()
-    assert rows[0] == "actor,seed,step,metric,value" and len(rows) == 1 + 2 * 2 * 6
+    assert rows[0] == "actor,seed,step,metric,value" and len(rows) == 1 + 2 * 2 * 7  # 6 metrics, episode_return
     assert (tmp_path / "s" / "returns.png").exists()
 
 
@@ -191,3 +191,18 @@ def test_a_simulator_learners_cannot_act_in_is_one_line(run_cli, tmp_path, make,
     one_line_error(
         *run_cli("learn", "--env", f"{chain}:{make}", "-T", 10, "--no-progress", "--out", tmp_path / "o"), *words
     )
+
+
+def test_an_episodic_simulator_reports_the_team_return_an_episode(run_cli, tmp_path):
+    """The pull-away game's episodes are 10 steps and the checkpoints fall every 1 000 steps (100 episodes): the
+    team's mean return an episode equals 10 times its mean reward a step over each interval (to 1e-12), and the
+    command says it first -> last (in an episodic task "mean reward a step" could not show learning)."""
+    result = game("networked")
+    assert np.allclose(result.metrics["episode_return"], 10 * result.metrics["return"], rtol=0, atol=1e-12)
+    user_game(tmp_path)
+    code, out, err = run_cli("learn", "--env", f"{tmp_path / 'game.py'}:make", "--features", "linear", "-T", 200,
+                             "--checkpoints", 2, "--no-progress", "--no-plots", "--out", tmp_path / "o")  # fmt: skip
+    assert code == 0, err
+    assert "team's mean return an episode" in out
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert len(summary["episode_return_last"]) == 2

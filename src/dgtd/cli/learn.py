@@ -161,6 +161,7 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
 def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) -> None:
     """`dgtd learn` in a simulator (`dgtd.run.learn_env`): no model, so the return is estimated from the run's own
     rewards; summary.json, metrics.csv, actors.npz (each agent's linear softmax weights) and returns.png."""
+    import numpy as np
     from tqdm import tqdm
 
     from dgtd.run.atomic import atomic_write, atomic_write_json
@@ -210,6 +211,12 @@ def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) 
         f"team's mean reward a step (estimated from the run's own steps), first checkpoint -> last, per seed: "
         f"{', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(first, last))}"
     )
+    episodes = result.metrics["episode_return"]
+    if np.isfinite(episodes).any():  # (an episodic simulator: what shows learning there)
+        click.echo(
+            "team's mean return an episode (over the episodes ended since the last checkpoint), first -> last, per "
+            f"seed: {', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(episodes[:, 0], episodes[:, -1]))}"
+        )
     click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
 
 

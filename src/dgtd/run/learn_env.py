@@ -11,8 +11,10 @@ f(s, a) = (phi(s) e_{a_1}^T, ..., phi(s) e_{a_N}^T) (additive over the agents, a
 `round_end`. A time limit is not terminal: the TD target bootstraps from the state reached.
 
 Without a model the return is estimated: at each checkpoint, the team's mean reward per step over the interval since
-the last one (each seed's; `LearnResult.metrics["return"]`), and the mean entropy of the policies at the observations
-met. A simulator's state cannot be saved, so these runs take no checkpoints to resume from.
+the last one (each seed's; `LearnResult.metrics["return"]`), the team's mean return an episode over the episodes that
+ended in it (``"episode_return"``: the sum of the team's mean reward over an episode, what shows learning in an
+episodic task), and the mean entropy of the policies at the observations met. A simulator's state cannot be saved,
+so these runs take no checkpoints to resume from.
 """
 
 from __future__ import annotations
@@ -83,18 +85,28 @@ def learn_env(
     run = Learners(
         0, np.zeros(B, np.int64), np.zeros((B, N, A, x.shape[-1])),
         np.zeros((B, N, N * A * q)) if settings.actor == "networked" else None, critic.init(B, N, q),
-        plan.channel.init(B, plan.arcs, settings.seed), {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
+        plan.channel.init(B, plan.arcs, settings.seed),
+        {name: np.full((B, len(plan.at)), np.nan) for name in (*METRICS, "episode_return")},
         means=np.zeros((B, N, 2)) if settings.objective == "average" else None,
     )  # fmt: skip
-    started, tally = time.perf_counter(), np.zeros((B, 3))  # per seed: team reward, entropy, steps since a checkpoint
+    # per seed, since the last checkpoint: team reward, entropy, steps, the episodes' team returns, episodes ended;
+    # and the team's return of the episode under way
+    started, tally, episode = time.perf_counter(), np.zeros((B, 5)), np.zeros(B)
     for k in range(T):
+        episodes, reward = np.array(src.episodes), tally[:, 0].copy()
         x = _step(plan, run, src, x, k, q, tally)
+        episode += tally[:, 0] - reward
+        ended = np.array(src.episodes) > episodes  # (an episode ended at this step: the next began)
+        tally[:, 3:] += np.stack([np.where(ended, episode, 0.0), ended], axis=1)
+        episode[ended] = 0.0
         if k + 1 in plan.at:
             c = int(np.searchsorted(plan.at, k + 1))
             run.metrics["return"][:, c], run.metrics["entropy"][:, c] = (
                 tally[:, 0] / tally[:, 2],
                 tally[:, 1] / tally[:, 2],
             )
+            with np.errstate(invalid="ignore", divide="ignore"):  # (no episode ended: NaN)
+                run.metrics["episode_return"][:, c] = np.where(tally[:, 4] > 0, tally[:, 3] / tally[:, 4], np.nan)
             run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
             tally[:] = 0.0
             if on_measured is not None:
@@ -171,7 +183,7 @@ def _step(plan: LearnPlan, run: Learners, src, x: np.ndarray, k: int, q: int, ta
     score = np.eye(A)[a] - pi  # (B, N, A)
     run.pending["theta"] = plan.betas[k] * (delta[:, :, None] * score)[..., None] * x[:, :, None, :]
     entropy = -(pi * np.log(np.where(pi > 0, pi, 1.0))).sum(axis=-1).mean(axis=1)
-    tally += np.stack([rbar[:, 0], entropy, np.ones(B)], axis=1)
+    tally[:, :3] += np.stack([rbar[:, 0], entropy, np.ones(B)], axis=1)
     run.k = k + 1
     up = (
         None
@@ -197,9 +209,16 @@ def env_summary(result: LearnResult, task: EnvTask, record: dict) -> dict:
         "return_estimated": True,
         "return_first": result.metrics["return"][:, 0].tolist(),
         "return_last": result.metrics["return"][:, -1].tolist(),
+        "episode_return_first": _listed(result.metrics["episode_return"][:, 0]),
+        "episode_return_last": _listed(result.metrics["episode_return"][:, -1]),
         "return_best": None,
         "entropy_last": result.metrics["entropy"][:, -1].tolist(),
         "messages": result.messages.tolist(),
         "bits": result.bits.tolist(),
         "seconds": result.seconds,
     }
+
+
+def _listed(x: np.ndarray) -> list:
+    """Numbers as JSON holds them: NaN (no episode ended in the interval) as null."""
+    return [None if not np.isfinite(v) else float(v) for v in x]
