@@ -185,11 +185,11 @@ def test_a_diverged_learners_seeds_are_nan_not_a_traceback(run_cli, tmp_path):
 def test_the_entropy_bonus_follows_the_entropys_gradient():
     """E_{a ~ pi}[psi(a) (-log pi(a))] = grad_theta H(softmax(theta)), checked against central differences of H on a
     random row (to 1e-8), so that an actor with bonus tau ascends J + tau H."""
-    from dgtd.algorithms.actor import policy, regularised
+    from dgtd.algorithms.actor import policy, score_step
 
     theta = np.random.default_rng(2).normal(size=5)
     pi = policy(theta)
-    expected = sum(pi[a] * (np.eye(5)[a] - pi) * regularised(0.0, np.log(pi[a]), 1.0) for a in range(5))
+    expected = sum(pi[a] * score_step(1.0, 0.0, np.log(pi[a]), 1.0, np.eye(5)[a], pi) for a in range(5))
 
     def H(t):
         p = policy(t)

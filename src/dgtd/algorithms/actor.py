@@ -44,7 +44,7 @@ class SoftmaxActor:
     offset: float = 1000.0
     power: float = 0.8
     warmup: int | None = None
-    entropy: float = 0.0  # tau: the actors ascend J + tau H (their policies' entropy), `regularised`
+    entropy: float = 0.0  # tau: the actors ascend J + tau H (their policies' entropy), `score_step`
 
     def __post_init__(self):
         if not (np.isfinite(self.step) and self.step > 0 and self.offset > 0 and 0.0 < self.power <= 1.0):
@@ -72,6 +72,15 @@ class SoftmaxActor:
         for i, p in enumerate(policies):
             theta[:, i, :, : p.shape[1]] = np.log(np.maximum(p, FLOOR))[None]
         return theta
+
+    def probabilities(self, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """pi (B, n, A_max) of every agent of theta's at each seed's state ``s`` (B,)."""
+        B, n = theta.shape[:2]
+        return policy(theta[np.arange(B)[:, None], np.arange(n)[None, :], s[:, None]])
+
+    def increment(self, theta, s, a, delta, beta: float, into=None) -> np.ndarray:
+        """beta delta psi of one sample added to ``into`` (theta's shape; new where None): `actor_increment`."""
+        return actor_increment(theta, s, a, delta, beta, into, self.entropy)
 
     def held_for(self, T: int) -> int:
         """The steps of a run of T for which the actor holds still."""
@@ -127,28 +136,69 @@ def policy(theta: np.ndarray) -> np.ndarray:
     return z / z.sum(axis=-1, keepdims=True)
 
 
-def regularised(delta, log_pi, tau):
-    """The advantage an actor with entropy bonus tau follows for action a: delta - tau log pi(a | s). Its mean over
-    a ~ pi, times the score, is the gradient of J + tau H(pi(. | s)) (E[psi log pi] = -grad H). Scalars or arrays: the
-    NumPy learners and the compiled ones (`dgtd.backends.compiled.learner`) run this one definition."""
-    return delta - tau * log_pi
+def td_error(reward, baseline, gamma, v_next, v_here):
+    """delta = r - baseline + gamma V(s') - V(s), the TD error an actor takes as its advantage (Zhang et al. 2018,
+    Algorithm 2's actor step): ``reward`` the team's reward as the agent knows it, ``baseline`` the average
+    objective's running mean of it mu~ (0 for the discounted objective), ``gamma`` 1 under the average objective."""
+    return reward - baseline + gamma * v_next - v_here
+
+
+def score_step(beta, delta, log_pi, tau, taken, p):
+    """One entry of the actor's step beta_k (delta - tau log pi(a)) psi on a softmax's logit of action c, psi's entry
+    1{c = a} - pi(c) (``taken`` 1 where c is the action taken, ``p`` pi(c)): the advantage ``delta`` less the entropy
+    bonus ``tau`` times ``log_pi`` of the action taken, whose mean over a ~ pi, times the score, is the gradient of
+    J + tau H(pi(. | s)) (E[psi log pi] = -grad H). A linear softmax's weights move by it times their features; a
+    tabular one's row of the state by it alone."""
+    return beta * (delta - tau * log_pi) * (taken - p)
+
+
+# td_error and score_step take scalars or arrays: the tabular and linear actors below, the model's and simulator's
+# learners and the compiled ones (`dgtd.backends.compiled.learner`) run these definitions, JAX arrays as well.
 
 
 def actor_increment(
     theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float, into=None, tau: float = 0.0
 ):
     """beta delta psi, the actor step of one sample, added to ``into`` (a new zero array of theta's shape if None):
-    row s_b of every agent of seed b gets beta delta_bi (e_{a_bi} - pi_bi(. | s_b)), delta `regularised` by the
-    entropy bonus ``tau``; ``s`` (B,), ``a`` and ``delta`` (B, N). An action an agent does not have (-inf) gets
-    nothing."""
+    row s_b of every agent of seed b gets `score_step` on each action, ``s`` (B,), ``a`` and ``delta`` (B, N). An
+    action an agent does not have (-inf) gets nothing."""
     B, N = a.shape
     b, i = np.arange(B)[:, None], np.arange(N)[None, :]
     rows = theta[b, i, s[:, None]]  # (B, N, A_max)
     pi = policy(rows)
-    if tau:
-        delta = regularised(delta, np.log(pi[b, i, a]), tau)
-    score = -pi
-    score[b, i, a] += 1.0
+    log_pi = np.log(pi[b, i, a])[:, :, None] if tau else 0.0  # (without a bonus, no 0 x log 0)
+    taken = np.zeros_like(pi)
+    taken[b, i, a] = 1.0
+    step = score_step(beta, delta[:, :, None], log_pi, tau, taken, pi)
     into = np.zeros_like(theta) if into is None else into
-    into[b, i, s[:, None]] += beta * delta[:, :, None] * np.where(np.isfinite(rows), score, 0.0)
+    into[b, i, s[:, None]] += np.where(np.isfinite(rows), step, 0.0)
     return into
+
+
+@dataclass(frozen=True)
+class LinearSoftmaxActor(SoftmaxActor):
+    """A softmax linear in features of the agent's own observation, for a simulator (Zhang et al. 2018, section 3:
+    any differentiable policy): pi_i(a | o_i) = exp(theta_i[a] . x_i) / sum_b exp(theta_i[b] . x_i), x_i = (o_i, 1),
+    its score (e_a - pi_i(. | o_i)) x_i^T; theta (B, N, A, d). Its steps are `SoftmaxActor`'s."""
+
+    @classmethod
+    def like(cls, actor: SoftmaxActor) -> LinearSoftmaxActor:
+        """The linear actor with ``actor``'s steps."""
+        return cls(actor.step, actor.offset, actor.power, actor.warmup, actor.entropy)
+
+    def init(self, seeds: int, actions, states: int) -> np.ndarray:  # type: ignore[override]
+        """theta (B, N, A, d) of zeros: uniform policies; ``actions`` (N,) the same for every agent, ``states`` d."""
+        return np.zeros((seeds, len(actions), int(max(actions)), states))
+
+    def probabilities(self, theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """pi (B, N, A) at the features ``x`` (B, N, d) of each agent's observation."""
+        return policy(np.einsum("bnad,bnd->bna", theta, x))
+
+    def increment(self, theta, x, a, delta, beta: float, into=None) -> np.ndarray:
+        """beta delta psi of one sample added to ``into`` (B, N, A, d; new where None): `score_step` on each action
+        times the features ``x``."""
+        pi = self.probabilities(theta, x)
+        taken = np.eye(pi.shape[-1])[a]
+        log_pi = np.log(np.take_along_axis(pi, a[:, :, None], axis=2)) if self.entropy else 0.0
+        step = score_step(beta, delta[:, :, None], log_pi, self.entropy, taken, pi)[..., None] * x[:, :, None, :]
+        return step if into is None else into + step

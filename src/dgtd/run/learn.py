@@ -38,8 +38,9 @@ from typing import Any
 import numpy as np
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.algorithms.actor import SoftmaxActor, actor_increment, policy, two_timescales
+from dgtd.algorithms.actor import SoftmaxActor, policy, td_error, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
+from dgtd.algorithms.team_reward import mean_step, mean_update, regression_rate, regression_step
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import as_network
@@ -252,7 +253,7 @@ def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
     return LearnPlan(
         mdp, network, critic, actor, settings, channel, arcs, seed_keys(settings.seed, range(settings.seeds)),
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
-        mean_step(np.arange(T)) / N,  # the reward regression's steps: |f|^2 = N
+        regression_rate(np.arange(T), N),  # the reward regression's steps: g(s) = e_s
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]),
         rows, _kernels(settings.backend, critic, channel, arcs, rows.local),
     )  # fmt: skip
@@ -276,12 +277,6 @@ def fallback(critic, channel) -> str | None:
     return learner_fallback(critic, channel if channel is not None else Perfect())
 
 
-def mean_step(k):
-    """1 / sqrt(1 + k / 100): the step at k of the running averages (the average objective's mu_i) and, over |f|^2,
-    of the team-reward regression; the first sample taken whole, then a window that widens as sqrt(k)."""
-    return 1.0 / np.sqrt(1.0 + np.asarray(k, dtype=np.float64) / 100.0)
-
-
 def objective_terms(plan: LearnPlan, run: Learners, own: np.ndarray, rhat: np.ndarray, k: int) -> tuple:
     """(the critics' reward, their discount, the advantage's baseline) of step k's sample under the objective.
     Discounted: (own, gamma, 0). Average (Zhang et al. 2018, Algorithm 2: differential critics): (own - mu_i, 1,
@@ -290,7 +285,7 @@ def objective_terms(plan: LearnPlan, run: Learners, own: np.ndarray, rhat: np.nd
     if run.means is None:
         return own, plan.mdp.gamma, 0.0
     pending = run.pending.setdefault("means", np.zeros_like(run.means))
-    pending += mean_step(k) * (np.stack(np.broadcast_arrays(own, rhat), axis=-1) - run.means)
+    pending += mean_update(mean_step(k), np.stack(np.broadcast_arrays(own, rhat), axis=-1), run.means)
     return own - run.means[..., 0], 1.0, run.means[..., 1]
 
 
@@ -344,9 +339,9 @@ def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
         n = len(local)
         rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, n, N)), axis=-1).sum(-1)
         lam = run.pending.setdefault("lam", np.zeros_like(run.lam))
-        lam[b[:, :, None], mine[None, :, None], f[:, None, :]] += plan.nus[k] * (r - rhat)[:, :, None]
+        lam[b[:, :, None], mine[None, :, None], f[:, None, :]] += regression_step(plan.nus[k], r, rhat)[:, :, None]
     reward, gamma, baseline = objective_terms(plan, run, own, rhat, k)
-    delta = rhat - baseline + gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
+    delta = td_error(rhat, baseline, gamma, (W * phi_next).sum(-1), (W * phi).sum(-1))
     _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), s, a_here, delta, k)
     _end_of(plan, run, draws, k, s_next)
 
@@ -373,7 +368,7 @@ def _compiled_sample(plan: LearnPlan, run: Learners, s, a, s_next, r, own, k: in
         np.broadcast_to(baseline, own.shape), rhat,
     )  # fmt: skip
     if run.means is not None and run.lam is not None:  # mu~_i's step on the estimates the kernel made, not own
-        run.pending["means"][..., 1] += mean_step(k) * (rhat - own)
+        run.pending["means"][..., 1] += mean_update(mean_step(k), rhat, own)
     run.pending["n"] = run.pending.get("n", 0) + 1
 
 
@@ -382,9 +377,7 @@ def _add(plan: LearnPlan, run: Learners, sample: Sample, s, a, advantage, k: int
     pending = run.pending
     d = plan.critic.directions(run.critic, sample)
     pending["d"] = tuple(x + y for x, y in zip(pending["d"], d)) if "d" in pending else d
-    pending["theta"] = actor_increment(
-        run.theta, s, a, advantage, plan.betas[k], pending.get("theta"), plan.actor.entropy
-    )
+    pending["theta"] = plan.actor.increment(run.theta, s, a, advantage, plan.betas[k], pending.get("theta"))
     pending["n"] = pending.get("n", 0) + 1
 
 

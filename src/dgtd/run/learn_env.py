@@ -1,9 +1,9 @@
 """Agents that learn their policies in a simulator, a PettingZoo ParallelEnv (`dgtd learn mpe-spread`, or a user's
 env through `learn_env`), where there is no model to solve.
 
-Each agent's actor is a softmax linear in features of its own observation (Zhang et al. 2018, section 3: any
-differentiable policy): pi_i(a | o_i) = exp(theta_i[a] . x_i) / sum_b exp(theta_i[b] . x_i), x_i = (o_i, 1), its
-score psi_i = (e_a - pi_i(. | o_i)) x_i^T. Everything else is `dgtd.run.learn`'s step on a model: the actions drawn
+Each agent's actor is a softmax linear in features of its own observation (`dgtd.algorithms.actor.LinearSoftmaxActor`,
+with the steps of the `SoftmaxActor` given): pi_i(a | o_i) = exp(theta_i[a] . x_i) / sum_b exp(theta_i[b] . x_i),
+x_i = (o_i, 1). Everything else is `dgtd.run.learn`'s step on a model: the actions drawn
 from the keyed streams (purpose ACTION), the critics on features phi(s) of the env's global state (its own reward, or
 the team's for centralised actors; differential under the average objective, discounted by the task's gamma under the
 discounted one: `dgtd.run.learn.objective_terms`), the networked agents' consensus estimate of the team's reward on
@@ -25,8 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from dgtd.algorithms.actor import SoftmaxActor, policy, regularised, two_timescales
+from dgtd.algorithms.actor import LinearSoftmaxActor, SoftmaxActor, td_error, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
+from dgtd.algorithms.team_reward import regression_rate, regression_step
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
@@ -60,6 +61,7 @@ def learn_env(
     from dgtd.sources.env import EnvSource
 
     two_timescales(actor, critic)
+    actor = LinearSoftmaxActor.like(actor)
     if settings.values != "state" or settings.batch != 1:
         raise DgtdInputError(
             "in a simulator the critics evaluate state values, a step at a time (no --values, --batch)"
@@ -83,7 +85,7 @@ def learn_env(
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]), AllAgents(N),
     )  # fmt: skip
     run = Learners(
-        0, np.zeros(B, np.int64), np.zeros((B, N, A, x.shape[-1])),
+        0, np.zeros(B, np.int64), actor.init(B, [A] * N, x.shape[-1]),
         np.zeros((B, N, N * A * q)) if settings.actor == "networked" else None, critic.init(B, N, q),
         plan.channel.init(B, plan.arcs, settings.seed),
         {name: np.full((B, len(plan.at)), np.nan) for name in (*METRICS, "episode_return")},
@@ -153,7 +155,7 @@ def _observed(src, seeds) -> np.ndarray:
 def _step(plan: LearnPlan, run: Learners, src, x: np.ndarray, k: int, q: int, tally: np.ndarray) -> np.ndarray:
     """Step k of every seed (the module's docstring); returns the actors' features of the observations reached."""
     B, N, A, _ = run.theta.shape
-    pi = policy(np.einsum("bnad,bnd->bna", run.theta, x))  # (B, N, A)
+    pi = plan.actor.probabilities(run.theta, x)  # (B, N, A)
     a = np.minimum(team.draw(np.cumsum(pi, axis=-1), singles(plan.keys[:, None], ACTION, k, np.arange(N))), A - 1)
     steps = [src.act(b, {agent: int(a[b, i]) for i, agent in enumerate(src.agents)}) for b in range(B)]
     phi = src.features_of([s[0] for s in steps] + [s[2] for s in steps])
@@ -170,18 +172,15 @@ def _step(plan: LearnPlan, run: Learners, src, x: np.ndarray, k: int, q: int, ta
         ]
         rhat = (picked * phi[:, :, None, :]).sum(axis=(2, 3))  # (B, N)
         f = np.zeros((B, N, A, q))
-        f[np.arange(B)[:, None], np.arange(N)[None, :], a] = phi  # (B, N, A, q): f(s, a) by blocks
-        nu = 1.0 / (N * np.maximum((phi[:, 0] ** 2).sum(axis=1), 1e-12) * np.sqrt(1.0 + k / 100.0))  # 1 / |f|^2
-        run.pending["lam"] = (nu[:, None] * (r - rhat))[:, :, None] * f.reshape(B, 1, -1)
+        f[np.arange(B)[:, None], np.arange(N)[None, :], a] = phi  # (B, N, A, q): f(s, a) by blocks, g(s) = phi(s)
+        nu = regression_rate(k, N, np.maximum((phi[:, 0] ** 2).sum(axis=1), 1e-12))  # (B,)
+        run.pending["lam"] = regression_step(nu[:, None], r, rhat)[:, :, None] * f.reshape(B, 1, -1)
     reward, discount, baseline = objective_terms(plan, run, own, rhat, k)
     gamma = going[:, None] * discount  # (a terminal step's next state is not bootstrapped from)
-    delta = rhat - baseline + gamma * (W * phi_next).sum(-1) - (W * phi).sum(-1)
+    delta = td_error(rhat, baseline, gamma, (W * phi_next).sum(-1), (W * phi).sum(-1))
     d = plan.critic.directions(run.critic, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma))
     run.pending["d"], run.pending["n"] = d, run.pending.get("n", 0) + 1
-    if plan.actor.entropy:
-        delta = regularised(delta, np.log(np.take_along_axis(pi, a[:, :, None], axis=2)[:, :, 0]), plan.actor.entropy)
-    score = np.eye(A)[a] - pi  # (B, N, A)
-    run.pending["theta"] = plan.betas[k] * (delta[:, :, None] * score)[..., None] * x[:, :, None, :]
+    run.pending["theta"] = plan.actor.increment(run.theta, x, a, delta, plan.betas[k])
     entropy = -(pi * np.log(np.where(pi > 0, pi, 1.0))).sum(axis=-1).mean(axis=1)
     tally[:, :3] += np.stack([rbar[:, 0], entropy, np.ones(B)], axis=1)
     run.k = k + 1

@@ -22,7 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from dgtd.algorithms.actor import regularised
+from dgtd.algorithms.actor import score_step, td_error
+from dgtd.algorithms.team_reward import regression_step
 from dgtd.backends.compiled.driver import compiled_copy
 from dgtd.backends.compiled.simd import dot
 from dgtd.backends.compiled.step import (
@@ -66,13 +67,13 @@ def _sample_block(
                     rhat = 0.0
                     for j in range(N):
                         rhat += lam[b, i, j * S * A + sb * A + a[b, j]]
-                    g = nu * (r[b, i] - rhat)
+                    g = _regression_step(nu, r[b, i], rhat)
                     for j in range(N):
                         pending_lam[b, i, j * S * A + sb * A + a[b, j]] += g
                 rhat_out[b, i] = rhat
                 ahead: float = dot(feat.Phi, x1, w, (b, i), q)  # type: ignore[call-arg]
                 here: float = dot(feat.Phi, x0, w, (b, i), q)  # type: ignore[call-arg]
-                delta = rhat - baseline[b, i] + gamma * ahead - here
+                delta = _td_error(rhat, baseline[b, i], gamma, ahead, here)
             else:  # w_i[i, s, a_i] - sum_c pi_i(c | s) w_i[i, s, c]: the advantage on additive features
                 o = agent * S * A + sb * A
                 delta = w[b, i, o + a[b, agent]] - _expected(theta, b, i, sb, w, o)
@@ -108,19 +109,23 @@ def _expected(theta, b, i, s, w, o):
     return acc
 
 
-_regularised = njit(cache=True, inline="always")(regularised)
+# the learners' arithmetic, one definition each (`dgtd.algorithms.actor`, `dgtd.algorithms.team_reward`)
+_td_error, _score_step, _regression_step = (
+    njit(cache=True, inline="always")(f) for f in (td_error, score_step, regression_step)
+)
 
 
 @njit(cache=True, inline="always")
 def _actor_step(theta, pending, b, i, s, a, beta, delta, tau):
-    """pending[b, i, s] += beta delta' (e_a - pi_i(. | s)) where agent i has the action (theta finite), delta'
-    the advantage `regularised` by the entropy bonus tau."""
+    """pending[b, i, s] += `score_step` on each action agent i has (theta finite) at its state s."""
     top, total = _softmax_sum(theta, b, i, s)
-    step = beta * _regularised(delta, theta[b, i, s, a] - top - np.log(total), tau)
+    log_pi = theta[b, i, s, a] - top - np.log(total)
     for c in range(theta.shape[3]):
         x = theta[b, i, s, c]
         if np.isfinite(x):
-            pending[b, i, s, c] += step * ((1.0 if c == a else 0.0) - np.exp(x - top) / total)
+            pending[b, i, s, c] += _score_step(
+                beta, delta, log_pi, tau, 1.0 if c == a else 0.0, np.exp(x - top) / total
+            )
 
 
 @njit(cache=True)

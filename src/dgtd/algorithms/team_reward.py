@@ -1,0 +1,39 @@
+"""Each networked agent's estimate of the team's reward (Zhang, Yang, Liu, Zhang and Basar 2018, Algorithm 2): a
+linear regression rhat_i = lambda_i^T f(s, a) of its own reward r_i, mixed with its neighbours' estimates, so that
+the consensus of the regressions is the regression of the team's mean reward rbar. f(s, a) is additive over the
+agents, (g(s) e_{a_1}^T, ..., g(s) e_{a_N}^T): g(s) = e_s on a model (a table: it represents any team reward that is
+a sum of per-agent terms exactly), the critics' features phi(s) in a simulator.
+
+One step, as `dgtd.run.learn.round_end` moves it:
+
+    lambda_i <- lambda_i - sum_j W_ij (lambda_i - lambda_j) + nu_k (r_i - rhat_i) f(s, a),
+
+W the Metropolis mixing over the links up, nu_k = `regression_rate` (a normalised least-mean-squares step: 1/|f|^2
+times `mean_step`). The same running-mean step moves the average objective's mu_i and mu~_i (`mean_update`). Scalars
+or arrays: the NumPy, simulator and compiled learners run these definitions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def mean_step(k):
+    """1 / sqrt(1 + k / 100): the step at k of the running averages (the average objective's mu_i) and, over |f|^2,
+    of the team-reward regression; the first sample taken whole, then a window that widens as sqrt(k)."""
+    return 1.0 / np.sqrt(1.0 + np.asarray(k, dtype=np.float64) / 100.0)
+
+
+def regression_rate(k, n_agents: int, features_norm2=1.0):
+    """nu_k = mean_step(k) / |f(s, a)|^2, with |f|^2 = N |g(s)|^2 (``features_norm2`` |g|^2: 1 on a model)."""
+    return mean_step(k) / (n_agents * features_norm2)
+
+
+def regression_step(nu, r, rhat):
+    """nu (r_i - rhat_i): how far the estimate moves along f(s, a) on the agent's own reward."""
+    return nu * (r - rhat)
+
+
+def mean_update(step, x, mean):
+    """step (x - mean): a running average's move towards a new sample."""
+    return step * (x - mean)
