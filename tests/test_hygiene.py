@@ -153,3 +153,27 @@ def test_the_mpi_check_sees_a_communicator(tmp_path):
     f = tmp_path / "x.py"
     f.write_text("from dgtd.backends import mpi\ndef f(comm):\n    return mpi.world().bcast(None)\n")
     assert names_used(f) & MPI_NAMES == {"mpi", "comm", "world", "bcast"}
+
+
+def learning_loops(paths) -> list[str]:
+    """The functions of ``paths`` that loop over a learning run's steps (a ``for k in range(...)``)."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef):
+                loops = [n for n in ast.walk(node) if isinstance(n, ast.For) and isinstance(n.target, ast.Name)]
+                if any(n.target.id == "k" and ast.unparse(n.iter).startswith("range(") for n in loops):
+                    found.append(f"{path.name}:{node.name}")
+    return found
+
+
+def test_models_and_simulators_are_learned_in_one_loop():
+    """One learning loop (`dgtd.run.learn.learn`) runs a model's steps and a simulator's, through the protocol of
+    `dgtd.sources.team_env`; the learners' arithmetic lives in `dgtd.algorithms` (a second loop once carried its own
+    copy of the actor, the TD error and the team-reward regression)."""
+    assert learning_loops(sorted((SRC / "dgtd" / "run").glob("learn*.py"))) == ["learn.py:learn"]
+
+
+def test_the_loop_check_sees_a_second_loop(tmp_path):
+    (tmp_path / "learn_more.py").write_text("def again(T):\n    for k in range(T):\n        pass\n")
+    assert learning_loops([tmp_path / "learn_more.py"]) == ["learn_more.py:again"]

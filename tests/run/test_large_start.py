@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 N = 200_000
 
@@ -54,6 +55,7 @@ def small_world_file(tmp_path, n: int):
     return tmp_path / "big.npz", tmp_path / "edges.txt"
 
 
+@pytest.mark.slow  # (alone: beside the default suite's other worker it once took 75 s of its 60, where alone 11.6)
 def test_a_200_000_agent_problem_file_starts_within_seconds_in_little_memory(tmp_path):
     """Resolving the run (its first step from the problem), its header's steps line and the run's plan up to its
     first step, in a fresh process: at most 60 s and 1 GB (measured on 2 cores: 11.4 s and 0.38 GB; the bars

@@ -1,18 +1,21 @@
 """Agents that improve their policies: the networked actor-critic of Zhang, Yang, Liu, Zhang and Basar (ICML 2018,
 Algorithm 2: a state-value critic and a consensus estimate of the team's reward), with any of dgtd's distributed
-critics over the same links as `dgtd run`.
+critics over the same links as `dgtd run`. One loop runs a model and a simulator, each behind the protocol of
+`dgtd.sources.team_env` (what the actors see, a step's features and rewards), with the arithmetic of
+`dgtd.algorithms.actor` and `dgtd.algorithms.team_reward` (the compiled kernels run the same definitions).
 
 One step k, for B seeds at once (agents and seeds are array axes; every random number keyed, `dgtd.streams`):
 
     draw      each agent's action a_i ~ pi_i(. | s) (purpose ACTION, entity i), the next state s' ~ P(s, a, .)
-              (SHARED_STATE), the links up (EDGE_UP), as `dgtd run` draws a shared trajectory's;
+              (SHARED_STATE; a simulator's own step), the links up (EDGE_UP), as `dgtd run` draws a shared
+              trajectory's;
     hear      the channel delivers what every agent sends: its critic's messages, and for networked actors its
               estimate of the team's reward (`dgtd.channels`: lost, late or compressed as asked, counted);
-    advantage delta_i = rhat_i - mu~_i + Phi(s') w_i - Phi(s) w_i, with rhat_i the team's reward as agent i knows
-              it: networked, its consensus estimate lambda_i^T f(s, a) (Zhang et al.'s Algorithm 2); independent,
-              its own r_i; centralised, the true team reward rbar (a ceiling no network gives); mu~_i its running
-              average of rhat_i (the average objective's differential TD error; discounted: gamma Phi(s') w_i and no
-              mu~_i, `objective_terms`);
+    advantage delta_i = rhat_i - mu~_i + Phi(s') w_i - Phi(s) w_i (`td_error`), with rhat_i the team's reward as
+              agent i knows it: networked, its consensus estimate lambda_i^T f(s, a) (Zhang et al.'s Algorithm 2);
+              independent, its own r_i; centralised, the true team reward rbar (a ceiling no network gives); mu~_i
+              its running average of rhat_i (the average objective's differential TD error; discounted: gamma
+              Phi(s') w_i and no mu~_i, `objective_terms`);
     critic    the chosen distributed method's update (`algorithm.update`, the paper's Algorithm 1 for DGTD) on each
               agent's own reward less its running average mu_i, undiscounted (centralised: on rbar; discounted: the
               reward itself at gamma), alpha_k its schedule; independent agents hear no one;
@@ -22,11 +25,13 @@ One step k, for B seeds at once (agents and seeds are array axes; every random n
     actor     theta_i <- theta_i + beta_k delta_i psi_i (`dgtd.algorithms.actor`), beta_k = 0 for the warm-up's
               steps, then beta_k / alpha_k -> 0.
 
-f(s, a) is additive over the agents, f = (e_{s, a_1}, ..., e_{s, a_N}) (N S A_max numbers, N of them ones): it
-represents any team reward that is a sum of per-agent terms exactly (the pull-away task's is). At every checkpoint
-the exact return J(pi_t) of the current policies under the run's objective (`dgtd.problems.team.objective_return`),
-the critics' error against the exact critic of pi_t (Chen, Zhou, Chen and Zou 2022: ||W - W*(pi_t)||^2 / (N
-||W*||^2)) and the policies' entropy are recorded (`dgtd.problems.team`).
+f(s, a) is additive over the agents, f = (g(s) e_{a_1}^T, ..., g(s) e_{a_N}^T) with g(s) = e_s on a model (N A_max S
+numbers, N of them ones): it represents any team reward that is a sum of per-agent terms exactly (the pull-away
+task's is); in a simulator g(s) = phi(s), the critics' features. At every checkpoint on a model the exact return
+J(pi_t) of the current policies under the run's objective (`dgtd.problems.team.objective_return`), the critics' error
+against the exact critic of pi_t (Chen, Zhou, Chen and Zou 2022: ||W - W*(pi_t)||^2 / (N ||W*||^2)) and the
+policies' entropy are recorded (`dgtd.problems.team`); in a simulator, estimates from the run's own rewards
+(`_record`).
 """
 
 from __future__ import annotations
@@ -40,14 +45,22 @@ import numpy as np
 from dgtd.algorithms import ALGORITHMS
 from dgtd.algorithms.actor import SoftmaxActor, policy, td_error, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
-from dgtd.algorithms.team_reward import mean_step, mean_update, regression_rate, regression_step
+from dgtd.algorithms.team_reward import (
+    add_regression,
+    estimate,
+    mean_step,
+    mean_update,
+    regression_rate,
+    regression_step,
+)
 from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import as_network
 from dgtd.problems import team
-from dgtd.run.layout import learner_layout
+from dgtd.run.layout import AllAgents, learner_layout
 from dgtd.samples import Sample
-from dgtd.streams import ACTION, EDGE_UP, SHARED_START, SHARED_STATE, seed_keys, singles, uniforms
+from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
+from dgtd.streams import ACTION, EDGE_UP, seed_keys, singles
 
 ACTORS = ("networked", "independent", "centralised")
 VALUES = ("state", "action")
@@ -120,10 +133,11 @@ class LearnResult:
 
 @dataclass
 class Learners:
-    """What a learning run carries from step to step, and what a checkpoint holds: the step ``k``, each seed's state
-    ``s`` (B,), the actors' ``theta``, the team-reward estimates ``lam`` (networked), the critics' state, the links'
-    state and the metrics measured so far; under the average objective ``means`` (B, n, 2), each agent's running
-    averages of its critic's reward and of the team's reward as it knows it."""
+    """What a learning run carries from step to step, and what a checkpoint holds: the step ``k``, what the actors
+    see ``s`` (each seed's state (B,) on a model, the agents' features (B, N, d) in a simulator), their ``theta``,
+    the team-reward estimates ``lam`` (networked), the critics' state, the links' state and the metrics measured so
+    far; under the average objective ``means`` (B, n, 2), each agent's running averages of its critic's reward and
+    of the team's reward as it knows it."""
 
     k: int
     s: np.ndarray
@@ -134,6 +148,7 @@ class Learners:
     metrics: dict
     pending: dict = field(default_factory=dict)  # a round's sums so far: empty at every checkpoint (a round's end)
     means: np.ndarray | None = None
+    tally: np.ndarray | None = None  # a simulator's sums since the last checkpoint (`TALLY`; no checkpoints there)
 
     def snapshot(self, rows) -> dict:
         """Flat arrays (copies), as an .npz holds them: every agent's rows, gathered from where they are held
@@ -161,9 +176,10 @@ class Learners:
 
 @dataclass(frozen=True)
 class LearnPlan:
-    """What does not change over a learning run: the pieces, the keys, the step sizes and the checkpoints."""
+    """What does not change over a learning run: the pieces, the keys, the step sizes and the checkpoints; ``env``
+    what the agents act in (`dgtd.sources.team_env`), ``actor`` the actor it takes (tabular or linear)."""
 
-    mdp: Any
+    mdp: Any  # the problem: a team MDP, or a simulator's `EnvTask`
     network: Any
     critic: Any
     actor: SoftmaxActor
@@ -173,14 +189,14 @@ class LearnPlan:
     keys: np.ndarray
     alphas: np.ndarray
     betas: np.ndarray
-    nus: np.ndarray
     at: np.ndarray
     rows: Any  # where the agents are held: `dgtd.run.layout.learner_layout`
+    env: Any
     kernels: Any = None  # the compiled agents' arithmetic (`dgtd.backends.compiled.learner.LearnerKernels`), or None
 
 
 def learn(
-    mdp: team.TeamMDP,
+    mdp,
     network,
     critic,
     actor: SoftmaxActor,
@@ -193,46 +209,40 @@ def learn(
     resume: dict | None = None,
     on_measured=None,
 ):
-    """Run the actor-critic of the module's docstring; ``critic`` any distributed algorithm of `dgtd.algorithms` (its
-    step sizes its own), ``channel`` the links (default perfect), ``progress(n)`` called as steps finish. Every
-    ``checkpoint_every`` steps ``on_checkpoint(snapshot)`` is given the run's `Learners.snapshot`; ``resume`` (one)
-    continues from it to the numbers of the uninterrupted run, bit for bit (every random number is keyed by its
-    step). ``on_measured(steps, metrics)`` is called as each checkpoint is measured, with the steps so far (c,) and
-    each metric there (seeds, c), so that what was measured can be kept before the run ends."""
+    """Run the actor-critic of the module's docstring in ``mdp``, a team MDP or a simulator (`EnvTask`); ``critic``
+    any distributed algorithm of `dgtd.algorithms` (its step sizes its own), ``channel`` the links (default perfect),
+    ``progress(n)`` called as steps finish. Every ``checkpoint_every`` steps ``on_checkpoint(snapshot)`` is given
+    the run's `Learners.snapshot`; ``resume`` (one) continues from it to the numbers of the uninterrupted run, bit for
+    bit (every random number is keyed by its step). ``on_measured(steps, metrics)`` is called as each checkpoint is
+    measured, with the steps so far (c,) and each metric there (seeds, c), so that what was measured can be kept
+    before the run ends."""
     network = as_network(network)  # (a bare graph: its fixed network; it raised AttributeError)
     plan = _plan(mdp, network, critic, actor, settings, channel)
-    if checkpoint_every % settings.batch:
+    if checkpoint_every % settings.batch or (checkpoint_every and plan.env.estimated):
         raise DgtdInputError(
-            f"checkpoints fall at a round's end: --checkpoint-every {checkpoint_every} is not a multiple of the "
+            "a simulator's state cannot be saved: no checkpoints to resume from"
+            if plan.env.estimated
+            else f"checkpoints fall at a round's end: --checkpoint-every {checkpoint_every} is not a multiple of the "
             f"--batch {settings.batch}"
         )
     started = time.perf_counter()
-    best = team.best_of(mdp, settings.objective)  # (J*, the best joint action in every state where one index)
-    run = _start(plan)
-    if resume is not None:
-        run = run.restored(resume, plan.rows)
+    best = (None, None) if plan.env.estimated else team.best_of(mdp, settings.objective)  # (J*, its joint actions)
+    run = _start(plan) if resume is None else _start(plan).restored(resume, plan.rows)
     draws: tuple = ()
-    first = run.k
-    for k in range(first, settings.iterations):
-        if k == first or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
+    for k in range(run.k, settings.iterations):
+        if not draws or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
             draws = _draws(plan.keys, network, range(k - k % BLOCK, min(k - k % BLOCK + BLOCK, settings.iterations)))
         _step(plan, run, draws, k)
         if k + 1 in plan.at:
             c = int(np.searchsorted(plan.at, k + 1))
-            theta, W = plan.rows.gather(run.theta), plan.rows.gather(critic.estimate(run.critic))
-            _measure(mdp, theta, W, run.metrics, c, settings, best[1])
-            run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
+            _record(plan, run, c, best[1])
             if on_measured is not None:
                 on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
             on_checkpoint(run.snapshot(plan.rows))
         if progress is not None:
             progress(1)
-    return LearnResult(
-        plan.at, run.metrics, policy(plan.rows.gather(run.theta)), plan.rows.gather(critic.estimate(run.critic)),
-        best[0], best[1], run.links.messages, run.links.bits, time.perf_counter() - started,
-        {"backend": "numpy" if plan.kernels is None else "numba", "objective": settings.objective},
-    )  # fmt: skip
+    return _result(plan, run, best, time.perf_counter() - started)
 
 
 def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
@@ -242,21 +252,30 @@ def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
             f"{', '.join(DISTRIBUTED)}"
         )
     two_timescales(actor, critic)
-    if network.n_nodes != mdp.n_agents:
-        raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {mdp.n_agents}")
-    T, N = settings.iterations, mdp.n_agents
-    channel, arcs, rows = (
-        channel if channel is not None else Perfect(),
-        Arcs.of(network.base.edges, N),
-        learner_layout(N),
-    )
+    keys = seed_keys(settings.seed, range(settings.seeds))
+    env = _env(mdp, network, settings, keys)
+    if network.n_nodes != env.n_agents:
+        raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {env.n_agents}")
+    T, N = settings.iterations, env.n_agents
+    channel = channel if channel is not None else Perfect()
+    arcs, rows = Arcs.of(network.base.edges, N), learner_layout(N) if not env.estimated else AllAgents(N)
+    kernels = None if env.estimated else _kernels(settings.backend, critic, channel, arcs, rows.local)
     return LearnPlan(
-        mdp, network, critic, actor, settings, channel, arcs, seed_keys(settings.seed, range(settings.seeds)),
+        mdp, network, critic, env.actor(actor), settings, channel, arcs, keys,
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
-        regression_rate(np.arange(T), N),  # the reward regression's steps: g(s) = e_s
-        np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]),
-        rows, _kernels(settings.backend, critic, channel, arcs, rows.local),
+        np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]), rows, env, kernels,
     )  # fmt: skip
+
+
+def _env(mdp, network, settings: LearnSettings, keys):
+    """What the agents act in: a model's steps, or a simulator's (`dgtd.sources.team_env`)."""
+    if not isinstance(mdp, EnvTask):
+        return ModelEnv(mdp, keys)
+    if settings.values != "state" or settings.batch != 1:
+        raise DgtdInputError(
+            "in a simulator the critics evaluate state values, a step at a time (no --values, --batch)"
+        )
+    return SimulatorEnv(mdp, network, settings.seed, settings.seeds)
 
 
 def _kernels(backend: str, critic, channel, arcs, local):
@@ -290,81 +309,81 @@ def objective_terms(plan: LearnPlan, run: Learners, own: np.ndarray, rhat: np.nd
 
 
 def _start(plan: LearnPlan) -> Learners:
-    """A fresh run: uniform policies (or a problem file's), zero critics and estimates, the first state drawn; each
-    agent's rows those held here (``plan.rows``)."""
-    mdp, B, local = plan.mdp, plan.settings.seeds, plan.rows.local
-    theta = plan.actor.init(B, mdp.actions, mdp.n_states)
-    if getattr(mdp, "policies", None) is not None:  # a problem file's starting policies
-        theta = plan.actor.starting_at(theta, mdp.policies)
-    N, S, A, n = mdp.n_agents, mdp.n_states, theta.shape[-1], len(local)
+    """A fresh run: uniform policies (or a problem file's), zero critics and estimates, what the actors first see;
+    each agent's rows those held here (``plan.rows``)."""
+    env, B, local, settings = plan.env, plan.settings.seeds, plan.rows.local, plan.settings
+    theta = env.theta(plan.actor, B)
+    n, A = len(local), int(env.actions.max())
+    q = env.regression_size(A) if settings.values == "action" else env.n_features
+    estimated = ("episode_return",) if env.estimated else ()
     return Learners(
-        0,
-        team.draw(np.cumsum(mdp.start), uniforms(plan.keys, SHARED_START, 0, 0)[0]),
-        np.ascontiguousarray(theta[:, local]),
-        np.zeros((B, n, N * S * A)) if plan.settings.actor == "networked" and plan.settings.values == "state" else None,
-        plan.critic.init(B, n, N * S * A if plan.settings.values == "action" else mdp.n_features),
-        plan.channel.init(B, plan.arcs, plan.settings.seed),
-        {name: np.full((B, len(plan.at)), np.nan) for name in METRICS},
-        means=np.zeros((B, n, 2)) if plan.settings.objective == "average" else None,
-    )
+        0, env.start(), np.ascontiguousarray(theta[:, local]),
+        np.zeros((B, n, env.regression_size(A))) if settings.actor == "networked" and settings.values == "state"
+        else None,
+        plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
+        {name: np.full((B, len(plan.at)), np.nan) for name in (*METRICS, *estimated)},
+        means=np.zeros((B, n, 2)) if settings.objective == "average" else None,
+        tally=np.zeros((B, len(TALLY))) if env.estimated else None,
+    )  # fmt: skip
 
 
 def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
     """Step k of the module's docstring, in place on ``run``: draw and act; the sample's critic directions, actor
     increments and reward-regression increments added to the round's (`Learners.pending`); at a round's last step
     (every ``batch`` steps, Chen et al.'s mini-batches; every step by default) hear and move (`round_end`)."""
-    mdp, critic, kind, local = plan.mdp, plan.critic, plan.settings.actor, plan.rows.local
-    t = k % BLOCK
-    B, N, S, A = run.theta.shape[0], mdp.n_agents, mdp.n_states, run.theta.shape[-1]
-    b, mine, s = np.arange(B)[:, None], np.arange(len(local)), run.s
-    rows = policy(run.theta[b, mine[None, :], s[:, None]])  # (B, n, A): the agents held here
-    a_here = np.minimum(team.draw(np.cumsum(rows, axis=-1), draws[0][t][:, local]), np.array(mdp.actions)[local] - 1)
+    env, critic, kind, local = plan.env, plan.critic, plan.settings.actor, plan.rows.local
+    B = run.theta.shape[0]
+    pi = plan.actor.probabilities(run.theta, run.s)  # (B, n, A): the agents held here
+    a_here = np.minimum(team.draw(np.cumsum(pi, axis=-1), draws[0][k % BLOCK][:, local]), env.actions[local] - 1)
     a = plan.rows.gather(a_here)  # (B, N): every agent's action moves the state
-    s_next, r_all = mdp.step(s, a, (draws[1][0][t], draws[1][1][t]))  # (B, N): each agent's own reward
-    r = r_all[:, local]
-    own = np.broadcast_to(r_all.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
+    step = env.step(run.s, a, k)
+    r = step.rewards[:, local]  # each agent's own reward
+    own = np.broadcast_to(step.rewards.mean(axis=1, keepdims=True), r.shape) if kind == "centralised" else r
+    if run.tally is not None:
+        _tally(run.tally, step, pi)
     if plan.kernels is not None:
-        _compiled_sample(plan, run, s, a, s_next, r, own, k)
-        return _end_of(plan, run, draws, k, s_next)
+        _compiled_sample(plan, run, step, a, r, own, k)
+        return _end_of(plan, run, draws, k, step.seen)
     W = critic.estimate(run.critic)  # (B, n, q)
     if plan.settings.values == "action":
         reward, gamma, _ = objective_terms(plan, run, own, own, k)
-        phi, phi_next, delta = _action_values(plan, run, s, a, s_next, W)
-        _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), s, a_here, delta, k)
-        return _end_of(plan, run, draws, k, s_next)
-    phi, phi_next = mdp.Phi[s][:, None, :], mdp.Phi[s_next][:, None, :]
+        phi, phi_next, delta = _action_values(plan, run, step.state, a, step.state_next, W)
+        _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), a_here, delta, k)
+        return _end_of(plan, run, draws, k, step.seen)
     rhat = own
-    if run.lam is not None:
-        f = np.arange(N) * S * A + s[:, None] * A + a  # (B, N): where f(s, a) has its ones
-        n = len(local)
-        rhat = np.take_along_axis(run.lam, np.broadcast_to(f[:, None, :], (B, n, N)), axis=-1).sum(-1)
+    if run.lam is not None:  # the team's reward as each agent knows it, and the regression's step on its own
+        A = int(env.actions.max())
+        rhat = estimate(run.lam, a, step.g, A)
+        norm2 = 1.0 if step.g.ndim == 1 else np.maximum((step.g**2).sum(axis=1), 1e-12)[:, None]  # |g(s)|^2
         lam = run.pending.setdefault("lam", np.zeros_like(run.lam))
-        lam[b[:, :, None], mine[None, :, None], f[:, None, :]] += regression_step(plan.nus[k], r, rhat)[:, :, None]
-    reward, gamma, baseline = objective_terms(plan, run, own, rhat, k)
+        add_regression(lam, a, step.g, A, regression_step(regression_rate(k, env.n_agents, norm2), r, rhat))
+    reward, discount, baseline = objective_terms(plan, run, own, rhat, k)
+    gamma = discount if step.going is None else step.going[:, None] * discount  # (a terminal step: no bootstrap)
+    phi, phi_next = step.phi, step.phi_next
     delta = td_error(rhat, baseline, gamma, (W * phi_next).sum(-1), (W * phi).sum(-1))
-    _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), s, a_here, delta, k)
-    _end_of(plan, run, draws, k, s_next)
+    _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), a_here, delta, k)
+    _end_of(plan, run, draws, k, step.seen)
 
 
-def _compiled_sample(plan: LearnPlan, run: Learners, s, a, s_next, r, own, k: int) -> None:
+def _compiled_sample(plan: LearnPlan, run: Learners, step, a, r, own, k: int) -> None:
     """`_step`'s arithmetic per agent, compiled (`dgtd.backends.compiled.learner`): the features of the seeds'
     transitions (rows phi(s), phi(s') of each seed in turn) handed to the kernel with the step's numbers."""
     mdp, (B, _, S, A) = plan.mdp, run.theta.shape
     if plan.settings.values == "action":
-        phi, phi_next = _action_rows(plan, run, s, a, s_next)
-        rows = np.stack([phi[:, 0], phi_next[:, 0]], axis=1)
+        phi, phi_next = _action_rows(plan, run, step.state, a, step.state_next)
     else:
-        rows = np.stack([mdp.Phi[s], mdp.Phi[s_next]], axis=1)
+        phi, phi_next = step.phi, step.phi_next
+    rows = np.stack([phi[:, 0], phi_next[:, 0]], axis=1)
     reward, gamma, baseline = objective_terms(plan, run, own, own, k)  # (rhat: the kernel's, below)
     rhat = np.zeros_like(own)  # the kernel's estimates of the team's reward (networked)
     if run.lam is None:  # (the kernel's rhat is then the critic's reward, baseline and all)
         baseline = 0.0
     scal = (
-        float(plan.betas[k]), float(plan.nus[k]), float(gamma), S, A, plan.settings.values == "state",
-        float(plan.actor.entropy),
+        float(plan.betas[k]), float(regression_rate(k, mdp.n_agents)), float(gamma), S, A,
+        plan.settings.values == "state", float(plan.actor.entropy),
     )  # fmt: skip
     plan.kernels.sample(
-        run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), s, a, r, reward, scal,
+        run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), step.state, a, r, reward, scal,
         np.broadcast_to(baseline, own.shape), rhat,
     )  # fmt: skip
     if run.means is not None and run.lam is not None:  # mu~_i's step on the estimates the kernel made, not own
@@ -372,22 +391,22 @@ def _compiled_sample(plan: LearnPlan, run: Learners, s, a, s_next, r, own, k: in
     run.pending["n"] = run.pending.get("n", 0) + 1
 
 
-def _add(plan: LearnPlan, run: Learners, sample: Sample, s, a, advantage, k: int) -> None:
+def _add(plan: LearnPlan, run: Learners, sample: Sample, a, advantage, k: int) -> None:
     """A sample's critic directions and its actor step beta_k advantage psi added to the round's."""
     pending = run.pending
     d = plan.critic.directions(run.critic, sample)
     pending["d"] = tuple(x + y for x, y in zip(pending["d"], d)) if "d" in pending else d
-    pending["theta"] = plan.actor.increment(run.theta, s, a, advantage, plan.betas[k], pending.get("theta"))
+    pending["theta"] = plan.actor.increment(run.theta, run.s, a, advantage, plan.betas[k], pending.get("theta"))
     pending["n"] = pending.get("n", 0) + 1
 
 
-def _end_of(plan: LearnPlan, run: Learners, draws: tuple, k: int, s_next) -> None:
-    """Step k done: the next state; at a round's end, `round_end` with the links up at step k."""
-    run.s, run.k = s_next, k + 1
+def _end_of(plan: LearnPlan, run: Learners, draws: tuple, k: int, seen) -> None:
+    """Step k done: what the actors see next; at a round's end, `round_end` with the links up at step k."""
+    run.s, run.k = seen, k + 1
     if run.k % plan.settings.batch == 0 or run.k == plan.settings.iterations:
-        up = None if draws[2] is None else draws[2][k % BLOCK]
+        up = None if draws[1] is None else draws[1][k % BLOCK]
         if plan.settings.actor == "independent":
-            up = np.zeros((run.s.shape[0], plan.network.n_edges), bool)  # they send nothing
+            up = np.zeros((run.theta.shape[0], plan.network.n_edges), bool)  # they send nothing
         round_end(plan, run, up, k)
 
 
@@ -464,19 +483,58 @@ class Held:
         return self.inbox.metropolis(name)[:, self.local]
 
 
-BLOCK = 512  # steps whose random numbers are drawn together
-
-
 def _draws(keys: np.ndarray, network, steps: range) -> tuple:
-    """The uniforms of ``steps``: each agent's action (T, B, N), the next state's two (T, B) each, and the links up
-    (T, B, E) or None where every link is always up."""
+    """The uniforms of ``steps``: each agent's action (T, B, N), and the links up (T, B, E) or None where every link
+    is always up (a model's next states are its own: `dgtd.sources.team_env.ModelEnv`)."""
     k = np.arange(steps.start, steps.stop, dtype=np.uint64)[:, None, None]
     action = singles(keys[None, :, None], ACTION, k, np.arange(network.n_nodes))
-    state = uniforms(
-        keys[None, :], SHARED_STATE, k[:, :, 0], 0
-    )  # two a step: the next state, and a factored one's part
     up = None if network.fixed else singles(keys[None, :, None], EDGE_UP, k, np.arange(network.n_edges)) < network.p
-    return action, state, up
+    return action, up
+
+
+TALLY = ("reward", "entropy", "steps", "returns", "episodes", "episode")  # a simulator's sums between checkpoints
+
+
+def _tally(tally: np.ndarray, step, pi: np.ndarray) -> None:
+    """A simulator's step added to its seeds' sums since the last checkpoint (`TALLY`): the team's mean reward, the
+    policies' mean entropy, a step; the returns of the episodes that ended and their number; and the team's return
+    of the episode under way."""
+    rbar = step.rewards.mean(axis=1)
+    entropy = -(pi * np.log(np.where(pi > 0, pi, 1.0))).sum(axis=-1).mean(axis=1)
+    episode = tally[:, 5] + rbar
+    tally[:, :5] += np.stack([rbar, entropy, np.ones_like(rbar), np.where(step.ended, episode, 0.0), step.ended], 1)
+    tally[:, 5] = np.where(step.ended, 0.0, episode)
+
+
+def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
+    """Checkpoint c's metrics: exact on a model (`_measure`), estimated from the run's own rewards in a simulator
+    (the team's mean reward a step and the mean return of the episodes ended since the last checkpoint, NaN where
+    none did), and the messages and bits delivered so far."""
+    if run.tally is None:
+        theta, W = plan.rows.gather(run.theta), plan.rows.gather(plan.critic.estimate(run.critic))
+        _measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
+    else:
+        tally = run.tally
+        run.metrics["return"][:, c], run.metrics["entropy"][:, c] = tally[:, 0] / tally[:, 2], tally[:, 1] / tally[:, 2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            run.metrics["episode_return"][:, c] = np.where(tally[:, 4] > 0, tally[:, 3] / tally[:, 4], np.nan)
+        tally[:, :5] = 0.0
+    run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
+
+
+def _result(plan: LearnPlan, run: Learners, best: tuple, seconds: float) -> LearnResult:
+    """A finished run's `LearnResult`: the policies (a simulator's: its actors' weights), the critics, J*."""
+    theta = plan.rows.gather(run.theta)
+    info: dict = {"objective": plan.settings.objective}
+    if plan.env.estimated:
+        info |= {"backend": "numpy", "agents": plan.env.agents, "estimated": True}
+    else:
+        info |= {"backend": "numpy" if plan.kernels is None else "numba"}
+    return LearnResult(
+        plan.at, run.metrics, theta if plan.env.estimated else policy(theta),
+        plan.rows.gather(plan.critic.estimate(run.critic)), best[0], best[1], run.links.messages, run.links.bits,
+        seconds, info,
+    )  # fmt: skip
 
 
 def metropolis(inbox, arcs: Arcs, name: str) -> np.ndarray:

@@ -63,13 +63,13 @@ def _sample_block(
             agent = local[i]
             if state_values:
                 rhat = r_critic[b, i]
-                if networked:  # lambda_i^T f(s, a), f's ones at (j, s, a_j)
+                if networked:  # lambda_i^T f(s, a), f's ones at (j, a_j, s) (`team_reward.positions`)
                     rhat = 0.0
                     for j in range(N):
-                        rhat += lam[b, i, j * S * A + sb * A + a[b, j]]
+                        rhat += lam[b, i, (j * A + a[b, j]) * S + sb]
                     g = _regression_step(nu, r[b, i], rhat)
                     for j in range(N):
-                        pending_lam[b, i, j * S * A + sb * A + a[b, j]] += g
+                        pending_lam[b, i, (j * A + a[b, j]) * S + sb] += g
                 rhat_out[b, i] = rhat
                 ahead: float = dot(feat.Phi, x1, w, (b, i), q)  # type: ignore[call-arg]
                 here: float = dot(feat.Phi, x0, w, (b, i), q)  # type: ignore[call-arg]
