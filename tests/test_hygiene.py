@@ -177,3 +177,32 @@ def test_models_and_simulators_are_learned_in_one_loop():
 def test_the_loop_check_sees_a_second_loop(tmp_path):
     (tmp_path / "learn_more.py").write_text("def again(T):\n    for k in range(T):\n        pass\n")
     assert learning_loops([tmp_path / "learn_more.py"]) == ["learn_more.py:again"]
+
+
+WRITERS = {"atomic_write", "savez", "savez_compressed", "write_bytes"}
+
+
+def checkpoint_writers(paths) -> list[str]:
+    """The calls in ``paths`` that write a file their arguments name a checkpoint (outside `dgtd.run.checkpoint`)."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call):
+                name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+                target = ast.unparse(node.func.value) if isinstance(node.func, ast.Attribute) else ""
+                said = " ".join(ast.unparse(a) for a in node.args) + " " + target
+                if name in WRITERS and "checkpoint" in said.lower():
+                    found.append(f"{path.name}:{node.lineno}")
+    return found
+
+
+def test_one_checkpoint_writer():
+    """Every checkpoint, a run's and a learning run's, is written by `dgtd.run.checkpoint.save_checkpoint` in one
+    format (a learning run once wrote its own flat .npz beside it)."""
+    paths = [p for p in sorted((SRC / "dgtd").rglob("*.py")) if p != SRC / "dgtd" / "run" / "checkpoint.py"]
+    assert checkpoint_writers(paths) == []
+
+
+def test_the_writer_check_sees_a_second_writer(tmp_path):
+    (tmp_path / "keep.py").write_text("def keep(out, b):\n    atomic_write(out / CHECKPOINT, b)\n")
+    assert checkpoint_writers([tmp_path / "keep.py"]) == ["keep.py:2"]

@@ -220,9 +220,10 @@ def test_a_thousand_agents_learn_on_a_factored_problem():
 @pytest.mark.parametrize("actor", ["networked", "independent"])
 def test_a_learning_run_resumed_from_a_checkpoint_ends_with_the_uninterrupted_numbers(actor, tmp_path):
     """Checkpoints every 400 steps of 1 300 (a block of draws is 512: the resumed step falls inside one); resumed from
-    the second, through an .npz as the command line keeps it, the run ends with the uninterrupted run's policies,
-    critics and metrics, bit for bit, over links that lose 20 % of messages."""
+    the second, through the run's checkpoint file (`dgtd.run.checkpoint`, as the command line keeps it), the run ends
+    with the uninterrupted run's policies, critics and metrics, bit for bit, over links that lose 20 % of messages."""
     from dgtd.channels import Arcs, Lossy
+    from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
 
     mdp = team.pull_away()
     net = random_edges(topologies.ring(4), 0.8)
@@ -232,9 +233,8 @@ def test_a_learning_run_resumed_from_a_checkpoint_ends_with_the_uninterrupted_nu
     snaps = []
     whole = learn(mdp, net, critic, SoftmaxActor(), settings, channel, checkpoint_every=400, on_checkpoint=snaps.append)
     assert [int(s["k"]) for s in snaps] == [400, 800, 1200]
-    np.savez(tmp_path / "c.npz", **snaps[1])
-    with np.load(tmp_path / "c.npz") as saved:
-        resumed = learn(mdp, net, critic, SoftmaxActor(), settings, channel, resume=dict(saved))
+    save_checkpoint(tmp_path / "c.npz", snaps[1], {"seed": 0})
+    resumed = learn(mdp, net, critic, SoftmaxActor(), settings, channel, resume=load_checkpoint(tmp_path / "c.npz")[0])
     assert np.array_equal(whole.policies, resumed.policies) and np.array_equal(whole.critic, resumed.critic)
     for name, values in whole.metrics.items():
         assert np.array_equal(values, resumed.metrics[name], equal_nan=True), name

@@ -472,14 +472,17 @@ def test_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, extra):
             assert (tmp_path / f"r{ranks}" / name).read_bytes() == (tmp_path / "one" / name).read_bytes(), (ranks, name)
 
 
-def test_learners_interrupted_on_2_ranks_resume_on_2_to_the_uninterrupted_numbers(tmp_path):
-    """Ctrl-C to a `dgtd learn --ranks 2` job after a checkpoint: every process ends, the checkpoint is whole; the
-    same command again resumes and ends with the uninterrupted one-process run's metrics, byte for byte."""
+@pytest.mark.parametrize("again_on", [2, 3])
+def test_learners_interrupted_on_2_ranks_resume_to_the_uninterrupted_numbers(tmp_path, again_on):
+    """Ctrl-C to a `dgtd learn --ranks 2` job after a checkpoint: every process ends, every rank's shard of the
+    checkpoint is whole (the run's checkpoint format); the same command again, on 2 ranks or on 3 (each takes its
+    agents' rows by id from whichever shard holds them), resumes and ends with the uninterrupted one-process run's
+    metrics, byte for byte."""
     run = [*LEARN, "-T", 30000, "--checkpoint-every", 1000]
     out = tmp_path / "cut"
     code, err = _interrupted([*DGTD, *map(str, run), "--ranks", "2", "--out", str(out)], out, "learning-checkpoint.npz")
     assert code == 130 and not (out / "summary.json").exists(), err
-    again = alone(*run, "--ranks", 2, "--out", out)
+    again = alone(*run, "--ranks", again_on, "--out", out)
     assert again.returncode == 0 and "resuming" in again.stdout, again.stderr
     whole = alone(*run, "--out", tmp_path / "whole")
     assert whole.returncode == 0, whole.stderr

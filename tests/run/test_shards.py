@@ -13,8 +13,9 @@ from test_checkpoint import assert_same_run
 from dgtd.config import make_channel, resolve, unflat
 from dgtd.errors import DgtdInputError
 from dgtd.problems import exact
-from dgtd.run.checkpoint import AGENT_AXES, assemble, load_checkpoint, save_checkpoint
+from dgtd.run.checkpoint import assemble, load_checkpoint, save_checkpoint
 from dgtd.run.loop import run as run_loop
+from dgtd.run.state import AGENT_AXES
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 1000, 1024, 1025])

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.testing import assert_array_equal
 
 from dgtd.config import resolve, unflat
-from dgtd.run import checkpoint, state
+from dgtd.run import state
 from dgtd.run.loop import run
 from dgtd.run.state import AGENTS, ARCS, RunState, gathered, restore
 
@@ -19,8 +19,8 @@ def declared(kind: str) -> dict:
 
 
 def test_the_checkpoints_rows_are_the_declarations():
-    assert checkpoint.AGENT_AXES == declared(AGENTS)
-    assert set(checkpoint.ARC_FIELDS) == set(declared(ARCS)) == {"channel", "per_arc"}
+    assert state.AGENT_AXES == declared(AGENTS)
+    assert set(state.ARC_FIELDS) == set(declared(ARCS)) == {"channel", "per_arc"}
 
 
 def snapshots_of_a_run(resume=None, **options) -> tuple[list, object, object]:

@@ -729,3 +729,7 @@ class LearnerRanks:
     def gather(self, x: np.ndarray) -> np.ndarray:
         """Every agent's rows (B, N, ...) of what each rank holds of them (B, n, ...), in agent order, on every rank."""
         return np.concatenate(self.comm.allgather(np.ascontiguousarray(x)), axis=1)
+
+    def shard(self) -> dict:
+        """The ids of the agents whose rows this rank's checkpoint shard holds (`dgtd.run.checkpoint.assemble`)."""
+        return {"agents": self.local}

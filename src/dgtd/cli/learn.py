@@ -143,7 +143,9 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
         bar.update(n)
         probe(n)
 
-    keep = (lambda snap: _keep(out, snap, job.record)) if runtime.writes() else (lambda snap: None)
+    def keep(snap: dict) -> None:  # every rank its shard, where the agents are spread
+        _keep(out, snap, job.record)
+
     measured = _measured_so_far(out, s.actor) if runtime.writes() else None
     try:
         return run_learning(
@@ -225,11 +227,12 @@ def _write(out: Path, result, job, plots: bool) -> list:
     import numpy as np
 
     from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run.checkpoint import remove_checkpoint
     from dgtd.run.learn import metrics_csv, summary
     from dgtd.run.results import npz_bytes
 
     mdp, s = job.mdp, job.settings
-    (out / CHECKPOINT).unlink(missing_ok=True)  # the numbers are complete: nothing is left to resume
+    remove_checkpoint(out / CHECKPOINT)  # the numbers are complete: nothing is left to resume (its shards neither)
     arrays = {"policies": result.policies, "actions": np.asarray(mdp.actions)}  # (B, N, S, A_max), (N,)
     atomic_write(out / "policies.npz", npz_bytes(arrays))
     atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
@@ -306,15 +309,11 @@ ESTIMATE_NOTE = 5_000_000  # team-reward estimates' numbers in all beyond which 
 
 
 def _keep(out: Path, snapshot: dict, record: dict) -> None:
-    """The run's state at a step, written atomically beside what the run was asked to do."""
-    import json
+    """The run's state at a step, in the run's checkpoint format beside what the run was asked to do (where the
+    agents are spread, every rank its shard: `dgtd.run.runtime.save_learners`)."""
+    from dgtd.run import runtime
 
-    import numpy as np
-
-    from dgtd.run.atomic import atomic_write
-    from dgtd.run.results import npz_bytes
-
-    atomic_write(out / CHECKPOINT, npz_bytes(snapshot | {"record": np.asarray(json.dumps(record, sort_keys=True))}))
+    runtime.save_learners(out / CHECKPOINT, snapshot, record)
 
 
 def _claim(out: Path, record: dict, overwrite: bool, held: list) -> dict | None:
@@ -341,19 +340,16 @@ def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:
     import json
 
     from dgtd.errors import DgtdInputError
-    from dgtd.files import read_npz
+    from dgtd.run.checkpoint import load_checkpoint
+    from dgtd.run.results import first_difference
 
     path = out / CHECKPOINT
     if not path.exists() or overwrite:
         return None
-    from dgtd.run.results import first_difference
-
-    saved = read_npz(path, "checkpoint", "remove it, or pass --overwrite to start afresh")
-    there, here = json.loads(str(saved.pop("record", "{}"))), json.loads(json.dumps(record, sort_keys=True))
-    if there != here:  # (it did not say which setting differs; `dgtd run`'s refusal does)
+    saved, there = load_checkpoint(path)
+    if diff := first_difference(there or {}, json.loads(json.dumps(record))):  # (as the checkpoint holds it)
         raise DgtdInputError(
-            f"{out} holds the checkpoint of another learning run ({first_difference(there, here)}); choose another "
-            "--out, or pass --overwrite"
+            f"{out} holds the checkpoint of another learning run ({diff}); choose another --out, or pass --overwrite"
         )
     return saved
 

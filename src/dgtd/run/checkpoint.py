@@ -26,7 +26,7 @@ from dgtd.channels.base import per_arc_fields
 from dgtd.errors import DgtdInputError
 from dgtd.files import read_npz
 from dgtd.run.atomic import atomic_write
-from dgtd.run.state import AGENT_AXES, ARC_FIELDS
+from dgtd.run.state import RunState, declared
 
 # 5: late messages kept in the slot of the step they arrive at (4 kept them in that of the step they were sent at:
 # a format-4 checkpoint with messages in flight cannot continue, one without can); 4: keyed random streams (a
@@ -152,11 +152,13 @@ def _in_flight(snap) -> bool:
     return bool(isinstance(channel, dict) and np.size(channel.get("pending", ())))
 
 
-def assemble(resume: dict, n_agents: int, n_arcs: int, agents=None, arcs=None, trajectories=None) -> dict:
+def assemble(
+    resume: dict, n_agents: int, n_arcs: int, agents=None, arcs=None, trajectories=None, state=RunState
+) -> dict:
     """``resume`` with its agents' rows those of ``agents``, its arcs' those of ``arcs`` and its trajectories' states
     those of the agents ``trajectories`` (ids in the whole network; None: every agent's, every arc's, in order),
     taken by id from whichever shard holds them: how a rank, or one process, continues a checkpoint written by any
-    number of ranks."""
+    number of ranks. ``state`` the record the snapshot is of (`dgtd.run.state.declared`)."""
     shards = resume.get("shards") or []
     if not shards and "agents" not in resume and agents is None and arcs is None and trajectories is None:
         return resume  # one process continuing a one-process checkpoint
@@ -169,7 +171,7 @@ def assemble(resume: dict, n_agents: int, n_arcs: int, agents=None, arcs=None, t
     filled: dict = {}
     for part in [resume, *shards]:
         part = part if isinstance(part, dict) else _read(Path(part), "checkpoint shard")[1]
-        for keys, axis, kind in _rows_of(part):
+        for keys, axis, kind in _rows_of(part, state):
             x = part[keys[0]] if len(keys) == 1 else part[keys[0]][keys[1]]
             ids = part.get(kind) if kind != "source" else part["source"].get("agents")
             if kind == "source" and ids is None and (x.shape[1] == 1 or trajectories is None):
@@ -196,16 +198,16 @@ def assemble(resume: dict, n_agents: int, n_arcs: int, agents=None, arcs=None, t
     return out
 
 
-def _rows_of(snap: dict):
-    """(keys, axis, kind) of every array of ``snap`` holding agents' or arcs' rows, as `dgtd.run.state.RunState`
-    declares them."""
-    for name, axis in AGENT_AXES.items():
+def _rows_of(snap: dict, state):
+    """(keys, axis, kind) of every array of ``snap`` holding agents' or arcs' rows, as ``state`` declares them."""
+    agent_axes, arc_fields = declared(state)
+    for name, axis in agent_axes.items():
         value = snap.get(name)
         if isinstance(value, dict):
             yield from (((name, f), axis, "agents") for f in value)
         elif value is not None:
             yield (name,), axis, "agents"
-    for name in ARC_FIELDS:
+    for name in arc_fields:
         value = snap.get(name)
         if isinstance(value, dict):  # a channel's state: the per-arc fields it holds (the others empty placeholders)
             yield from (((name, f), 1, "arcs") for f in per_arc_fields(value))

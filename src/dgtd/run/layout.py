@@ -150,6 +150,10 @@ class AllAgents:
     def gather(self, x: np.ndarray) -> np.ndarray:
         return x
 
+    def shard(self) -> dict:
+        """The ids of the rows a checkpoint written here holds: every agent's, in order (none to name)."""
+        return {}
+
 
 def learner_layout(n_agents: int):
     """Where a learning run's agents are held: spread over the ranks of an mpiexec job of more than one rank

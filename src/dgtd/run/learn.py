@@ -57,7 +57,9 @@ from dgtd.channels import Arcs, Perfect
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import as_network
 from dgtd.problems import team
+from dgtd.run.checkpoint import assemble
 from dgtd.run.layout import AllAgents, learner_layout
+from dgtd.run.state import AGENTS, held, restore, snapshot
 from dgtd.samples import Sample
 from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
 from dgtd.streams import ACTION, EDGE_UP, seed_keys, singles
@@ -133,45 +135,23 @@ class LearnResult:
 
 @dataclass
 class Learners:
-    """What a learning run carries from step to step, and what a checkpoint holds: the step ``k``, what the actors
-    see ``s`` (each seed's state (B,) on a model, the agents' features (B, N, d) in a simulator), their ``theta``,
-    the team-reward estimates ``lam`` (networked), the critics' state, the links' state and the metrics measured so
-    far; under the average objective ``means`` (B, n, 2), each agent's running averages of its critic's reward and
-    of the team's reward as it knows it."""
+    """What a learning run carries from step to step, each field declared with what it holds (`dgtd.run.state.held`:
+    a checkpoint saves, restores and puts together the ranks' shards from that alone, as a run's `RunState`): the
+    step ``k``, what the actors see ``s`` (each seed's state (B,) on a model, the agents' features (B, N, d) in a
+    simulator), each agent's actor ``theta`` and team-reward estimate ``lam`` (networked), the critics' state, the
+    links' state and the metrics measured so far; under the average objective ``means`` (B, n, 2), each agent's
+    running averages of its critic's reward and of the team's reward as it knows it."""
 
-    k: int
-    s: np.ndarray
-    theta: np.ndarray
-    lam: np.ndarray | None
-    critic: Any  # the critic's NamedTuple state
-    links: Any  # the channel's NamedTuple state
-    metrics: dict
-    pending: dict = field(default_factory=dict)  # a round's sums so far: empty at every checkpoint (a round's end)
-    means: np.ndarray | None = None
-    tally: np.ndarray | None = None  # a simulator's sums since the last checkpoint (`TALLY`; no checkpoints there)
-
-    def snapshot(self, rows) -> dict:
-        """Flat arrays (copies), as an .npz holds them: every agent's rows, gathered from where they are held
-        (``rows``, the run's layout: `dgtd.run.layout.learner_layout`)."""
-        out = {"k": np.asarray(self.k), "s": self.s.copy(), "theta": rows.gather(self.theta).copy()}
-        for name in ("lam", "means"):
-            if getattr(self, name) is not None:
-                out[name] = rows.gather(getattr(self, name)).copy()
-        out |= {f"critic/{k}": rows.gather(np.asarray(v)).copy() for k, v in self.critic._asdict().items()}
-        out |= {f"links/{k}": np.array(v) for k, v in self.links._asdict().items()}
-        return out | {f"metrics/{k}": v.copy() for k, v in self.metrics.items()}
-
-    def restored(self, snap: dict, rows) -> Learners:
-        """This fresh start with a snapshot's values, each agent's rows those held here: the same run from step k."""
-        local = rows.local
-
-        critic = type(self.critic)(**{name: snap[f"critic/{name}"][:, local] for name in self.critic._fields})
-        links = type(self.links)(**{name: snap[f"links/{name}"] for name in self.links._fields})
-        lam, means = snap.get("lam"), snap.get("means")
-        return Learners(
-            int(snap["k"]), snap["s"], snap["theta"][:, local], None if lam is None else lam[:, local], critic, links,
-            {k: snap[f"metrics/{k}"] for k in self.metrics}, means=None if means is None else means[:, local],
-        )  # fmt: skip
+    k: int = held(default=0)
+    s: Any = held()
+    theta: Any = held(AGENTS, 1)
+    lam: Any = held(AGENTS, 1)
+    critic: Any = held(AGENTS, 1)  # the critic's NamedTuple state
+    links: Any = held()  # the channel's state: the whole run's, on every rank
+    metrics: Any = held()  # {name: (B, C)}
+    pending: Any = held(saved=False)  # a round's sums so far: empty at every checkpoint (a round's end)
+    means: Any = held(AGENTS, 1)
+    tally: Any = held(saved=False)  # a simulator's sums since the last checkpoint (`TALLY`; no checkpoints there)
 
 
 @dataclass(frozen=True)
@@ -227,7 +207,10 @@ def learn(
         )
     started = time.perf_counter()
     best = (None, None) if plan.env.estimated else team.best_of(mdp, settings.objective)  # (J*, its joint actions)
-    run = _start(plan) if resume is None else _start(plan).restored(resume, plan.rows)
+    run = _start(plan)
+    if resume is not None:  # (its agents' rows taken by id, from whichever rank's shard holds them)
+        rows = assemble(resume, plan.env.n_agents, plan.arcs.n_arcs, plan.rows.local, state=Learners)
+        run = restore(run, rows)
     draws: tuple = ()
     for k in range(run.k, settings.iterations):
         if not draws or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
@@ -239,7 +222,7 @@ def learn(
             if on_measured is not None:
                 on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
-            on_checkpoint(run.snapshot(plan.rows))
+            on_checkpoint(snapshot(run, plan.rows))
         if progress is not None:
             progress(1)
     return _result(plan, run, best, time.perf_counter() - started)
@@ -322,8 +305,8 @@ def _start(plan: LearnPlan) -> Learners:
         else None,
         plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
         {name: np.full((B, len(plan.at)), np.nan) for name in (*METRICS, *estimated)},
-        means=np.zeros((B, n, 2)) if settings.objective == "average" else None,
-        tally=np.zeros((B, len(TALLY))) if env.estimated else None,
+        {}, np.zeros((B, n, 2)) if settings.objective == "average" else None,
+        np.zeros((B, len(TALLY))) if env.estimated else None,
     )  # fmt: skip
 
 

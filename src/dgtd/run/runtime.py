@@ -75,6 +75,12 @@ def checkpoint_saver(algorithm, path: Path, record: dict) -> Callable | None:
     return lambda snapshot: save_checkpoint(path, snapshot, record, comm)
 
 
+def save_learners(path: Path, snapshot: dict, record: dict) -> None:
+    """A learning run's checkpoint (`dgtd.run.checkpoint.save_checkpoint`): in a job of ranks, every rank its shard
+    (a collective), its agents being spread whenever there are ranks (`dgtd.run.layout.learner_layout`)."""
+    save_checkpoint(path, snapshot, record, mpi.world() if mpi.spread() else None)
+
+
 def watch(algorithm, every: int) -> None:
     """Where the agents are spread, a rank that waits too long for the others ends with one line
     (`dgtd.backends.mpi.Watchdog`, DGTD_MPI_TIMEOUT seconds)."""

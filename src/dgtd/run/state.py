@@ -1,8 +1,8 @@
-"""A run's state between blocks: one record (`RunState`) whose fields are declared once, each with what it holds:
-rows of agents on an axis, entries of arcs, or numbers of the whole run. From that declaration alone a checkpoint's
-snapshot is written (`snapshot`) and read back (`restore`), the shards of spread ranks are put together
-(`dgtd.run.checkpoint.assemble`, through `AGENT_AXES` and `ARC_FIELDS`), and the final rows are gathered on the
-process that writes the results (`gathered`): no list of keys is kept by hand anywhere else."""
+"""A run's state between blocks: one record (`RunState`; a learning run's `dgtd.run.learn.Learners`) whose fields are
+declared once (`held`), each with what it holds: rows of agents on an axis, entries of arcs, or numbers of the whole
+run. From that declaration alone a checkpoint's snapshot is written (`snapshot`) and read back (`restore`), the
+shards of spread ranks are put together (`dgtd.run.checkpoint.assemble`, through `declared`), and the final rows are
+gathered on the process that writes the results (`gathered`): no list of keys is kept by hand anywhere else."""
 
 from __future__ import annotations
 
@@ -16,10 +16,20 @@ from dgtd.channels.base import per_arc_fields
 AGENTS, ARCS, WHOLE = "agents", "arcs", "whole"
 
 
-def held(rows: str = WHOLE, axis: int = 0, *, gathered: bool = False, root_only: bool = False, default=None):
-    """A `RunState` field: what its arrays hold (``rows`` of agents or arcs on ``axis``, or numbers of the whole run),
-    whether the end of the run gathers it whole on the writing process, whether that process alone holds it."""
-    return field(default=default, metadata=dict(rows=rows, axis=axis, gathered=gathered, root_only=root_only))
+def held(
+    rows: str = WHOLE,
+    axis: int = 0,
+    *,
+    gathered: bool = False,
+    root_only: bool = False,
+    saved: bool = True,
+    default=None,
+):
+    """A state's field: what its arrays hold (``rows`` of agents or arcs on ``axis``, or numbers of the whole run),
+    whether the end of the run gathers it whole on the writing process, whether that process alone holds it, whether
+    a checkpoint saves it (not what is empty at every checkpoint, or cannot be continued)."""
+    meta = dict(rows=rows, axis=axis, gathered=gathered, root_only=root_only, saved=saved)
+    return field(default=default, metadata=meta)
 
 
 @dataclass
@@ -53,8 +63,16 @@ class RunState:
         return self.sums["all"]
 
 
-AGENT_AXES = {f.name: f.metadata["axis"] for f in fields(RunState) if f.metadata["rows"] == AGENTS}
-ARC_FIELDS = tuple(f.name for f in fields(RunState) if f.metadata["rows"] == ARCS)
+def declared(state=RunState) -> tuple[dict, tuple]:
+    """({field: its agents' axis} of the fields holding agents' rows, the fields holding arcs' entries) of a state's
+    declaration (`RunState`'s by default)."""
+    return (
+        {f.name: f.metadata["axis"] for f in fields(state) if f.metadata["rows"] == AGENTS},
+        tuple(f.name for f in fields(state) if f.metadata["rows"] == ARCS),
+    )
+
+
+AGENT_AXES, ARC_FIELDS = declared(RunState)
 
 
 def _is_record(x) -> bool:
@@ -71,18 +89,20 @@ def _copy(x):
     return x
 
 
-def snapshot(rs: RunState, layout, seconds: float) -> dict:
-    """The run's state as a checkpoint holds it (copies): every field that holds something, the per-arc entries of
-    the arcs ``layout`` reports, and the ids of the rows held here (a rank's shard); ``seconds`` spent so far."""
+def snapshot(rs, layout, seconds: float | None = None) -> dict:
+    """The run's state (a declared record: `RunState`, `dgtd.run.learn.Learners`) as a checkpoint holds it (copies):
+    every saved field that holds something, the per-arc entries of the arcs ``layout`` reports, and the ids of the
+    rows held here (a rank's shard); ``seconds`` spent so far, where given."""
     snap = dict(layout.shard())
-    for f in fields(RunState):
+    for f in fields(rs):
         x = getattr(rs, f.name)
-        if x is None:
+        if x is None or not f.metadata["saved"]:
             continue
         if f.metadata["rows"] == ARCS:
             x = _reported(x, layout)
         snap[f.name] = _copy(x)
-    snap["seconds"] = float(seconds)
+    if seconds is not None:
+        snap["seconds"] = float(seconds)
     return snap
 
 
@@ -93,12 +113,12 @@ def _reported(x, layout):
     return layout.reported(x) if x.size else x
 
 
-def restore(initial: RunState, snap: dict) -> RunState:
+def restore(initial, snap: dict):
     """``initial`` with every field a snapshot holds put back, as the type ``initial`` has it (a record's fields by
     name, an array in its dtype); a field the snapshot lacks (an older checkpoint's) keeps its initial value, and one
     held by the writing process alone stays absent elsewhere."""
     values = {}
-    for f in fields(RunState):
+    for f in fields(initial):
         x, init = snap.get(f.name), getattr(initial, f.name)
         if x is None or (f.metadata["root_only"] and init is None):
             continue
