@@ -183,14 +183,14 @@ WRITERS = {"atomic_write", "savez", "savez_compressed", "write_bytes"}
 
 
 def checkpoint_writers(paths) -> list[str]:
-    """The calls in ``paths`` that write a file their arguments name a checkpoint (outside `dgtd.run.checkpoint`)."""
+    """The calls in ``paths`` that write a file whose path names a checkpoint (outside `dgtd.run.checkpoint`)."""
     found = []
     for path in paths:
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Call):
                 name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
                 target = ast.unparse(node.func.value) if isinstance(node.func, ast.Attribute) else ""
-                said = " ".join(ast.unparse(a) for a in node.args) + " " + target
+                said = (ast.unparse(node.args[0]) if node.args else "") + " " + target  # (the path written)
                 if name in WRITERS and "checkpoint" in said.lower():
                     found.append(f"{path.name}:{node.lineno}")
     return found

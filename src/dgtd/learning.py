@@ -261,13 +261,13 @@ ENV_FIELDS = ("features", "rewards", "split", "pilot_steps")  # what `dgtd learn
 
 
 def _env_task(task: str | None, own: dict, values: dict, network_for) -> tuple:
-    """(a simulator to learn in, `dgtd.run.learn_env.EnvTask`; its network): a named one sized by --agents, or a
+    """(a simulator to learn in, `dgtd.sources.team_env.EnvTask`; its network): a named one sized by --agents, or a
     user's (--env module:make_env, its --features)."""
     from functools import partial
 
     from dgtd.config import check_gamma
-    from dgtd.run.learn_env import EnvTask
     from dgtd.scenarios.mpe import make_spread, spread_features
+    from dgtd.sources.team_env import EnvTask
 
     name = task or values["env_make"]
     check_gamma(values.get("gamma"))

@@ -451,3 +451,38 @@ def test_compare_refuses_to_tune_learners_and_learns_help_gives_its_own_defaults
     text = " ".join(out.split())
     assert code == 0 and "one starting policy policy_i (S, A_i) per agent" in text
     assert "(default 1 on a task or problem file, 0.1 in a simulator)" in text and "DGTD's 1000" not in text
+
+
+def test_dgtd_learn_resume_dir_continues_from_its_config_toml(run_cli, tmp_path, monkeypatch):
+    """A learning run writes config.toml (the options it was given, --checkpoint-every among them); cut after its
+    first checkpoint, `dgtd learn --resume DIR` alone (no task, no options) continues it to the uninterrupted run's
+    numbers byte for byte; a finished one is said finished, and a folder with no run, --resume with --overwrite, and
+    an option that changes the run are one line each."""
+    import tomllib
+
+    import dgtd.cli.learn as cli_learn
+
+    command = ("learn", "pull-away", "-T", 900, "--loss", "0.2", "--seed", 4, "--no-progress", "--no-plots")
+    code, _, err = run_cli(*command, "--out", tmp_path / "whole")
+    assert code == 0, err
+    saved = tomllib.loads((tmp_path / "whole" / "config.toml").read_text())["learn"]
+    assert saved["task"] == "pull-away" and saved["iterations"] == 900 and saved["loss"] == "0.2" and saved["seed"] == 4
+    keep = cli_learn._keep
+
+    def cut(out, snap, record):
+        keep(out, snap, record)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_learn, "_keep", cut)
+    code, _, _ = run_cli(*command, "--checkpoint-every", 300, "--out", tmp_path / "cut")
+    assert code != 0 and (tmp_path / "cut" / "learning-checkpoint.npz").exists()
+    monkeypatch.setattr(cli_learn, "_keep", keep)
+    other = run_cli("learn", "--resume", tmp_path / "cut", "--seed", 5, "--no-progress")
+    one_line_error(*other, "checkpoint of another learning run (seed = 4 there, 5 here)")
+    code, text, err = run_cli("learn", "--resume", tmp_path / "cut", "--no-progress", "--no-plots")
+    assert code == 0 and "resuming" in text and "step 300" in text, err
+    assert (tmp_path / "cut" / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+    code, text, _ = run_cli("learn", "--resume", tmp_path / "cut", "--no-progress")
+    assert code == 0 and "already finished" in text
+    one_line_error(*run_cli("learn", "--resume", tmp_path / "none"), "is not a directory")
+    one_line_error(*run_cli("learn", "--resume", tmp_path / "cut", "--overwrite"), "give one, not both")

@@ -1,7 +1,7 @@
-"""Learners in a simulator (`dgtd learn mpe-spread`, `dgtd.run.learn_env`): actors linear in their own observations,
-dgtd's critics on features of the env's state, the return estimated from the run's own rewards. A PettingZoo env
-written here, the pull-away game without a model, checks that the learners learn what they should; MPE2's
-simple_spread runs from the command line with its results and its refusals."""
+"""Learners in a simulator (`dgtd learn mpe-spread`, `dgtd.run.learn` on `dgtd.sources.team_env.SimulatorEnv`): actors
+linear in their own observations, dgtd's critics on features of the env's state, the return estimated from the run's
+own rewards. A PettingZoo env written here, the pull-away game without a model, checks that the learners learn what
+they should; MPE2's simple_spread runs from the command line with its results and its refusals."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from dgtd.algorithms import make_algorithm
 from dgtd.algorithms.actor import SoftmaxActor
 from dgtd.graphs import topologies
 from dgtd.graphs.random import random_edges
-from dgtd.run.learn import LearnSettings
-from dgtd.run.learn_env import EnvTask, learn_env
+from dgtd.run.learn import LearnSettings, learn
+from dgtd.sources.team_env import EnvTask
 
 
 class PullAwayGame:
@@ -60,7 +60,7 @@ def game(actor: str, iterations: int = 3000):
     task = EnvTask(PullAwayGame, lambda states: np.ones((len(states), 1)), 0.5, "pull-away-game", 2)
     settings = LearnSettings(iterations=iterations, seeds=2, checkpoints=3, actor=actor)
     critic = make_algorithm("dgtd", alpha0=1.0, beta=100.0)
-    return learn_env(task, random_edges(topologies.ring(2), 1.0), critic, SoftmaxActor(step=0.5), settings)
+    return learn(task, random_edges(topologies.ring(2), 1.0), critic, SoftmaxActor(step=0.5), settings)
 
 
 def probability_of_cooperating(result) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 from dgtd.cli.options import (
     ALGORITHM_OPTIONS,
     LINK_OPTIONS,
+    given_flags,
     output_options,
     problem_line,
     run_options,
@@ -36,18 +37,6 @@ DEBUG = {"on": False}  # set by `dgtd --debug`: the traceback of an error raised
 def cli(debug):
     """dgtd: distributed policy evaluation with the primal-dual distributed GTD method (Algorithm 1)."""
     DEBUG["on"] = debug
-
-
-def given_flags(ctx: click.Context, exclude=()) -> dict:
-    """The options typed on the command line (not defaults): they override an experiment file's fields."""
-    from click.core import ParameterSource
-
-    return {
-        name: value
-        for name, value in ctx.params.items()
-        if name not in exclude
-        and ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
-    }
 
 
 def _is_experiment_file(arg: str | None) -> bool:

@@ -58,17 +58,31 @@ def _choices(name: str):
     help="Spread the agents over R processes: starts the mpi extra's mpiexec -n R (each holds its agents' actors, "
     "critics and estimates; the numbers are one process's, bit for bit).",
 )
-def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **values):
+@click.option(
+    "--resume",
+    "resume_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Continue the learning run in DIR (its config.toml: the options it was given) from its last checkpoint; "
+    "ends with the numbers of an uninterrupted run.",
+)
+@click.pass_context
+def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, ranks, resume_dir, **values):
     """Agents that learn their policies on TASK (pull-away, zhang-20, factored; the simulator mpe-spread), --problem
     FILE (a multi-agent MDP file, P (S, A, S), with one starting policy per agent) or --env module:make_env (a user's
     PettingZoo simulator, its critics' --features as for `dgtd run`), each with its own softmax policy
     and one of dgtd's distributed critics (--algorithm, DGTD by default) over the network and links given as for `dgtd
-    run`; writes summary.json (the last policies and their exact return beside the best), metrics.csv and returns.png
-    (docs/control.md)."""
+    run`; writes config.toml (what was asked: `--resume DIR` continues it), summary.json (the last policies and their
+    exact return beside the best), metrics.csv and returns.png (docs/control.md)."""
 
     from dgtd.learning import resolve_learning
     from dgtd.run import runtime
 
+    if resume_dir is not None:
+        resumed = _resumed(ctx, resume_dir, out, overwrite)
+        if resumed is None:
+            return
+        task, values, checkpoint_every, out = resumed
     simulator = task if task in ENV_TASKS else values.get("env_make")
     if simulator is not None and (ranks is not None or checkpoint_every):
         raise DgtdInputError(
@@ -80,10 +94,47 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
 
         raise SystemExit(launch(ranks, None, ARGV))
     job = resolve_learning(task, values)
+    problem = job.env if job.env is not None else job.mdp
+    out = Path(out) if out else Path("runs") / f"learn-{problem.name}-{job.settings.actor}"
+    _header(job, values.get("backend"))
+    held: list = []  # the results folder's lock, held by the process that writes
+    resume = runtime.claimed(
+        lambda: _claim(out, job, overwrite, held, checkpoint_every, resume_dir is not None),
+        lambda: _checkpoint(out, job.record, overwrite),
+    )
+    try:
+        _timescales(job)  # (after the folder's checks: a refusal is one line)
+        if resume is not None:
+            click.echo(f"resuming {out} at step {int(resume['k']):,}")
+        result = _learning(job, out, progress, checkpoint_every or 0, resume)
+        if not runtime.writes():
+            return
+        written = _write(out, result, job, plots)
+    finally:
+        for owner in held:
+            owner.__exit__(None, None, None)
+    _report(result, job)
+    click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+
+
+def _header(job, backend) -> None:
+    """What will run, in two lines, and the notes on how (the backend it runs on, a slow size)."""
+    s = job.settings
     if job.env is not None:
-        return _learn_env(job, out, progress, plots, overwrite, values.get("backend"))
-    out = Path(out) if out else Path("runs") / f"learn-{job.mdp.name}-{job.settings.actor}"
-    s, mdp = job.settings, job.mdp
+        task = job.env
+        click.echo(f"{task.name}: {task.n_agents} agents; critics: {_critics_of(s.objective, task.gamma)}; network: "
+                   f"{job.network.describe()}; {job.channel.describe()}")  # fmt: skip
+        click.echo(
+            f"{s.actor} actors (softmax linear in their own observations) with the {job.critic.name} critic "
+            f"({job.critic.describe()}); {job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} "
+            "seed(s)"
+        )
+        if backend == "numba":
+            click.echo(
+                "note: learners in a simulator run on the NumPy backend (the simulator's step is the cost)", err=True
+            )
+        return
+    mdp = job.mdp
     click.echo(
         f"{mdp.name}: {mdp.n_states} states, {mdp.n_agents} agents, {_actions(mdp.actions)}; objective: "
         f"{_objective(s.objective, mdp.gamma)}; network: {job.network.describe()}; {job.channel.describe()}"
@@ -107,23 +158,42 @@ def learn(task, out, progress, plots, overwrite, checkpoint_every, ranks, **valu
             "centralised or independent send none",
             err=True,
         )
-    held: list = []  # the results folder's lock, held by the process that writes
-    resume = runtime.claimed(
-        lambda: _claim(out, job.record, overwrite, held), lambda: _checkpoint(out, job.record, overwrite)
-    )
+
+
+def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
+    """(task, option values, --checkpoint-every, folder) of the learning run in ``resume_dir``, from its config.toml
+    (options typed beside --resume override it: the checkpoint then refuses a run that differs), or None where it
+    finished (said)."""
+    import tomllib
+
+    from dgtd.cli.options import given_flags
+
+    folder = Path(resume_dir)
+    if out is not None and Path(out).resolve() != folder.resolve():
+        raise DgtdInputError(f"--resume continues the run in {folder} and writes there; leave out --out {out}")
+    if overwrite:
+        raise DgtdInputError("--resume continues the saved run and --overwrite starts it afresh: give one, not both")
+    if not (folder / CONFIG).is_file():
+        what = "is not a directory" if not folder.is_dir() else f"holds no learning run (no {CONFIG})"
+        raise DgtdInputError(
+            f"--resume {folder}: {what}; start one there with `dgtd learn TASK --out {folder} --checkpoint-every K`, "
+            "then resume it"
+        )
     try:
-        _timescales(job)  # (after the folder's checks: a refusal is one line)
-        if resume is not None:
-            click.echo(f"resuming {out} at step {int(resume['k']):,}")
-        result = _learning(job, out, progress, checkpoint_every or 0, resume)
-        if not runtime.writes():
-            return
-        written = _write(out, result, job, plots)
-    finally:
-        for owner in held:
-            owner.__exit__(None, None, None)
-    _report(result, mdp)
-    click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
+        saved = dict(tomllib.loads((folder / CONFIG).read_text(encoding="utf-8-sig")).get("learn", {}))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as e:
+        raise DgtdInputError(f"--resume {folder}: its {CONFIG} cannot be read ({e}); start the run afresh") from None
+    if (folder / "summary.json").exists() and not (folder / CHECKPOINT).exists():
+        click.echo(f"{folder}: the learning run is already finished (summary.json); nothing to resume")
+        return None
+    names = set(ctx.params) - {"task", "resume_dir", "ranks", "out", "progress", "plots", "overwrite"}
+    unknown = sorted(set(saved) - names - {"task"})
+    if unknown:
+        raise DgtdInputError(f"--resume {folder}: its {CONFIG} names options dgtd learn has not: {', '.join(unknown)}")
+    given = given_flags(ctx, exclude=("task", "resume_dir", "ranks", "out", "progress", "plots", "overwrite"))
+    values = {name: saved.get(name) for name in names} | given
+    task = ctx.params["task"] if ctx.params["task"] is not None else saved.get("task")
+    return task, {k: v for k, v in values.items() if k != "checkpoint_every"}, values.get("checkpoint_every"), folder
 
 
 def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dict | None):
@@ -149,7 +219,8 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
     measured = _measured_so_far(out, s.actor) if runtime.writes() else None
     try:
         return run_learning(
-            job.mdp, job.network, job.critic, job.actor, s, job.channel, progress=advance,
+            job.env if job.env is not None else job.mdp, job.network, job.critic, job.actor, s, job.channel,
+            progress=advance,
             checkpoint_every=checkpoint_every, on_checkpoint=keep, resume=resume, on_measured=measured,
         )  # fmt: skip
     except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
@@ -160,70 +231,10 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
         bar.close()
 
 
-def _learn_env(job, out, progress: bool, plots: bool, overwrite: bool, backend) -> None:
-    """`dgtd learn` in a simulator (`dgtd.run.learn_env`): no model, so the return is estimated from the run's own
-    rewards; summary.json, metrics.csv, actors.npz (each agent's linear softmax weights) and returns.png."""
-    import numpy as np
-    from tqdm import tqdm
-
-    from dgtd.run.atomic import atomic_write, atomic_write_json
-    from dgtd.run.learn import metrics_csv
-    from dgtd.run.learn_env import env_summary, learn_env
-    from dgtd.run.owner import Owner
-    from dgtd.run.results import npz_bytes, refuse_other_results
-
-    task, s = job.env, job.settings
-    out = Path(out) if out else Path("runs") / f"learn-{task.name}-{s.actor}"
-    click.echo(f"{task.name}: {task.n_agents} agents; critics: {_critics_of(s.objective, task.gamma)}; network: "
-               f"{job.network.describe()}; {job.channel.describe()}")  # fmt: skip
-    click.echo(
-        f"{s.actor} actors (softmax linear in their own observations) with the {job.critic.name} critic "
-        f"({job.critic.describe()}); {job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} seed(s)"
-    )
-    if backend == "numba":
-        click.echo(
-            "note: learners in a simulator run on the NumPy backend (the simulator's step is the cost)", err=True
-        )
-    with Owner(out, "learning run", overwrite):
-        if not overwrite:
-            refuse_other_results(out, job.record, "learning run")
-        _timescales(job)
-        bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True)
-        measured = _measured_so_far(out, s.actor)
-        try:
-            result = learn_env(
-                task, job.network, job.critic, job.actor, s, job.channel, progress=bar.update, on_measured=measured
-            )
-        except KeyboardInterrupt:  # what was measured is kept
-            measured.write()
-            raise
-        finally:
-            bar.close()
-        atomic_write(out / "actors.npz", npz_bytes({"theta": result.policies}))
-        atomic_write_json(out / "summary.json", env_summary(result, task, job.record))
-        atomic_write(out / "metrics.csv", metrics_csv({s.actor: result}, "actor"))
-        written = ["actors.npz", "summary.json", "metrics.csv"]
-        if plots:
-            from dgtd.plots.learning import learning_figure
-
-            written.append(learning_figure(out, result, f"{task.name}, {s.actor}, {job.critic.name} critic"))
-    last = result.metrics["return"][:, -1]
-    first = result.metrics["return"][:, 0]
-    click.echo(
-        f"team's mean reward a step (estimated from the run's own steps), first checkpoint -> last, per seed: "
-        f"{', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(first, last))}"
-    )
-    episodes = result.metrics["episode_return"]
-    if np.isfinite(episodes).any():  # (an episodic simulator: what shows learning there)
-        click.echo(
-            "team's mean return an episode (over the episodes ended since the last checkpoint), first -> last, per "
-            f"seed: {', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(episodes[:, 0], episodes[:, -1]))}"
-        )
-    click.echo(f"wrote {out}/{', '.join(written)} ({result.seconds:.1f} s)")
-
-
 def _write(out: Path, result, job, plots: bool) -> list:
-    """The results of a finished learning run, numbers before pictures, each file atomically; the checkpoint gone."""
+    """The results of a finished learning run, numbers before pictures, each file atomically; the checkpoint gone.
+    A model's policies (policies.npz: (B, N, S, A_max) and each agent's action count), or a simulator's actors'
+    weights (actors.npz: theta (B, N, A, d))."""
     import numpy as np
 
     from dgtd.run.atomic import atomic_write, atomic_write_json
@@ -231,17 +242,20 @@ def _write(out: Path, result, job, plots: bool) -> list:
     from dgtd.run.learn import metrics_csv, summary
     from dgtd.run.results import npz_bytes
 
-    mdp, s = job.mdp, job.settings
+    problem, s = job.env if job.env is not None else job.mdp, job.settings
     remove_checkpoint(out / CHECKPOINT)  # the numbers are complete: nothing is left to resume (its shards neither)
-    arrays = {"policies": result.policies, "actions": np.asarray(mdp.actions)}  # (B, N, S, A_max), (N,)
-    atomic_write(out / "policies.npz", npz_bytes(arrays))
-    atomic_write_json(out / "summary.json", summary(result, mdp, job.record))
+    if job.env is not None:
+        name, arrays = "actors.npz", {"theta": result.policies}
+    else:
+        name, arrays = "policies.npz", {"policies": result.policies, "actions": np.asarray(problem.actions)}
+    atomic_write(out / name, npz_bytes(arrays))
+    atomic_write_json(out / "summary.json", summary(result, problem, job.record))
     atomic_write(out / "metrics.csv", metrics_csv({s.actor: result}, "actor"))
-    written = ["policies.npz", "summary.json", "metrics.csv"]
+    written = [name, "summary.json", "metrics.csv"]
     if plots:
         from dgtd.plots.learning import learning_figure
 
-        written.append(learning_figure(out, result, f"{mdp.name}, {s.actor}, {job.critic.name} critic"))
+        written.append(learning_figure(out, result, f"{problem.name}, {s.actor}, {job.critic.name} critic"))
     return written
 
 
@@ -305,6 +319,7 @@ def _measured_so_far(out: Path, actor: str):
 
 
 CHECKPOINT = "learning-checkpoint.npz"
+CONFIG = "config.toml"
 ESTIMATE_NOTE = 5_000_000  # team-reward estimates' numbers in all beyond which a networked run is said to be slow
 
 
@@ -316,22 +331,42 @@ def _keep(out: Path, snapshot: dict, record: dict) -> None:
     runtime.save_learners(out / CHECKPOINT, snapshot, record)
 
 
-def _claim(out: Path, record: dict, overwrite: bool, held: list) -> dict | None:
+def _claim(out: Path, job, overwrite: bool, held: list, checkpoint_every: int, resuming: bool) -> dict | None:
     """The results folder claimed (its lock appended to ``held``), another run's results refused, and the checkpoint
-    to resume from (`_checkpoint`); a refusal leaves the folder as it found it, unclaimed, as `dgtd run`'s does."""
+    to resume from (`_checkpoint`), or, a run starting afresh, config.toml written (what was asked, for `--resume`);
+    a refusal leaves the folder as it found it, unclaimed, as `dgtd run`'s does."""
+    from dgtd.run.atomic import atomic_write
     from dgtd.run.owner import Owner
     from dgtd.run.results import refuse_other_results
 
     owner = Owner(out, "learning run", overwrite).__enter__()
     try:
         if not overwrite:
-            refuse_other_results(out, record, "learning run")
-        resume = _checkpoint(out, record, overwrite)
+            refuse_other_results(out, job.record, "learning run")
+        resume = _checkpoint(out, job.record, overwrite)
+        if resuming and resume is None:
+            raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
+        if resume is None:
+            atomic_write(out / CONFIG, config_toml(job.record, checkpoint_every).encode())
     except BaseException:
         owner.__exit__(None, None, None)
         raise
     held.append(owner)
     return resume
+
+
+def config_toml(record: dict, checkpoint_every: int) -> str:
+    """config.toml of a learning run: the options it was given (its record, less what is derived from its files),
+    and --checkpoint-every, under [learn]."""
+    import tomli_w
+
+    table = {k: v for k, v in record.items() if v is not None and not k.endswith("_sha256")}
+    if checkpoint_every:
+        table["checkpoint_every"] = int(checkpoint_every)
+    return (
+        "# dgtd learn: the options of this learning run; `dgtd learn --resume DIR` continues it from its last "
+        "checkpoint\n" + tomli_w.dumps({"learn": table})
+    )
 
 
 def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:
@@ -379,9 +414,23 @@ def _actions(actions: tuple) -> str:
     return f"{actions[0]} actions each" if len(set(actions)) == 1 else f"actions {' x '.join(map(str, actions))}"
 
 
-def _report(result, mdp) -> None:
+def _report(result, job) -> None:
+    """The last numbers, in words: the exact return beside J* (a model's) or the estimated returns (a simulator's)."""
     import numpy as np
 
+    if job.env is not None:
+        first, last = result.metrics["return"][:, 0], result.metrics["return"][:, -1]
+        click.echo(
+            f"team's mean reward a step (estimated from the run's own steps), first checkpoint -> last, per seed: "
+            f"{', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(first, last))}"
+        )
+        episodes = result.metrics["episode_return"]
+        if np.isfinite(episodes).any():  # (an episodic simulator: what shows learning there)
+            click.echo(
+                "team's mean return an episode (over the episodes ended since the last checkpoint), first -> last, "
+                f"per seed: {', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(episodes[:, 0], episodes[:, -1]))}"
+            )
+        return
     last = result.metrics["return"][:, -1]
     best = "" if result.return_best is None else f" of the best joint policy's J* = {result.return_best:.4g}"
     kind = "average" if result.info.get("objective", "average") == "average" else "discounted"
@@ -448,17 +497,14 @@ def compare_learners(task, algorithms, seeds, out, progress, plots, overwrite, g
 
 
 def _learner_runs(job) -> tuple:
-    """(the task's name, its agents, run(network, critic, actor, settings, channel, progress) -> `LearnResult`): a
-    model's `dgtd.run.learn.learn`, or a simulator's `dgtd.run.learn_env.learn_env`."""
+    """(the task's name, its agents, run(network, critic, actor, settings, channel, progress) -> `LearnResult`):
+    `dgtd.run.learn.learn` on the model or the simulator."""
     from functools import partial
 
-    if job.env is not None:
-        from dgtd.run.learn_env import learn_env
-
-        return job.env.name, job.env.n_agents, partial(learn_env, job.env)
     from dgtd.run.learn import learn
 
-    return job.mdp.name, job.mdp.n_agents, partial(learn, job.mdp)
+    problem = job.env if job.env is not None else job.mdp
+    return problem.name, problem.n_agents, partial(learn, problem)
 
 
 def _compared(results: dict, job) -> dict:

@@ -242,3 +242,15 @@ def problem_line(problem, links: str) -> str:
         f"{problem.name}: {states}, {problem.n_agents} agents, {problem.n_features} features, gamma "
         f"{problem.gamma:g}{', off-policy' if problem.off_policy else ''}; network: {links}"
     )
+
+
+def given_flags(ctx: click.Context, exclude=()) -> dict:
+    """The options typed on the command line (not defaults): they override an experiment file's fields."""
+    from click.core import ParameterSource
+
+    return {
+        name: value
+        for name, value in ctx.params.items()
+        if name not in exclude
+        and ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+    }

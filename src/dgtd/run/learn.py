@@ -609,10 +609,13 @@ def _reward_spread(mdp, policies) -> float:
     return float(np.mean((weights * (R - J) ** 2).sum(axis=1)))
 
 
-def summary(result: LearnResult, mdp: team.TeamMDP, record: dict) -> dict:
+def summary(result: LearnResult, mdp, record: dict) -> dict:
     """summary.json of a learning run: what was asked, the exact best J* where computed, and per seed the last
     policies (`policy_last`: [seeds][agents] arrays (S, A_i) of action probabilities), their exact return
-    (`return_last`, J of exactly those policies), the last critics' error and the counts of what was sent."""
+    (`return_last`, J of exactly those policies), the last critics' error and the counts of what was sent; in a
+    simulator (``mdp`` an `EnvTask`), the estimated returns instead (`_estimated_summary`)."""
+    if isinstance(mdp, EnvTask):
+        return _estimated_summary(result, mdp, record)
     policies = [[p.tolist() for p in local_policies(mdp, result.policies[b])] for b in range(len(result.policies))]
     return {
         "task": mdp.name,
@@ -650,3 +653,31 @@ def metrics_csv(results: dict, column: str) -> bytes:
         for c, k in enumerate(result.steps)
     ]
     return (f"{column},seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)).encode()
+
+
+def _estimated_summary(result: LearnResult, task: EnvTask, record: dict) -> dict:
+    """summary.json of learners in a simulator: what was asked and, per seed, the team's mean reward a step over the
+    last interval (``return_last``, estimated: ``return_estimated``); no J* and no policy tables (no model)."""
+    return {
+        "task": task.name,
+        "n_agents": task.n_agents,
+        "agents": result.info["agents"],
+        "gamma": task.gamma,
+        "objective": result.info["objective"],
+        "config": record,
+        "return_estimated": True,
+        "return_first": result.metrics["return"][:, 0].tolist(),
+        "return_last": result.metrics["return"][:, -1].tolist(),
+        "episode_return_first": _listed(result.metrics["episode_return"][:, 0]),
+        "episode_return_last": _listed(result.metrics["episode_return"][:, -1]),
+        "return_best": None,
+        "entropy_last": result.metrics["entropy"][:, -1].tolist(),
+        "messages": result.messages.tolist(),
+        "bits": result.bits.tolist(),
+        "seconds": result.seconds,
+    }
+
+
+def _listed(x: np.ndarray) -> list:
+    """Numbers as JSON holds them: NaN (no episode ended in the interval) as null."""
+    return [None if not np.isfinite(v) else float(v) for v in x]

@@ -575,12 +575,12 @@ def _pilot(src, spec: EnvSpec, steps=None) -> np.ndarray:
 
 
 def learning_env(spec: EnvSpec, gamma: float, network_for):
-    """(`dgtd.run.learn_env.EnvTask`, network, what the features are) of a user's environment for learners (`dgtd
+    """(`dgtd.sources.team_env.EnvTask`, network, what the features are) of a user's environment for learners (`dgtd
     learn --env`): its factory, the critics' features (`build_features`, fitted where need be to a pilot run under
     uniform actions, on streams of their own), its rewards mapped where ``spec.rewards`` says; linked by the run's
     graph (``network_for(N)``): positions are `dgtd run`'s."""
-    from dgtd.run.learn_env import EnvTask, discrete_actions
     from dgtd.sources.env import EnvSource
+    from dgtd.sources.team_env import EnvTask, discrete_actions
 
     if spec.positions is not None or spec.radius is not None:
         raise DgtdInputError(
