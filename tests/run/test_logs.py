@@ -92,3 +92,26 @@ def test_a_logger_not_installed_says_which_extra_installs_it(monkeypatch):
         DgtdInputError, match=r"--log mlflow needs mlflow, which is not installed: pip install 'dgtd\[mlflow\]'"
     ):
         logs.log_kinds("mlflow")
+
+
+def test_a_learning_run_logs_every_metric_of_its_metrics_csv(tmp_path, run_cli):
+    """`dgtd learn --log tensorboard`: each seed's event files hold metrics.csv's metrics at its steps (float32), as
+    `dgtd run`'s do; config.toml keeps the logger, so a resumed run logs too; an unknown logger is one line before
+    anything runs."""
+    pytest.importorskip("tensorboardX", reason="the tensorboard extra (dgtd[tensorboard]) is not installed")
+    accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator")
+    out = tmp_path / "l"
+    command = ("learn", "pull-away", "-T", 600, "--checkpoints", 3, "--no-plots", "--no-progress", "--out", out)
+    code, text, err = run_cli(*command, "--log", "tensorboard")
+    assert code == 0 and "tensorboard/" in text, err
+    assert 'log = "tensorboard"' in (out / "config.toml").read_text()
+    for seed, metrics in _metrics_csv(out).items():
+        events = accumulator.EventAccumulator(str(out / "tensorboard" / f"seed-{seed}"), size_guidance={"scalars": 0})
+        events.Reload()
+        assert sorted(events.Tags()["scalars"]) == sorted(metrics)
+        for metric, (steps, values) in metrics.items():
+            got = events.Scalars(metric)
+            assert [e.step for e in got] == steps.tolist()
+            np.testing.assert_array_equal(np.array([e.value for e in got], np.float32), values.astype(np.float32))
+    code, _, err = run_cli(*command, "--log", "wandb", "--overwrite")
+    assert code == 2 and "log: one or more of tensorboard, mlflow" in err and (out / "tensorboard").exists()

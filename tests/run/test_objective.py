@@ -171,15 +171,19 @@ def test_independent_learners_critic_error_is_against_the_critic_they_learn():
 
 
 def test_a_diverged_learners_seeds_are_nan_not_a_traceback(run_cli, tmp_path):
-    """Critics at steps 1000/sqrt(k+100) diverge within 600 steps: every metric of the diverged checkpoints is NaN
-    (the exact measures raised LinAlgError on NaN policies) and summary.json's return_last null."""
-    code, out, err = run_cli("learn", "pull-away", "--algorithm", "consensus-td0", "--alpha0", 1000, "-T", 600,
-                             "--checkpoints", 3, "--backend", "numpy", "--no-progress", "--no-plots",
+    """Critics at steps 1000/sqrt(k+100) diverge within 600 steps of 3 000: every metric of the diverged checkpoints
+    is NaN (the exact measures raised LinAlgError on NaN policies) and summary.json's return_last null; every seed
+    having diverged by the second checkpoint, the run stops there and says so."""
+    code, out, err = run_cli("learn", "pull-away", "--algorithm", "consensus-td0", "--alpha0", 1000, "-T", 3000,
+                             "--checkpoints", 10, "--backend", "numpy", "--no-progress", "--no-plots",
                              "--out", tmp_path / "d")  # fmt: skip
     assert code == 0, err
     summary = json.loads((tmp_path / "d" / "summary.json").read_text())
     assert summary["return_last"] == [None, None]
     assert "nan" in out
+    assert summary["diverged_at"] == [600, 600] and "the run stopped at step 600" in err  # (of 3 000)
+    rows = (tmp_path / "d" / "metrics.csv").read_text().splitlines()[1:]
+    assert all(row.endswith(",nan") for row in rows if row.split(",")[3] == "return" and int(row.split(",")[2]) >= 600)
 
 
 def test_the_entropy_bonus_follows_the_entropys_gradient():

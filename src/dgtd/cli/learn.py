@@ -50,7 +50,7 @@ def _choices(name: str):
 @click.argument("task", required=False)
 @learn_options()
 @run_options(*SHARED)
-@output_options("out", "progress", "plots", "overwrite", "checkpoint_every")
+@output_options("out", "progress", "plots", "overwrite", "checkpoint_every", "log")
 @click.option(
     "--ranks",
     type=int,
@@ -67,7 +67,7 @@ def _choices(name: str):
     "ends with the numbers of an uninterrupted run.",
 )
 @click.pass_context
-def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, ranks, resume_dir, **values):
+def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, log, ranks, resume_dir, **values):
     """Agents that learn their policies on TASK (pull-away, zhang-20, factored; the simulator mpe-spread), --problem
     FILE (a multi-agent MDP file, P (S, A, S), with one starting policy per agent) or --env module:make_env (a user's
     PettingZoo simulator, its critics' --features as for `dgtd run`), each with its own softmax policy
@@ -82,7 +82,11 @@ def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, ranks, r
         resumed = _resumed(ctx, resume_dir, out, overwrite)
         if resumed is None:
             return
-        task, values, checkpoint_every, out = resumed
+        task, values, out, checkpoint_every, log = resumed
+    if log:
+        from dgtd.run.logs import log_kinds
+
+        log_kinds(log)  # (an unknown or missing logger: one line before anything runs)
     simulator = task if task in ENV_TASKS else values.get("env_make")
     if simulator is not None and (ranks is not None or checkpoint_every):
         raise DgtdInputError(
@@ -99,7 +103,7 @@ def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, ranks, r
     _header(job, values.get("backend"))
     held: list = []  # the results folder's lock, held by the process that writes
     resume = runtime.claimed(
-        lambda: _claim(out, job, overwrite, held, checkpoint_every, resume_dir is not None),
+        lambda: _claim(out, job, overwrite, held, {"checkpoint_every": checkpoint_every, "log": log}, resume_dir),
         lambda: _checkpoint(out, job.record, overwrite),
     )
     try:
@@ -109,7 +113,7 @@ def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, ranks, r
         result = _learning(job, out, progress, checkpoint_every or 0, resume)
         if not runtime.writes():
             return
-        written = _write(out, result, job, plots)
+        written = _write(out, result, job, plots, log)
     finally:
         for owner in held:
             owner.__exit__(None, None, None)
@@ -161,9 +165,9 @@ def _header(job, backend) -> None:
 
 
 def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
-    """(task, option values, --checkpoint-every, folder) of the learning run in ``resume_dir``, from its config.toml
-    (options typed beside --resume override it: the checkpoint then refuses a run that differs), or None where it
-    finished (said)."""
+    """(task, option values, folder, --checkpoint-every, --log) of the learning run in ``resume_dir``, from its
+    config.toml (options typed beside --resume override it: the checkpoint then refuses a run that differs), or None
+    where it finished (said)."""
     import tomllib
 
     from dgtd.cli.options import given_flags
@@ -193,7 +197,8 @@ def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
     given = given_flags(ctx, exclude=("task", "resume_dir", "ranks", "out", "progress", "plots", "overwrite"))
     values = {name: saved.get(name) for name in names} | given
     task = ctx.params["task"] if ctx.params["task"] is not None else saved.get("task")
-    return task, {k: v for k, v in values.items() if k != "checkpoint_every"}, values.get("checkpoint_every"), folder
+    own = {k: v for k, v in values.items() if k not in OUTPUT}
+    return task, own, folder, values.get("checkpoint_every"), values.get("log")
 
 
 def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dict | None):
@@ -231,10 +236,10 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
         bar.close()
 
 
-def _write(out: Path, result, job, plots: bool) -> list:
+def _write(out: Path, result, job, plots: bool, log: str | None = None) -> list:
     """The results of a finished learning run, numbers before pictures, each file atomically; the checkpoint gone.
     A model's policies (policies.npz: (B, N, S, A_max) and each agent's action count), or a simulator's actors'
-    weights (actors.npz: theta (B, N, A, d))."""
+    weights (actors.npz: theta (B, N, A, d)); the metrics in the loggers ``log`` asks (`dgtd.run.logs`)."""
     import numpy as np
 
     from dgtd.run.atomic import atomic_write, atomic_write_json
@@ -252,6 +257,11 @@ def _write(out: Path, result, job, plots: bool) -> list:
     atomic_write_json(out / "summary.json", summary(result, problem, job.record))
     atomic_write(out / "metrics.csv", metrics_csv({s.actor: result}, "actor"))
     written = [name, "summary.json", "metrics.csv"]
+    if log:
+        from dgtd.run.learn import metrics_rows
+        from dgtd.run.logs import log_kinds, write_logs
+
+        written += write_logs(out, log_kinds(log), metrics_rows({s.actor: result}), job.record)
     if plots:
         from dgtd.plots.learning import learning_figure
 
@@ -320,6 +330,7 @@ def _measured_so_far(out: Path, actor: str):
 
 CHECKPOINT = "learning-checkpoint.npz"
 CONFIG = "config.toml"
+OUTPUT = ("checkpoint_every", "log")  # output options config.toml keeps: a resumed run saves and logs as it did
 ESTIMATE_NOTE = 5_000_000  # team-reward estimates' numbers in all beyond which a networked run is said to be slow
 
 
@@ -331,11 +342,13 @@ def _keep(out: Path, snapshot: dict, record: dict) -> None:
     runtime.save_learners(out / CHECKPOINT, snapshot, record)
 
 
-def _claim(out: Path, job, overwrite: bool, held: list, checkpoint_every: int, resuming: bool) -> dict | None:
+def _claim(out: Path, job, overwrite: bool, held: list, output: dict, resuming) -> dict | None:
     """The results folder claimed (its lock appended to ``held``), another run's results refused, and the checkpoint
-    to resume from (`_checkpoint`), or, a run starting afresh, config.toml written (what was asked, for `--resume`);
-    a refusal leaves the folder as it found it, unclaimed, as `dgtd run`'s does."""
+    to resume from (`_checkpoint`), or, a run starting afresh, the last run's logs gone and config.toml written (what
+    was asked, with the ``output`` settings kept, for `--resume`); a refusal leaves the folder as it found it,
+    unclaimed, as `dgtd run`'s does."""
     from dgtd.run.atomic import atomic_write
+    from dgtd.run.logs import remove_logs
     from dgtd.run.owner import Owner
     from dgtd.run.results import refuse_other_results
 
@@ -347,7 +360,8 @@ def _claim(out: Path, job, overwrite: bool, held: list, checkpoint_every: int, r
         if resuming and resume is None:
             raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
         if resume is None:
-            atomic_write(out / CONFIG, config_toml(job.record, checkpoint_every).encode())
+            remove_logs(out)
+            atomic_write(out / CONFIG, config_toml(job.record, output).encode())
     except BaseException:
         owner.__exit__(None, None, None)
         raise
@@ -355,14 +369,13 @@ def _claim(out: Path, job, overwrite: bool, held: list, checkpoint_every: int, r
     return resume
 
 
-def config_toml(record: dict, checkpoint_every: int) -> str:
+def config_toml(record: dict, output: dict) -> str:
     """config.toml of a learning run: the options it was given (its record, less what is derived from its files),
-    and --checkpoint-every, under [learn]."""
+    and the ``output`` settings a resumed run keeps (`OUTPUT`: --checkpoint-every, --log), under [learn]."""
     import tomli_w
 
     table = {k: v for k, v in record.items() if v is not None and not k.endswith("_sha256")}
-    if checkpoint_every:
-        table["checkpoint_every"] = int(checkpoint_every)
+    table |= {k: v for k, v in output.items() if k in OUTPUT and v}
     return (
         "# dgtd learn: the options of this learning run; `dgtd learn --resume DIR` continues it from its last "
         "checkpoint\n" + tomli_w.dumps({"learn": table})
@@ -415,8 +428,22 @@ def _actions(actions: tuple) -> str:
 
 
 def _report(result, job) -> None:
-    """The last numbers, in words: the exact return beside J* (a model's) or the estimated returns (a simulator's)."""
+    """The last numbers, in words: the exact return beside J* (a model's) or the estimated returns (a simulator's);
+    the seeds that diverged, where any did."""
     import numpy as np
+
+    from dgtd.run.learn import diverged
+
+    gone = [(b, k) for b, k in enumerate(diverged(result)) if k is not None]
+    if gone:
+        stopped = result.info.get("stopped_at")
+        click.echo(
+            f"note: seed(s) {', '.join(f'{b} (by step {k:,})' for b, k in gone)} diverged: their critics or actors "
+            "left the finite numbers, and their metrics are NaN from then on"
+            + (f"; every seed had, so the run stopped at step {stopped:,}" if stopped is not None else "")
+            + "; a smaller --alpha0 or --actor-step keeps them",
+            err=True,
+        )
 
     if job.env is not None:
         first, last = result.metrics["return"][:, 0], result.metrics["return"][:, -1]

@@ -59,6 +59,7 @@ from dgtd.graphs.random import as_network
 from dgtd.problems import team
 from dgtd.run.checkpoint import assemble
 from dgtd.run.layout import AllAgents, learner_layout
+from dgtd.run.results import rows_csv
 from dgtd.run.state import AGENTS, held, restore, snapshot
 from dgtd.samples import Sample
 from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
@@ -152,6 +153,7 @@ class Learners:
     pending: Any = held(saved=False)  # a round's sums so far: empty at every checkpoint (a round's end)
     means: Any = held(AGENTS, 1)
     tally: Any = held(saved=False)  # a simulator's sums since the last checkpoint (`TALLY`; no checkpoints there)
+    diverged_at: Any = held()  # (B,) the checkpoint step at which a seed was found diverged, -1 while it has not
 
 
 @dataclass(frozen=True)
@@ -221,6 +223,8 @@ def learn(
             _record(plan, run, c, best[1])
             if on_measured is not None:
                 on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
+            if (run.diverged_at >= 0).all():  # every seed has diverged: nothing is left to learn
+                break
         if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
             on_checkpoint(snapshot(run, plan.rows))
         if progress is not None:
@@ -306,7 +310,7 @@ def _start(plan: LearnPlan) -> Learners:
         plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
         {name: np.full((B, len(plan.at)), np.nan) for name in (*METRICS, *estimated)},
         {}, np.zeros((B, n, 2)) if settings.objective == "average" else None,
-        np.zeros((B, len(TALLY))) if env.estimated else None,
+        np.zeros((B, len(TALLY))) if env.estimated else None, np.full(B, -1, dtype=np.int64),
     )  # fmt: skip
 
 
@@ -492,9 +496,13 @@ def _tally(tally: np.ndarray, step, pi: np.ndarray) -> None:
 def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
     """Checkpoint c's metrics: exact on a model (`_measure`), estimated from the run's own rewards in a simulator
     (the team's mean reward a step and the mean return of the episodes ended since the last checkpoint, NaN where
-    none did), and the messages and bits delivered so far."""
+    none did), and the messages and bits delivered so far. A seed whose critics or actors have left the finite
+    numbers is marked diverged (`Learners.diverged_at`): its metrics NaN from then on."""
+    theta, W = plan.rows.gather(run.theta), plan.rows.gather(plan.critic.estimate(run.critic))
+    B = theta.shape[0]  # (theta's -inf: an action an agent does not have)
+    finite = np.isfinite(W.reshape(B, -1)).all(1) & ~(np.isnan(theta) | np.isposinf(theta)).reshape(B, -1).any(1)
+    run.diverged_at[~finite & (run.diverged_at < 0)] = plan.at[c]
     if run.tally is None:
-        theta, W = plan.rows.gather(run.theta), plan.rows.gather(plan.critic.estimate(run.critic))
         _measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
     else:
         tally = run.tally
@@ -502,13 +510,17 @@ def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
         with np.errstate(invalid="ignore", divide="ignore"):
             run.metrics["episode_return"][:, c] = np.where(tally[:, 4] > 0, tally[:, 3] / tally[:, 4], np.nan)
         tally[:, :5] = 0.0
+        for name in ("return", "entropy", "episode_return"):
+            run.metrics[name][run.diverged_at >= 0, c] = np.nan
     run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
 
 
 def _result(plan: LearnPlan, run: Learners, best: tuple, seconds: float) -> LearnResult:
     """A finished run's `LearnResult`: the policies (a simulator's: its actors' weights), the critics, J*."""
     theta = plan.rows.gather(run.theta)
-    info: dict = {"objective": plan.settings.objective}
+    info: dict = {"objective": plan.settings.objective, "diverged_at": run.diverged_at.tolist()}
+    if run.k < plan.settings.iterations:  # (every seed diverged)
+        info["stopped_at"] = run.k
     if plan.env.estimated:
         info |= {"backend": "numpy", "agents": plan.env.agents, "estimated": True}
     else:
@@ -636,23 +648,31 @@ def summary(result: LearnResult, mdp, record: dict) -> dict:
         "critic_error_last": result.metrics["critic_error"][:, -1].tolist(),
         "best_probability_last": result.metrics["best_probability"][:, -1].tolist(),
         "policy_last": policies,
+        "diverged_at": diverged(result),
         "messages": result.messages.tolist(),
         "bits": result.bits.tolist(),
         "seconds": result.seconds,
     }
 
 
+def diverged(result: LearnResult) -> list:
+    """Each seed's step at which it was found diverged, or None (summary.json's ``diverged_at``)."""
+    return [None if k < 0 else int(k) for k in result.info.get("diverged_at", [])]
+
+
+def metrics_rows(results: dict):
+    """(label, seed, step, metric, value) of learning runs {label: `LearnResult`}, every checkpoint of every seed."""
+    for label, result in results.items():
+        for name, values in result.metrics.items():
+            for b in range(values.shape[0]):
+                for c, k in enumerate(result.steps):
+                    yield label, b, int(k), name, float(values[b, c])
+
+
 def metrics_csv(results: dict, column: str) -> bytes:
-    """metrics.csv of learning runs {label: `LearnResult`}: a row (label, seed, step, metric, value) for every
-    checkpoint of every seed, the label's column named ``column`` ("actor" for one run, "learners" for a comparison)."""
-    rows = [
-        (label, b, int(k), name, repr(float(values[b, c])))
-        for label, result in results.items()
-        for name, values in result.metrics.items()
-        for b in range(values.shape[0])
-        for c, k in enumerate(result.steps)
-    ]
-    return (f"{column},seed,step,metric,value\n" + "".join(",".join(map(str, row)) + "\n" for row in rows)).encode()
+    """metrics.csv of learning runs {label: `LearnResult`} (`dgtd.run.results.rows_csv`), the label's column named
+    ``column`` ("actor" for one run, "learners" for a comparison)."""
+    return rows_csv(metrics_rows(results), column)
 
 
 def _estimated_summary(result: LearnResult, task: EnvTask, record: dict) -> dict:
@@ -672,6 +692,7 @@ def _estimated_summary(result: LearnResult, task: EnvTask, record: dict) -> dict
         "episode_return_last": _listed(result.metrics["episode_return"][:, -1]),
         "return_best": None,
         "entropy_last": result.metrics["entropy"][:, -1].tolist(),
+        "diverged_at": diverged(result),
         "messages": result.messages.tolist(),
         "bits": result.bits.tolist(),
         "seconds": result.seconds,
