@@ -205,15 +205,20 @@ def load(path: str | Path) -> Experiment:
     path = Path(path)
     if path.is_dir():
         path = path / "config.toml"
+    return parse(read_data(path), str(path))
+
+
+def read_data(path: str | Path) -> dict:
+    """The data of a TOML file; a missing file or bad TOML is a one-line `DgtdInputError`."""
+    path = Path(path)
     try:
-        data = tomllib.loads(text_of(path))  # (an editor's byte-order mark is no part of the TOML)
+        return tomllib.loads(text_of(path))  # (an editor's byte-order mark is no part of the TOML)
     except FileNotFoundError:
         raise DgtdInputError(f"experiment file {path} does not exist") from None
     except UnicodeDecodeError as e:
         raise DgtdInputError(f"{path} is not UTF-8 text, as TOML is ({e})") from None
     except tomllib.TOMLDecodeError as e:
         raise DgtdInputError(f"{path} is not valid TOML: {e}") from None
-    return parse(data, str(path))
 
 
 def env_flag(field_name: str) -> str:

@@ -566,16 +566,20 @@ def sweep(ctx, experiment, **_):
     Run options given as flags set the base run of every job (grid values win). Rerunning skips finished
     jobs, so an interrupted sweep is continued by running the same command.
     """
-    from dgtd.experiments import experiment_from
+    from dgtd.experiments import experiment_from, read_data
     from dgtd.sweep import default_out, run_sweep
+    from dgtd.sweep.learning import is_learning
 
     flags = given_flags(ctx, exclude=("experiment",))
-    if "resume" in flags:
-        flags["sweep.resume"] = flags.pop("resume")
-    exp = experiment_from(experiment, flags)
-    output = exp.config.output
-    out = Path(output.out) if output.out else default_out(experiment)
-    report = run_sweep(exp, out, echo=click.echo, progress=output.progress)
+    if Path(experiment).is_file() and is_learning(read_data(experiment)):
+        report = _learning_sweep(ctx, experiment, flags)
+    else:
+        if "resume" in flags:
+            flags["sweep.resume"] = flags.pop("resume")
+        exp = experiment_from(experiment, flags)
+        output = exp.config.output
+        out = Path(output.out) if output.out else default_out(experiment)
+        report = run_sweep(exp, out, echo=click.echo, progress=output.progress)
     click.echo(
         f"{report['ran']} jobs run, {report['skipped']} skipped (already finished), {len(report['failed'])} failed "
         f"in {report['seconds']:.1f} s" + (f"; table: {report['table']}" if report["table"] else "")
@@ -585,6 +589,22 @@ def sweep(ctx, experiment, **_):
             click.echo(f"dgtd: job {job} failed: {message}", err=True)
         click.echo("dgtd: run the same command again to retry the failed jobs", err=True)
         sys.exit(1)
+
+
+def _learning_sweep(ctx, experiment: str, flags: dict) -> dict:
+    """`dgtd sweep` of a file with a [learn] table (`dgtd.sweep.learning`): the executor's flags set its [sweep]
+    options, the others the base of every job."""
+    from dgtd.experiments import SweepOptions, read_data
+    from dgtd.sweep import default_out
+    from dgtd.sweep.learning import run_learning_sweep
+
+    data = read_data(experiment)
+    executor = {k: flags.pop(k) for k in [f.name for f in dataclasses.fields(SweepOptions)] if k in flags}
+    if executor:
+        data["sweep"] = {**data.get("sweep", {}), **executor}
+    out = Path(flags.pop("out")) if flags.get("out") else default_out(experiment)
+    overwrite, progress = flags.pop("overwrite", False), flags.pop("progress", ctx.params["progress"])
+    return run_learning_sweep(data, experiment, out, flags, overwrite, click.echo, progress)
 
 
 @cli.command()

@@ -13,6 +13,7 @@ import itertools
 import json
 import os
 import sys
+from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
@@ -30,7 +31,7 @@ from dgtd.config import (
     unflat,
 )
 from dgtd.errors import DgtdInputError
-from dgtd.experiments import TABLES, Experiment, absolute_paths, to_toml
+from dgtd.experiments import TABLES, Experiment, SweepOptions, absolute_paths, to_toml
 from dgtd.run.owner import Owner
 from dgtd.run.store import SweepStore
 
@@ -132,9 +133,22 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
     }
 
 
-def make_executor(exp: Experiment, n_jobs: int) -> Executor:
+@dataclass(frozen=True)
+class Sweep:
+    """What the runner needs of a sweep, of runs or of learning runs (`dgtd.sweep.learning`): its executor
+    ``options``, its ``grid`` keys, the ``config_toml`` that reruns it, and for a job, ``work(job) -> (function,
+    args)`` run in a worker (a module-level function: it travels to other processes) and ``job_toml(job)``, the job's
+    own config."""
+
+    options: SweepOptions
+    grid: list
+    config_toml: str
+    work: Callable
+    job_toml: Callable
+
+
+def make_executor(opts: SweepOptions, n_jobs: int) -> Executor:
     """A process pool on the local cores, or a `RayExecutor` (local on 127.0.0.1, or ``address``)."""
-    opts = exp.sweep
     if opts.executor == "ray":
         from dgtd.sweep.ray import RayExecutor
 
@@ -152,6 +166,11 @@ def default_out(file: str | None) -> Path:
     return Path("runs") / (Path(file).stem if file else "sweep")
 
 
+def _work(sweep: Sweep, job) -> tuple:
+    function, args = sweep.work(job)
+    return (function, *args)
+
+
 def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> dict:
     """Run the jobs of ``exp`` not yet finished in ``out``.
 
@@ -165,24 +184,36 @@ def run_sweep(exp: Experiment, out: Path, echo=print, progress: bool = True) -> 
             "a sweep needs a [grid] table of lists, e.g. [grid] alpha0 = [1.0, 10.0]; use `dgtd run` for a single run"
         )
     jobs = expand(exp)
+    output = Output(out=str(Path(out).resolve()), progress=exp.config.output.progress)
+    saved = replace(exp, config=replace(absolute_paths(exp.config), output=output))
+    sweep = Sweep(
+        exp.sweep, [k for k, _ in grid_keys(exp.grid)],
+        to_toml(saved, "A dgtd sweep: `dgtd sweep THIS_FILE` runs it again, skipping finished jobs."),
+        lambda job: (run_job, (flat(job.config), 1)),
+        lambda job: to_toml(Experiment(job.config), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone."),
+    )  # fmt: skip
+    return run_jobs(sweep, jobs, out, exp.config.output.overwrite, echo, progress, t_start)
+
+
+def run_jobs(sweep: Sweep, jobs: list, out: Path, overwrite: bool, echo, progress: bool, t_start: float) -> dict:
+    """Run the ``jobs`` of ``sweep`` not yet finished in ``out`` (the directory claimed while it runs)."""
     out = Path(out).resolve()
-    resume = exp.sweep.resume if exp.sweep.resume is not None else out.exists()
-    with Owner(out, "sweep", exp.config.output.overwrite):  # the directory is this sweep's until it ends
-        return _sweep_into(exp, jobs, out, resume, echo, progress, t_start)
+    resume = sweep.options.resume if sweep.options.resume is not None else out.exists()
+    with Owner(out, "sweep", overwrite):  # the directory is this sweep's until it ends
+        return _sweep_into(sweep, jobs, out, resume, echo, progress, t_start)
 
 
-def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, progress: bool, t_start: float) -> dict:
-    """`run_sweep`'s work once ``out`` is its own."""
+def _sweep_into(sweep: Sweep, jobs: list, out: Path, resume: bool, echo, progress: bool, t_start: float) -> dict:
+    """`run_jobs`' work once ``out`` is its own."""
     import time
 
     from tqdm import tqdm
 
-    store = SweepStore(out, exp.sweep.format)
-    output = Output(out=str(out), progress=exp.config.output.progress)
-    saved = replace(exp, config=replace(absolute_paths(exp.config), output=output))
-    store.begin(to_toml(saved, "A dgtd sweep: `dgtd sweep THIS_FILE` runs it again, skipping finished jobs."))
+    store = SweepStore(out, sweep.options.format)
+    store.begin(sweep.config_toml)
     todo = [j for j in jobs if not (resume and store.done(j.id))]
-    where = exp.sweep.address or ("a local Ray on 127.0.0.1" if exp.sweep.executor == "ray" else "a local process pool")
+    opts = sweep.options
+    where = opts.address or ("a local Ray on 127.0.0.1" if opts.executor == "ray" else "a local process pool")
     echo(
         f"{len(jobs)} jobs ({len(jobs) - len(todo)} already finished), {len(todo)} to run on {where}; results in {out}"
     )
@@ -190,7 +221,7 @@ def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, prog
     bar = tqdm(total=len(todo), unit="job", file=sys.stderr, disable=not progress, smoothing=0.1)
     try:
         if todo:
-            _run_jobs(exp, todo, store, failed, bar, echo)
+            _run_jobs(sweep, todo, store, failed, bar, echo)
     finally:
         bar.close()
         table = store.write_table([(j.id, j.point) for j in jobs])
@@ -200,7 +231,7 @@ def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, prog
         atomic_write_json(
             out / "sweep.json",
             {
-                "grid": [k for k, _ in grid_keys(exp.grid)],
+                "grid": sweep.grid,
                 "table": None if table is None else table.name,
                 "jobs": [{"job": j.id, "point": j.point, "status": status(j)} for j in jobs],
             },
@@ -215,15 +246,15 @@ def _sweep_into(exp: Experiment, jobs: list, out: Path, resume: bool, echo, prog
     }
 
 
-def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict, bar, echo) -> None:
+def _run_jobs(sweep: Sweep, todo: list, store: SweepStore, failed: dict, bar, echo) -> None:
     """Submit jobs until each is finished or failed; a broken process pool is replaced (Ray retries itself)."""
     pending = {j.id: j for j in todo}
     attempts = dict.fromkeys(pending, 0)
     while pending:
-        executor = make_executor(exp, len(pending))
+        executor = make_executor(sweep.options, len(pending))
         broken = False
         try:
-            futures = {executor.submit(run_job, flat(j.config), 1): j for j in pending.values()}
+            futures = {executor.submit(*_work(sweep, j)): j for j in pending.values()}
             for future in as_completed(futures):
                 job = futures[future]
                 try:
@@ -237,10 +268,7 @@ def _run_jobs(exp: Experiment, todo: list[Job], store: SweepStore, failed: dict,
                 except Exception as e:  # a job's own failure must not stop the others
                     message = f"{type(e).__name__}: {e}"
                 else:
-                    config = to_toml(
-                        Experiment(job.config), "One job of a dgtd sweep: `dgtd run THIS_FILE` runs it alone."
-                    )
-                    store.write_job(job.id, job.point, config, result)
+                    store.write_job(job.id, job.point, sweep.job_toml(job), result)
                     del pending[job.id]
                     bar.update()
                     continue
