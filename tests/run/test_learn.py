@@ -486,3 +486,24 @@ def test_dgtd_learn_resume_dir_continues_from_its_config_toml(run_cli, tmp_path,
     assert code == 0 and "already finished" in text
     one_line_error(*run_cli("learn", "--resume", tmp_path / "none"), "is not a directory")
     one_line_error(*run_cli("learn", "--resume", tmp_path / "cut", "--overwrite"), "give one, not both")
+
+
+def test_a_learning_run_saves_by_time_at_round_ends_and_resumes_from_any():
+    """Without a step count, `Saves` saves at the first round's end once the seconds have passed (a clock that ticks
+    4 s a call, read at each round's end of 2 steps: 4, 8, 12 s at steps 2, 4, 6; 10 s between saves: steps 6, 12,
+    18); a run saving at every round's end (3 steps) resumes from the save at step 21 to the uninterrupted numbers bit
+    for bit."""
+    from dgtd.run.learn import Saves
+
+    ticks = iter(range(0, 10_000, 4))
+    saves = Saves(0, 10.0, 2, clock=lambda: next(ticks))
+    assert [k for k in range(1, 20) if saves.due(k)] == [6, 12, 18]
+    assert [k for k in range(1, 20) if Saves(5, 10.0, 1).due(k)] == [5, 10, 15]  # (a step count wins)
+    mdp, net = team.pull_away(), random_edges(topologies.ring(4), 0.8)
+    settings = LearnSettings(iterations=60, seeds=2, checkpoints=3, batch=3)
+    critic = make_algorithm("dgtd", alpha0=1.0, beta=100.0)
+    snaps: list = []
+    whole = learn(mdp, net, critic, SoftmaxActor(), settings, on_checkpoint=snaps.append, checkpoint_seconds=1e-12)
+    assert [int(s["k"]) for s in snaps] == list(range(3, 60, 3))
+    resumed = learn(mdp, net, critic, SoftmaxActor(), settings, resume=snaps[6])
+    assert np.array_equal(whole.policies, resumed.policies) and np.array_equal(whole.critic, resumed.critic)

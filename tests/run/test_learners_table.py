@@ -65,3 +65,8 @@ def test_a_long_learning_run_says_how_long_early_and_once():
         for _ in range(total):
             probe(1)
         assert (said == []) if expected is None else (len(said) == 1 and expected in said[0]), said
+    clock, said = iter(0.5 * np.arange(1, 20_001)), []
+    probe = CostProbe(20_000, clock=lambda: next(clock), say=said.append, saves=300.0)
+    for _ in range(20_000):
+        probe(1)
+    assert "its state is saved every 5 minutes: the same command continues it" in said[0]  # (a learning run's default)

@@ -202,8 +202,9 @@ def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
 
 
 def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dict | None):
-    """The learning run of a model (`dgtd.run.learn.learn`) with its progress bar, its time said where long
-    (`CostProbe`), its checkpoints kept, and metrics.csv written as measured (on Ctrl-C too)."""
+    """The learning run (`dgtd.run.learn.learn`) with its progress bar, its time said where long (`CostProbe`), its
+    checkpoints kept (without --checkpoint-every, on one process, its state saved every `SAVE_SECONDS` by time, so
+    that a long run cut off continues by the same command), and metrics.csv written as measured (on Ctrl-C too)."""
     from tqdm import tqdm
 
     from dgtd.run import runtime
@@ -212,7 +213,8 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
     s, done = job.settings, 0 if resume is None else int(resume["k"])
     bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5)
     bar.update(done)
-    probe = CostProbe(s.iterations, done)
+    by_time = not checkpoint_every and job.env is None and not runtime.in_job()
+    probe = CostProbe(s.iterations, done, saves=SAVE_SECONDS if by_time else 0.0)
 
     def advance(n: int) -> None:
         bar.update(n)
@@ -227,6 +229,7 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
             job.env if job.env is not None else job.mdp, job.network, job.critic, job.actor, s, job.channel,
             progress=advance,
             checkpoint_every=checkpoint_every, on_checkpoint=keep, resume=resume, on_measured=measured,
+            checkpoint_seconds=SAVE_SECONDS if by_time else 0.0,
         )  # fmt: skip
     except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
         if measured is not None:
@@ -277,10 +280,10 @@ class CostProbe:
 
     LONG, PROBE_FROM, PROBE_SECONDS, PROBE_STEPS = 60.0, 5, 1.0, 200
 
-    def __init__(self, total: int, done: int = 0, clock=None, say=None):
+    def __init__(self, total: int, done: int = 0, clock=None, say=None, saves: float = 0.0):
         import time
 
-        self.total, self.count = total, done
+        self.total, self.count, self.saves = total, done, saves
         self.started: float | None = None
         self.clock = clock or time.perf_counter
         self.say = say or (lambda line: click.echo(f"note: {line}", err=True))
@@ -302,6 +305,11 @@ class CostProbe:
             self.say(
                 f"about {per_step:.3g} s a step (measured on {steps:,} steps): the {left:,} steps left take about "
                 f"{_duration(per_step * left)}; -T or --agents shorten it, Ctrl-C keeps what was measured"
+                + (
+                    f", and its state is saved every {_duration(self.saves)}: the same command continues it"
+                    if self.saves and per_step * left > self.saves
+                    else ""
+                )
             )
         self.first = -1  # (said once)
 
@@ -329,6 +337,7 @@ def _measured_so_far(out: Path, actor: str):
 
 
 CHECKPOINT = "learning-checkpoint.npz"
+SAVE_SECONDS = 300.0  # without --checkpoint-every, a learning run on one process saves its state this often
 CONFIG = "config.toml"
 OUTPUT = ("checkpoint_every", "log")  # output options config.toml keeps: a resumed run saves and logs as it did
 ESTIMATE_NOTE = 5_000_000  # team-reward estimates' numbers in all beyond which a networked run is said to be slow

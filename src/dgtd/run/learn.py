@@ -190,14 +190,16 @@ def learn(
     on_checkpoint=None,
     resume: dict | None = None,
     on_measured=None,
+    checkpoint_seconds: float = 0.0,
 ):
     """Run the actor-critic of the module's docstring in ``mdp``, a team MDP or a simulator (`EnvTask`); ``critic``
     any distributed algorithm of `dgtd.algorithms` (its step sizes its own), ``channel`` the links (default perfect),
-    ``progress(n)`` called as steps finish. Every ``checkpoint_every`` steps ``on_checkpoint(snapshot)`` is given
-    the run's `Learners.snapshot`; ``resume`` (one) continues from it to the numbers of the uninterrupted run, bit for
-    bit (every random number is keyed by its step). ``on_measured(steps, metrics)`` is called as each checkpoint is
-    measured, with the steps so far (c,) and each metric there (seeds, c), so that what was measured can be kept
-    before the run ends."""
+    ``progress(n)`` called as steps finish. Every ``checkpoint_every`` steps (or, where that is 0, at the first
+    round's end once ``checkpoint_seconds`` > 0 have passed since the last save: `Saves`) ``on_checkpoint(snapshot)``
+    is given the run's state (`dgtd.run.state.snapshot`); ``resume`` (one) continues from it to the numbers of the
+    uninterrupted run, bit for bit (every random number is keyed by its step). ``on_measured(steps, metrics)`` is
+    called as each checkpoint is measured, with the steps so far (c,) and each metric there (seeds, c), so that what
+    was measured can be kept before the run ends."""
     network = as_network(network)  # (a bare graph: its fixed network; it raised AttributeError)
     plan = _plan(mdp, network, critic, actor, settings, channel)
     if checkpoint_every % settings.batch or (checkpoint_every and plan.env.estimated):
@@ -214,6 +216,7 @@ def learn(
         rows = assemble(resume, plan.env.n_agents, plan.arcs.n_arcs, plan.rows.local, state=Learners)
         run = restore(run, rows)
     draws: tuple = ()
+    saves = Saves(checkpoint_every, 0.0 if plan.env.estimated else checkpoint_seconds, settings.batch)
     for k in range(run.k, settings.iterations):
         if not draws or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
             draws = _draws(plan.keys, network, range(k - k % BLOCK, min(k - k % BLOCK + BLOCK, settings.iterations)))
@@ -225,11 +228,33 @@ def learn(
                 on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
             if (run.diverged_at >= 0).all():  # every seed has diverged: nothing is left to learn
                 break
-        if checkpoint_every and run.k % checkpoint_every == 0 and run.k < settings.iterations and on_checkpoint:
+        if on_checkpoint and run.k < settings.iterations and saves.due(run.k):
             on_checkpoint(snapshot(run, plan.rows))
         if progress is not None:
             progress(1)
     return _result(plan, run, best, time.perf_counter() - started)
+
+
+class Saves:
+    """When a learning run saves its state: every ``every`` steps; or, ``every`` 0 and ``seconds`` > 0, at the
+    first round's end (a multiple of ``batch`` steps) once that many seconds have passed since the last save or the
+    start (a run resumes from any round's end to the same numbers). ``clock`` the time."""
+
+    def __init__(self, every: int, seconds: float, batch: int, clock=time.perf_counter):
+        self.every, self.seconds, self.batch, self.clock = int(every), float(seconds), int(batch), clock
+        self.last = clock()
+
+    def due(self, k: int) -> bool:
+        """Whether to save after step k (k steps taken)."""
+        if self.every:
+            return k % self.every == 0
+        if not self.seconds or k % self.batch:
+            return False
+        now = self.clock()
+        if now - self.last < self.seconds:
+            return False
+        self.last = now
+        return True
 
 
 def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
