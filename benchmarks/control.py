@@ -51,14 +51,14 @@ def main() -> None:
         for critic, colour in CRITICS.items():
             r, seconds = one(mdp, net, critic, "networked", args.seeds, 10_000, loss)
             label = f"{critic}, loss {loss:.0%}"
-            line = band(axes[0], r.steps, r.metrics["return"].T, label, colour)
+            line = band(axes[0], r.steps, r.metrics["return"], label, colour)
             line.set_linestyle(style)
-            axes[1].plot(np.median(r.metrics["bits"], axis=0) / 8e6, np.median(r.metrics["return"], axis=0), style,
+            axes[1].plot(np.median(r.metrics["bits"], axis=1) / 8e6, np.median(r.metrics["return"], axis=1), style,
                          color=line.get_color(), label=label)  # fmt: skip
             rows.append((f"networked, {critic} critic", f"{loss:.0%}", r, seconds))
     for actor in ("centralised", "independent"):
         r, seconds = one(mdp, net, "dgtd", actor, args.seeds, 10_000, 0.0)
-        band(axes[0], r.steps, r.metrics["return"].T, f"{actor} (dgtd critic)", "k" if actor[0] == "c" else "C7")
+        band(axes[0], r.steps, r.metrics["return"], f"{actor} (dgtd critic)", "k" if actor[0] == "c" else "C7")
         rows.append((f"{actor}, dgtd critic", "0%", r, seconds))
     axes[0].axhline(2.0, color="k", linestyle=":", label="J* = 2")
     axes[0].set(xlabel="step (one sample per agent, one round of messages)", ylabel="J(pi_t), exact",
@@ -69,7 +69,7 @@ def main() -> None:
     complete = random_edges(topologies.complete(20), 0.2)
     for actor in ("networked", "centralised"):
         r, seconds = one(zhang, complete, "dgtd", actor, args.seeds, 20_000, 0.0)
-        band(axes[2], r.steps, r.metrics["return"].T, f"{actor} (dgtd critic)")
+        band(axes[2], r.steps, r.metrics["return"], f"{actor} (dgtd critic)")
         rows.append((f"zhang-20, {actor}", "0%", r, seconds))
     axes[2].axhline(zhang.best_return()[0], color="k", linestyle=":", label="J*")
     axes[2].set(xlabel="step", ylabel="J(pi_t), exact", title="Zhang et al.'s 20 agents, links w.p. 0.2 (complete)")
@@ -80,11 +80,11 @@ def main() -> None:
     print("| learners | loss | J at 2 000 | J at the end | least p(best) at the end | critic error | seconds |")
     print("|---|---|---|---|---|---|---|")
     for name, loss, r, seconds in rows:
-        J = np.median(r.metrics["return"], axis=0)
+        J = np.median(r.metrics["return"], axis=1)
         early = J[np.searchsorted(r.steps, 2000)]
-        least = r.metrics["best_probability"][:, -1]
+        least = r.metrics["best_probability"][-1]
         shown = f"{np.nanmin(least):.3f}" if np.isfinite(least).all() else "-"
-        error = np.median(r.metrics["critic_error"][:, -1])
+        error = np.median(r.metrics["critic_error"][-1])
         print(f"| {name} | {loss} | {early:.3f} | {J[-1]:.3f} | {shown} | {error:.2g} | {seconds:.0f} |")
 
 

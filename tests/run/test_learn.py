@@ -87,13 +87,13 @@ def test_only_learners_of_the_teams_reward_find_its_best_joint_action(actor, rea
     (measured at least 0.992 and 0.994); independent ones, which each learn their own reward, put at most 0.1 on it
     (measured 0.0), and their return is the all-deviate one, J = 1 of J* = 2."""
     result = run(actor, seeds=REACH_SEEDS, iterations=REACH)
-    least = result.metrics["best_probability"][:, -1]
+    least = result.metrics["best_probability"][-1]
     if reaches:
         assert least.min() >= 0.9, least
-        assert result.metrics["return"][:, -1].min() > 1.95
+        assert result.metrics["return"][-1].min() > 1.95
     else:
         assert least.max() <= 0.1, least
-        assert result.metrics["return"][:, -1].max() < 1.1
+        assert result.metrics["return"][-1].max() < 1.1
     assert result.return_best == pytest.approx(2.0, abs=1e-9)
 
 
@@ -146,7 +146,7 @@ def test_lost_messages_are_counted_and_the_critics_messages_carry_the_team_estim
         run("networked", iterations=1500, channel=Lossy(np.full(arcs.n_arcs, 0.3))),
     )
     assert 0.6 < lossy.messages.sum() / perfect.messages.sum() < 0.8
-    assert lossy.metrics["return"][:, -1].min() > lossy.metrics["return"][:, 0].min() - 0.05
+    assert lossy.metrics["return"][-1].min() > lossy.metrics["return"][0].min() - 0.05
 
 
 @pytest.mark.parametrize(
@@ -213,7 +213,7 @@ def test_a_thousand_agents_learn_on_a_factored_problem():
     net = random_edges(topologies.ring(1000), 0.8)
     settings = LearnSettings(iterations=1500, seeds=1, actor="independent", checkpoints=3)
     result = learn(mdp, net, make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(), settings)
-    J = result.metrics["return"][0]
+    J = result.metrics["return"][:, 0]  # (checkpoints, seeds): the one seed's
     assert J[-1] > J[0] + 0.02 and J[-1] < result.return_best
 
 
@@ -356,10 +356,10 @@ def test_an_action_value_critic_finds_the_teams_best_action_too(actor, reaches):
         iterations=BUDGET, seeds=2, actor=actor, checkpoints=4, values="action", objective="discounted"
     )
     result = learn(mdp, net, make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(step=0.1), settings)
-    least = result.metrics["best_probability"][:, -1]
+    least = result.metrics["best_probability"][-1]
     assert (least.min() >= 0.9) if reaches else (least.max() <= 0.1), least
     if reaches:
-        assert result.metrics["critic_error"][:, -1].max() < 1e-2
+        assert result.metrics["critic_error"][-1].max() < 1e-2
 
 
 def test_the_exact_action_values_of_uniform_policies_on_pull_away():

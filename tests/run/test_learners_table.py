@@ -12,9 +12,9 @@ from dgtd.run.learn import METRICS, LearnResult
 
 def result(J_last, p_best, sent=1.0) -> LearnResult:
     B = len(J_last)
-    metrics = {name: np.ones((B, 2)) for name in METRICS}
-    metrics["return"][:, -1], metrics["best_probability"][:, -1] = J_last, p_best
-    metrics["critic_error"][:, -1] = np.where(np.isfinite(J_last), 1e-3, np.nan)
+    metrics = {name: np.ones((2, B)) for name in METRICS}  # (checkpoints, seeds)
+    metrics["return"][-1], metrics["best_probability"][-1] = J_last, p_best
+    metrics["critic_error"][-1] = np.where(np.isfinite(J_last), 1e-3, np.nan)
     metrics["bits"] *= sent
     return LearnResult(np.array([1, 2]), metrics, np.zeros((B, 2, 3, 2)), np.zeros((B, 2, 3)), 2.0, None,
                        np.full(B, sent), np.full(B, sent), 0.1, {"objective": "average"})  # fmt: skip

@@ -120,9 +120,9 @@ def test_a_delayed_reward_is_found_under_the_average_objective(learners):
     average is 0.3."""
     mdp, run = delayed_run("average", SoftmaxActor(), learners)
     assert run.return_best == pytest.approx(0.75, abs=1e-9)
-    assert run.metrics["return"][:, -1].min() >= 0.95 * 0.75
+    assert run.metrics["return"][-1].min() >= 0.95 * 0.75
     _, hasty = delayed_run("average", SoftmaxActor(warmup=0), learners)
-    assert hasty.metrics["return"][:, -1].max() < 0.35
+    assert hasty.metrics["return"][-1].max() < 0.35
     _, discounted = delayed_run("discounted", SoftmaxActor(), learners)
     averages = [team.average_return(mdp, local_policies(mdp, pi)) for pi in discounted.policies]
     assert max(averages) < 0.35 and discounted.return_best == pytest.approx(mdp.best_discounted()[0], abs=1e-12)
@@ -167,7 +167,7 @@ def test_independent_learners_critic_error_is_against_the_critic_they_learn():
     mdp, net = team.pull_away(), random_edges(topologies.ring(4), 0.8)
     result = learn(mdp, net, make_algorithm("dgtd", alpha0=1.0, beta=100.0), SoftmaxActor(),
                    LearnSettings(iterations=10_000, seeds=2, checkpoints=2, actor="independent"))  # fmt: skip
-    assert result.metrics["critic_error"][:, -1].max() < 0.02
+    assert result.metrics["critic_error"][-1].max() < 0.02
 
 
 def test_a_diverged_learners_seeds_are_nan_not_a_traceback(run_cli, tmp_path):
@@ -213,5 +213,5 @@ def test_an_entropy_bonus_keeps_the_policies_wider_on_numpy_and_numba_alike():
                      LearnSettings(iterations=3000, seeds=2, checkpoints=2, backend=backend))  # fmt: skip
 
     plain, wide, compiled = run(0.0, "numba"), run(0.5, "numpy"), run(0.5, "numba")
-    assert wide.metrics["entropy"][:, -1].min() > plain.metrics["entropy"][:, -1].max()
+    assert wide.metrics["entropy"][-1].min() > plain.metrics["entropy"][-1].max()
     assert np.abs(wide.policies - compiled.policies).max() < 1e-12

@@ -455,7 +455,7 @@ def _report(result, job) -> None:
         )
 
     if job.env is not None:
-        first, last = result.metrics["return"][:, 0], result.metrics["return"][:, -1]
+        first, last = result.metrics["return"][0], result.metrics["return"][-1]
         click.echo(
             f"team's mean reward a step (estimated from the run's own steps), first checkpoint -> last, per seed: "
             f"{', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(first, last))}"
@@ -464,17 +464,17 @@ def _report(result, job) -> None:
         if np.isfinite(episodes).any():  # (an episodic simulator: what shows learning there)
             click.echo(
                 "team's mean return an episode (over the episodes ended since the last checkpoint), first -> last, "
-                f"per seed: {', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(episodes[:, 0], episodes[:, -1]))}"
+                f"per seed: {', '.join(f'{a:.4g} -> {b:.4g}' for a, b in zip(episodes[0], episodes[-1]))}"
             )
         return
-    last = result.metrics["return"][:, -1]
+    last = result.metrics["return"][-1]
     best = "" if result.return_best is None else f" of the best joint policy's J* = {result.return_best:.4g}"
     kind = "average" if result.info.get("objective", "average") == "average" else "discounted"
     click.echo(f"exact return J of the last policies ({kind}): {', '.join(f'{x:.4g}' for x in last)} (per seed){best}")
-    if np.isfinite(result.metrics["best_probability"][:, -1]).all():
-        p = result.metrics["best_probability"][:, -1]
+    if np.isfinite(result.metrics["best_probability"][-1]).all():
+        p = result.metrics["best_probability"][-1]
         click.echo(f"least probability any agent puts on the team's best action in any state: {np.min(p):.3f}")
-    worst = np.max(result.metrics["critic_error"][:, -1])
+    worst = np.max(result.metrics["critic_error"][-1])
     click.echo(f"critics' error against their exact fixed point under the last policies (relative), worst seed: "
                f"{worst:.3g}")  # fmt: skip
 
@@ -553,12 +553,12 @@ def _compared(results: dict, job) -> dict:
         "return_best": next(iter(results.values())).return_best,
     }
     for label, r in results.items():
-        J = r.metrics["return"][:, -1]
+        J = r.metrics["return"][-1]
         out[label] = {
             "return_last": {"median": float(np.median(J)), "min": float(J.min()), "max": float(J.max())},
-            "failed_seeds": int((~np.isfinite(J) | ~np.isfinite(r.metrics["critic_error"][:, -1])).sum()),
-            "best_probability_last": r.metrics["best_probability"][:, -1].tolist(),
-            "critic_error_last": r.metrics["critic_error"][:, -1].tolist(),
+            "failed_seeds": int((~np.isfinite(J) | ~np.isfinite(r.metrics["critic_error"][-1])).sum()),
+            "best_probability_last": r.metrics["best_probability"][-1].tolist(),
+            "critic_error_last": r.metrics["critic_error"][-1].tolist(),
             "messages": r.messages.tolist(),
             "bits": r.bits.tolist(),
             "seconds": r.seconds,
@@ -579,8 +579,8 @@ def _learners_table(results: dict) -> str:
     ]
     failed = {}
     for label, r in results.items():
-        J = r.metrics["return"][:, -1]
-        least, error = r.metrics["best_probability"][:, -1], r.metrics["critic_error"][:, -1]
+        J = r.metrics["return"][-1]
+        least, error = r.metrics["best_probability"][-1], r.metrics["critic_error"][-1]
         failed[label] = int((~np.isfinite(J) | ~np.isfinite(error)).sum())
         shown = f"{np.median(least):.3f} ({np.min(least):.3f})" if np.isfinite(least).all() else "-"
         rows.append(
@@ -604,10 +604,10 @@ def _learners_table(results: dict) -> str:
     whole = [label for label in results if not failed[label]]
     if not whole:
         return "\n".join([*rows, "every learners had a failed seed: none is named the highest"])
-    median = {label: float(np.median(results[label].metrics["return"][:, -1])) for label in whole}
+    median = {label: float(np.median(results[label].metrics["return"][-1])) for label in whole}
     best = max(whole, key=median.__getitem__)
-    J = results[best].metrics["return"][:, -1]
-    tied = [label for label in whole if label != best and results[label].metrics["return"][:, -1].max() >= J.min()]
+    J = results[best].metrics["return"][-1]
+    tied = [label for label in whole if label != best and results[label].metrics["return"][-1].max() >= J.min()]
     of = "" if first.return_best is None else f" of J* = {first.return_best:.4g}"
     line = f"highest return: {best}, {median[best]:.4g}{of} (seeds {J.min():.4g} to {J.max():.4g})"
     if tied:

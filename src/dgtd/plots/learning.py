@@ -22,7 +22,7 @@ def learning_figure(out: Path, result, title: str) -> str:
     band(
         ax,
         result.steps,
-        result.metrics["return"].T,
+        result.metrics["return"],
         "mean reward since the last checkpoint" if estimated else "J(pi_t), exact",
     )
     if result.return_best is not None:
@@ -31,10 +31,10 @@ def learning_figure(out: Path, result, title: str) -> str:
     ax.set_title(f"{title}\n{BAND_WORDS}", fontsize=9)
     ax.legend()
     if estimated:
-        band(ay, result.steps, result.metrics["entropy"].T, "policies' entropy")
+        band(ay, result.steps, result.metrics["entropy"], "policies' entropy")
         ay.set(xlabel="step", ylabel="mean entropy at the observations met (nats)", title="the policies' entropy")
     else:
-        band(ay, result.steps, result.metrics["critic_error"].T, "critics' error")
+        band(ay, result.steps, result.metrics["critic_error"], "critics' error")
         ay.set(xlabel="step", ylabel="relative error", yscale="log", title="the critics' error against W*(pi_t)")
     fig.tight_layout()
     fig.savefig(Path(out) / "returns.png", dpi=110)
@@ -49,8 +49,8 @@ def learners_figure(out: Path, results: dict, title: str) -> str:
 
     fig, (ax, ay) = plt.subplots(1, 2, figsize=(11, 4))
     for label, r in results.items():
-        line = band(ax, r.steps, r.metrics["return"].T, label)
-        megabytes, J = np.median(r.metrics["bits"], axis=0) / 8e6, np.median(r.metrics["return"], axis=0)
+        line = band(ax, r.steps, r.metrics["return"], label)
+        megabytes, J = np.median(r.metrics["bits"], axis=1) / 8e6, np.median(r.metrics["return"], axis=1)
         silent = not np.any(megabytes)  # (it sends nothing: one point at 0, which a line would not show)
         ay.plot(megabytes[-1:] if silent else megabytes, J[-1:] if silent else J, "o" if silent else "-",
                 color=line.get_color(), label=f"{label} (sends nothing)" if silent else label)  # fmt: skip

@@ -59,6 +59,7 @@ from dgtd.graphs.random import as_network
 from dgtd.problems import team
 from dgtd.run.checkpoint import assemble
 from dgtd.run.layout import AllAgents, learner_layout
+from dgtd.run.results import metrics_rows as run_rows
 from dgtd.run.results import rows_csv
 from dgtd.run.state import AGENTS, held, restore, snapshot
 from dgtd.samples import Sample
@@ -116,11 +117,11 @@ class LearnSettings:
 
 @dataclass
 class LearnResult:
-    """``steps`` (C,) of the checkpoints; ``metrics`` {name: (B, C)} (`METRICS`: the exact return, the critics' error,
-    the mean entropy, the least probability on the team's best action, the messages and bits delivered so far);
-    ``policies`` (B, N, S, A_max) at the
-    end; ``critic`` the critics' estimates (B, N or 1, q) at the end; ``return_best`` J* and ``best_action`` (S,) the
-    team's best joint action where computed; ``messages`` and ``bits`` (B,) delivered."""
+    """``steps`` (C,) of the checkpoints; ``metrics`` {name: (C, B)}, checkpoints by seeds as a run's (`METRICS`:
+    the exact return, the critics' error, the mean entropy, the least probability on the team's best action, the
+    messages and bits delivered so far); ``policies`` (B, N, S, A_max) at the end; ``critic`` the critics' estimates
+    (B, N or 1, q) at the end; ``return_best`` J* and ``best_action`` (S,) the team's best joint action where
+    computed; ``messages`` and ``bits`` (B,) delivered."""
 
     steps: np.ndarray
     metrics: dict
@@ -149,7 +150,7 @@ class Learners:
     lam: Any = held(AGENTS, 1)
     critic: Any = held(AGENTS, 1)  # the critic's NamedTuple state
     links: Any = held()  # the channel's state: the whole run's, on every rank
-    metrics: Any = held()  # {name: (B, C)}
+    metrics: Any = held()  # {name: (C, B)}
     pending: Any = held(saved=False)  # a round's sums so far: empty at every checkpoint (a round's end)
     means: Any = held(AGENTS, 1)
     tally: Any = held(saved=False)  # a simulator's sums since the last checkpoint (`TALLY`; no checkpoints there)
@@ -198,7 +199,7 @@ def learn(
     round's end once ``checkpoint_seconds`` > 0 have passed since the last save: `Saves`) ``on_checkpoint(snapshot)``
     is given the run's state (`dgtd.run.state.snapshot`); ``resume`` (one) continues from it to the numbers of the
     uninterrupted run, bit for bit (every random number is keyed by its step). ``on_measured(steps, metrics)`` is
-    called as each checkpoint is measured, with the steps so far (c,) and each metric there (seeds, c), so that what
+    called as each checkpoint is measured, with the steps so far (c,) and each metric there (c, seeds), so that what
     was measured can be kept before the run ends."""
     network = as_network(network)  # (a bare graph: its fixed network; it raised AttributeError)
     plan = _plan(mdp, network, critic, actor, settings, channel)
@@ -225,7 +226,7 @@ def learn(
             c = int(np.searchsorted(plan.at, k + 1))
             _record(plan, run, c, best[1])
             if on_measured is not None:
-                on_measured(plan.at[: c + 1], {name: v[:, : c + 1] for name, v in run.metrics.items()})
+                on_measured(plan.at[: c + 1], {name: v[: c + 1] for name, v in run.metrics.items()})
             if (run.diverged_at >= 0).all():  # every seed has diverged: nothing is left to learn
                 break
         if on_checkpoint and run.k < settings.iterations and saves.due(run.k):
@@ -333,7 +334,7 @@ def _start(plan: LearnPlan) -> Learners:
         np.zeros((B, n, env.regression_size(A))) if settings.actor == "networked" and settings.values == "state"
         else None,
         plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
-        {name: np.full((B, len(plan.at)), np.nan) for name in (*METRICS, *estimated)},
+        {name: np.full((len(plan.at), B), np.nan) for name in (*METRICS, *estimated)},
         {}, np.zeros((B, n, 2)) if settings.objective == "average" else None,
         np.zeros((B, len(TALLY))) if env.estimated else None, np.full(B, -1, dtype=np.int64),
     )  # fmt: skip
@@ -531,13 +532,13 @@ def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
         _measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
     else:
         tally = run.tally
-        run.metrics["return"][:, c], run.metrics["entropy"][:, c] = tally[:, 0] / tally[:, 2], tally[:, 1] / tally[:, 2]
+        run.metrics["return"][c], run.metrics["entropy"][c] = tally[:, 0] / tally[:, 2], tally[:, 1] / tally[:, 2]
         with np.errstate(invalid="ignore", divide="ignore"):
-            run.metrics["episode_return"][:, c] = np.where(tally[:, 4] > 0, tally[:, 3] / tally[:, 4], np.nan)
+            run.metrics["episode_return"][c] = np.where(tally[:, 4] > 0, tally[:, 3] / tally[:, 4], np.nan)
         tally[:, :5] = 0.0
         for name in ("return", "entropy", "episode_return"):
-            run.metrics[name][run.diverged_at >= 0, c] = np.nan
-    run.metrics["messages"][:, c], run.metrics["bits"][:, c] = run.links.messages, run.links.bits
+            run.metrics[name][c, run.diverged_at >= 0] = np.nan
+    run.metrics["messages"][c], run.metrics["bits"][c] = run.links.messages, run.links.bits
 
 
 def _result(plan: LearnPlan, run: Learners, best: tuple, seconds: float) -> LearnResult:
@@ -586,18 +587,18 @@ def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict,
     for b in range(theta.shape[0]):
         if not (np.isfinite(pi[b]).all() and np.isfinite(W[b]).all()):  # a diverged seed: NaN, its numbers gone
             for name in ("return", "critic_error", "entropy", "best_probability"):
-                metrics[name][b, c] = np.nan
+                metrics[name][c, b] = np.nan
             continue
         policies = local_policies(mdp, pi[b])
         P_pi, _ = team.chain_of(mdp, policies)
-        metrics["return"][b, c] = team.objective_return(mdp, policies, settings.objective)
+        metrics["return"][c, b] = team.objective_return(mdp, policies, settings.objective)
         W_b = np.broadcast_to(W[b], (mdp.n_agents, W.shape[-1]))
         own = settings.actor == "independent"
-        metrics["critic_error"][b, c] = _critic_error(mdp, policies, W_b, settings.values, settings.objective, own)
-        metrics["entropy"][b, c] = team.entropy(policies, team.long_run(P_pi, mdp.start)).mean()
+        metrics["critic_error"][c, b] = _critic_error(mdp, policies, W_b, settings.values, settings.objective, own)
+        metrics["entropy"][c, b] = team.entropy(policies, team.long_run(P_pi, mdp.start)).mean()
         if best_action is not None:  # (the objective's: under the discounted one it may differ)
             best = mdp.local(best_action)  # (S, N)
-            metrics["best_probability"][b, c] = min(
+            metrics["best_probability"][c, b] = min(
                 float(p[np.arange(mdp.n_states), best[:, i]].min()) for i, p in enumerate(policies)
             )
 
@@ -670,8 +671,8 @@ def summary(result: LearnResult, mdp, record: dict) -> dict:
             else None  # (a diverged seed)
             for pi in result.policies
         ],
-        "critic_error_last": result.metrics["critic_error"][:, -1].tolist(),
-        "best_probability_last": result.metrics["best_probability"][:, -1].tolist(),
+        "critic_error_last": result.metrics["critic_error"][-1].tolist(),
+        "best_probability_last": result.metrics["best_probability"][-1].tolist(),
         "policy_last": policies,
         "diverged_at": diverged(result),
         "messages": result.messages.tolist(),
@@ -686,12 +687,10 @@ def diverged(result: LearnResult) -> list:
 
 
 def metrics_rows(results: dict):
-    """(label, seed, step, metric, value) of learning runs {label: `LearnResult`}, every checkpoint of every seed."""
+    """(label, seed, step, metric, value) of learning runs {label: `LearnResult`}, as a run's
+    (`dgtd.run.results.metrics_rows`: every metric, checkpoint and seed)."""
     for label, result in results.items():
-        for name, values in result.metrics.items():
-            for b in range(values.shape[0]):
-                for c, k in enumerate(result.steps):
-                    yield label, b, int(k), name, float(values[b, c])
+        yield from run_rows(result, label)
 
 
 def metrics_csv(results: dict, column: str) -> bytes:
@@ -711,12 +710,12 @@ def _estimated_summary(result: LearnResult, task: EnvTask, record: dict) -> dict
         "objective": result.info["objective"],
         "config": record,
         "return_estimated": True,
-        "return_first": result.metrics["return"][:, 0].tolist(),
-        "return_last": result.metrics["return"][:, -1].tolist(),
-        "episode_return_first": _listed(result.metrics["episode_return"][:, 0]),
-        "episode_return_last": _listed(result.metrics["episode_return"][:, -1]),
+        "return_first": result.metrics["return"][0].tolist(),
+        "return_last": result.metrics["return"][-1].tolist(),
+        "episode_return_first": _listed(result.metrics["episode_return"][0]),
+        "episode_return_last": _listed(result.metrics["episode_return"][-1]),
         "return_best": None,
-        "entropy_last": result.metrics["entropy"][:, -1].tolist(),
+        "entropy_last": result.metrics["entropy"][-1].tolist(),
         "diverged_at": diverged(result),
         "messages": result.messages.tolist(),
         "bits": result.bits.tolist(),

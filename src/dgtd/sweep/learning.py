@@ -120,7 +120,7 @@ def run_learning_job(values: dict, threads: int | None = 1) -> dict:
     result = learn(problem, job.network, job.critic, job.actor, job.settings, job.channel)
     return {
         "steps": result.steps,
-        "metrics": {name: v.T for name, v in result.metrics.items()},  # (the store's (checkpoints, seeds))
+        "metrics": result.metrics,
         "algorithm": f"{job.settings.actor}/{job.critic.name}",
         "summary": summary(result, problem, json.loads(json.dumps(job.record))),
     }
