@@ -254,15 +254,22 @@ def critic_target(mdp, policies, objective: str = "discounted", agent: int | Non
     solution. Where d_pi leaves states out (a transient state) A may be singular too: the least-norm solution, the
     weights the long run says nothing of at 0. ``agent``: the target of a critic of that agent's own reward (an
     independent learner's), not the team's."""
+    return critic_targets(mdp, policies, objective, [agent])[0]
+
+
+def critic_targets(mdp, policies, objective: str, agents) -> np.ndarray:
+    """(K, q): `critic_target` of each of ``agents`` (an agent, or None for the team's reward) at once: one chain and
+    one matrix A, a right-hand side each (the independent learners' targets of N agents cost one chain, not N)."""
     P_pi, R_pi = chain_of(mdp, policies)
     d = long_run(P_pi, mdp.start)
-    Phi, rbar = mdp.Phi, R_pi.mean(axis=0) if agent is None else R_pi[agent]
+    Phi = mdp.Phi
+    rewards = np.stack([R_pi.mean(axis=0) if agent is None else R_pi[agent] for agent in agents])  # (K, S)
     gamma = mdp.gamma if objective == "discounted" else 1.0
     A = Phi.T @ (d[:, None] * (Phi - gamma * P_pi @ Phi))
-    b = Phi.T @ (d * (rbar if objective == "discounted" else rbar - d @ rbar))
+    b = Phi.T @ (d[:, None] * (rewards if objective == "discounted" else rewards - (rewards @ d)[:, None]).T)
     if d.min() > 0 and objective == "discounted":
-        return np.linalg.solve(A, b)
-    return np.linalg.lstsq(A, b, rcond=None)[0]
+        return np.linalg.solve(A, b).T
+    return np.linalg.lstsq(A, b, rcond=None)[0].T
 
 
 def action_features(n_agents: int, n_states: int, n_actions: int, s, a) -> np.ndarray:

@@ -615,7 +615,7 @@ def _critic_error(mdp, policies, W: np.ndarray, values: str, objective: str = "d
     agents = range(mdp.n_agents) if own else [None]
     if values == "state":
         Phi, d = mdp.Phi, team.long_run(team.chain_of(mdp, policies)[0], mdp.start)
-        targets = [team.critic_target(mdp, policies, objective, i) for i in agents]
+        targets = list(team.critic_targets(mdp, policies, objective, agents))
     else:
         solved = [team.action_critic_target(mdp, policies, objective, i) for i in agents]
         if solved[0] is None:
