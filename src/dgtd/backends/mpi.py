@@ -730,6 +730,16 @@ class LearnerRanks:
         """Every agent's rows (B, N, ...) of what each rank holds of them (B, n, ...), in agent order, on every rank."""
         return np.concatenate(self.comm.allgather(np.ascontiguousarray(x)), axis=1)
 
+    def gather_root(self, x: np.ndarray) -> np.ndarray | None:
+        """Every agent's rows (B, N, ...) on rank 0, which writes the results (None on the others): the checkpoints'
+        exact measures are rank 0's alone."""
+        parts = self.comm.gather(np.ascontiguousarray(x), root=0)
+        return np.concatenate(parts, axis=1) if self.root else None
+
+    def every(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (bools, the same shape on every rank) true on every rank."""
+        return np.logical_and.reduce(self.comm.allgather(np.asarray(x, bool)))
+
     def shard(self) -> dict:
         """The ids of the agents whose rows this rank's checkpoint shard holds (`dgtd.run.checkpoint.assemble`)."""
         return {"agents": self.local}

@@ -150,6 +150,14 @@ class AllAgents:
     def gather(self, x: np.ndarray) -> np.ndarray:
         return x
 
+    def gather_root(self, x: np.ndarray) -> np.ndarray | None:
+        """Every agent's rows on the process that writes (None elsewhere): here, all of them."""
+        return x
+
+    def every(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (bools) true on every process: this one's."""
+        return x
+
     def shard(self) -> dict:
         """The ids of the rows a checkpoint written here holds: every agent's, in order (none to name)."""
         return {}

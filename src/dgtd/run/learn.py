@@ -524,12 +524,14 @@ def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
     (the team's mean reward a step and the mean return of the episodes ended since the last checkpoint, NaN where
     none did), and the messages and bits delivered so far. A seed whose critics or actors have left the finite
     numbers is marked diverged (`Learners.diverged_at`): its metrics NaN from then on."""
-    theta, W = plan.rows.gather(run.theta), plan.rows.gather(plan.critic.estimate(run.critic))
+    theta, W = run.theta, plan.critic.estimate(run.critic)  # (the agents held here)
     B = theta.shape[0]  # (theta's -inf: an action an agent does not have)
     finite = np.isfinite(W.reshape(B, -1)).all(1) & ~(np.isnan(theta) | np.isposinf(theta)).reshape(B, -1).any(1)
-    run.diverged_at[~finite & (run.diverged_at < 0)] = plan.at[c]
-    if run.tally is None:
-        _measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
+    run.diverged_at[~plan.rows.every(finite) & (run.diverged_at < 0)] = plan.at[c]
+    if run.tally is None:  # (on the process that writes: the others' metrics are not read)
+        theta, W = plan.rows.gather_root(theta), plan.rows.gather_root(W)
+        if theta is not None:
+            _measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
     else:
         tally = run.tally
         run.metrics["return"][c], run.metrics["entropy"][c] = tally[:, 0] / tally[:, 2], tally[:, 1] / tally[:, 2]
