@@ -9,6 +9,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 from dgtd.plots.bands import BAND_WORDS, band  # noqa: E402
 
@@ -34,8 +35,11 @@ def learning_figure(out: Path, result, title: str) -> str:
         band(ay, result.steps, result.metrics["entropy"], "policies' entropy")
         ay.set(xlabel="step", ylabel="mean entropy at the observations met (nats)", title="the policies' entropy")
     else:
-        band(ay, result.steps, result.metrics["critic_error"], "critics' error")
-        ay.set(xlabel="step", ylabel="relative error", yscale="log", title="the critics' error against W*(pi_t)")
+        error = result.metrics["critic_error"]
+        band(ay, result.steps, error, "critics' error")
+        shown = (error > 0) & np.isfinite(error)  # (a diverged run has none: a log scale would fail)
+        ay.set(xlabel="step", ylabel="relative error", yscale="log" if shown.any() else "linear",
+               title="the critics' error against W*(pi_t)")  # fmt: skip
     fig.tight_layout()
     fig.savefig(Path(out) / "returns.png", dpi=110)
     plt.close(fig)
@@ -45,8 +49,6 @@ def learning_figure(out: Path, result, title: str) -> str:
 def learners_figure(out: Path, results: dict, title: str) -> str:
     """learners.png: each learners' exact return against steps (median and band over seeds) and against the bits
     delivered (median), J* where known."""
-    import numpy as np
-
     fig, (ax, ay) = plt.subplots(1, 2, figsize=(11, 4))
     for label, r in results.items():
         line = band(ax, r.steps, r.metrics["return"], label)
@@ -67,3 +69,73 @@ def learners_figure(out: Path, results: dict, title: str) -> str:
     fig.savefig(Path(out) / "learners.png", dpi=110)
     plt.close(fig)
     return "learners.png"
+
+
+LABELS = ("actor", "learners")  # metrics.csv's first column in a learning run's folder, and in a learners' comparison
+
+
+def is_learning(directory: Path) -> bool:
+    """Whether ``directory`` holds a learning run's or a learners' comparison's metrics.csv."""
+    try:
+        with open(Path(directory) / "metrics.csv") as f:
+            return f.readline().split(",")[0] in LABELS
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def learning_figures_again(directory: Path) -> list[Path]:
+    """The figures of a learning run's folder (returns.png) or a learners' comparison's (learners.png), drawn again
+    from its metrics.csv and summary.json alone."""
+    from dgtd.errors import DgtdInputError
+    from dgtd.files import numbers, read_csv, read_json
+
+    directory = Path(directory)
+    path, fix = directory / "metrics.csv", "run it again"
+    rows = read_csv(path, "results file", fix, required=("seed", "step", "metric", "value"))
+    if not rows:
+        raise DgtdInputError(f"results file {path} holds no rows; {fix}")
+    column = next(c for c in LABELS if c in rows[0])
+    steps_of, seeds_of, values = (
+        numbers(rows, name, kind, path, "results file", fix)
+        for name, kind in (("step", int), ("seed", int), ("value", float))
+    )
+    summary = (
+        read_json(directory / "summary.json", "results file", fix) if (directory / "summary.json").exists() else {}
+    )
+    steps, seeds = np.unique(steps_of), 1 + int(seeds_of.max())
+    results: dict = {}
+    for row, k, b, x in zip(rows, steps_of, seeds_of, values):
+        metrics = results.setdefault(row[column], {})
+        metrics.setdefault(row["metric"], np.full((len(steps), seeds), np.nan))[np.searchsorted(steps, k), b] = x
+    info = {"estimated": bool(summary.get("return_estimated", False)), "objective": summary.get("objective")}
+    shown = {label: _Saved(steps, metrics, summary.get("return_best"), info) for label, metrics in results.items()}
+    name = summary.get("task", directory.name)
+    if column == "learners":
+        return [directory / learners_figure(directory, shown, name)]
+    label, result = next(iter(shown.items()))
+    return [directory / learning_figure(directory, result, f"{name}, {label}")]
+
+
+class _Saved:
+    """A learning result's figures' inputs, read back."""
+
+    def __init__(self, steps, metrics, return_best, info):
+        self.steps, self.metrics, self.return_best, self.info = steps, metrics, return_best, info
+
+
+def learning_sweep_figure(jobs: dict, points: dict, path: Path) -> bool:
+    """returns.png of a sweep of learning runs: each job's return against steps (median and band over seeds); False
+    where the jobs are not learning runs (no return metric)."""
+    if not any("return" in metrics for _, metrics in jobs.values()):
+        return False
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for job, (steps, metrics) in jobs.items():
+        label = ", ".join(f"{k}={v}" for k, v in points.get(job, {}).items() if v is not None) or job
+        band(ax, steps, metrics["return"], label)
+    ax.set(xlabel="step", ylabel="return J (exact, or estimated in a simulator)")
+    ax.set_title(f"{len(jobs)} learning jobs, {BAND_WORDS}", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True

@@ -362,6 +362,10 @@ def plot_directory(directory: Path) -> list[Path]:
             raise DgtdInputError(f"{directory} holds no finished job yet; run the sweep first")
         points = {j["job"]: j["point"] for j in index["jobs"]}
         jobs = job_metrics(read_table(directory / index["table"]))
+        from dgtd.plots.learning import learning_sweep_figure
+
+        if learning_sweep_figure(jobs, points, directory / "returns.png"):  # (a sweep of learning runs)
+            return [directory / "returns.png"]
         plot_sweep_curves(jobs, points, directory / "curves.png")
         written.append(directory / "curves.png")
         for metric in ("error_avg", "error_last"):
@@ -372,6 +376,10 @@ def plot_directory(directory: Path) -> list[Path]:
         raise DgtdInputError(
             f"{directory} is not a results directory of dgtd run, compare or sweep (no metrics.csv or sweep.json)"
         )
+    from dgtd.plots.learning import is_learning, learning_figures_again
+
+    if is_learning(directory):  # a learning run's, or a learners' comparison's
+        return learning_figures_again(directory)
     if (directory / "agent_errors.npz").exists():  # a comparison: its own figures, one curve per algorithm
         from dgtd.plots.compare import plot_compare, plot_consensus
 
