@@ -166,6 +166,16 @@ def _section(name: str, table: dict, where: str) -> dict:
     return out
 
 
+def sweep_fields(table, where: str) -> dict:
+    """The fields of a [sweep] table (`SweepOptions`'), each checked: an unknown one or a wrong type is one line."""
+    sweep = {}
+    for k, v in check_type(f"[sweep] in {where}", table, dict).items():
+        if k not in SWEEP_TYPES:
+            raise _unknown(k, SWEEP_TYPES, f"[sweep] of {where}")
+        sweep[k] = check_type(f"sweep.{k} in {where}", v, SWEEP_TYPES[k])
+    return sweep
+
+
 def parse(data: dict, where: str = "the experiment") -> Experiment:
     """An `Experiment` from the data of a TOML file (or any dict of the same shape): one table per section of
     `RunConfig`, or the older flat layout."""
@@ -180,10 +190,7 @@ def parse(data: dict, where: str = "the experiment") -> Experiment:
         elif key == "grid":
             grid = _grid(check_type(f"[grid] in {where}", value, dict), where)
         elif key == "sweep":
-            for k, v in check_type(f"[sweep] in {where}", value, dict).items():
-                if k not in SWEEP_TYPES:
-                    raise _unknown(k, SWEEP_TYPES, f"[sweep] of {where}")
-                sweep[k] = check_type(f"sweep.{k} in {where}", v, SWEEP_TYPES[k])
+            sweep = sweep_fields(value, where)
         else:
             raise _unknown(key, [*SECTIONS, *FLAT, "grid", "sweep"], where)
     exp = Experiment(unflat(values), grid, SweepOptions(**sweep))

@@ -24,6 +24,19 @@ def _metrics_csv(out):
     }
 
 
+def _tensorboard_holds(accumulator, out, expected: dict) -> None:
+    """Each seed's event files in OUT/tensorboard, loaded by TensorBoard's EventAccumulator, hold ``expected``
+    ({seed: {metric: (steps, values)}}): the same tags, at the same steps, the values to float32's precision."""
+    for seed, metrics in expected.items():
+        events = accumulator.EventAccumulator(str(out / "tensorboard" / f"seed-{seed}"), size_guidance={"scalars": 0})
+        events.Reload()
+        assert sorted(events.Tags()["scalars"]) == sorted(metrics)
+        for metric, (steps, values) in metrics.items():
+            got = events.Scalars(metric)
+            assert [e.step for e in got] == steps.tolist()
+            np.testing.assert_array_equal(np.array([e.value for e in got], np.float32), values.astype(np.float32))
+
+
 def test_tensorboard_event_files_hold_every_metric_of_metrics_csv(tmp_path, run_cli):
     """Each seed's event files, loaded by TensorBoard's EventAccumulator: the same tags as metrics.csv's metrics, at
     the same steps, with its values to float32's precision (TensorBoard keeps scalars as float32). A second run into
@@ -36,14 +49,7 @@ def test_tensorboard_event_files_hold_every_metric_of_metrics_csv(tmp_path, run_
         assert code == 0, err
     expected = _metrics_csv(out)
     assert sorted(p.name for p in (out / "tensorboard").iterdir()) == ["seed-0", "seed-1"]
-    for seed, metrics in expected.items():
-        events = accumulator.EventAccumulator(str(out / "tensorboard" / f"seed-{seed}"), size_guidance={"scalars": 0})
-        events.Reload()
-        assert sorted(events.Tags()["scalars"]) == sorted(metrics)
-        for metric, (steps, values) in metrics.items():
-            got = events.Scalars(metric)
-            assert [e.step for e in got] == steps.tolist()
-            np.testing.assert_array_equal(np.array([e.value for e in got], np.float32), values.astype(np.float32))
+    _tensorboard_holds(accumulator, out, expected)
 
 
 def test_mlflow_store_holds_every_metric_of_metrics_csv(tmp_path, run_cli):
@@ -96,7 +102,7 @@ def test_a_logger_not_installed_says_which_extra_installs_it(monkeypatch):
 
 def test_a_learning_run_logs_every_metric_of_its_metrics_csv(tmp_path, run_cli):
     """`dgtd learn --log tensorboard`: each seed's event files hold metrics.csv's metrics at its steps (float32), as
-    `dgtd run`'s do; config.toml keeps the logger, so a resumed run logs too; an unknown logger is one line before
+    `dgtd run`'s do; config.toml keeps the logger (which `--resume DIR` reads); an unknown logger is one line before
     anything runs."""
     pytest.importorskip("tensorboardX", reason="the tensorboard extra (dgtd[tensorboard]) is not installed")
     accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator")
@@ -105,13 +111,6 @@ def test_a_learning_run_logs_every_metric_of_its_metrics_csv(tmp_path, run_cli):
     code, text, err = run_cli(*command, "--log", "tensorboard")
     assert code == 0 and "tensorboard/" in text, err
     assert 'log = "tensorboard"' in (out / "config.toml").read_text()
-    for seed, metrics in _metrics_csv(out).items():
-        events = accumulator.EventAccumulator(str(out / "tensorboard" / f"seed-{seed}"), size_guidance={"scalars": 0})
-        events.Reload()
-        assert sorted(events.Tags()["scalars"]) == sorted(metrics)
-        for metric, (steps, values) in metrics.items():
-            got = events.Scalars(metric)
-            assert [e.step for e in got] == steps.tolist()
-            np.testing.assert_array_equal(np.array([e.value for e in got], np.float32), values.astype(np.float32))
+    _tensorboard_holds(accumulator, out, _metrics_csv(out))
     code, _, err = run_cli(*command, "--log", "wandb", "--overwrite")
     assert code == 2 and "log: one or more of tensorboard, mlflow" in err and (out / "tensorboard").exists()

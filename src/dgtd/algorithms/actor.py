@@ -24,7 +24,7 @@ are array axes: theta is (B, N, S, A_max), an agent with fewer actions padded wi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -184,7 +184,7 @@ class LinearSoftmaxActor(SoftmaxActor):
     @classmethod
     def like(cls, actor: SoftmaxActor) -> LinearSoftmaxActor:
         """The linear actor with ``actor``'s steps."""
-        return cls(actor.step, actor.offset, actor.power, actor.warmup, actor.entropy)
+        return cls(**{f.name: getattr(actor, f.name) for f in fields(SoftmaxActor)})
 
     def init(self, seeds: int, actions, states: int) -> np.ndarray:  # type: ignore[override]
         """theta (B, N, A, d) of zeros: uniform policies; ``actions`` (N,) the same for every agent, ``states`` d."""

@@ -16,6 +16,7 @@ from dgtd.cli.options import (
     given_flags,
     output_options,
     problem_line,
+    resume_folder,
     run_options,
     sweep_options,
 )
@@ -105,18 +106,8 @@ def run(ctx, scenario, resume_dir, ranks, hosts, **_):
     if scenario is not None and file is None:
         flags["scenario"] = scenario
     if resume_dir is not None:
-        if "out" in flags and Path(flags["out"]).resolve() != Path(resume_dir).resolve():
-            raise DgtdInputError(
-                f"--resume continues the run in {resume_dir} and writes there; leave out --out "
-                f"{flags['out']} (or resume that directory instead)"
-            )
+        resume_folder(resume_dir, flags.get("out"), "run", "dgtd run SCENARIO")
         flags.update(out=resume_dir, resume=True)
-        if not (Path(resume_dir) / CONFIG).is_file():
-            what = "is not a directory" if not Path(resume_dir).is_dir() else f"holds no run (no {CONFIG})"
-            raise DgtdInputError(
-                f"--resume {resume_dir}: {what}; start a run there with `dgtd run SCENARIO --out "
-                f"{resume_dir} --checkpoint-every K`, then resume it"
-            )
         if file is None and not PROBLEM_FLAGS & set(flags):
             file = str(Path(resume_dir) / CONFIG)
     if file is None and not PROBLEM_FLAGS & set(flags):

@@ -170,19 +170,11 @@ def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
     where it finished (said)."""
     import tomllib
 
-    from dgtd.cli.options import given_flags
+    from dgtd.cli.options import given_flags, resume_folder
 
-    folder = Path(resume_dir)
-    if out is not None and Path(out).resolve() != folder.resolve():
-        raise DgtdInputError(f"--resume continues the run in {folder} and writes there; leave out --out {out}")
+    folder = resume_folder(resume_dir, out, "learning run", "dgtd learn TASK")
     if overwrite:
         raise DgtdInputError("--resume continues the saved run and --overwrite starts it afresh: give one, not both")
-    if not (folder / CONFIG).is_file():
-        what = "is not a directory" if not folder.is_dir() else f"holds no learning run (no {CONFIG})"
-        raise DgtdInputError(
-            f"--resume {folder}: {what}; start one there with `dgtd learn TASK --out {folder} --checkpoint-every K`, "
-            "then resume it"
-        )
     try:
         saved = dict(tomllib.loads((folder / CONFIG).read_text(encoding="utf-8-sig")).get("learn", {}))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as e:

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import typing
 from dataclasses import fields
+from pathlib import Path
 
 import click
 
 from dgtd.config import CHOICES, FLAT, SECTIONS, STEP_SIZE_FIELDS, Output, field_types
+from dgtd.errors import DgtdInputError
 from dgtd.fields import declared, option_of
 
 
@@ -254,3 +256,22 @@ def given_flags(ctx: click.Context, exclude=()) -> dict:
         if name not in exclude
         and ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
     }
+
+
+def resume_folder(resume_dir, out, what: str, start: str) -> Path:
+    """The folder ``--resume DIR`` continues (``what``: "run" or "learning run"), checked: an --out elsewhere, or a
+    folder that is not one or holds no config.toml, is one line saying how to start one there (``start``, the
+    command with its --out and --checkpoint-every to come)."""
+    folder = Path(resume_dir)
+    if out is not None and Path(out).resolve() != folder.resolve():
+        raise DgtdInputError(
+            f"--resume continues the {what} in {folder} and writes there; leave out --out {out} (or resume that "
+            "directory instead)"
+        )
+    if not (folder / "config.toml").is_file():
+        held = "is not a directory" if not folder.is_dir() else f"holds no {what} (no config.toml)"
+        raise DgtdInputError(
+            f"--resume {folder}: {held}; start a {what} there with `{start} --out {folder} --checkpoint-every K`, "
+            "then resume it"
+        )
+    return folder

@@ -15,6 +15,30 @@ from dgtd.run.loop import RunResult  # noqa: E402
 from dgtd.run.results import atomic_write  # noqa: E402
 
 
+def read_metrics(path: Path, fix: str, column: str | None = None) -> tuple:
+    """(the checkpoints' steps (C,), {label: {metric: (C, seeds)}}, the rows) of a metrics.csv, every number checked
+    (a missing, bad or negative one is one line ending in ``fix``); the rows grouped by their ``column`` (a learners'
+    comparison's "learners"), or all under None."""
+    from dgtd.errors import DgtdInputError
+    from dgtd.files import numbers, read_csv
+
+    rows = read_csv(path, "results file", fix, required=("seed", "step", "metric", "value"))
+    if not rows:
+        raise DgtdInputError(f"results file {path} holds no rows; {fix}")
+    step_of, seed_of, values = (
+        numbers(rows, name, kind, path, "results file", fix)
+        for name, kind in (("step", int), ("seed", int), ("value", float))
+    )
+    if step_of.min() < 0 or seed_of.min() < 0:
+        raise DgtdInputError(f"results file {path} has negative steps or seeds; {fix}")
+    steps, seeds = np.unique(step_of), 1 + int(seed_of.max())
+    grouped: dict = {}
+    for row, k, b, x in zip(rows, step_of, seed_of, values):
+        metrics = grouped.setdefault(None if column is None else row[column], {})
+        metrics.setdefault(row["metric"], np.full((len(steps), seeds), np.nan))[np.searchsorted(steps, k), b] = x
+    return steps, grouped, rows
+
+
 def _save(fig, path: Path) -> None:
     import io
 

@@ -86,27 +86,17 @@ def is_learning(directory: Path) -> bool:
 def learning_figures_again(directory: Path) -> list[Path]:
     """The figures of a learning run's folder (returns.png) or a learners' comparison's (learners.png), drawn again
     from its metrics.csv and summary.json alone."""
-    from dgtd.errors import DgtdInputError
-    from dgtd.files import numbers, read_csv, read_json
+    from dgtd.files import read_json
+    from dgtd.plots import read_metrics
 
     directory = Path(directory)
     path, fix = directory / "metrics.csv", "run it again"
-    rows = read_csv(path, "results file", fix, required=("seed", "step", "metric", "value"))
-    if not rows:
-        raise DgtdInputError(f"results file {path} holds no rows; {fix}")
-    column = next(c for c in LABELS if c in rows[0])
-    steps_of, seeds_of, values = (
-        numbers(rows, name, kind, path, "results file", fix)
-        for name, kind in (("step", int), ("seed", int), ("value", float))
-    )
+    with open(path) as f:
+        column = f.readline().split(",")[0]  # (`is_learning`: one of `LABELS`)
+    steps, results, _ = read_metrics(path, fix, column)
     summary = (
         read_json(directory / "summary.json", "results file", fix) if (directory / "summary.json").exists() else {}
     )
-    steps, seeds = np.unique(steps_of), 1 + int(seeds_of.max())
-    results: dict = {}
-    for row, k, b, x in zip(rows, steps_of, seeds_of, values):
-        metrics = results.setdefault(row[column], {})
-        metrics.setdefault(row["metric"], np.full((len(steps), seeds), np.nan))[np.searchsorted(steps, k), b] = x
     info = {"estimated": bool(summary.get("return_estimated", False)), "objective": summary.get("objective")}
     shown = {label: _Saved(steps, metrics, summary.get("return_best"), info) for label, metrics in results.items()}
     name = summary.get("task", directory.name)

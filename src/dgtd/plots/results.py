@@ -15,7 +15,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.files import numbers, read_csv, read_json, read_npz
-from dgtd.plots import BAND_WORDS, _save, band, median_band, plot_errors, plot_iterates, plt
+from dgtd.plots import BAND_WORDS, _save, band, median_band, plot_errors, plot_iterates, plt, read_metrics
 from dgtd.run.results import with_agents
 
 # What each metric of a run is, in words, for titles and axes.
@@ -35,22 +35,8 @@ def load_run(directory: Path) -> SimpleNamespace:
     """What the figures of a run need, read back from metrics.csv, trajectory.npz and summary.json."""
     fix = f"run it again (dgtd run {directory / 'config.toml'})"
     path = directory / "metrics.csv"
-    rows = read_csv(path, "results file", fix, required=("seed", "step", "metric", "value"))
-    if not rows:
-        raise DgtdInputError(f"results file {path} holds no rows; {fix}")
-    step_of, seed_of = (
-        numbers(rows, "step", int, path, "results file", fix),
-        numbers(rows, "seed", int, path, "results file", fix),
-    )
-    values = numbers(rows, "value", float, path, "results file", fix)
-    if step_of.min() < 0 or seed_of.min() < 0:
-        raise DgtdInputError(f"results file {path} has negative steps or seeds; {fix}")
-    steps = np.unique(step_of)
-    seeds = 1 + int(seed_of.max())
-    metrics: dict = {}
-    for r, k, b, x in zip(rows, step_of, seed_of, values):
-        m = metrics.setdefault(r["metric"], np.full((len(steps), seeds), np.nan))
-        m[np.searchsorted(steps, k), b] = x
+    steps, grouped, rows = read_metrics(path, fix)
+    metrics = grouped[None]
     missing = [k for k in ("error_last", "error_avg", "consensus", "mspbe_last", "mspbe_avg") if k not in metrics]
     if missing:
         raise DgtdInputError(f"results file {path} lacks the metric(s) {', '.join(missing)} (cut off?); {fix}")

@@ -119,10 +119,7 @@ def run_job(spec: dict, threads: int | None = 1) -> dict:
     from dgtd.run.results import summary
 
     problem, network, algorithm, sampling, settings, resolved, channel = resolve(unflat(spec))
-    if threads and settings.backend == "numba":
-        import numba
-
-        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+    cap_threads(threads, settings.backend)
     source = make_source(resolved, settings)
     result = run_loop(problem, network, algorithm, sampling, settings, source=source, channel=channel)
     return {
@@ -145,6 +142,14 @@ class Sweep:
     config_toml: str
     work: Callable
     job_toml: Callable
+
+
+def cap_threads(threads: int | None, backend: str) -> None:
+    """A worker's compiled kernels at most ``threads`` threads, so that a worker per core does not oversubscribe."""
+    if threads and backend == "numba":
+        import numba
+
+        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
 
 
 def make_executor(opts: SweepOptions, n_jobs: int) -> Executor:

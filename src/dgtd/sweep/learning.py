@@ -21,13 +21,13 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from dgtd.config import check_type, field_types
 from dgtd.errors import DgtdInputError
-from dgtd.experiments import SWEEP_TYPES, Experiment, SweepOptions, check_choices, flat_type
+from dgtd.experiments import Experiment, SweepOptions, check_choices, flat_type, sweep_fields
 from dgtd.learning import SHARED, LearnConfig, resolve_learning
 
 OWN = field_types(LearnConfig)
@@ -65,22 +65,19 @@ def parse(data: dict, where: str, flags: dict) -> tuple[dict, dict, SweepOptions
         raise DgtdInputError(
             "a sweep needs a [grid] table of lists, e.g. [grid] actor_step = [0.1, 0.5]; use `dgtd learn` for one run"
         )
-    sweep = {}
-    for k, v in check_type(f"[sweep] in {where}", data.get("sweep", {}), dict).items():
-        if k not in SWEEP_TYPES:
-            raise DgtdInputError(f"unknown field {k!r} in [sweep] of {where}")
-        sweep[k] = check_type(f"sweep.{k} in {where}", v, SWEEP_TYPES[k])
-    options = SweepOptions(**sweep)
+    options = SweepOptions(**sweep_fields(data.get("sweep", {}), where))
     check_choices(Experiment(sweep=options))
     return base, grid, options
 
 
+@dataclass(frozen=True)
 class LearnJob:
     """One grid point: ``point`` its grid values, ``values`` every option of its `dgtd learn` run (flat names, task
     among them), ``id`` a digest of what it resolves to."""
 
-    def __init__(self, job_id: str, point: dict, values: dict):
-        self.id, self.point, self.values = job_id, point, values
+    id: str
+    point: dict
+    values: dict
 
 
 def expand(base: dict, grid: dict) -> list[LearnJob]:
@@ -110,12 +107,10 @@ def _options(values: dict) -> dict:
 def run_learning_job(values: dict, threads: int | None = 1) -> dict:
     """Run one learning job (in a worker): its checkpoint steps, metrics (checkpoints, seeds) and summary."""
     from dgtd.run.learn import learn, summary
+    from dgtd.sweep import cap_threads
 
     job = resolve_learning(values.get("task"), _options(values))
-    if threads and job.settings.backend == "numba":
-        import numba
-
-        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+    cap_threads(threads, job.settings.backend)
     problem = job.env if job.env is not None else job.mdp
     result = learn(problem, job.network, job.critic, job.actor, job.settings, job.channel)
     return {
