@@ -17,8 +17,22 @@ CASES = [  # (label, task, options): the learning runs of docs/control.md
     ("pull-away, networked, DGTD", "pull-away", {"iterations": 4000, "seeds": 2, "checkpoints": 1}),
     ("zhang-20, networked, DGTD", "zhang-20", {"iterations": 2000, "seeds": 2, "checkpoints": 1}),
     ("zhang-20, action values", "zhang-20", {"iterations": 1000, "seeds": 2, "checkpoints": 1, "values": "action"}),
-    ("factored 1000, networked", "factored", {"iterations": 20, "seeds": 1, "checkpoints": 1, "agents": 1000}),
-    ("factored 1000, independent", "factored", {"iterations": 400, "seeds": 1, "checkpoints": 1, "agents": 1000}),
+    ("factored 1000, regression", "factored", {"iterations": 20, "seeds": 1, "checkpoints": 1, "agents": 1000}),
+    (
+        "factored 1000, independent",
+        "factored",
+        {"iterations": 400, "seeds": 1, "checkpoints": 1, "agents": 1000, "actor": "independent"},
+    ),
+    (
+        "factored 1000, neighbourhood",
+        "factored",
+        {"iterations": 400, "seeds": 1, "checkpoints": 1, "agents": 1000, "team_reward": "neighbourhood"},
+    ),
+    (
+        "factored 10000, neighbourhood",
+        "factored",
+        {"iterations": 100, "seeds": 1, "checkpoints": 1, "agents": 10_000, "team_reward": "neighbourhood"},
+    ),
 ]
 
 

@@ -117,8 +117,8 @@ class NetworkConfig:
     mean_degree: float | None = field(
         default=None,
         metadata=option(
-            "small-world: the ring lattice's links an agent, k (even; default 4); sparse-random and geometric: the "
-            "mean degree (default 2 ln N, rounded up)."
+            "small-world: the ring lattice's links an agent, k (even; default 4, 2 on 3 or 4 agents); "
+            "sparse-random and geometric: the mean degree (default 2 ln N, rounded up)."
         ),
     )
     rewire: float | None = field(
@@ -501,8 +501,9 @@ def chunked_shape(graph: str, n_agents: int, shape: dict) -> dict:
     import math
 
     degree = shape.get("mean_degree")
-    if degree is None:
-        degree = 4 if graph == "small-world" else float(min(n_agents - 1, math.ceil(2 * math.log(n_agents))))
+    if degree is None:  # (small-world: k = 4, or the largest even k a few agents allow)
+        most = max(n_agents - 1, 0)
+        degree = min(4, most - most % 2) if graph == "small-world" else min(most, math.ceil(2 * math.log(n_agents)))
     rewire = shape.get("rewire")
     if graph != "small-world" and rewire is not None:
         raise DgtdInputError(f"--rewire moves a small-world graph's links; a {graph} graph has none to move")

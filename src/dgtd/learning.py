@@ -72,6 +72,15 @@ class LearnConfig:
             "(critics discounted by the task's gamma, or --gamma in a simulator)."
         ),
     )
+    team_reward: str | None = field(
+        default=None,
+        metadata=option(
+            "How networked agents estimate the team's reward in their advantage: regression, Zhang et al.'s (each "
+            "agent N S A numbers mixed over the links: O(N^2) a step in all; the default), or neighbourhood, each "
+            "agent's estimate of its neighbours' and its own rewards given its own action (one number over each link "
+            "a step; exact where an agent's action moves only its neighbours' rewards)."
+        ),
+    )
     start_from: str | None = field(
         default=None,
         metadata=option(
@@ -145,6 +154,9 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         **{k: values.get(k) for k in ("alpha0", "beta", "schedule", "kappa", "rho")},
     )
     critic = build_algorithm(spec, make_algorithm("dgtd", **defaults))
+    from dgtd.run.learn import distributed_critic, neighbourhood_links
+
+    distributed_critic(critic)  # (refused before the header, in one line)
     actor = SoftmaxActor(
         _given(own, "actor_step", actor_defaults["step"]),
         _given(own, "actor_offset", actor_defaults["offset"]),
@@ -161,8 +173,16 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         batch=_given(own, "batch", 1),
         values=_given(own, "values", "state"),
         objective=_given(own, "objective", "average"),
+        team_reward=_given(own, "team_reward", "regression"),
         backend=_given(values, "backend", "numba" if env is None else "numpy"),
     )
+    if own["team_reward"] is not None and (settings.actor != "networked" or settings.values != "state"):
+        raise DgtdInputError(
+            f"--team-reward is how networked agents with state-value critics estimate the team's reward; "
+            f"{settings.actor} actors" + (" with --values action" if settings.values != "state" else "") + " keep none"
+        )
+    if settings.team_reward == "neighbourhood":
+        neighbourhood_links(channel)
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
     if file is not None:
         from dgtd.problems.io import file_digest
@@ -239,11 +259,17 @@ def _check_memory(task: str, sizes: dict, own: dict, seeds: int) -> None:
         return  # (a task with a joint table refuses so many agents itself)
     S, A, q = small.n_states, max(small.actions), small.n_features
     networked, action_values = _given(own, "actor", "networked") == "networked", own["values"] == "action"
-    per_agent = S * A + 8 * q + (n * S * A if networked and not action_values else 0) + 8 * n * S * A * action_values
+    estimate = 0 if not networked or action_values else n * S * A  # Zhang et al.'s regression: N S A an agent
+    if own["team_reward"] == "neighbourhood":
+        estimate = 8 * S * A  # a slot of S A numbers for itself and each neighbour, a sparse graph's few
+    per_agent = S * A + 8 * q + estimate + 8 * n * S * A * action_values
     task_bytes = memory.probed_bytes(make, n, small) if n >= memory.PROBE_FROM else 0
     lower = "lower --agents"
-    if networked:
-        lower += "; --actor centralised or independent keep no estimate of the team's reward"
+    if networked and own["team_reward"] != "neighbourhood":
+        lower += (
+            "; --team-reward neighbourhood keeps an estimate of the degree's size, not the team's; --actor "
+            "centralised or independent keep none"
+        )
     memory.check_task_memory(
         f"{task} with {n:,} agents and {seeds} seed(s) of {_given(own, 'actor', 'networked')} learners",
         (task_bytes or 0) + memory.BYTES * seeds * n * per_agent,

@@ -456,7 +456,14 @@ LEARN = ["learn", "pull-away", "--seeds", 2, "--loss", 0.2, "--no-plots", "--no-
 
 
 @pytest.mark.parametrize(
-    "extra", [[], ["--values", "action"], ["--actor", "centralised", "--batch", 4], ["--backend", "numpy"]]
+    "extra",
+    [
+        [],
+        ["--values", "action"],
+        ["--actor", "centralised", "--batch", 4],
+        ["--backend", "numpy"],
+        ["--team-reward", "neighbourhood", "--batch", 2],
+    ],
 )
 def test_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, extra):
     """`dgtd learn --ranks R`: each rank holds its agents' actors, critics and reward estimates (4 agents on 3 ranks:

@@ -11,6 +11,20 @@ One step, as `dgtd.run.learn.round_end` moves it:
 W the Metropolis mixing over the links up, nu_k = `regression_rate` (a normalised least-mean-squares step: 1/|f|^2
 times `mean_step`). The same running-mean step moves the average objective's mu_i and mu~_i (`mean_update`). Scalars
 or arrays: the NumPy, simulator and compiled learners run these definitions.
+
+That estimate is N A m numbers an agent and O(N^2 A m) a step in all. The neighbourhood's (``--team-reward
+neighbourhood``) is O(degree) an agent: agent i keeps, for itself and each neighbour k of the graph (its slots), a
+regression lambda_ik of r_k on g(s) e_{a_i}^T, i.e. of E[r_k | s, a_i] under the others' current policies, moved
+only when k's reward of that step was heard (one number over each link a step: unbiased under any loss that does not
+depend on the state or the actions), and takes
+
+    rhat_i = (1/N) sum_{k in N_i and i} lambda_ik^T g(s) e_{a_i}
+
+as the team's reward in its advantage. By the policy-gradient theorem agent i's gradient is E[(rbar - J + V(s') -
+V(s)) psi_i(s, a_i)], and any term of rbar whose mean given (s, a_i) does not depend on a_i drops out of it (psi_i has
+mean 0 over a_i): so rhat_i gives the team's gradient exactly where an agent's action moves only its neighbours'
+rewards (E[r_k | s, a_i] the same for every a_i beyond them, as in networked systems), and otherwise the gradient of
+the neighbourhood's share of the team's reward.
 """
 
 from __future__ import annotations
@@ -66,3 +80,42 @@ def add_regression(into: np.ndarray, a: np.ndarray, g: np.ndarray, n_actions: in
 def positions(a: np.ndarray, s: np.ndarray, n_actions: int, m: int) -> np.ndarray:
     """(B, N): where f(s, a)'s ones lie for a one-hot g(s) = e_s of length m: (j A + a_j) m + s."""
     return (np.arange(a.shape[1]) * n_actions + a) * m + s[:, None]
+
+
+def neighbourhood_slots(dst: np.ndarray, src: np.ndarray, local: np.ndarray) -> tuple:
+    """(members (n, K), arcs (n, K), valid (n, K)) of the agents ``local`` of a graph's arcs src -> dst: slot 0 the
+    agent itself (arc -1), slots 1.. its neighbours in the arcs' order, padded (valid False) to K = 1 + the largest
+    number of neighbours."""
+    order = np.argsort(dst, kind="stable")
+    counts = np.bincount(dst, minlength=int(local.max(initial=-1)) + 1)
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    K = 1 + int(counts[local].max(initial=0))
+    members, arcs = np.tile(local[:, None], (1, K)), np.full((len(local), K), -1)
+    valid = np.arange(K)[None, :] <= counts[local][:, None]
+    for slot in range(1, K):
+        has = valid[:, slot]
+        arcs[has, slot] = order[starts[local[has]] + slot - 1]
+        members[has, slot] = src[arcs[has, slot]]
+    return members, arcs, valid
+
+
+def slot_predictions(lam: np.ndarray, a: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """lambda_ik^T g(s) e_{a_i} (B, n, K) of every slot of every agent held here: ``lam`` (B, n, K, A, m), ``a``
+    (B, n) each one's own action, ``g`` (B,) the index of a one-hot g(s) or (B, m) the features."""
+    B, n = a.shape
+    rows = lam[np.arange(B)[:, None], np.arange(n)[None, :], :, a]  # (B, n, K, m)
+    if g.ndim == 1:
+        return np.take_along_axis(rows, g[:, None, None, None], axis=-1)[..., 0]
+    return (rows * g[:, None, None, :]).sum(-1)
+
+
+def add_slots(into: np.ndarray, a: np.ndarray, g: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """``into`` (B, n, K, A, m) plus step_bik g(s) e_{a_i} for every slot (``step`` (B, n, K): `regression_step`
+    where the slot's reward was heard, 0 elsewhere)."""
+    B, n = a.shape
+    b, i = np.arange(B)[:, None], np.arange(n)[None, :]
+    if g.ndim == 1:
+        into[b, i, :, a, g[:, None]] += step
+    else:
+        into[b, i, :, a] += step[..., None] * g[:, None, None, :]
+    return into

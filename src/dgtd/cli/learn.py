@@ -87,6 +87,10 @@ def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, log, ran
         from dgtd.run.logs import log_kinds
 
         log_kinds(log)  # (an unknown or missing logger: one line before anything runs)
+    if checkpoint_every is not None:  # (a negative one ran and saved nothing)
+        from dgtd.run.settings import check_count
+
+        checkpoint_every = check_count("checkpoint_every", checkpoint_every, 0)
     simulator = task if task in ENV_TASKS else values.get("env_make")
     if simulator is not None and (ranks is not None or checkpoint_every):
         raise DgtdInputError(
@@ -129,7 +133,7 @@ def _header(job, backend) -> None:
         click.echo(f"{task.name}: {task.n_agents} agents; critics: {_critics_of(s.objective, task.gamma)}; network: "
                    f"{job.network.describe()}; {job.channel.describe()}")  # fmt: skip
         click.echo(
-            f"{s.actor} actors (softmax linear in their own observations) with the {job.critic.name} critic "
+            f"{_actors(s)} (softmax linear in their own observations) with the {job.critic.name} critic "
             f"({job.critic.describe()}); {job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} "
             "seed(s)"
         )
@@ -144,7 +148,7 @@ def _header(job, backend) -> None:
         f"{_objective(s.objective, mdp.gamma)}; network: {job.network.describe()}; {job.channel.describe()}"
     )
     click.echo(
-        f"{s.actor} actors with the {job.critic.name} critic ({job.critic.describe()}); "
+        f"{_actors(s)} with the {job.critic.name} critic ({job.critic.describe()}); "
         f"{job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} seed(s) on the {s.backend} backend"
     )
     if s.backend == "numba":
@@ -154,12 +158,12 @@ def _header(job, backend) -> None:
         if why is not None:
             click.echo(f"note: {why}", err=True)
     size = mdp.n_agents * mdp.n_states * max(mdp.actions)
-    if s.actor == "networked" and mdp.n_agents * size > ESTIMATE_NOTE:
+    if s.actor == "networked" and s.team_reward == "regression" and mdp.n_agents * size > ESTIMATE_NOTE:
         click.echo(
             f"note: networked agents each keep an estimate of the team's reward of N S A = {size:,} numbers, "
             f"{mdp.n_agents * size:,} in all, mixed at every step (Zhang et al.'s Algorithm 2 with additive features): "
-            "slow at this size (1 000 agents of 10 states: about 0.2 s a step on 2 cores, compiled); --actor "
-            "centralised or independent send none",
+            "slow at this size (1 000 agents of 10 states: about 0.2 s a step on 2 cores, compiled); --team-reward "
+            "neighbourhood keeps one of the degree's size",
             err=True,
         )
 
@@ -410,6 +414,14 @@ def _timescales(job) -> None:
     said = timescales(job.actor, job.critic, job.settings.iterations)
     if said:
         click.echo(f"note: {said}", err=True)
+
+
+def _actors(s) -> str:
+    """The learners, and how networked ones know the team's reward."""
+    if s.actor != "networked" or s.values != "state":
+        return f"{s.actor} actors"
+    how = "Zhang et al.'s regression" if s.team_reward == "regression" else "their neighbourhood's estimate"
+    return f"networked actors (the team's reward by {how})"
 
 
 def _critics_of(objective: str, gamma: float) -> str:

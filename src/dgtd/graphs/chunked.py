@@ -57,7 +57,11 @@ class ChunkedGraph:
         if N < 2:
             raise DgtdInputError(f"a {self.kind} graph needs at least 2 agents, got {N}")
         if not (np.isfinite(d) and 0 < d <= N - 1):
-            raise DgtdInputError(f"the mean degree of a {self.kind} graph lies in (0, N - 1] = (0, {N - 1}]; got {d}")
+            name = {kind: given for given, kind in NAMES.items()}.get(self.kind, self.kind)
+            raise DgtdInputError(
+                f"--mean-degree: a {name} graph's mean degree lies in (0, N - 1] = (0, {N - 1}] on {N} agents; "
+                f"got {d:g}"
+            )
         if self.kind == "small-world" and (d != int(d) or int(d) % 2):
             raise DgtdInputError(f"a small-world graph links each agent to k / 2 on each side: k even, got {d}")
         if not 0.0 <= self.rewire <= 1.0:

@@ -47,13 +47,17 @@ from dgtd.algorithms.actor import SoftmaxActor, policy, td_error, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.algorithms.team_reward import (
     add_regression,
+    add_slots,
     estimate,
     mean_step,
     mean_update,
+    neighbourhood_slots,
     regression_rate,
     regression_step,
+    slot_predictions,
 )
 from dgtd.channels import Arcs, Perfect
+from dgtd.channels.base import BITS_PER_NUMBER
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import as_network
 from dgtd.problems import team
@@ -61,6 +65,7 @@ from dgtd.run.checkpoint import assemble
 from dgtd.run.layout import AllAgents, learner_layout
 from dgtd.run.results import metrics_rows as run_rows
 from dgtd.run.results import rows_csv
+from dgtd.run.settings import check_count
 from dgtd.run.state import AGENTS, held, restore, snapshot
 from dgtd.samples import Sample
 from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
@@ -68,6 +73,7 @@ from dgtd.streams import ACTION, EDGE_UP, seed_keys, singles
 
 ACTORS = ("networked", "independent", "centralised")
 VALUES = ("state", "action")
+TEAM_REWARDS = ("regression", "neighbourhood")  # networked agents' estimate of the team's reward (`team_reward`)
 OBJECTIVES = ("average", "discounted")  # what the actors ascend and J, J* measure (`dgtd.problems.team`)
 LEARN_BACKENDS = ("numpy", "numba")  # the NumPy arithmetic below, or the agents' part compiled (equal to 1e-12)
 DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have
@@ -84,7 +90,10 @@ class LearnSettings:
     reward (Zhang et al.'s Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their
     Algorithm 1); ``objective`` what the actors ascend and J, J* measure: "average", the long-run average team reward
     (differential critics, `objective_terms`), or "discounted", the normalised discounted return from the start
-    (critics discounted by the task's gamma)."""
+    (critics discounted by the task's gamma); ``team_reward`` networked agents' estimate of the team's reward in their
+    advantage: "regression", Zhang et al.'s (N A m numbers an agent, mixed over the links: O(N^2) a step in all), or
+    "neighbourhood", each agent's regression of its neighbours' rewards on its own action (one number over each link
+    a step, O(degree) an agent: `dgtd.algorithms.team_reward`)."""
 
     iterations: int = 20_000
     seeds: int = 2
@@ -95,6 +104,7 @@ class LearnSettings:
     values: str = "state"
     backend: str = "numba"
     objective: str = "average"
+    team_reward: str = "regression"
 
     def __post_init__(self):
         if self.backend not in LEARN_BACKENDS:
@@ -103,11 +113,16 @@ class LearnSettings:
             raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
         if self.objective not in OBJECTIVES:
             raise DgtdInputError(f"the objective is {' or '.join(OBJECTIVES)}, not {self.objective!r}")
+        if self.team_reward not in TEAM_REWARDS:
+            raise DgtdInputError(
+                f"the team's reward is estimated by {' or '.join(TEAM_REWARDS)}, not {self.team_reward!r}"
+            )
         if self.values not in VALUES:
             raise DgtdInputError(f"the critics evaluate {' or '.join(VALUES)} values, not {self.values!r}")
         for name in ("iterations", "seeds", "checkpoints", "batch"):
             if int(getattr(self, name)) < 1:
                 raise DgtdInputError(f"{name} must be >= 1, got {getattr(self, name)}")
+        object.__setattr__(self, "seed", check_count("seed", self.seed, 0))  # (-1 raised ValueError in the streams)
         if self.batch > self.iterations:  # (no round would end: nothing learned, and it said nothing)
             raise DgtdInputError(
                 f"--batch {self.batch} steps a round need at least that many steps; -T {self.iterations} ends before "
@@ -176,6 +191,7 @@ class LearnPlan:
     rows: Any  # where the agents are held: `dgtd.run.layout.learner_layout`
     env: Any
     kernels: Any = None  # the compiled agents' arithmetic (`dgtd.backends.compiled.learner.LearnerKernels`), or None
+    slots: Any = None  # the neighbourhood estimate's (members, arcs, valid) of the agents held here, or None
 
 
 def learn(
@@ -258,12 +274,17 @@ class Saves:
         return True
 
 
-def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
+def distributed_critic(critic) -> None:
+    """Refuse a centralised learner as the agents' critics."""
     if getattr(critic, "centralised", False):
         raise DgtdInputError(
             f"{critic.name} is one centralised learner; the agents' critics are a distributed method's: "
             f"{', '.join(DISTRIBUTED)}"
         )
+
+
+def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
+    distributed_critic(critic)
     two_timescales(actor, critic)
     keys = seed_keys(settings.seed, range(settings.seeds))
     env = _env(mdp, network, settings, keys)
@@ -277,7 +298,30 @@ def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
         mdp, network, critic, env.actor(actor), settings, channel, arcs, keys,
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]), rows, env, kernels,
+        _slots(settings, channel, arcs, rows.local),
     )  # fmt: skip
+
+
+def _slots(settings: LearnSettings, channel, arcs: Arcs, local: np.ndarray):
+    """The neighbourhood estimate's slots of the agents held here (`neighbourhood_slots`), where asked; its rewards
+    must arrive in the round they were earned (no late, compressed or asleep links)."""
+    if settings.team_reward != "neighbourhood" or settings.actor != "networked" or settings.values != "state":
+        return None
+    neighbourhood_links(channel)
+    return neighbourhood_slots(arcs.dst, arcs.src, local)
+
+
+def neighbourhood_links(channel) -> None:
+    """Refuse links the neighbourhood estimate cannot take: it pairs each reward heard with the step it was earned
+    at, so messages may be lost, not late, compressed or sent by agents asleep."""
+    late = getattr(channel, "delay", 0) or getattr(channel, "wake", None) is not None
+    bits = getattr(channel, "bits", BITS_PER_NUMBER)
+    compressed = getattr(channel, "top_k", None) is not None or bits < BITS_PER_NUMBER
+    if late or compressed:
+        raise DgtdInputError(
+            "--team-reward neighbourhood pairs each neighbour's reward with the step it was earned at: its links may "
+            "lose messages, not delay, compress or put agents to sleep (--delay, --bits, --top-k, --wake)"
+        )
 
 
 def _env(mdp, network, settings: LearnSettings, keys):
@@ -329,10 +373,13 @@ def _start(plan: LearnPlan) -> Learners:
     n, A = len(local), int(env.actions.max())
     q = env.regression_size(A) if settings.values == "action" else env.n_features
     estimated = ("episode_return",) if env.estimated else ()
+    lam = None
+    if plan.slots is not None:  # (B, n, K, A, m): a regression on g(s) e_{a_i} of each slot's reward
+        lam = np.zeros((B, n, plan.slots[0].shape[1], A, env.regression_size(1) // env.n_agents))
+    elif settings.actor == "networked" and settings.values == "state":
+        lam = np.zeros((B, n, env.regression_size(A)))
     return Learners(
-        0, env.start(), np.ascontiguousarray(theta[:, local]),
-        np.zeros((B, n, env.regression_size(A))) if settings.actor == "networked" and settings.values == "state"
-        else None,
+        0, env.start(), np.ascontiguousarray(theta[:, local]), lam,
         plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
         {name: np.full((len(plan.at), B), np.nan) for name in (*METRICS, *estimated)},
         {}, np.zeros((B, n, 2)) if settings.objective == "average" else None,
@@ -363,19 +410,45 @@ def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
         phi, phi_next, delta = _action_values(plan, run, step.state, a, step.state_next, W)
         _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), a_here, delta, k)
         return _end_of(plan, run, draws, k, step.seen)
-    rhat = own
-    if run.lam is not None:  # the team's reward as each agent knows it, and the regression's step on its own
-        A = int(env.actions.max())
-        rhat = estimate(run.lam, a, step.g, A)
-        norm2 = 1.0 if step.g.ndim == 1 else np.maximum((step.g**2).sum(axis=1), 1e-12)[:, None]  # |g(s)|^2
-        lam = run.pending.setdefault("lam", np.zeros_like(run.lam))
-        add_regression(lam, a, step.g, A, regression_step(regression_rate(k, env.n_agents, norm2), r, rhat))
+    rhat = own if run.lam is None else team_estimate(plan, run, step, a, k)
     reward, discount, baseline = objective_terms(plan, run, own, rhat, k)
     gamma = discount if step.going is None else step.going[:, None] * discount  # (a terminal step: no bootstrap)
     phi, phi_next = step.phi, step.phi_next
     delta = td_error(rhat, baseline, gamma, (W * phi_next).sum(-1), (W * phi).sum(-1))
     _add(plan, run, Sample(phi, phi_next, reward, np.ones((B, 1)), gamma), a_here, delta, k)
     _end_of(plan, run, draws, k, step.seen)
+
+
+def team_estimate(plan: LearnPlan, run: Learners, step, a: np.ndarray, k: int) -> np.ndarray:
+    """rhat (B, n), the team's reward as each networked agent held here knows it at step k (``a`` every agent's
+    action), its estimate's step on the sample added to the round's (`dgtd.algorithms.team_reward`): Zhang et al.'s
+    regression of the agent's own reward over f(s, a), or the neighbourhood's, whose slots move at the round's end
+    on the rewards heard (`heard_slots`)."""
+    env, local = plan.env, plan.rows.local
+    norm2 = 1.0 if step.g.ndim == 1 else np.maximum((step.g**2).sum(axis=1), 1e-12)[:, None]  # |g(s)|^2, (B, 1)
+    r = step.rewards[:, local]
+    if plan.slots is not None:
+        predictions = slot_predictions(run.lam, a[:, local], step.g)  # (B, n, K)
+        nu = np.broadcast_to(regression_rate(k, 1, norm2), (len(a), 1))[:, :, None]
+        run.pending.setdefault("slots", []).append((a[:, local], step.g, predictions, nu, r))
+        return predictions.sum(axis=-1) / env.n_agents
+    A = int(env.actions.max())
+    rhat = estimate(run.lam, a, step.g, A)
+    lam = run.pending.setdefault("lam", np.zeros_like(run.lam))
+    add_regression(lam, a, step.g, A, regression_step(regression_rate(k, env.n_agents, norm2), r, rhat))
+    return rhat
+
+
+def heard_slots(plan: LearnPlan, run: Learners, inbox) -> np.ndarray:
+    """The sum over a round's steps of the neighbourhood estimate's moves (B, n, K, A, m): each slot's regression
+    step on its member's reward of that step, where the round's message of it was heard (the agent's own always)."""
+    members, arcs, valid = plan.slots
+    heard = np.where(arcs >= 0, inbox.heard[:, np.maximum(arcs, 0)], 1.0) * valid  # (B, n, K)
+    rewards = inbox.sent["reward"][:, members]  # (B, n, K, M): each member's rewards of the round's steps
+    into = np.zeros_like(run.lam)
+    for t, (a, g, predictions, nu, _) in enumerate(run.pending.pop("slots")):
+        add_slots(into, a, g, heard * regression_step(nu, rewards[..., t], predictions))
+    return into
 
 
 def _compiled_sample(plan: LearnPlan, run: Learners, step, a, r, own, k: int) -> None:
@@ -387,19 +460,21 @@ def _compiled_sample(plan: LearnPlan, run: Learners, step, a, r, own, k: int) ->
     else:
         phi, phi_next = step.phi, step.phi_next
     rows = np.stack([phi[:, 0], phi_next[:, 0]], axis=1)
-    reward, gamma, baseline = objective_terms(plan, run, own, own, k)  # (rhat: the kernel's, below)
-    rhat = np.zeros_like(own)  # the kernel's estimates of the team's reward (networked)
-    if run.lam is None:  # (the kernel's rhat is then the critic's reward, baseline and all)
-        baseline = 0.0
+    regression = run.lam is not None and plan.slots is None  # (Zhang et al.'s: the kernel estimates)
+    given = team_estimate(plan, run, step, a, k) if plan.slots is not None else own
+    reward, gamma, baseline = objective_terms(plan, run, own, given, k)
+    rhat, r_actor = np.zeros_like(own), given  # rhat: the kernel's estimates of the team's reward (regression)
+    if run.lam is None:  # (the advantage's reward then the critic's, baseline and all)
+        r_actor, baseline = reward, 0.0
     scal = (
         float(plan.betas[k]), float(regression_rate(k, mdp.n_agents)), float(gamma), S, A,
         plan.settings.values == "state", float(plan.actor.entropy),
     )  # fmt: skip
     plan.kernels.sample(
-        run.critic, run.pending, run.theta, run.lam, rows.reshape(2 * B, -1), step.state, a, r, reward, scal,
-        np.broadcast_to(baseline, own.shape), rhat,
+        run.critic, run.pending, run.theta, run.lam if regression else None, rows.reshape(2 * B, -1), step.state, a,
+        r, reward, r_actor, scal, np.broadcast_to(baseline, own.shape), rhat,
     )  # fmt: skip
-    if run.means is not None and run.lam is not None:  # mu~_i's step on the estimates the kernel made, not own
+    if run.means is not None and regression:  # mu~_i's step on the estimates the kernel made, not own
         run.pending["means"][..., 1] += mean_update(mean_step(k), rhat, own)
     run.pending["n"] = run.pending.get("n", 0) + 1
 
@@ -462,13 +537,19 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
     reward estimates and the actors moved by their round's mean (one sample's own, a round of one step)."""
     critic, pending, rows = plan.critic, run.pending, plan.rows
     n = pending.pop("n")
-    sent = dict(critic.sends(run.critic)) | ({} if run.lam is None else {"team": run.lam})
+    sent = dict(critic.sends(run.critic))
+    if plan.slots is not None:  # each agent's rewards of the round's steps: one number a step
+        sent["reward"] = np.stack([x[-1] for x in pending["slots"]], axis=-1)
+    elif run.lam is not None:
+        sent["team"] = run.lam
     inbox, run.links = plan.channel.deliver(run.links, plan.arcs, {m: rows.gather(x) for m, x in sent.items()}, up)
     if run.means is not None:
         run.means = run.means + pending.pop("means") / n
+    if plan.slots is not None:
+        run.lam = run.lam + heard_slots(plan, run, inbox) / n
     if plan.kernels is not None:
         run.critic = plan.kernels.move(run.critic, inbox, pending.pop("D") / n, plan.alphas[k])
-        if run.lam is not None:
+        if run.lam is not None and plan.slots is None:
             run.lam = run.lam - plan.kernels.mixed(inbox, inbox.sent["team"], True) + pending.pop("lam") / n
         run.theta = run.theta + pending.pop("theta") / n
         return
@@ -477,7 +558,7 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
     if here.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
         new = new._make(np.where(here.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
     run.critic = new
-    if run.lam is not None:
+    if run.lam is not None and plan.slots is None:
         run.lam = run.lam - metropolis(inbox, plan.arcs, "team")[:, rows.local] + pending.pop("lam") / n
     run.theta = run.theta + pending.pop("theta") / n
 

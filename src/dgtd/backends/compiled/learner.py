@@ -47,13 +47,32 @@ __all__ = ["LearnerKernels", "aggregates", "learner_fallback"]
 
 
 def _sample_block(
-    p, own, sent, w, D, theta, pending_theta, lam, pending_lam, feat, s, a, local, r, r_critic, scal, baseline, rhat_out
+    p,
+    own,
+    sent,
+    w,
+    D,
+    theta,
+    pending_theta,
+    lam,
+    pending_lam,
+    feat,
+    s,
+    a,
+    local,
+    r,
+    r_critic,
+    r_actor,
+    scal,
+    baseline,
+    rhat_out,
 ):
     """Step k's sample for every seed b and agent i held here (rows ``local`` of every agent's ``a``): ``scal`` =
     (beta_k, nu_k, gamma, S, A, state values?, the entropy bonus) (`dgtd.run.learn`'s docstring: rhat, the
     regression, delta or the action-value advantage, the critic's directions into D[:, b n + i], the actor's into
     pending_theta); the advantage's ``baseline`` (B, n) subtracted from rhat (the average objective's mu~_i),
-    rhat written to ``rhat_out``."""
+    rhat written to ``rhat_out``: ``r_actor`` (B, n) where ``lam`` is empty (the team's reward as the agent knows it
+    without Zhang et al.'s regression: its own, the team's, or its neighbourhood's estimate)."""
     beta, nu, gamma, S, A, state_values, tau = scal
     B, n, q, N = theta.shape[0], theta.shape[1], w.shape[2], a.shape[1]
     networked = lam.shape[2] > 0
@@ -62,7 +81,7 @@ def _sample_block(
         for i in range(n):
             agent = local[i]
             if state_values:
-                rhat = r_critic[b, i]
+                rhat = r_actor[b, i]
                 if networked:  # lambda_i^T f(s, a), f's ones at (j, a_j, s) (`team_reward.positions`)
                     rhat = 0.0
                     for j in range(N):
@@ -227,7 +246,7 @@ class LearnerKernels:
         values = dict(zip(self.own_names, own)) | dict(zip(self.critic.messages, sent))
         return template._make(values[f] for f in template._fields)
 
-    def sample(self, state, pending: dict, theta, lam, rows, s, a, r, r_critic, scal, baseline, rhat) -> None:
+    def sample(self, state, pending: dict, theta, lam, rows, s, a, r, r_critic, r_actor, scal, baseline, rhat) -> None:
         """A step's sample added to the round's sums in ``pending`` (`_sample_block`); the estimates of the team's
         reward written to ``rhat`` (B, n)."""
         own, sent = self.stacks(state)
@@ -244,7 +263,8 @@ class LearnerKernels:
             none if lam is None else lam, pending.get("lam", none),
             Features(np.ascontiguousarray(rows), False, empty.astype(np.int64), empty.astype(np.int64), empty),
             np.ascontiguousarray(s, np.int64), np.ascontiguousarray(a, np.int64), self.local,
-            np.ascontiguousarray(r, np.float64), np.ascontiguousarray(r_critic, np.float64), scal,
+            np.ascontiguousarray(r, np.float64), np.ascontiguousarray(r_critic, np.float64),
+            np.ascontiguousarray(r_actor, np.float64), scal,
             np.ascontiguousarray(baseline, np.float64), rhat,
         )  # fmt: skip
 
