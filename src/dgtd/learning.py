@@ -5,7 +5,7 @@ made from its field as `dgtd run`'s are, checked here in one place.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from types import SimpleNamespace
 
 from dgtd.errors import DgtdInputError
@@ -81,6 +81,30 @@ class LearnConfig:
             "a step; exact where an agent's action moves only its neighbours' rewards)."
         ),
     )
+    scheme: str | None = field(
+        default=None,
+        metadata=option(
+            "zhang: Zhang et al.'s actor-critic, a step at a time or in --batch rounds (the default); chen: Chen, "
+            "Zhou, Chen and Zou's Algorithm 1 (ICML 2022): each iteration a critic of --critic-batches mini-batches of "
+            "--critic-batch samples and --critic-rounds consensus rounds, then --batch actor samples from the "
+            "discounted visitation chain, their rewards mixed by --reward-rounds rounds; -T counts samples; a fixed "
+            "graph, the discounted objective (docs/control.md)."
+        ),
+    )
+    critic_batches: int | None = field(
+        default=None, metadata=option("--scheme chen: the critic's mini-batches an iteration, T_c (default 50).")
+    )
+    critic_batch: int | None = field(
+        default=None, metadata=option("--scheme chen: samples of a critic's mini-batch, N_c (default 10).")
+    )
+    critic_rounds: int | None = field(
+        default=None,
+        metadata=option("--scheme chen: consensus rounds after the critic's mini-batches, T_c' (default 10)."),
+    )
+    reward_rounds: int | None = field(
+        default=None,
+        metadata=option("--scheme chen: consensus rounds on each sampled reward, T_r (default 5)."),
+    )
     start_from: str | None = field(
         default=None,
         metadata=option(
@@ -96,8 +120,9 @@ class LearnConfig:
     batch: int | None = field(
         default=None,
         metadata=option(
-            "Steps of a round (Chen et al.'s mini-batches): the agents communicate and move once a round, by the "
-            "mean of its samples (default 1).",
+            "Steps of a round (Zhang et al.'s Algorithm 2 in mini-batches, the baseline of Chen et al.'s paper): the "
+            "agents communicate and move once a round, by the mean of its samples (default 1); with --scheme chen, "
+            "the actor's samples an iteration, N (default 2000).",
             metavar="M",
         ),
     )
@@ -154,7 +179,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         **{k: values.get(k) for k in ("alpha0", "beta", "schedule", "kappa", "rho")},
     )
     critic = build_algorithm(spec, make_algorithm("dgtd", **defaults))
-    from dgtd.run.learn import distributed_critic, neighbourhood_links
+    from dgtd.run.learn import distributed_critic
 
     distributed_critic(critic)  # (refused before the header, in one line)
     actor = SoftmaxActor(
@@ -170,19 +195,13 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         seed=_given(values, "seed", 0),
         checkpoints=_given(values, "checkpoints", 40),
         actor=_given(own, "actor", "networked"),
-        batch=_given(own, "batch", 1),
+        batch=_given(own, "batch", 1) if own["scheme"] != "chen" else 1,  # (chen: its actor's batch, `ChenSteps`)
         values=_given(own, "values", "state"),
         objective=_given(own, "objective", "average"),
         team_reward=_given(own, "team_reward", "regression"),
         backend=_given(values, "backend", "numba" if env is None else "numpy"),
     )
-    if own["team_reward"] is not None and (settings.actor != "networked" or settings.values != "state"):
-        raise DgtdInputError(
-            f"--team-reward is how networked agents with state-value critics estimate the team's reward; "
-            f"{settings.actor} actors" + (" with --values action" if settings.values != "state" else "") + " keep none"
-        )
-    if settings.team_reward == "neighbourhood":
-        neighbourhood_links(channel)
+    settings, chen = _scheme(own, values, settings, channel, env)
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
     if file is not None:
         from dgtd.problems.io import file_digest
@@ -190,8 +209,53 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         record["problem_sha256"] = file_digest(file)
     return SimpleNamespace(
         mdp=mdp, env=env, network=network, channel=channel, critic=critic, actor=actor, settings=settings,
-        record=record,
+        record=record, chen=chen,
     )  # fmt: skip
+
+
+def _scheme(own: dict, values: dict, settings, channel, env) -> tuple:
+    """(the settings, Chen et al.'s `ChenSteps` where --scheme chen, else None), once the team-reward estimate and
+    the scheme asked are found able to run with the rest (one line where not)."""
+    from dgtd.run.learn import neighbourhood_links
+
+    if own["team_reward"] is not None and (settings.actor != "networked" or settings.values != "state"):
+        raise DgtdInputError(
+            f"--team-reward is how networked agents with state-value critics estimate the team's reward; "
+            f"{settings.actor} actors" + (" with --values action" if settings.values != "state" else "") + " keep none"
+        )
+    if settings.team_reward == "neighbourhood":
+        neighbourhood_links(channel)
+    if _given(own, "scheme", "zhang") != "chen":
+        return settings, None
+    return replace(settings, objective="discounted"), _chen_steps(own, values, env)
+
+
+CHEN_FIXED = (
+    "algorithm", "schedule", "beta", "values", "team_reward", "entropy", "actor_warmup", "actor_offset",
+    "actor_power", "loss", "burst", "reweight", "delay", "wake", "bits", "top_k", "error_feedback",
+)  # fmt: skip
+"""What Chen et al.'s Algorithm 1 fixes itself: its critic, its steps' form, perfect links (--alpha0 is its beta)."""
+
+
+def _chen_steps(own: dict, values: dict, env):
+    """`dgtd.run.chen.ChenSteps` from the options, each not given its default (the actor's step alpha N / 10, as
+    their three runs had it; the critic's beta --alpha0, 0.5), and what it cannot take refused in one line."""
+    from dgtd.run.chen import ChenSteps
+
+    given = [name for name in CHEN_FIXED if {**values, **own}.get(name) is not None]
+    if env is not None or given or _given(own, "actor", "networked") != "networked":
+        what = "a simulator" if env is not None else ", ".join(f"--{n.replace('_', '-')}" for n in given)
+        raise DgtdInputError(
+            f"--scheme chen is Chen et al.'s networked Algorithm 1 on a model, with its own critic, steps and "
+            f"perfect links: not {what or '--actor ' + str(own['actor'])}"
+        )
+    if own["objective"] == "average":
+        raise DgtdInputError("--scheme chen ascends the discounted return (their J): leave out --objective average")
+    batch = _given(own, "batch", 2000)
+    sizes = {k: own[k] for k in ("critic_batches", "critic_batch", "critic_rounds", "reward_rounds") if own[k]}
+    return ChenSteps(
+        batch, **sizes, actor_step=_given(own, "actor_step", batch / 10), critic_step=_given(values, "alpha0", 0.5)
+    )
 
 
 def _team_mdp(task: str | None, file, own: dict, seeds: int):

@@ -53,6 +53,8 @@ ORDER = 12  # the order of a recording's rows for a seed (step 0, entity = row)
 SIMULATOR = 13  # the seeds of a simulator's episodes and its policy's generator (entity = episode, step 0)
 ACTION = 14  # agent i's action drawn from its own policy at a step, while it learns (paired: `singles`)
 GRAPH = 15  # a keyed random graph's chunk (entity: the chunk, or an agent's links; step: the number's place)
+DISCOUNTED_RESTART = 16  # a discounted visitation chain's restart at a sample (entity 0: u to restart, u for s ~ start)
+PROBLEM = 17  # a generated problem's numbers of agent i (entity i; step: the number's place)
 
 PURPOSES = {
     "seed": SEED,
@@ -71,6 +73,8 @@ PURPOSES = {
     "simulator": SIMULATOR,
     "action": ACTION,
     "graph": GRAPH,
+    "discounted-restart": DISCOUNTED_RESTART,
+    "problem": PROBLEM,
 }
 
 

@@ -97,7 +97,7 @@ def test_ctrl_c_during_a_learning_run_keeps_the_metrics_measured_so_far(run_cli,
     command = ("learn", "pull-away", "-T", 1000, "--checkpoints", 10, "--no-progress", "--no-plots")
     code, _, err = run_cli(*command, "--out", tmp_path / "whole")
     assert code == 0, err
-    measure, seen = learning._measure, []
+    measure, seen = learning.measure, []
 
     def interrupted_at_the_sixth(*args):
         if len(seen) == 6:
@@ -105,7 +105,7 @@ def test_ctrl_c_during_a_learning_run_keeps_the_metrics_measured_so_far(run_cli,
         seen.append(1)
         measure(*args)
 
-    monkeypatch.setattr(learning, "_measure", interrupted_at_the_sixth)
+    monkeypatch.setattr(learning, "measure", interrupted_at_the_sixth)
     code, _, err = run_cli(*command, "--out", tmp_path / "cut")
     assert code == 130, err
     whole, cut = ((tmp_path / d / "metrics.csv").read_text().splitlines() for d in ("whole", "cut"))

@@ -101,7 +101,7 @@ def test_networked_learners_of_their_neighbourhood_find_the_teams_best_action():
 @pytest.mark.parametrize(
     "args, words",
     [
-        (["--team-reward", "mean"], ["team's reward", "regression or neighbourhood", "mean"]),
+        (["--team-reward", "mean"], ["--team-reward", "mean", "'regression', 'neighbourhood'"]),
         (["--team-reward", "neighbourhood", "--actor", "independent"], ["--team-reward", "independent actors"]),
         (["--team-reward", "neighbourhood", "--values", "action"], ["--team-reward", "--values action"]),
         (["--team-reward", "neighbourhood", "--delay", "2"], ["neighbourhood", "not delay"]),

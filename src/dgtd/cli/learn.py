@@ -41,9 +41,10 @@ LEARN_HELP = {  # the options shared with `dgtd run` whose meaning or default di
 
 
 def _choices(name: str):
-    from dgtd.run.learn import ACTORS, OBJECTIVES, VALUES
+    from dgtd.run.learn import ACTORS, OBJECTIVES, TEAM_REWARDS, VALUES
 
-    return {"actor": ACTORS, "values": VALUES, "objective": OBJECTIVES}.get(name)
+    choices = {"actor": ACTORS, "values": VALUES, "objective": OBJECTIVES, "team_reward": TEAM_REWARDS}
+    return (choices | {"scheme": ("zhang", "chen")}).get(name)
 
 
 @click.command()
@@ -92,10 +93,10 @@ def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, log, ran
 
         checkpoint_every = check_count("checkpoint_every", checkpoint_every, 0)
     simulator = task if task in ENV_TASKS else values.get("env_make")
-    if simulator is not None and (ranks is not None or checkpoint_every):
+    if (simulator is not None or values.get("scheme") == "chen") and (ranks is not None or checkpoint_every):
+        what = "Chen et al.'s Algorithm 1 (--scheme chen)" if simulator is None else f"{simulator} is a simulator,"
         raise DgtdInputError(
-            f"{simulator} is a simulator, run in one process: its state cannot be saved or split (no --ranks, "
-            "--checkpoint-every)"
+            f"{what} run in one process: its state cannot be saved or split (no --ranks, --checkpoint-every)"
         )
     if ranks is not None:
         from dgtd.cli.launch import ARGV, launch
@@ -147,6 +148,15 @@ def _header(job, backend) -> None:
         f"{mdp.name}: {mdp.n_states} states, {mdp.n_agents} agents, {_actions(mdp.actions)}; objective: "
         f"{_objective(s.objective, mdp.gamma)}; network: {job.network.describe()}; {job.channel.describe()}"
     )
+    if job.chen is not None:
+        c = job.chen
+        click.echo(
+            f"Chen et al.'s Algorithm 1: {s.iterations // c.samples:,} iterations of {c.critic_batches} x "
+            f"{c.critic_batch} critic samples (beta {c.critic_step:g}, {c.critic_rounds} consensus rounds) and "
+            f"{c.batch} actor samples (alpha {c.actor_step:g}, {c.reward_rounds} rounds on each reward), "
+            f"{s.seeds} seed(s)"
+        )
+        return
     click.echo(
         f"{_actors(s)} with the {job.critic.name} critic ({job.critic.describe()}); "
         f"{job.actor.describe(s.iterations)}; {s.iterations:,} steps x {s.seeds} seed(s) on the {s.backend} backend"
@@ -204,12 +214,12 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
     from tqdm import tqdm
 
     from dgtd.run import runtime
-    from dgtd.run.learn import learn as run_learning
+    from dgtd.run.schemes import run_job
 
     s, done = job.settings, 0 if resume is None else int(resume["k"])
     bar = tqdm(total=s.iterations, disable=not progress, file=sys.stderr, unit="it", unit_scale=True, mininterval=0.5)
     bar.update(done)
-    by_time = not checkpoint_every and job.env is None and not runtime.in_job()
+    by_time = not checkpoint_every and job.env is None and job.chen is None and not runtime.in_job()
     probe = CostProbe(s.iterations, done, saves=SAVE_SECONDS if by_time else 0.0)
 
     def advance(n: int) -> None:
@@ -221,11 +231,9 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
 
     measured = _measured_so_far(out, s.actor) if runtime.writes() else None
     try:
-        return run_learning(
-            job.env if job.env is not None else job.mdp, job.network, job.critic, job.actor, s, job.channel,
-            progress=advance,
-            checkpoint_every=checkpoint_every, on_checkpoint=keep, resume=resume, on_measured=measured,
-            checkpoint_seconds=SAVE_SECONDS if by_time else 0.0,
+        saves = {"checkpoint_every": checkpoint_every, "on_checkpoint": keep, "resume": resume}
+        return run_job(
+            job, advance, measured, **saves, checkpoint_seconds=SAVE_SECONDS if by_time else 0.0
         )  # fmt: skip
     except KeyboardInterrupt:  # what was measured is kept (metrics.csv of the checkpoints so far)
         if measured is not None:
@@ -411,6 +419,8 @@ def _timescales(job) -> None:
     """The header's note where the actor's step is the larger after its warm-up (`dgtd.algorithms.actor.timescales`)."""
     from dgtd.algorithms.actor import timescales
 
+    if job.chen is not None:  # (one actor step an iteration, after its critic: its own timescales)
+        return
     said = timescales(job.actor, job.critic, job.settings.iterations)
     if said:
         click.echo(f"note: {said}", err=True)

@@ -503,10 +503,35 @@ def delayed_reward(
     return team_mdp(P, R, np.eye(n_states), gamma, (2,) * n_agents, name=f"delayed-reward-{n_agents}", best=best)
 
 
+def chen_6(n_agents: int = 6, n_states: int = 5) -> TeamMDP:
+    """Chen, Zhou, Chen and Zou's (ICML 2022) simulated setting, re-created from their code's seeds (zuopaoyoutao/MACE
+    at e568715, `init(seed_init=0)` and `omega0` after `set_seed(5)`): 6 agents, 5 states, binary actions, the start
+    xi = |z| / sum |z| and every row P(s, a, .) = |z| / sum |z| for standard normal z, rewards r_m(s, a, s') uniform in
+    [0, 1] (here their mean over s'), gamma 0.95, tabular features, and their starting policies softmax(omega0) with
+    omega0 standard normal; drawn in their order from numpy's legacy generator. Their J of those policies, the
+    normalised discounted return from xi, is 0.49226650802874 (`discounted_return`: theirs to 1e-15)."""
+    if (n_agents, n_states) != (6, 5):
+        raise DgtdInputError(
+            f"chen-6 is their 6 agents and 5 states, re-created from their seeds; got {n_agents} and {n_states}"
+        )
+    rng = np.random.RandomState(0)  # (their np.random.seed(0): the legacy generator, numbers in their order)
+    xi = np.abs(rng.normal(size=n_states))
+    P = np.abs(rng.normal(size=(n_states,) + (2,) * n_agents + (n_states,)))
+    P = (P / P.sum(axis=-1, keepdims=True)).reshape(n_states, 2**n_agents, n_states)
+    R = rng.uniform(size=(n_states,) + (2,) * n_agents + (n_states, n_agents))
+    R = np.einsum("sat,nsat->nsa", P, np.moveaxis(R, -1, 0).reshape(n_agents, n_states, 2**n_agents, n_states))
+    omega = np.random.RandomState(5).normal(size=(n_agents, n_states, 2))
+    policies = [np.exp(w) / np.exp(w).sum(axis=1, keepdims=True) for w in omega]
+    return team_mdp(
+        P, R, np.eye(n_states), 0.95, (2,) * n_agents, start=xi / xi.sum(), name="chen-6", policies=policies
+    )
+
+
 TASKS: dict[str, Callable[..., TeamMDP | FactoredMDP]] = {
     "pull-away": pull_away,
     "delayed-reward": delayed_reward,
     "zhang-20": zhang_20,
     "factored": factored,
+    "chen-6": chen_6,
 }
 """The learning tasks by name, each a function of n_agents and n_states (`dgtd learn TASK --agents --states`)."""

@@ -84,9 +84,10 @@ METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", 
 class LearnSettings:
     """How long and how many: ``iterations`` steps of ``seeds`` seeds of base seed ``seed``, ``checkpoints`` of them
     measured; ``actor`` one of `ACTORS`; ``backend`` one of `LEARN_BACKENDS` (the agents' arithmetic in NumPy, or
-    compiled: `dgtd.backends.compiled.learner`, the same numbers to rounding); ``batch`` the steps of a round (Chen,
-    Zhou, Chen and Zou 2022's mini-batches: the agents communicate and move once a round, by the mean of its samples;
-    1 by default); ``values`` what the critics evaluate: "state" values V with a consensus estimate of the team's
+    compiled: `dgtd.backends.compiled.learner`, the same numbers to rounding); ``batch`` the steps of a round (Zhang
+    et al.'s Algorithm 2 in mini-batches, the baseline of Chen, Zhou, Chen and Zou 2022, whose own Algorithm 1 is
+    `dgtd.run.chen`: the agents communicate and move once a round, by the mean of its samples; 1 by default);
+    ``values`` what the critics evaluate: "state" values V with a consensus estimate of the team's
     reward (Zhang et al.'s Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their
     Algorithm 1); ``objective`` what the actors ascend and J, J* measure: "average", the long-run average team reward
     (differential critics, `objective_terms`), or "discounted", the normalised discounted return from the start
@@ -390,7 +391,8 @@ def _start(plan: LearnPlan) -> Learners:
 def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
     """Step k of the module's docstring, in place on ``run``: draw and act; the sample's critic directions, actor
     increments and reward-regression increments added to the round's (`Learners.pending`); at a round's last step
-    (every ``batch`` steps, Chen et al.'s mini-batches; every step by default) hear and move (`round_end`)."""
+    (every ``batch`` steps, Zhang et al.'s Algorithm 2 in mini-batches; every step by default) hear and move
+    (`round_end`)."""
     env, critic, kind, local = plan.env, plan.critic, plan.settings.actor, plan.rows.local
     B = run.theta.shape[0]
     pi = plan.actor.probabilities(run.theta, run.s)  # (B, n, A): the agents held here
@@ -612,7 +614,7 @@ def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
     if run.tally is None:  # (on the process that writes: the others' metrics are not read)
         theta, W = plan.rows.gather_root(theta), plan.rows.gather_root(W)
         if theta is not None:
-            _measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
+            measure(plan.mdp, theta, W, run.metrics, c, plan.settings, best_action)
     else:
         tally = run.tally
         run.metrics["return"][c], run.metrics["entropy"][c] = tally[:, 0] / tally[:, 2], tally[:, 1] / tally[:, 2]
@@ -662,7 +664,7 @@ def local_policies(mdp: team.TeamMDP, pi: np.ndarray) -> list:
     return [pi[i, :, :n] for i, n in enumerate(mdp.actions)]
 
 
-def _measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int, settings, best_action) -> None:
+def measure(mdp: team.TeamMDP, theta: np.ndarray, W: np.ndarray, metrics: dict, c: int, settings, best_action) -> None:
     """The exact return of each seed's current policies under the run's objective, its critics' error against their
     exact critic, the mean entropy, and the least probability any agent puts on its part of the team's best action
     (where known)."""

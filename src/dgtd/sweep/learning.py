@@ -106,13 +106,14 @@ def _options(values: dict) -> dict:
 
 def run_learning_job(values: dict, threads: int | None = 1) -> dict:
     """Run one learning job (in a worker): its checkpoint steps, metrics (checkpoints, seeds) and summary."""
-    from dgtd.run.learn import learn, summary
+    from dgtd.run.learn import summary
+    from dgtd.run.schemes import run_job
     from dgtd.sweep import cap_threads
 
     job = resolve_learning(values.get("task"), _options(values))
     cap_threads(threads, job.settings.backend)
     problem = job.env if job.env is not None else job.mdp
-    result = learn(problem, job.network, job.critic, job.actor, job.settings, job.channel)
+    result = run_job(job)
     return {
         "steps": result.steps,
         "metrics": result.metrics,
