@@ -160,3 +160,49 @@ def random_networked(
         P[agents, : S**m] = z / z.sum(axis=-1, keepdims=True)
     R = uniforms(key, PROBLEM, np.arange(S * A)[None, :], np.arange(n_agents)[:, None])[1].reshape(n_agents, S, A)
     return NetworkedMDP(hoods, P, R, gamma, np.full(S, 1.0 / S), "random-networked")
+
+
+def hops(mdp: NetworkedMDP) -> np.ndarray:
+    """(N, N) the graph distance between every two agents (breadth first over the neighbourhoods; N where none)."""
+    N = mdp.n_agents
+    far = np.full((N, N), N, dtype=np.int64)
+    for i in range(N):
+        far[i, i], frontier, d = 0, [i], 0
+        while frontier:
+            d += 1
+            reached = {int(j) for k in frontier for j in mdp.neighbourhoods[k] if j >= 0 and far[i, j] == N}
+            far[i, sorted(reached)] = d
+            frontier = sorted(reached)
+    return far
+
+
+def truncation_errors(mdp: NetworkedMDP, kappas, policies=None) -> np.ndarray:
+    """(N, len(kappas)): for each agent i and kappa, max over (s, a) of |Q_i(s, a) - Q_i(s~, a~)|, where (s~, a~)
+    keeps the states and actions of the agents within kappa hops of i and sets every other's to 0: how far agent
+    i's discounted action values under ``policies`` (local, each (S^|N_i|, A); default uniform) are from a critic
+    truncated to its kappa-hop neighbourhood (Qu, Wierman and Li 2020, Lemma: at most rbar gamma^(kappa+1) /
+    (1 - gamma), rbar the largest reward, `truncation_bound`). On the joint table (`NetworkedMDP.joint`)."""
+    N, S, A, gamma = mdp.n_agents, mdp.n_states, mdp.n_actions, mdp.gamma
+    if policies is None:
+        policies = [np.full((S ** int(m), A), 1.0 / A) for m in mdp.sizes]
+    joint = mdp.joint(policies)
+    P_pi, R_pi = joint.chain(list(joint.policies or ()))  # (the local policies over the joint states)
+    V = np.linalg.solve(np.eye(S**N) - gamma * P_pi, R_pi.T)  # (S^N, N): every agent's own reward's values
+    Q = joint.R + gamma * np.einsum("sat,tn->nsa", joint.P, V)  # (N, S^N, A^N)
+    s = np.stack(np.unravel_index(np.arange(S**N), (S,) * N), axis=-1)
+    a = np.stack(np.unravel_index(np.arange(A**N), (A,) * N), axis=-1)
+    far, out = hops(mdp), np.zeros((N, len(kappas)))
+    for i in range(N):
+        for c, kappa in enumerate(kappas):
+            kept = far[i] <= kappa
+            s_ref = np.ravel_multi_index(tuple(np.where(kept, s, 0).T), (S,) * N)
+            a_ref = np.ravel_multi_index(tuple(np.where(kept, a, 0).T), (A,) * N)
+            out[i, c] = np.abs(Q[i] - Q[i][s_ref[:, None], a_ref[None, :]]).max()
+    return out
+
+
+def truncation_bound(mdp: NetworkedMDP, kappa) -> np.ndarray:
+    """rbar gamma^(kappa + 1) / (1 - gamma): Qu, Wierman and Li's bound on `truncation_errors` (rbar the largest
+    |r_i|)."""
+    rbar = float(np.abs(mdp.R).max())
+    return rbar * mdp.gamma ** (np.asarray(kappa, dtype=np.float64) + 1) / (1 - mdp.gamma)
