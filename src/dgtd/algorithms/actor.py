@@ -74,9 +74,10 @@ class SoftmaxActor:
         return theta
 
     def probabilities(self, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """pi (B, n, A_max) of every agent of theta's at each seed's state ``s`` (B,)."""
+        """pi (B, n, A_max) of every agent of theta's at each seed's state ``s`` (B,), or at each agent's own row
+        ``s`` (B, n) (an agent with local states: its neighbourhood's, `dgtd.problems.networked`)."""
         B, n = theta.shape[:2]
-        return policy(theta[np.arange(B)[:, None], np.arange(n)[None, :], s[:, None]])
+        return policy(theta[np.arange(B)[:, None], np.arange(n)[None, :], s[:, None] if s.ndim == 1 else s])
 
     def increment(self, theta, s, a, delta, beta: float, into=None) -> np.ndarray:
         """beta delta psi of one sample added to ``into`` (theta's shape; new where None): `actor_increment`."""
@@ -160,18 +161,19 @@ def actor_increment(
     theta: np.ndarray, s: np.ndarray, a: np.ndarray, delta: np.ndarray, beta: float, into=None, tau: float = 0.0
 ):
     """beta delta psi, the actor step of one sample, added to ``into`` (a new zero array of theta's shape if None):
-    row s_b of every agent of seed b gets `score_step` on each action, ``s`` (B,), ``a`` and ``delta`` (B, N). An
-    action an agent does not have (-inf) gets nothing."""
+    row s_b of every agent of seed b gets `score_step` on each action, ``s`` (B,) (or each agent's own row, (B, N)),
+    ``a`` and ``delta`` (B, N). An action an agent does not have (-inf) gets nothing."""
     B, N = a.shape
     b, i = np.arange(B)[:, None], np.arange(N)[None, :]
-    rows = theta[b, i, s[:, None]]  # (B, N, A_max)
+    s = s[:, None] if s.ndim == 1 else s
+    rows = theta[b, i, s]  # (B, N, A_max)
     pi = policy(rows)
     log_pi = np.log(pi[b, i, a])[:, :, None] if tau else 0.0  # (without a bonus, no 0 x log 0)
     taken = np.zeros_like(pi)
     taken[b, i, a] = 1.0
     step = score_step(beta, delta[:, :, None], log_pi, tau, taken, pi)
     into = np.zeros_like(theta) if into is None else into
-    into[b, i, s[:, None]] += np.where(np.isfinite(rows), step, 0.0)
+    into[b, i, s] += np.where(np.isfinite(rows), step, 0.0)
     return into
 
 

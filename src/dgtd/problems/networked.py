@@ -105,7 +105,7 @@ class NetworkedMDP:
         """The team MDP of the joint table (S^N states, A^N joint actions; each agent's reward over them), for a few
         agents; ``policies`` the agents' local policies pi_i(a_i | s_N_i) (each (S^|N_i|, A)) as its starting ones."""
         N, S, A = self.n_agents, self.n_states, self.n_actions
-        if float(S) ** (2 * N) * float(A) ** N > JOINT_ENTRIES:
+        if (2 * N) * np.log2(S) + N * np.log2(A) > np.log2(JOINT_ENTRIES):
             raise DgtdInputError(
                 f"the joint table of {N} agents of {S} states and {A} actions has {S}^{2 * N} x {A}^{N} entries, more "
                 f"than {JOINT_ENTRIES:,}: exact answers need fewer agents"
