@@ -83,3 +83,21 @@ def test_what_algorithm_1_cannot_take_is_one_line(run_cli, tmp_path, args, words
 def test_compare_leaves_algorithm_1_to_learn(run_cli, tmp_path):
     """`dgtd compare` compares Zhang et al.'s learners critic by critic: it has no --scheme."""
     one_line_error(*run_cli("compare", "chen-6", "--scheme", "chen", "--out", tmp_path / "o"), "--scheme")
+
+
+def test_a_sweep_job_of_algorithm_1_is_dgtd_learns_run(run_cli, tmp_path):
+    """A learning sweep's job with scheme chen runs Algorithm 1 (`dgtd.run.schemes.run_job`), to the numbers of `dgtd
+    learn` with the same options."""
+    import json
+
+    from dgtd.sweep.learning import run_learning_job
+
+    options = {"scheme": "chen", "batch": 200, "critic_batches": 10, "actor_step": 20.0, "iterations": 3000, "seeds": 1}
+    job = run_learning_job({"task": "chen-6", **options})
+    code, _, err = run_cli(
+        "learn", "chen-6", "--scheme", "chen", "--batch", 200, "--critic-batches", 10, "--actor-step", 20, "-T", 3000,
+        "--seeds", 1, "--no-progress", "--no-plots", "--out", tmp_path / "o",
+    )  # fmt: skip
+    assert code == 0, err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert job["summary"]["return_last"] == summary["return_last"] and job["steps"][-1] == 3000
