@@ -128,6 +128,11 @@ def test_dgtd_compare_learns_in_a_simulator_too(run_cli, tmp_path):
     summary = json.loads((tmp_path / "c" / "summary.json").read_text())
     assert {"networked/dgtd", "independent/dgtd", "centralised/dgtd"} <= set(summary)
     assert "estimated from the run's own rewards" in out
+    # (a simulator has no critic error to measure: not a failed seed, and the highest return is named)
+    assert "highest return:" in out and "every learners had a failed seed" not in out
+    row = next(line for line in out.splitlines() if line.startswith("networked/dgtd")).split()
+    assert row[3] == "to", row  # (J and the seeds' range ran together: "-0.8214-0.8214 to -0.8214")
+    assert all(summary[label]["failed_seeds"] == 0 for label in ("networked/dgtd", "independent/dgtd"))
 
 
 def test_dgtd_learn_env_learns_in_a_users_simulator(run_cli, tmp_path):

@@ -570,7 +570,7 @@ def _compared(results: dict, job) -> dict:
         J = r.metrics["return"][-1]
         out[label] = {
             "return_last": {"median": float(np.median(J)), "min": float(J.min()), "max": float(J.max())},
-            "failed_seeds": int((~np.isfinite(J) | ~np.isfinite(r.metrics["critic_error"][-1])).sum()),
+            "failed_seeds": int(_failed(r).sum()),
             "best_probability_last": r.metrics["best_probability"][-1].tolist(),
             "critic_error_last": r.metrics["critic_error"][-1].tolist(),
             "messages": r.messages.tolist(),
@@ -578,6 +578,17 @@ def _compared(results: dict, job) -> dict:
             "seconds": r.seconds,
         }
     return out
+
+
+def _failed(result):
+    """Each seed's failure (B,): its return not finite, or on a model its critics' error (a diverged run); a
+    simulator measures no critic error."""
+    import numpy as np
+
+    bad = ~np.isfinite(result.metrics["return"][-1])
+    if not result.info.get("estimated", False):
+        bad |= ~np.isfinite(result.metrics["critic_error"][-1])
+    return bad
 
 
 def _learners_table(results: dict) -> str:
@@ -588,19 +599,19 @@ def _learners_table(results: dict) -> str:
     import numpy as np
 
     rows = [
-        f"{'learners':<28}{'J last':>9}{'seeds':>18}{'p(best) (worst)':>17}{'critic err':>12}{'messages':>11}"
+        f"{'learners':<28}{'J last':>10}{'seeds':>22}{'p(best) (worst)':>17}{'critic err':>12}{'messages':>11}"
         f"{'bits':>11}{'failed':>8}"
     ]
     failed = {}
     for label, r in results.items():
         J = r.metrics["return"][-1]
         least, error = r.metrics["best_probability"][-1], r.metrics["critic_error"][-1]
-        failed[label] = int((~np.isfinite(J) | ~np.isfinite(error)).sum())
+        failed[label] = int(_failed(r).sum())
         shown = f"{np.median(least):.3f} ({np.min(least):.3f})" if np.isfinite(least).all() else "-"
+        err = f"{np.nanmedian(error):.3g}" if np.isfinite(error).any() else "-"  # (a simulator measures none)
         rows.append(
-            f"{label:<28}{np.nanmedian(J):>9.4g}{f'{np.nanmin(J):.4g} to {np.nanmax(J):.4g}':>18}{shown:>17}"
-            f"{np.nanmedian(error):>12.3g}{np.max(r.messages):>11.3g}{np.max(r.bits):>11.3g}"
-            f"{f'{failed[label]} of {len(J)}':>8}"
+            f"{label:<28}{np.nanmedian(J):>10.4g}{f'{np.nanmin(J):.4g} to {np.nanmax(J):.4g}':>22}{shown:>17}"
+            f"{err:>12}{np.max(r.messages):>11.3g}{np.max(r.bits):>11.3g}{f'{failed[label]} of {len(J)}':>8}"
         )
     first = next(iter(results.values()))
     estimated = first.info.get("estimated", False)
