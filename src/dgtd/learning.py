@@ -226,10 +226,14 @@ def _scheme(own: dict, values: dict, settings, channel, env) -> tuple:
     if settings.team_reward == "neighbourhood":
         neighbourhood_links(channel)
     if _given(own, "scheme", "zhang") != "chen":
+        sizes = [f"--{k.replace('_', '-')}" for k in CHEN_SIZES if own[k] is not None]
+        if sizes:  # (they were ignored)
+            raise DgtdInputError(f"{', '.join(sizes)} size Chen et al.'s Algorithm 1: give --scheme chen")
         return settings, None
     return replace(settings, objective="discounted"), _chen_steps(own, values, env)
 
 
+CHEN_SIZES = ("critic_batches", "critic_batch", "critic_rounds", "reward_rounds")  # Algorithm 1's own options
 CHEN_FIXED = (
     "algorithm", "schedule", "beta", "values", "team_reward", "entropy", "actor_warmup", "actor_offset",
     "actor_power", "loss", "burst", "reweight", "delay", "wake", "bits", "top_k", "error_feedback",
@@ -252,7 +256,7 @@ def _chen_steps(own: dict, values: dict, env):
     if own["objective"] == "average":
         raise DgtdInputError("--scheme chen ascends the discounted return (their J): leave out --objective average")
     batch = _given(own, "batch", 2000)
-    sizes = {k: own[k] for k in ("critic_batches", "critic_batch", "critic_rounds", "reward_rounds") if own[k]}
+    sizes = {k: own[k] for k in CHEN_SIZES if own[k] is not None}
     return ChenSteps(
         batch, **sizes, actor_step=_given(own, "actor_step", batch / 10), critic_step=_given(values, "alpha0", 0.5)
     )

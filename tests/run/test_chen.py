@@ -80,6 +80,12 @@ def test_what_algorithm_1_cannot_take_is_one_line(run_cli, tmp_path, args, words
     one_line_error(code, out, err, *words)
 
 
+def test_algorithm_1s_sizes_without_it_are_refused(run_cli, tmp_path):
+    """--critic-batches and the like size Chen et al.'s Algorithm 1: without --scheme chen they were ignored."""
+    code, out, err = run_cli("learn", "pull-away", "--critic-rounds", 3, "-T", 10, "--no-progress", "--out", tmp_path)
+    one_line_error(code, out, err, "--critic-rounds", "--scheme chen")
+
+
 def test_compare_leaves_algorithm_1_to_learn(run_cli, tmp_path):
     """`dgtd compare` compares Zhang et al.'s learners critic by critic: it has no --scheme."""
     one_line_error(*run_cli("compare", "chen-6", "--scheme", "chen", "--out", tmp_path / "o"), "--scheme")
