@@ -41,10 +41,10 @@ LEARN_HELP = {  # the options shared with `dgtd run` whose meaning or default di
 
 
 def _choices(name: str):
-    from dgtd.run.learn import ACTORS, OBJECTIVES, TEAM_REWARDS, VALUES
+    from dgtd.run.learn import ACTORS, OBJECTIVES, SCHEMES, TEAM_REWARDS, VALUES
 
     choices = {"actor": ACTORS, "values": VALUES, "objective": OBJECTIVES, "team_reward": TEAM_REWARDS}
-    return (choices | {"scheme": ("zhang", "chen")}).get(name)
+    return (choices | {"scheme": SCHEMES}).get(name)
 
 
 @click.command()

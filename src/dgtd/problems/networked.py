@@ -81,16 +81,19 @@ class NetworkedMDP:
         return self.R.shape[2]
 
     @property
+    def has_joint(self) -> bool:
+        """Whether the joint table (S^N x A^N x S^N entries) is small enough to build (`JOINT_ENTRIES`)."""
+        N = self.n_agents
+        return bool(2 * N * np.log2(self.n_states) + N * np.log2(self.n_actions) <= np.log2(JOINT_ENTRIES))
+
+    @property
     def sizes(self) -> np.ndarray:
         """|N_i| of every agent (N,)."""
         return (self.neighbourhoods >= 0).sum(axis=1)
 
     def local_index(self, s: np.ndarray, agents: np.ndarray) -> np.ndarray:
         """The index of each of ``agents``' neighbourhood states (B, n) in every agent's states ``s`` (B, N)."""
-        hood = self.neighbourhoods[agents]  # (n, K)
-        states = np.where(hood >= 0, s[:, np.maximum(hood, 0)], 0)  # (B, n, K)
-        places = np.maximum(np.cumsum((hood >= 0)[:, ::-1], axis=1)[:, ::-1] - 1, 0)  # a member's place from the right
-        return (states * np.where(hood >= 0, self.n_states**places, 0)).sum(axis=-1)
+        return hood_index(self.neighbourhoods[agents], s, self.n_states)
 
     def step(self, s: np.ndarray, a: np.ndarray, keys: np.ndarray, k: int, agents=None) -> tuple:
         """(s' (B, n), r (B, n)) of ``agents`` (default every agent) at step k from every agent's states ``s`` (B, N)
@@ -105,7 +108,7 @@ class NetworkedMDP:
         """The team MDP of the joint table (S^N states, A^N joint actions; each agent's reward over them), for a few
         agents; ``policies`` the agents' local policies pi_i(a_i | s_N_i) (each (S^|N_i|, A)) as its starting ones."""
         N, S, A = self.n_agents, self.n_states, self.n_actions
-        if (2 * N) * np.log2(S) + N * np.log2(A) > np.log2(JOINT_ENTRIES):
+        if not self.has_joint:
             raise DgtdInputError(
                 f"the joint table of {N} agents of {S} states and {A} actions has {S}^{2 * N} x {A}^{N} entries, more "
                 f"than {JOINT_ENTRIES:,}: exact answers need fewer agents"
@@ -122,6 +125,15 @@ class NetworkedMDP:
         return team.team_mdp(
             P, R, np.eye(S**N), self.gamma, (A,) * N, start=joint_start, name=f"{self.name}-joint", policies=tables
         )
+
+
+def hood_index(hoods: np.ndarray, digits: np.ndarray, base: int) -> np.ndarray:
+    """(B, n): for each neighbourhood of ``hoods`` (n, K; padded with -1) the number whose base-``base`` digits are
+    its members' ``digits`` (B, N: one an agent), the first member the most significant."""
+    valid = hoods >= 0
+    members = np.where(valid, digits[:, np.maximum(hoods, 0)], 0)  # (B, n, K)
+    places = np.maximum(np.cumsum(valid[:, ::-1], axis=1)[:, ::-1] - 1, 0)  # a member's place from the right
+    return (members * np.where(valid, base**places, 0)).sum(axis=-1)
 
 
 def neighbourhoods_of(edges: np.ndarray, n_agents: int) -> np.ndarray:

@@ -74,6 +74,7 @@ from dgtd.streams import ACTION, EDGE_UP, seed_keys, singles
 ACTORS = ("networked", "independent", "centralised")
 VALUES = ("state", "action")
 TEAM_REWARDS = ("regression", "neighbourhood")  # networked agents' estimate of the team's reward (`team_reward`)
+SCHEMES = ("zhang", "chen")  # Zhang et al.'s actor-critic (here), or Chen et al.'s Algorithm 1 (`dgtd.run.chen`)
 OBJECTIVES = ("average", "discounted")  # what the actors ascend and J, J* measure (`dgtd.problems.team`)
 LEARN_BACKENDS = ("numpy", "numba")  # the NumPy arithmetic below, or the agents' part compiled (equal to 1e-12)
 DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have

@@ -32,7 +32,7 @@ import numpy as np
 from dgtd.algorithms.actor import SoftmaxActor, actor_increment, policy
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
-from dgtd.problems.networked import JOINT_ENTRIES, NetworkedMDP
+from dgtd.problems.networked import NetworkedMDP, hood_index
 from dgtd.streams import ACTION, AGENT_START, seed_keys, singles, uniforms
 
 
@@ -69,11 +69,8 @@ def kappa_hoods(mdp: NetworkedMDP, kappa: int) -> np.ndarray:
 
 def pair_index(hoods: np.ndarray, s: np.ndarray, a: np.ndarray, S: int, A: int) -> np.ndarray:
     """(B, N): each agent's index of its neighbourhood's (state, action) pairs, the first member the most
-    significant, in every agent's states and actions (B, N)."""
-    valid = hoods >= 0
-    pairs = np.where(valid, s[:, np.maximum(hoods, 0)] * A + a[:, np.maximum(hoods, 0)], 0)  # (B, N, K)
-    places = np.maximum(np.cumsum(valid[:, ::-1], axis=1)[:, ::-1] - 1, 0)
-    return (pairs * np.where(valid, (S * A) ** places, 0)).sum(axis=-1)
+    significant, in every agent's states and actions (B, N): `hood_index` of the digits s A + a."""
+    return hood_index(hoods, s * A + a, S * A)
 
 
 def learn_scalable(mdp: NetworkedMDP, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
@@ -87,7 +84,7 @@ def learn_scalable(mdp: NetworkedMDP, steps: ScalableSteps, iterations: int, see
     theta = np.zeros((seeds, N, S ** mdp.neighbourhoods.shape[1], A))
     keys, started = seed_keys(seed, range(seeds)), time.perf_counter()
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
-    exact = (2 * N) * np.log2(S) + N * np.log2(A) <= np.log2(JOINT_ENTRIES)
+    exact = mdp.has_joint
     out = {name: np.full((len(at), seeds), np.nan) for name in ("return", "episode_return")}
     tally = np.zeros(seeds)
     for m in range(iterations):
@@ -118,19 +115,15 @@ def _episode(mdp: NetworkedMDP, theta: np.ndarray, keys: np.ndarray, m: int, T: 
     B, N = theta.shape[:2]
     every = np.arange(N)
     s = team.draw(np.cumsum(mdp.start)[None, None, :], uniforms(keys[:, None], AGENT_START, m, every)[0])
-    states: list = []
-    actions: list = []
-    rewards: list = []
-    actor = SoftmaxActor()
+    samples, actor = [], SoftmaxActor()
     for t in range(T + 1):
         k = m * (T + 1) + t
         pi = actor.probabilities(theta, mdp.local_index(s, every))  # (B, N, A): each at its neighbourhood's state
         a = team.draw(np.cumsum(pi, axis=-1), singles(keys[:, None], ACTION, k, every))
         s_next, r = mdp.step(s, a, keys, k)
-        for into, x in ((states, s), (actions, a), (rewards, r)):
-            into.append(x)
+        samples.append((s, a, r))
         s = s_next
-    return np.stack(states), np.stack(actions), np.stack(rewards)
+    return tuple(np.stack(x) for x in zip(*samples))
 
 
 def _critic(mdp: NetworkedMDP, hoods, states, actions, rewards, steps: ScalableSteps) -> np.ndarray:
