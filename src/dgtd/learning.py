@@ -11,6 +11,7 @@ from types import SimpleNamespace
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option
 
+ITERATIONS = 20_000  # a learning run's steps (-T) where not given
 CRITIC_STEPS = {"alpha0": 1.0, "beta": 100.0}  # the critics' default steps here: features of unit scale, tabular
 ACTOR_STEP = {"state": 0.5, "action": 0.1}  # the actors' first step by what the critics evaluate (measured, pull-away)
 
@@ -190,7 +191,7 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         _given(own, "entropy", 0.0),
     )
     settings = LearnSettings(
-        iterations=_given(values, "iterations", 20_000),
+        iterations=_given(values, "iterations", ITERATIONS),
         seeds=_given(values, "seeds", 2),
         seed=_given(values, "seed", 0),
         checkpoints=_given(values, "checkpoints", 40),

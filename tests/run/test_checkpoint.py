@@ -71,7 +71,7 @@ def test_resume_from_any_checkpoint_is_bit_for_bit(tmp_path, backend, sampling, 
     whole = run(problem, network, algorithm, samp, settings)
     snaps = []
     saving = run(problem, network, algorithm, samp, settings, checkpoint_every=600, on_checkpoint=snaps.append)
-    assert [s["k"] for s in snaps] == [600, 1200, 1800, 2400]
+    assert [s["k"] for s in snaps] == [600, 1200, 1800, 2400, 2500]  # (and at T: a finished run extends)
     assert_same_run(whole, saving)  # checkpointing (and the block boundaries it adds) changes nothing
     for i in (0, 3):  # through the file format, from the first and the last checkpoint
         save_checkpoint(tmp_path / "c.npz", snaps[i], {"spec": "x"})
@@ -117,7 +117,7 @@ def test_a_killed_run_resumes_to_the_same_files(tmp_path):
     with np.load(out / "trajectory.npz") as x, np.load(tmp_path / "whole" / "trajectory.npz") as y:
         for k in y.files:
             np.testing.assert_array_equal(x[k], y[k])
-    assert not (out / "checkpoint.npz").exists()  # a finished run drops its checkpoint
+    assert load_checkpoint(out / "checkpoint.npz")[0]["k"] == 400_000  # the state at its end stays, to extend it
     again = subprocess.run(dgtd_cmd("run", "--resume", out), env=cli_env(), capture_output=True, text=True)
     assert again.returncode == 0 and "already finished" in again.stdout
 
@@ -232,7 +232,7 @@ def test_the_same_command_again_resumes_its_checkpoint(tmp_path, run_cli):
     save_checkpoint(out / "checkpoint.npz", snaps[1], json.loads(json.dumps(spec_record(resolved))))
     code, said, err = run_cli(*command, "--overwrite", "--out", out)  # --overwrite starts afresh
     assert code == 0 and "resuming" not in said, err
-    assert not (out / "checkpoint.npz").exists()
+    assert load_checkpoint(out / "checkpoint.npz")[0]["k"] == 2000  # (the state at its end)
 
 
 def test_a_problem_file_changed_under_a_checkpoint_is_said_so_by_every_command_that_meets_it(tmp_path, run_cli):

@@ -53,7 +53,9 @@ def _is_experiment_file(arg: str | None) -> bool:
     "resume_dir",
     type=click.Path(file_okay=False),
     default=None,
-    help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run.",
+    help="Continue the run saved in DIR from its last checkpoint; ends with the numbers of an uninterrupted run. "
+    "With a larger -T, a finished run that ran with --checkpoint-every goes on from its end to the numbers of a run "
+    "of that length.",
 )
 @click.option(
     "--ranks",
@@ -137,7 +139,11 @@ def _run_job(job, t_start: float) -> None:
         return
     click.echo(run_header(job))
     if job.snapshot is not None:
-        click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
+        if job.extends is not None:
+            T = job.settings.iterations
+            click.echo(f"extending the finished run in {job.out} from {job.extends:,} to {T:,} steps")
+        else:
+            click.echo(f"resuming {job.out} at iteration {job.snapshot['k']:,}")
     result = job.run()
     if not runtime.writes():  # one process writes the results and reports them
         if result.rows is not None:  # its agents' rows, and its part of what the table combines

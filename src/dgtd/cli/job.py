@@ -1,8 +1,9 @@
 """One run of an experiment into its results directory, with periodic checkpoints and exact resume.
 
 The directory gets ``config.toml`` (the fully resolved experiment: ``dgtd run DIR/config.toml`` reproduces
-the run) before the run starts, ``checkpoint.npz`` every ``checkpoint_every`` iterations while it runs, and
-the results (`dgtd.run.results.write_results`) when it ends, after which the checkpoint is removed.
+the run) before the run starts, ``checkpoint.npz`` every ``checkpoint_every`` iterations while it runs and at its
+end, and the results (`dgtd.run.results.write_results`) when it ends. The last checkpoint stays, so that
+``--resume DIR -T LARGER`` extends the finished run (`dgtd.run.extend`).
 """
 
 from __future__ import annotations
@@ -26,9 +27,11 @@ from dgtd.errors import DgtdInputError
 from dgtd.experiments import Experiment, absolute_paths, to_toml
 from dgtd.run import runtime
 from dgtd.run.checkpoint import drop_shards, load_checkpoint, remove_checkpoint
+from dgtd.run.extend import extension, other_length, without_state
 from dgtd.run.logs import remove_logs
 from dgtd.run.owner import Owner
-from dgtd.run.results import MeasuredSoFar, atomic_write, first_difference, refuse_other_results
+from dgtd.run.results import MeasuredSoFar, atomic_write, first_difference, refuse_other_results, saved_config
+from dgtd.run.settings import tail_blocker
 
 CONFIG, CHECKPOINT, SCENARIO_ARRAYS = "config.toml", "checkpoint.npz", "scenario.npz"
 HEADER = "The fully resolved config of a dgtd run: `dgtd run THIS_FILE` reproduces it exactly."
@@ -50,6 +53,7 @@ class PreparedRun:
     channel: Any  # the links' model, built once (`dgtd.config.resolve`)
     snapshot: dict | None = None
     finished: bool = False
+    extends: int | None = None  # the step a finished run extended to a larger -T ended at
     source: Any = None
     report_text: str = ""
     owner: Any = None  # the lock on ``out`` (`dgtd.run.owner.Owner`), held until `release`
@@ -130,7 +134,8 @@ class PreparedRun:
                 bar.close()
 
     def save(self, result, plots: bool | None = None) -> list[str]:
-        """Write the results, drop the checkpoint (nothing is left to resume), then draw the figures; returns the names
+        """Write the results, drop the checkpoint (kept with --checkpoint-every: the state at T, which a larger -T
+        extends), then draw the figures; returns the names
         written."""
         from dgtd.run.results import npz_bytes, write_results
 
@@ -152,7 +157,8 @@ class PreparedRun:
 
             rows = metrics_rows(result, self.algorithm.name)
             names += write_logs(self.out, log_kinds(self.config.output.log), rows, self.record)
-        remove_checkpoint(self.out / CHECKPOINT)  # the numbers are complete: nothing is left to resume
+        if not self.config.output.checkpoint_every:  # (with it, the state at T is kept: a larger -T extends the run)
+            remove_checkpoint(self.out / CHECKPOINT)
         if plots:
             try:
                 names += self._figures(result, sc)
@@ -244,7 +250,7 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
         run = PreparedRun(*pieces)
         if (out / CHECKPOINT).exists() and (config.output.resume or not config.output.overwrite):
             run.snapshot = load_checkpoint(out / CHECKPOINT)[0]  # (it has not cleared it)
-        run.finished = config.output.resume and run.snapshot is None
+        run.finished = config.output.resume and (run.snapshot is None or run.snapshot["k"] == record["iterations"])
         return run
 
     return runtime.claimed(claim, follow)
@@ -253,25 +259,22 @@ def prepare(exp: Experiment | RunConfig) -> PreparedRun:
 def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
     """Check a resume against its checkpoint (asked for, or the same command again on a run that was cut off), or
     clear the previous run and write config.toml."""
-    ckpt = out / CHECKPOINT
+    ckpt, summary = out / CHECKPOINT, out / "summary.json"
     if output.resume and not ckpt.exists():
-        if (out / "summary.json").exists():
+        if summary.exists():
+            without_state(out, saved_config(summary), record, "run", f"dgtd run {out / CONFIG}")
             run.finished = True
             return run
         raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
-    if output.resume or (ckpt.exists() and not output.overwrite):
-        snapshot, saved = load_checkpoint(ckpt)
+    snapshot, saved = load_checkpoint(ckpt) if ckpt.exists() and (output.resume or not output.overwrite) else (None, {})
+    ended = snapshot is not None and summary.exists() and snapshot["k"] == saved.get("iterations")
+    if output.resume and ended and snapshot is not None:  # a finished run that kept its last state: extended, or done
+        return _extended(run, out, snapshot, saved, record)
+    if ended and not output.overwrite:
+        other_length(out, saved, record, "run", "dgtd run")
+    if output.resume or (snapshot is not None and not ended):
         diff = first_difference(saved, record)
-        changed = [
-            k for k in sorted(set(saved) | set(record)) if k.endswith("_sha256") and saved.get(k) != record.get(k)
-        ]
-        if changed and all(k in saved and k in record for k in changed):  # the file, not what is derived from it
-            role = changed[0].removesuffix("_sha256")
-            raise DgtdInputError(
-                f"the {role} file {input_files(run.config)[role]} changed since the checkpoint in {out} "
-                "was written (its SHA-256 differs): put the file back as it was to continue the run, or pass "
-                "--overwrite to start it afresh on the file as it is"
-            )
+        _refuse_changed_files(run, out, saved, record)
         if diff and output.resume:
             raise DgtdInputError(f"the checkpoint in {out} is of another config ({diff}); resume with {out / CONFIG}")
         if diff:
@@ -284,6 +287,31 @@ def _claim(run: PreparedRun, output, out: Path, record: dict) -> PreparedRun:
         clear_previous_run(out, record, output.overwrite)
         atomic_write(out / CONFIG, run.config_toml.encode())
     return run
+
+
+def _extended(run: PreparedRun, out: Path, snapshot: dict, saved: dict, record: dict) -> PreparedRun:
+    """A finished run that kept its last state, asked to go on: extended to the larger -T ``record`` gives (its
+    config.toml rewritten with it, so that --resume continues the extension if it is cut off), or finished."""
+    _refuse_changed_files(run, out, saved, record)
+    fraction = float(record["tail_fraction"])
+    if extension(out, snapshot, saved, record, "run", blocker=lambda a, b: tail_blocker(a, b, fraction)) is None:
+        run.finished = True
+        return run
+    run.snapshot, run.extends = snapshot, int(snapshot["k"])
+    atomic_write(out / CONFIG, run.config_toml.encode())
+    return run
+
+
+def _refuse_changed_files(run: PreparedRun, out: Path, saved: dict, record: dict) -> None:
+    """Refuse to continue a checkpoint whose input files changed since it was written (their SHA-256)."""
+    changed = [k for k in sorted(set(saved) | set(record)) if k.endswith("_sha256") and saved.get(k) != record.get(k)]
+    if changed and all(k in saved and k in record for k in changed):  # the file, not what is derived from it
+        role = changed[0].removesuffix("_sha256")
+        raise DgtdInputError(
+            f"the {role} file {input_files(run.config)[role]} changed since the checkpoint in {out} "
+            "was written (its SHA-256 differs): put the file back as it was to continue the run, or pass "
+            "--overwrite to start it afresh on the file as it is"
+        )
 
 
 # What `dgtd run` writes into its directory (its own figures and a scenario's: the patrol world's); another run's

@@ -65,7 +65,8 @@ def _choices(name: str):
     type=click.Path(file_okay=False),
     default=None,
     help="Continue the learning run in DIR (its config.toml: the options it was given) from its last checkpoint; "
-    "ends with the numbers of an uninterrupted run.",
+    "ends with the numbers of an uninterrupted run. With a larger -T, a finished run that ran with "
+    "--checkpoint-every goes on from its end to the numbers of a run of that length.",
 )
 @click.pass_context
 def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, log, ranks, resume_dir, **values):
@@ -109,16 +110,19 @@ def learn(ctx, task, out, progress, plots, overwrite, checkpoint_every, log, ran
     held: list = []  # the results folder's lock, held by the process that writes
     resume = runtime.claimed(
         lambda: _claim(out, job, overwrite, held, {"checkpoint_every": checkpoint_every, "log": log}, resume_dir),
-        lambda: _checkpoint(out, job.record, overwrite),
+        lambda: _checkpoint(out, job, overwrite, resume_dir is not None),
     )
     try:
         _timescales(job)  # (after the folder's checks: a refusal is one line)
-        if resume is not None:
+        if resume is not None and _ended_at(resume) == resume["k"] < job.settings.iterations:
+            click.echo(f"extending the finished learning run in {out} from {int(resume['k']):,} to "
+                       f"{job.settings.iterations:,} steps")  # fmt: skip
+        elif resume is not None:
             click.echo(f"resuming {out} at step {int(resume['k']):,}")
         result = _learning(job, out, progress, checkpoint_every or 0, resume)
         if not runtime.writes():
             return
-        written = _write(out, result, job, plots, log)
+        written = _write(out, result, job, plots, log, keep=bool(checkpoint_every))
     finally:
         for owner in held:
             owner.__exit__(None, None, None)
@@ -193,9 +197,6 @@ def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
         saved = dict(tomllib.loads((folder / CONFIG).read_text(encoding="utf-8-sig")).get("learn", {}))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as e:
         raise DgtdInputError(f"--resume {folder}: its {CONFIG} cannot be read ({e}); start the run afresh") from None
-    if (folder / "summary.json").exists() and not (folder / CHECKPOINT).exists():
-        click.echo(f"{folder}: the learning run is already finished (summary.json); nothing to resume")
-        return None
     names = set(ctx.params) - {"task", "resume_dir", "ranks", "out", "progress", "plots", "overwrite"}
     unknown = sorted(set(saved) - names - {"task"})
     if unknown:
@@ -203,8 +204,35 @@ def _resumed(ctx, resume_dir, out, overwrite) -> tuple | None:
     given = given_flags(ctx, exclude=("task", "resume_dir", "ranks", "out", "progress", "plots", "overwrite"))
     values = {name: saved.get(name) for name in names} | given
     task = ctx.params["task"] if ctx.params["task"] is not None else saved.get("task")
+    if _finished(folder, values):
+        click.echo(f"{folder}: the learning run is already finished (summary.json); nothing to resume")
+        return None
     own = {k: v for k, v in values.items() if k not in OUTPUT}
     return task, own, folder, values.get("checkpoint_every"), values.get("log")
+
+
+def _finished(folder: Path, values: dict) -> bool:
+    """Whether the learning run in ``folder`` has ended at the steps ``values`` ask (its summary.json's); more steps
+    extend it where it kept its state at its end (`_checkpoint`), and are refused where it kept none."""
+    from dgtd.run.extend import without_state
+    from dgtd.run.results import saved_config
+
+    summary = folder / "summary.json"
+    if not summary.exists():
+        return False
+    done, asked = _steps(saved_config(summary)), _steps({k: v for k, v in values.items() if v is not None})
+    if done.get("iterations") == asked["iterations"]:
+        return True
+    if not (folder / CHECKPOINT).exists():
+        without_state(folder, done, asked, "learning run", f"dgtd learn {values.get('task') or 'TASK'} --out {folder}")
+    return False
+
+
+def _steps(record: dict) -> dict:
+    """A learning run's record with its steps (-T) as run, given or not (`dgtd.learning.ITERATIONS` by default)."""
+    from dgtd.learning import ITERATIONS
+
+    return {**record, "iterations": int(record.get("iterations") or ITERATIONS)}
 
 
 def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dict | None):
@@ -243,8 +271,9 @@ def _learning(job, out: Path, progress: bool, checkpoint_every: int, resume: dic
         bar.close()
 
 
-def _write(out: Path, result, job, plots: bool, log: str | None = None) -> list:
-    """The results of a finished learning run, numbers before pictures, each file atomically; the checkpoint gone.
+def _write(out: Path, result, job, plots: bool, log: str | None = None, keep: bool = False) -> list:
+    """The results of a finished learning run, numbers before pictures, each file atomically; the checkpoint gone
+    unless ``keep`` (--checkpoint-every: the state at the end stays, from which a larger -T extends the run).
     A model's policies (policies.npz: (B, N, S, A_max) and each agent's action count), or a simulator's actors'
     weights (actors.npz: theta (B, N, A, d)); the metrics in the loggers ``log`` asks (`dgtd.run.logs`)."""
     import numpy as np
@@ -255,7 +284,8 @@ def _write(out: Path, result, job, plots: bool, log: str | None = None) -> list:
     from dgtd.run.results import npz_bytes
 
     problem, s = job.env if job.env is not None else job.mdp, job.settings
-    remove_checkpoint(out / CHECKPOINT)  # the numbers are complete: nothing is left to resume (its shards neither)
+    if not keep:  # the numbers are complete: nothing is left to resume (its shards neither)
+        remove_checkpoint(out / CHECKPOINT)
     if job.env is not None:
         name, arrays = "actors.npz", {"theta": result.policies}
     else:
@@ -361,19 +391,23 @@ def _claim(out: Path, job, overwrite: bool, held: list, output: dict, resuming) 
     was asked, with the ``output`` settings kept, for `--resume`); a refusal leaves the folder as it found it,
     unclaimed, as `dgtd run`'s does."""
     from dgtd.run.atomic import atomic_write
+    from dgtd.run.extend import other_length
     from dgtd.run.logs import remove_logs
     from dgtd.run.owner import Owner
-    from dgtd.run.results import refuse_other_results
+    from dgtd.run.results import refuse_other_results, saved_config
 
     owner = Owner(out, "learning run", overwrite).__enter__()
     try:
-        if not overwrite:
+        if not overwrite and not resuming:
+            done = _steps(saved_config(out / "summary.json"))
+            other_length(out, done, _steps(job.record), "learning run", "dgtd learn")
             refuse_other_results(out, job.record, "learning run")
-        resume = _checkpoint(out, job.record, overwrite)
+        resume = _checkpoint(out, job, overwrite, bool(resuming))
         if resuming and resume is None:
             raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
         if resume is None:
             remove_logs(out)
+        if resume is None or resume["k"] < job.settings.iterations:  # (an extension: --resume goes on to its -T)
             atomic_write(out / CONFIG, config_toml(job.record, output).encode())
     except BaseException:
         owner.__exit__(None, None, None)
@@ -395,24 +429,50 @@ def config_toml(record: dict, output: dict) -> str:
     )
 
 
-def _checkpoint(out: Path, record: dict, overwrite: bool) -> dict | None:
-    """The snapshot to resume from: the same command's checkpoint in ``out``; another run's is refused (unless
-    --overwrite, which starts afresh)."""
+def _checkpoint(out: Path, job, overwrite: bool, resuming: bool) -> dict | None:
+    """The snapshot to resume from: the same command's checkpoint in ``out``, or, ``resuming`` with a larger -T, the
+    state a finished run kept at its end (`dgtd.run.extend.extension`); another run's is refused (unless --overwrite,
+    which starts afresh), and a finished run's, the same command again, is started afresh."""
     import json
 
-    from dgtd.errors import DgtdInputError
     from dgtd.run.checkpoint import load_checkpoint
+    from dgtd.run.extend import extension
     from dgtd.run.results import first_difference
 
     path = out / CHECKPOINT
     if not path.exists() or overwrite:
         return None
     saved, there = load_checkpoint(path)
-    if diff := first_difference(there or {}, json.loads(json.dumps(record))):  # (as the checkpoint holds it)
+    there, record = _steps(there or {}), _steps(json.loads(json.dumps(job.record)))  # (as the checkpoint holds it)
+    if saved["k"] == there["iterations"] and (out / "summary.json").exists():  # a finished run's state at its end
+        if not resuming:
+            return None
+        extends = extension(out, saved, there, record, "learning run", blocker=lambda a, b: _warmup_blocker(job, a, b))
+        return saved if extends is not None else None
+    if diff := first_difference(there, record):
         raise DgtdInputError(
             f"{out} holds the checkpoint of another learning run ({diff}); choose another --out, or pass --overwrite"
         )
     return saved
+
+
+def _warmup_blocker(job, T1: int, T2: int) -> str:
+    """Why a learning run of T1 steps cannot go on to T2 ('' where it can): the actor's steps over the first T1
+    would have been others in a run of T2 (its warm-up, a tenth of the run up to 2 000 steps, would be longer)."""
+    import numpy as np
+
+    if np.array_equal(job.actor.steps(0, T1), job.actor.steps(0, T1, T2)):
+        return ""
+    return (
+        f"the actor holds still for a tenth of the run up to 2 000 steps (--actor-warmup), {job.actor.held_for(T1):,} "
+        f"steps in this run and {job.actor.held_for(T2):,} in one of {T2:,}; a run of 20 000 steps or more extends"
+    )
+
+
+def _ended_at(resume: dict) -> int:
+    """The last checkpoint step a snapshot kept (a finished run's end, where it is extended)."""
+    steps = resume.get("steps")
+    return int(steps[-1]) if steps is not None and len(steps) else int(resume["k"])
 
 
 def _timescales(job) -> None:

@@ -37,7 +37,7 @@ policies' entropy are recorded (`dgtd.problems.team`); in a simulator, estimates
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -65,7 +65,7 @@ from dgtd.run.checkpoint import assemble
 from dgtd.run.layout import AllAgents, learner_layout
 from dgtd.run.results import metrics_rows as run_rows
 from dgtd.run.results import rows_csv
-from dgtd.run.settings import check_count
+from dgtd.run.settings import check_count, kept_steps
 from dgtd.run.state import AGENTS, held, restore, snapshot
 from dgtd.samples import Sample
 from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
@@ -167,11 +167,12 @@ class Learners:
     lam: Any = held(AGENTS, 1)
     critic: Any = held(AGENTS, 1)  # the critic's NamedTuple state
     links: Any = held()  # the channel's state: the whole run's, on every rank
-    metrics: Any = held()  # {name: (C, B)}
+    metrics: Any = held(per_checkpoint=True)  # {name: (C, B)}
     pending: Any = held(saved=False)  # a round's sums so far: empty at every checkpoint (a round's end)
     means: Any = held(AGENTS, 1)
     tally: Any = held(saved=False)  # a simulator's sums since the last checkpoint (`TALLY`; no checkpoints there)
     diverged_at: Any = held()  # (B,) the checkpoint step at which a seed was found diverged, -1 while it has not
+    steps: Any = held(default=None)  # (C,) the checkpoints' steps (a run extended to more steps keeps those it had)
 
 
 @dataclass(frozen=True)
@@ -230,10 +231,12 @@ def learn(
         )
     started = time.perf_counter()
     best = (None, None) if plan.env.estimated else team.best_of(mdp, settings.objective)  # (J*, its joint actions)
+    plan = replace(plan, at=kept_steps(plan.at, settings.iterations, resume))  # (a finished run extended: its own)
     run = _start(plan)
     if resume is not None:  # (its agents' rows taken by id, from whichever rank's shard holds them)
         rows = assemble(resume, plan.env.n_agents, plan.arcs.n_arcs, plan.rows.local, state=Learners)
         run = restore(run, rows)
+        run.steps = plan.at
     draws: tuple = ()
     saves = Saves(checkpoint_every, 0.0 if plan.env.estimated else checkpoint_seconds, settings.batch)
     for k in range(run.k, settings.iterations):
@@ -247,7 +250,7 @@ def learn(
                 on_measured(plan.at[: c + 1], {name: v[: c + 1] for name, v in run.metrics.items()})
             if (run.diverged_at >= 0).all():  # every seed has diverged: nothing is left to learn
                 break
-        if on_checkpoint and run.k < settings.iterations and saves.due(run.k):
+        if on_checkpoint and (saves.due(run.k) if run.k < settings.iterations else checkpoint_every):
             on_checkpoint(snapshot(run, plan.rows))
         if progress is not None:
             progress(1)
@@ -385,7 +388,7 @@ def _start(plan: LearnPlan) -> Learners:
         plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
         {name: np.full((len(plan.at), B), np.nan) for name in (*METRICS, *estimated)},
         {}, np.zeros((B, n, 2)) if settings.objective == "average" else None,
-        np.zeros((B, len(TALLY))) if env.estimated else None, np.full(B, -1, dtype=np.int64),
+        np.zeros((B, len(TALLY))) if env.estimated else None, np.full(B, -1, dtype=np.int64), plan.at,
     )  # fmt: skip
 
 

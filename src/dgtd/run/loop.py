@@ -105,9 +105,12 @@ def run(
     (an empty block runs first, which changes nothing), with the seconds that took, before the first iteration:
     so a progress bar started then does not count the compilation into its first step.
 
-    With ``checkpoint_every`` = K > 0, ``on_checkpoint(snapshot)`` is called at every multiple of K below T with
+    With ``checkpoint_every`` = K > 0, ``on_checkpoint(snapshot)`` is called at every multiple of K and at T with
     the run's whole state (`dgtd.run.state.snapshot`). Passing a snapshot as ``resume`` continues from it; the
-    samples are a function of the step only, so the result equals that of an uninterrupted run bit for bit.
+    samples are a function of the step only, so the result equals that of an uninterrupted run bit for bit. A
+    snapshot taken at the end of a run of fewer steps extends that run: its checkpoints are kept and a run of T
+    steps' follow (`dgtd.run.plan.run_steps`); every iterate, average and count equals a run of T steps', and so does
+    the tail average where the tail of T steps begins at or after the snapshot's step.
 
     ``on_measured(steps, metrics)`` is called as each checkpoint is measured, with the steps measured so far (c,) and
     each metric's values there (c, seeds), so that what was measured can be kept before the run ends.
@@ -149,6 +152,7 @@ def start(plan: Plan, resume: dict | None = None) -> RunState:
     n_est = plan.algorithm.estimate(state).shape[1]  # the agents' estimates held here, or 1 for a centralised learner
     rs = RunState(
         state=state,
+        steps=plan.steps,
         # Kernels keep one running sum of w_k; the tail average is its difference from a copy taken at tail_start (a
         # block boundary), so no kernel reads or writes a second sum.
         sums={"all": np.zeros((B, n_est, q))},
@@ -171,7 +175,10 @@ def start(plan: Plan, resume: dict | None = None) -> RunState:
     trajectories = getattr(plan.source, "state_agents", None)  # a rank's Markov chains
     resume = assemble(resume, N, ctx.arcs.n_arcs, layout.agents, layout.arc_ids, trajectories)
     plan.source.set_state(resume["source"])
-    return restore(rs, resume)
+    rs = restore(rs, resume)
+    if rs.k <= ctx.tail_start:  # (a finished run extended: its tail begins again, at or after the step it ended at)
+        rs = replace(rs, tail_base=None)
+    return replace(rs, steps=plan.steps)
 
 
 def load_kernel(plan: Plan, rs: RunState) -> float:
@@ -234,9 +241,10 @@ def record(plan: Plan, rs: RunState) -> RunState:
 
 
 def save(plan: Plan, rs: RunState, on_checkpoint) -> None:
-    """At every multiple of ``checkpoint_every`` below T: the run state to ``on_checkpoint`` (`snapshot`). The source's
-    state and the message ages are taken on every process, saving or not (collectives where the agents are spread)."""
-    if not (plan.every and rs.k % plan.every == 0 and rs.k < plan.settings.iterations):
+    """At every multiple of ``checkpoint_every``, and at T (where a finished run is extended to more steps from): the
+    run state to ``on_checkpoint`` (`snapshot`). The source's state and the message ages are taken on every process,
+    saving or not (collectives where the agents are spread)."""
+    if not (plan.every and (rs.k % plan.every == 0 or rs.k == plan.settings.iterations)):
         return
     ages = plan.layout.message_ages()
     rs = replace(

@@ -21,7 +21,7 @@ from dgtd.problems.model import Problem, chain_period
 from dgtd.run.layout import layout_for, spread_over
 from dgtd.run.measure import DIVERGENCE_FACTOR
 from dgtd.run.memory import SUM_TRACE_MAX, TRACE_MAX, available_bytes, check_memory
-from dgtd.run.settings import RunSettings, block_steps, checkpoint_steps
+from dgtd.run.settings import RunSettings, block_steps, checkpoint_steps, kept_steps, tail_steps
 from dgtd.sources.model import ModelSource, SamplerTables, Sampling
 
 
@@ -125,7 +125,7 @@ def prepare(
     elif not getattr(channel, "linear", True) and algorithm.messages:
         report = {**report, "fixed_point": FIXED_POINT_NONLINEAR}
     T = int(settings.iterations)
-    tail_window = max(1, int(np.ceil(settings.tail_fraction * T)))
+    tail_window = tail_steps(T, settings.tail_fraction)
     ctx = Context(problem, network, algorithm, sampling, tables, arcs, T - tail_window, channel)
     return Reference(ctx, moments, L_mean, fixed, report, w_star, tail_window)
 
@@ -211,6 +211,12 @@ class Plan:
         return exact.value_error(self.moments, w, self.w_ref_held, of=self.reference.fixed.w)
 
 
+def run_steps(settings: RunSettings, resume: dict | None = None) -> np.ndarray:
+    """The steps a run measures at (`checkpoint_steps`, or a resumed run's: `kept_steps`)."""
+    T = int(settings.iterations)
+    return kept_steps(checkpoint_steps(T, int(settings.checkpoints)), T, resume)
+
+
 def plan_run(
     problem: Problem,
     network: RandomEdges,
@@ -225,7 +231,7 @@ def plan_run(
     """A run's `Plan`: its memory checked, its references computed, its source made (the problem's model by default),
     its layout chosen (``resume``: the snapshot it continues, whose message ages an asynchronous layout takes up)."""
     t_start = time.perf_counter()
-    steps = checkpoint_steps(int(settings.iterations), int(settings.checkpoints))
+    steps = run_steps(settings, resume)
     B, N, q = int(settings.seeds), problem.n_agents, problem.n_features
     check_contract(algorithm)  # before anything compiles
     ranks, here, free = spread_over(algorithm, available_bytes())

@@ -27,6 +27,14 @@ def first_difference(a: dict, b: dict) -> str:
     return ""
 
 
+def saved_config(summary: Path) -> dict:
+    """The config a finished run's summary.json records ({} where there is none, or it cannot be read)."""
+    try:
+        return dict(read_json(summary, "results file", "").get("config", {}))
+    except (DgtdInputError, AttributeError, OSError):
+        return {}
+
+
 def refuse_other_results(out: Path, record: dict, what: str, ignore=()) -> None:
     """A one-line refusal unless ``out`` holds no summary.json, a damaged one (nothing readable to protect), or the
     results of this very config ``record`` (keys in ``ignore`` aside): a directory never mixes two runs."""

@@ -99,6 +99,36 @@ def checkpoint_steps(T: int, n: int) -> np.ndarray:
     return np.unique(np.concatenate([np.round(lin), np.round(log), [T]]).astype(np.int64).clip(1, T))
 
 
+def kept_steps(steps: np.ndarray, T: int, resume: dict | None) -> np.ndarray:
+    """The steps a run of T measures at, ``steps`` where it starts afresh; a resumed run's those its checkpoint kept,
+    and where that ended before T (a finished run extended to more steps), the ones of ``steps`` beyond its end."""
+    if resume is None or resume.get("steps") is None:  # (a fresh run, or a checkpoint older than its steps)
+        return steps
+    kept = np.asarray(resume["steps"], dtype=np.int64)
+    return np.concatenate([kept, steps[steps > kept[-1]]]) if kept[-1] < T else kept
+
+
+def tail_steps(T: int, tail_fraction: float) -> int:
+    """The steps of a run of T that the tail average takes (its last ``tail_fraction``, at least one)."""
+    return max(1, int(np.ceil(tail_fraction * T)))
+
+
+def tail_blocker(T1: int, T2: int, tail_fraction: float) -> str:
+    """Why a run that ended at T1 cannot be extended to T2 for its tail average ('' where it can): the tail of a run
+    of T2 steps begins before T1, at a step whose running sum the run did not keep (unless it is the one its own tail
+    began at)."""
+    start = T2 - tail_steps(T2, tail_fraction)
+    if start >= T1 or start == T1 - tail_steps(T1, tail_fraction):
+        return ""
+    least = max(T2, int(T1 / (1.0 - tail_fraction)) - 2)  # (f < 1 here: a tail of the whole run begins at 0)
+    while least - tail_steps(least, tail_fraction) < T1:
+        least += 1
+    return (
+        f"its tail average (the last {tail_fraction:g} of the run) would begin at step {start:,}, before its end, "
+        f"where the running sum it needs was not kept; give -T {least} or more"
+    )
+
+
 def block_steps(block_size: int, n_agents: int, n_edges: int, n_seeds: int, budget: int = 1 << 21) -> int:
     """Steps per block: at most ``block_size``, and few enough that a block's samples stay near ``budget``
     numbers (tens of MB), whatever N and |E|. Results do not depend on it."""

@@ -23,12 +23,15 @@ def held(
     gathered: bool = False,
     root_only: bool = False,
     saved: bool = True,
+    per_checkpoint: bool = False,
     default=None,
 ):
     """A state's field: what its arrays hold (``rows`` of agents or arcs on ``axis``, or numbers of the whole run),
     whether the end of the run gathers it whole on the writing process, whether that process alone holds it, whether
-    a checkpoint saves it (not what is empty at every checkpoint, or cannot be continued)."""
+    a checkpoint saves it (not what is empty at every checkpoint, or cannot be continued), whether its arrays have a
+    row a checkpoint first (a run extended to more steps gets rows for its new checkpoints: `restore`)."""
     meta = dict(rows=rows, axis=axis, gathered=gathered, root_only=root_only, saved=saved)
+    meta["per_checkpoint"] = per_checkpoint
     return field(default=default, metadata=meta)
 
 
@@ -44,12 +47,13 @@ class RunState:
     state: Any = held(AGENTS, 1, gathered=True)  # the algorithm's state (a NamedTuple of (B, n, q) arrays)
     sums: Any = held(AGENTS, 1, gathered=True)  # {"all": the running sum of the estimates w_k (B, n, q)}
     tail_base: Any = held(AGENTS, 1, gathered=True)  # that sum when the tail began
-    metrics: Any = held()  # (C, B) each, `dgtd.run.measure.METRICS`
-    counts: Any = held()  # (C, B) each, `dgtd.run.measure.COUNTS`
-    agent_error_last: Any = held(AGENTS, 2, gathered=True)  # (C, B, n)
-    agent_error_avg: Any = held(AGENTS, 2, gathered=True)
-    w_trace: Any = held(root_only=True)  # (C, B, N, q), where small enough
-    sum_trace: Any = held(AGENTS, 2)  # the running sum at each checkpoint, for the tail averages
+    steps: Any = held()  # (C,) the checkpoints' steps (a run extended to more steps keeps those it had)
+    metrics: Any = held(per_checkpoint=True)  # (C, B) each, `dgtd.run.measure.METRICS`
+    counts: Any = held(per_checkpoint=True)  # (C, B) each, `dgtd.run.measure.COUNTS`
+    agent_error_last: Any = held(AGENTS, 2, gathered=True, per_checkpoint=True)  # (C, B, n)
+    agent_error_avg: Any = held(AGENTS, 2, gathered=True, per_checkpoint=True)
+    w_trace: Any = held(root_only=True, per_checkpoint=True)  # (C, B, N, q), where small enough
+    sum_trace: Any = held(AGENTS, 2, per_checkpoint=True)  # the running sum at each checkpoint, for the tail averages
     messages: Any = held()  # (B,) delivered so far, frozen once a seed diverges
     bits: Any = held()
     per_arc: Any = held(ARCS, 1, gathered=True)  # (B, arcs) deliveries, where the channel counts them
@@ -116,14 +120,25 @@ def _reported(x, layout):
 def restore(initial, snap: dict):
     """``initial`` with every field a snapshot holds put back, as the type ``initial`` has it (a record's fields by
     name, an array in its dtype); a field the snapshot lacks (an older checkpoint's) keeps its initial value, and one
-    held by the writing process alone stays absent elsewhere."""
+    held by the writing process alone stays absent elsewhere. A field with a row a checkpoint (``per_checkpoint``)
+    that the snapshot has fewer rows of (a finished run extended to more steps) fills the first rows of the initial
+    one, the new checkpoints' rows as they start; one the run no longer keeps (too large now) stays absent."""
     values = {}
     for f in fields(initial):
         x, init = snap.get(f.name), getattr(initial, f.name)
-        if x is None or (f.metadata["root_only"] and init is None):
+        if x is None or ((f.metadata["root_only"] or f.metadata["per_checkpoint"]) and init is None):
             continue
+        if f.metadata["per_checkpoint"]:
+            x = {n: _leading(init[n], v) for n, v in x.items()} if isinstance(x, dict) else _leading(init, x)
         values[f.name] = _as(init, x)
     return replace(initial, **values)
+
+
+def _leading(init: np.ndarray, x) -> np.ndarray:
+    """``init`` with its first rows ``x`` (a snapshot's rows of the checkpoints it measured)."""
+    out = np.array(init, copy=True)
+    out[: np.shape(x)[0]] = x
+    return out
 
 
 def _as(init, x):
