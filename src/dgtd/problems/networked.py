@@ -23,7 +23,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
-from dgtd.streams import AGENT_STATE, PROBLEM, seed_key, uniforms
+from dgtd.streams import AGENT_START, AGENT_STATE, PROBLEM, seed_key, uniforms
 
 JOINT_ENTRIES = 1 << 24  # S^N x A^N x S^N: the largest joint table built (128 MB)
 
@@ -90,6 +90,29 @@ class NetworkedMDP:
     def sizes(self) -> np.ndarray:
         """|N_i| of every agent (N,)."""
         return (self.neighbourhoods >= 0).sum(axis=1)
+
+    @property
+    def actions(self) -> np.ndarray:
+        """(N,) each agent's action count (every agent A)."""
+        return np.full(self.n_agents, self.n_actions)
+
+    @property
+    def observations(self) -> int:
+        """The rows of an agent's policy: its neighbourhood's states, S^K (the largest neighbourhood's)."""
+        return self.n_states ** self.neighbourhoods.shape[1]
+
+    @property
+    def state_values(self) -> int:
+        return self.n_states
+
+    def first_states(self, keys: np.ndarray, m: int) -> np.ndarray:
+        """(B, N) every agent's first state of episode m, each by its own number (AGENT_START, m, agent)."""
+        u = uniforms(keys[:, None], AGENT_START, m, np.arange(self.n_agents))[0]
+        return team.draw(np.cumsum(self.start)[None, None, :], u)
+
+    def observe(self, s: np.ndarray) -> np.ndarray:
+        """(B, N) each agent's policy row: its neighbourhood's states (`local_index`)."""
+        return self.local_index(s, np.arange(self.n_agents))
 
     def local_index(self, s: np.ndarray, agents: np.ndarray) -> np.ndarray:
         """The index of each of ``agents``' neighbourhood states (B, n) in every agent's states ``s`` (B, N)."""

@@ -29,32 +29,49 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dgtd.algorithms.actor import SoftmaxActor, actor_increment, policy
+from dgtd.algorithms.actor import actor_increment, policy
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
 from dgtd.problems.networked import NetworkedMDP, hood_index
-from dgtd.streams import ACTION, AGENT_START, seed_keys, singles, uniforms
+from dgtd.streams import ACTION, seed_keys, singles
 
 
 @dataclass(frozen=True)
 class ScalableSteps:
-    """``kappa`` the critics' hops; ``horizon`` T; the critic's steps alpha_t = ``critic_step`` / (t +
-    ``critic_offset``) and the actor's eta_m = ``actor_step`` / sqrt(m + 1) (Qu et al.'s forms)."""
+    """``kappa`` the critics' hops; ``horizon`` T; the critic's steps alpha = ``critic_step`` / (tau - 1 +
+    ``critic_offset``)^``critic_power`` at its t-th update of an episode (t = 1 .. T), tau = t, and the actor's eta_m =
+    ``actor_step`` / sqrt(m + 1) (Qu et al.'s forms: each critic's table starts from 0 every episode). With
+    ``restart`` R > 0 (their public code's form) each critic keeps its table over the episodes, and both steps start
+    again every R episodes: tau = (m mod R) T + t, eta_m = ``actor_step`` / sqrt(m mod R + 1)."""
 
     kappa: int = 1
     horizon: int = 10
     critic_step: float = 1.0
     critic_offset: float = 1.0
     actor_step: float = 1.0
+    critic_power: float = 1.0
+    restart: int = 0
 
     def __post_init__(self):
-        if int(self.kappa) < 0 or int(self.horizon) < 1:
-            raise DgtdInputError(f"kappa >= 0 and a horizon >= 1, got {self.kappa} and {self.horizon}")
-        if not all(np.isfinite(x) and x > 0 for x in (self.critic_step, self.critic_offset, self.actor_step)):
-            raise DgtdInputError("the scalable actor-critic's steps and offset must be numbers > 0")
+        if int(self.kappa) < 0 or int(self.horizon) < 1 or int(self.restart) < 0:
+            raise DgtdInputError(
+                f"kappa >= 0, a horizon >= 1 and a restart >= 0, got {self.kappa}, {self.horizon}, {self.restart}"
+            )
+        steps = (self.critic_step, self.critic_offset, self.actor_step, self.critic_power)
+        if not all(np.isfinite(x) and x > 0 for x in steps):
+            raise DgtdInputError("the scalable actor-critic's steps, offset and power must be numbers > 0")
+
+    def critic_rate(self, m: int, t: int) -> float:
+        """alpha of the critic's t-th update of episode m."""
+        tau = (m % self.restart) * self.horizon + t if self.restart else t
+        return self.critic_step / (tau - 1 + self.critic_offset) ** self.critic_power
+
+    def actor_rate(self, m: int) -> float:
+        """eta_m of episode m."""
+        return self.actor_step / np.sqrt((m % self.restart if self.restart else m) + 1)
 
 
-def kappa_hoods(mdp: NetworkedMDP, kappa: int) -> np.ndarray:
+def kappa_hoods(mdp, kappa: int) -> np.ndarray:
     """(N, K) each agent's kappa-hop neighbourhood (the agent first, then the others ascending), padded with -1."""
     reach = [{i} for i in range(mdp.n_agents)]
     for _ in range(kappa):
@@ -73,33 +90,83 @@ def pair_index(hoods: np.ndarray, s: np.ndarray, a: np.ndarray, S: int, A: int) 
     return hood_index(hoods, s * A + a, S * A)
 
 
-def learn_scalable(mdp: NetworkedMDP, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
-                   checkpoints: int = 20) -> dict:  # fmt: skip
-    """Algorithm 1 of the module's docstring for ``iterations`` episodes: {"iterations" (C,), "return" (C, B) the
-    exact normalised J_gamma of the policies at each checkpoint (NaN where the joint table is too large),
-    "episode_return" (C, B) the mean normalised discounted team return of the episodes since the last checkpoint,
-    "policies" (B, N, S^K, A), "seconds"}."""
-    N, S, A = mdp.n_agents, mdp.n_states, mdp.n_actions
-    hoods = kappa_hoods(mdp, steps.kappa)
-    theta = np.zeros((seeds, N, S ** mdp.neighbourhoods.shape[1], A))
+DENSE_MAX = 1 << 24  # numbers of the critics' dense tables (seeds x agents x (S A)^K) beyond which they are hashed
+EVALUATION = 1 << 36  # the first episode number of the evaluation rollouts (their numbers apart from learning's)
+
+
+class Critics:
+    """Every agent's truncated critic Q^_i over its kappa-hop neighbourhood's (state, action) pairs, for B seeds: one
+    dense table where (S A)^K is small (`DENSE_MAX`), else rows given to the configurations met
+    (`dgtd.backends.compiled.table.FingerprintTable`); the same numbers either way."""
+
+    def __init__(self, task, hoods: np.ndarray, seeds: int):
+        N, K = hoods.shape
+        self.task, self.hoods, self.B = task, hoods, seeds
+        self.base = task.state_values * int(np.max(task.actions))
+        self.dense = seeds * N * float(self.base) ** K <= DENSE_MAX
+        self.clear()
+
+    def clear(self) -> None:
+        """Every value 0 (a new episode, in the paper's form)."""
+        N, K = self.hoods.shape
+        if self.dense:
+            self.values = np.zeros(self.B * N * self.base**K)
+        else:
+            from dgtd.backends.compiled.table import FingerprintTable
+
+            self.table = FingerprintTable()
+
+    def rows(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """(T + 1, B, N): each agent's row of its neighbourhood's configuration at each step of an episode."""
+        B, N = states.shape[1:]
+        owner = np.arange(B)[:, None] * N + np.arange(N)[None, :]  # (B, N)
+        digits = states * int(np.max(self.task.actions)) + actions  # (T + 1, B, N)
+        if self.dense:
+            z = np.stack([hood_index(self.hoods, d, self.base) for d in digits])
+            return owner * self.base ** self.hoods.shape[1] + z
+        from dgtd.backends.compiled.table import fingerprints
+
+        valid = self.hoods >= 0
+        members = np.where(valid, digits[..., np.maximum(self.hoods, 0)], -1)  # (T + 1, B, N, K)
+        rows = self.table.rows(fingerprints(owner, members))
+        self.values = self.table.values
+        return rows
+
+
+def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
+                   checkpoints: int = 20, evaluate: int = 0, progress=None) -> dict:  # fmt: skip
+    """Algorithm 1 of the module's docstring for ``iterations`` episodes on ``task`` (a `NetworkedMDP`, or any task
+    of its form: `dgtd.problems.wireless.WirelessAccess`): {"iterations" (C,), "return" (C, B) the exact normalised
+    J_gamma of the policies at each checkpoint (NaN where there is no joint table), "episode_return" (C, B) the mean
+    normalised discounted team return of the episodes since the last checkpoint, "evaluated" (C, B) with ``evaluate``
+    > 0 the mean of (1/n) sum_i sum_{t<T} gamma^t r_i(t) over that many rollouts of the policies at each checkpoint
+    (`rollout_return`; Qu et al.'s measure), "policies" (B, N, rows, A), "seconds"}."""
+    N, A = task.n_agents, int(np.max(task.actions))
+    hoods = kappa_hoods(task, steps.kappa)
+    theta = np.where(np.arange(A)[None, None, None, :] < task.actions[None, :, None, None], 0.0, -np.inf)
+    theta = np.broadcast_to(theta, (seeds, N, task.observations, A)).copy()
     keys, started = seed_keys(seed, range(seeds)), time.perf_counter()
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
-    exact = mdp.has_joint
-    out = {name: np.full((len(at), seeds), np.nan) for name in ("return", "episode_return")}
-    tally = np.zeros(seeds)
+    exact = getattr(task, "has_joint", False)
+    out = {name: np.full((len(at), seeds), np.nan) for name in ("return", "episode_return", "evaluated")}
+    tally, critics = np.zeros(seeds), Critics(task, hoods, seeds)
     for m in range(iterations):
-        states, actions, rewards = _episode(mdp, theta, keys, m, steps.horizon)
-        q = _critic(mdp, hoods, states, actions, rewards, steps)  # (T + 1, B, N): Q^_j(z_j(t)) at the episode's end
+        states, actions, rewards = _episode(task, theta, keys, m, steps.horizon)
+        q = _critic(critics, states, actions, rewards, steps, m)  # (T + 1, B, N): Q^_j(z_j(t)) at the episode's end
         for t, r in enumerate(rewards):  # (a step at a time: each seed's sum in the same order for any seeds)
-            tally += mdp.gamma**t * r.mean(axis=1)
-        theta = theta + steps.actor_step / np.sqrt(m + 1) * _gradient(mdp, hoods, theta, states, actions, q)
+            tally += task.gamma**t * r.mean(axis=1)
+        theta = theta + steps.actor_rate(m) * _gradient(task, hoods, theta, states, actions, q)
         if m + 1 in at:
             c = int(np.searchsorted(at, m + 1))
             episodes = m + 1 - (at[c - 1] if c else 0)
-            out["episode_return"][c] = (1 - mdp.gamma) * tally / episodes
+            out["episode_return"][c] = (1 - task.gamma) * tally / episodes
             tally[:] = 0.0
             if exact:
-                out["return"][c] = [exact_return(mdp, policy(theta[b])) for b in range(seeds)]
+                out["return"][c] = [exact_return(task, policy(theta[b])) for b in range(seeds)]
+            if evaluate:
+                out["evaluated"][c] = rollout_return(task, policy(theta), keys, evaluate, steps.horizon, c)
+        if progress is not None:
+            progress(1)
     return {"iterations": at, **out, "policies": policy(theta), "seconds": time.perf_counter() - started}
 
 
@@ -110,44 +177,62 @@ def exact_return(mdp: NetworkedMDP, policies) -> float:
     return team.discounted_return(joint, list(joint.policies or ()))
 
 
-def _episode(mdp: NetworkedMDP, theta: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
-    """Episode m: (states, actions, rewards), each (T + 1, B, N)."""
-    B, N = theta.shape[:2]
+def rollout_return(task, policies: np.ndarray, keys: np.ndarray, episodes: int, T: int, at: int = 0) -> np.ndarray:
+    """(B,) the mean over ``episodes`` rollouts of (1/n) sum_i sum_{t<T} gamma^t r_i(t) under ``policies`` (B, N,
+    rows, A) (or one set (N, rows, A) for every seed), each rollout's numbers keyed by its own episode number (from
+    `EVALUATION` + ``at`` x ``episodes``: apart from learning's, the same for every policy evaluated at ``at``)."""
+    B = len(keys)
+    policies = np.broadcast_to(policies, (B, *policies.shape[-3:]))
+    cdf = np.cumsum(policies, axis=-1)
+    total = np.zeros(B)
+    for e in range(episodes):
+        m = EVALUATION + at * episodes + e
+        states, actions, rewards = _rollout(task, cdf, keys, m, T)
+        total += sum(task.gamma**t * r.mean(axis=1) for t, r in enumerate(rewards[:T]))
+    return total / episodes
+
+
+def _episode(task, theta: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
+    """Episode m under the policies of ``theta``: (states, actions, rewards), each (T + 1, B, N)."""
+    return _rollout(task, np.cumsum(policy(theta), axis=-1), keys, m, T)
+
+
+def _rollout(task, cdf: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
+    """Episode m of T + 1 steps under the policies' cumulative tables ``cdf`` (B, N, rows, A): step k = m (T + 1) + t,
+    each agent's action by its own number (ACTION, k, agent)."""
+    B, N = cdf.shape[:2]
     every = np.arange(N)
-    s = team.draw(np.cumsum(mdp.start)[None, None, :], uniforms(keys[:, None], AGENT_START, m, every)[0])
-    samples, actor = [], SoftmaxActor()
+    b, i = np.arange(B)[:, None], every[None, :]
+    s = task.first_states(keys, m)
+    samples = []
     for t in range(T + 1):
         k = m * (T + 1) + t
-        pi = actor.probabilities(theta, mdp.local_index(s, every))  # (B, N, A): each at its neighbourhood's state
-        a = team.draw(np.cumsum(pi, axis=-1), singles(keys[:, None], ACTION, k, every))
-        s_next, r = mdp.step(s, a, keys, k)
+        a = team.draw(cdf[b, i, task.observe(s)], singles(keys[:, None], ACTION, k, every))
+        s_next, r = task.step(s, a, keys, k)
         samples.append((s, a, r))
         s = s_next
     return tuple(np.stack(x) for x in zip(*samples))
 
 
-def _critic(mdp: NetworkedMDP, hoods, states, actions, rewards, steps: ScalableSteps) -> np.ndarray:
-    """Every agent's truncated critic learnt along the episode by TD(0) from 0; returns Q^_j^T(z_j(t)) (T + 1, B, N)."""
-    T1, B, N = states.shape
-    S, A = mdp.n_states, mdp.n_actions
-    z = np.stack([pair_index(hoods, states[t], actions[t], S, A) for t in range(T1)])  # (T + 1, B, N)
-    Q = np.zeros((B, N, (S * A) ** hoods.shape[1]))
-    b, i = np.arange(B)[:, None], np.arange(N)[None, :]
-    for t in range(1, T1):
-        alpha = steps.critic_step / (t - 1 + steps.critic_offset)
-        target = rewards[t - 1] + mdp.gamma * Q[b, i, z[t]]
-        Q[b, i, z[t - 1]] += alpha * (target - Q[b, i, z[t - 1]])
-    return np.stack([Q[b, i, z[t]] for t in range(T1)])
+def _critic(critics: Critics, states, actions, rewards, steps: ScalableSteps, m: int) -> np.ndarray:
+    """Every agent's truncated critic moved along episode m by TD(0) (from 0 in the paper's form, else from what it
+    learnt before: ``steps.restart``); returns Q^_j(z_j(t)) (T + 1, B, N) at the episode's end."""
+    if not steps.restart:
+        critics.clear()
+    z = critics.rows(states, actions)  # (T + 1, B, N)
+    Q, gamma = critics.values, critics.task.gamma
+    for t in range(1, z.shape[0]):  # (one agent's rows are its own: no two agents of a step share one)
+        target = rewards[t - 1] + gamma * Q[z[t]]
+        Q[z[t - 1]] += steps.critic_rate(m, t) * (target - Q[z[t - 1]])
+    return Q[z]
 
 
-def _gradient(mdp: NetworkedMDP, hoods, theta, states, actions, q) -> np.ndarray:
-    """n g_i = sum_t gamma^t sum_{j in N_i^kappa} Q^_j(z_j(t)) grad log zeta_i(a_i(t) | s_N_i(t)): the gradient of
+def _gradient(task, hoods, theta, states, actions, q) -> np.ndarray:
+    """n g_i = sum_t gamma^t sum_{j in N_i^kappa} Q^_j(z_j(t)) grad log zeta_i(a_i(t) | o_i(t)): the gradient of
     the team's sum of returns, n times that of their mean, so that an agent's step does not shrink as n grows."""
-    N, valid = mdp.n_agents, hoods >= 0
+    valid = hoods >= 0
     into = np.zeros_like(theta)
-    every = np.arange(N)
     for t in range(states.shape[0]):
         shared = np.where(valid, q[t][:, np.maximum(hoods, 0)], 0.0).sum(axis=-1)  # (B, N): n times theirs
-        weight = mdp.gamma**t * shared
-        actor_increment(theta, mdp.local_index(states[t], every), actions[t], weight, 1.0, into)
+        actor_increment(theta, task.observe(states[t]), actions[t], task.gamma**t * shared, 1.0, into)
     return into

@@ -1,0 +1,108 @@
+"""The wireless-access benchmark of Qu, Wierman and Li's scalable actor-critic (`dgtd.problems.wireless`,
+`dgtd.run.scalable`) at its published size and settings: 3 x 4 cells, 2 users a cell (24 agents), 6 access points,
+deadline 2, arrivals 0.5, kappa 1, gamma 0.7, horizon 10, 120 000 episodes; their public code's steps (each critic's
+table kept over episodes, alpha = 1 / sqrt((m mod 100) T + t), the actor's 5 / sqrt(m mod 100 + 1) on the mean of the
+truncated values: 5 / n on their sum here). Every ``--every`` episodes the policies' mean per-agent discounted return
+(1/n) sum_i sum_{t<T} gamma^t r_i(t) is estimated from ``--rollouts`` keyed rollouts, as their code measures it;
+beside it the best of their 20 ALOHA-like heuristics (send probability 0, 0.05, .., 0.95) on the same numbers, and
+their published curve (their repository's data file). Writes docs/wireless.png and benchmarks/results/wireless.json.
+
+Usage: python benchmarks/wireless.py [--episodes 120000] [--every 2000] [--rollouts 400] [--seeds 1]
+[--height 3 --width 4 --users 2] [--out docs]"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from dgtd.problems.wireless import grid  # noqa: E402
+from dgtd.run.scalable import ScalableSteps, learn_scalable, rollout_return  # noqa: E402
+from dgtd.streams import seed_keys  # noqa: E402
+
+# Their published curve (yihenglin97/Networked-MARL, WirelessAccess/data/Tabular-Access-3-4-1.txt): the mean per-agent
+# discounted return at episodes 0, 2 000, .., 120 000, each from 400 rollouts
+PUBLISHED = (
+    0.020078, 0.021051, 0.023801, 0.024598, 0.027024, 0.029291, 0.034220, 0.036620, 0.042617, 0.047452, 0.049064,
+    0.055711, 0.058386, 0.068307, 0.074373, 0.076974, 0.083572, 0.090158, 0.094590, 0.100553, 0.102344, 0.109538,
+    0.114466, 0.122124, 0.131270, 0.135291, 0.143573, 0.150482, 0.151782, 0.157805, 0.160653, 0.165342, 0.176076,
+    0.175890, 0.184463, 0.186417, 0.182227, 0.190985, 0.184591, 0.193089, 0.198337, 0.193286, 0.203525, 0.200555,
+    0.201798, 0.203909, 0.211421, 0.216754, 0.218385, 0.217365, 0.218383, 0.222536, 0.230217, 0.220459, 0.231400,
+    0.238660, 0.239292, 0.235691, 0.237121, 0.240485, 0.241448,
+)  # fmt: skip
+
+
+def steps_for(n_agents: int) -> ScalableSteps:
+    """Their public code's steps (the actor's on the team's sum: 5 / n)."""
+    return ScalableSteps(kappa=1, horizon=10, critic_step=1.0, critic_offset=1.0, critic_power=0.5,
+                         actor_step=5.0 / n_agents, restart=100)  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--episodes", type=int, default=120_000)
+    parser.add_argument("--every", type=int, default=2_000)
+    parser.add_argument("--rollouts", type=int, default=400)
+    parser.add_argument("--seeds", type=int, default=1)
+    parser.add_argument("--height", type=int, default=3)
+    parser.add_argument("--width", type=int, default=4)
+    parser.add_argument("--users", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("docs"))
+    args = parser.parse_args()
+    task = grid(args.height, args.width, args.users)
+    steps, keys = steps_for(task.n_agents), seed_keys(0, range(args.seeds))
+    uniform = np.where(np.arange(task.actions.max())[None, :] < task.actions[:, None], 1.0, 0.0)
+    uniform = np.repeat((uniform / uniform.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
+    start = rollout_return(task, uniform, keys, args.rollouts, steps.horizon)
+    sends = np.arange(20) / 20
+    aloha = [float(rollout_return(task, task.aloha(p), keys, args.rollouts, steps.horizon).mean()) for p in sends]
+    best = int(np.argmax(aloha))
+    print(f"{task.n_agents} agents: uniform policies {start.mean():.4f}; best ALOHA-like heuristic {aloha[best]:.4f} "
+          f"(send probability {sends[best]:.2f})", flush=True)  # fmt: skip
+    with tqdm(total=args.episodes, unit="episode", mininterval=2.0) as bar:
+        t0 = time.perf_counter()
+        result = learn_scalable(task, steps, args.episodes, seeds=args.seeds, checkpoints=args.episodes // args.every,
+                                evaluate=args.rollouts, progress=bar.update)  # fmt: skip
+        seconds = time.perf_counter() - t0
+    curve = np.vstack([start, result["evaluated"]])  # (C + 1, B)
+    episodes = np.r_[0, result["iterations"]]
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MB (Linux: kB)
+    print(f"learnt: {curve[0].mean():.4f} -> {curve[-1].mean():.4f} in {args.episodes:,} episodes, {seconds:.0f} s, "
+          f"peak {peak:.0f} MB")  # fmt: skip
+    record = {
+        "agents": task.n_agents, "episodes": episodes.tolist(), "return": curve.tolist(), "aloha": aloha,
+        "aloha_best": aloha[best], "aloha_send": float(sends[best]), "seconds": seconds, "peak_mb": peak,
+        "seeds": args.seeds, "rollouts": args.rollouts,
+    }  # fmt: skip
+    results = Path(__file__).parent / "results"
+    results.mkdir(exist_ok=True)
+    (results / f"wireless-{task.n_agents}.json").write_text(json.dumps(record, indent=1))
+    figure(episodes, curve, aloha[best], task.n_agents, args.out / f"wireless-{task.n_agents}.png")
+
+
+def figure(episodes, curve, aloha: float, n: int, path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ax.plot(episodes, curve.mean(axis=1), label=f"dgtd, scalable actor-critic ({curve.shape[1]} seed(s))")
+    if n == 24:
+        ax.plot(np.arange(len(PUBLISHED)) * 2000, PUBLISHED, "--", label="Qu et al.'s published curve")
+    ax.axhline(aloha, color="g", label="best ALOHA-like heuristic")
+    ax.set_xlabel("episodes")
+    ax.set_ylabel("mean per-agent discounted return")
+    ax.set_title(f"wireless access, {n} agents, kappa 1")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
