@@ -275,6 +275,10 @@ def _team_mdp(task: str | None, file, own: dict, seeds: int):
             raise DgtdInputError("--agents and --states size a named task; a problem file's sizes are its arrays'")
         mdp = load_team_mdp(file)
     elif task not in TASKS:
+        from dgtd.run.networked import TASKS as NETWORKED
+
+        if task in NETWORKED:  # (agents with local states: their own command)
+            raise DgtdInputError(f"{task} is a networked system, agents with local states: `dgtd networked {task}`")
         raise DgtdInputError(f"name a learning task: {', '.join([*TASKS, *ENV_TASKS])}; got {task!r}")
     else:
         sizes = {k: v for k, v in (("n_agents", own["agents"]), ("n_states", own["states"])) if v is not None}

@@ -630,9 +630,11 @@ def scenarios():
 
 from dgtd.cli.compare import compare as _compare  # noqa: E402
 from dgtd.cli.learn import learn as _learn  # noqa: E402
+from dgtd.cli.networked import networked as _networked  # noqa: E402
 
 cli.add_command(_compare)
 cli.add_command(_learn)
+cli.add_command(_networked)
 
 
 from dgtd.cli.launch import ARGV  # noqa: E402  (the command line `main` was given, which --ranks passes on)

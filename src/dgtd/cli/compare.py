@@ -80,7 +80,12 @@ def compare(scenario, algorithms, seeds, tune, tune_seeds, learn, out, progress,
 
     given = {k: v for k, v in given.items() if v is not None}
     from dgtd.problems.team import TASKS
+    from dgtd.run.networked import TASKS as NETWORKED
 
+    if scenario in NETWORKED:
+        from dgtd.cli.networked import compare_networked_cli
+
+        return compare_networked_cli(scenario, seeds, out, progress, plots, overwrite, given)
     if learn or scenario in TASKS:
         from dgtd.cli.learn import compare_learners
 

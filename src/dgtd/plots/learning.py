@@ -129,3 +129,20 @@ def learning_sweep_figure(jobs: dict, points: dict, path: Path) -> bool:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
+
+
+def networked_figure(path: Path, results: dict, heuristic: dict | None, task: str) -> str:
+    """returns.png of networked learners: each one's evaluated return against episodes (median and band over seeds),
+    and the task's heuristic at its best."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for label, r in results.items():
+        band(ax, np.asarray(r["episodes"]), np.asarray(r["return"]), label)
+    if heuristic is not None:
+        ax.axhline(float(np.median(heuristic["return"])), color="g", label="heuristic (best of 20)")
+    ax.set(xlabel="episodes", ylabel="mean per-agent discounted return")
+    ax.set_title(f"{task}, {next(iter(results.values()))['agents']} agents\n{BAND_WORDS}", fontsize=9)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path).name

@@ -1,0 +1,164 @@
+"""`dgtd networked TASK`: Qu, Wierman and Li's scalable actor-critic on a networked system (`dgtd.run.networked`),
+and `dgtd compare TASK` on one: networked, independent and the task's heuristic on the same keyed numbers."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import asdict, fields
+from pathlib import Path
+
+import click
+
+from dgtd.cli.options import declared_option, make_option, output_options
+from dgtd.config import field_types
+from dgtd.errors import DgtdInputError
+from dgtd.run.networked import TASKS, NetworkedConfig
+
+CONFIG = "config.toml"
+
+
+def networked_options(command):
+    """`NetworkedConfig`'s fields as options (None: not given, the config's default applies)."""
+    hints = field_types(NetworkedConfig)
+    for f in reversed(fields(NetworkedConfig)):
+        help = declared_option(f)["help"] + f"  [default: {f.default}]"
+        command = make_option(f.name, f, hints[f.name], help)(command)
+    return command
+
+
+@click.command()
+@click.argument("task", required=False)
+@networked_options
+@output_options("out", "progress", "plots", "overwrite")
+def networked(task, out, progress, plots, overwrite, **values):
+    """Agents with local states learn by Qu, Wierman and Li's scalable actor-critic on a networked TASK
+    (wireless-access, the published benchmark by default; random-networked): each agent's policy on its own
+    observation, its critic over its --hops neighbourhood; every --every episodes the policies' mean per-agent
+    discounted return from --rollouts keyed rollouts, beside the task's heuristic. Writes config.toml, summary.json,
+    metrics.csv, policies.npz and returns.png (docs/control.md, "The wireless-access benchmark")."""
+    from dgtd.run.networked import config_from, learn_networked, task_of
+
+    if task not in TASKS:
+        raise DgtdInputError(f"name a networked task: {', '.join(TASKS)}" + (f"; got {task!r}" if task else ""))
+    config = config_from(values)
+    problem = task_of(task, config.agents)  # (its size checked before anything is written)
+    out = Path(out) if out else Path("runs") / f"networked-{task}"
+    steps = config.steps(problem.n_agents)
+    click.echo(
+        f"{task}: {problem.n_agents} agents, gamma {problem.gamma:g}; scalable actor-critic, kappa {steps.kappa}, "
+        f"horizon {steps.horizon}; {config.episodes:,} episodes x {config.seeds} seed(s), evaluated every "
+        f"{config.every:,} by {config.rollouts} rollouts"
+    )
+    with _claimed(out, task, config, overwrite, "networked learning run"):
+        result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar))
+        written = _write(out, {"scalable": result}, task, config, plots)
+    _report({"scalable": result})
+    click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
+
+
+def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: dict) -> None:
+    """`dgtd compare TASK` on a networked task: networked learners, independent ones and the heuristic, -T episodes
+    each (the run options beside it refused)."""
+    from dgtd.run.networked import compare_networked, config_from, task_of
+
+    episodes = given.pop("iterations", None)
+    if given:
+        names = ", ".join("--" + k.replace("_", "-") for k in sorted(given))
+        raise DgtdInputError(f"{task} is a networked task: `dgtd compare {task}` takes -T and --seeds; {names} are "
+                             f"`dgtd networked {task}`'s or not its (dgtd networked --help)")  # fmt: skip
+    config = config_from({"episodes": episodes, "seeds": seeds})
+    problem = task_of(task, config.agents)
+    out = Path(out) if out else Path("runs") / f"compare-{task}"
+    click.echo(f"{task}: {problem.n_agents} agents; networked and independent learners, {config.episodes:,} episodes x "
+               f"{config.seeds} seed(s) each, and the heuristic, on the same keyed numbers")  # fmt: skip
+    with _claimed(out, task, config, overwrite, "comparison"):
+        results = _with_bar(2 * config.episodes, progress, lambda bar: compare_networked(task, config, bar))
+        written = _write(out, results, task, config, plots)
+    _report(results)
+    click.echo(f"wrote {out}/{', '.join(written)}")
+
+
+def _with_bar(total: int, progress: bool, work):
+    from tqdm import tqdm
+
+    with tqdm(total=total, disable=not progress, file=sys.stderr, unit="episode", mininterval=0.5) as bar:
+        return work(bar.update)
+
+
+class _claimed:
+    """The results folder held (`dgtd.run.owner.Owner`), another run's results refused unless --overwrite, and
+    config.toml written: what was asked."""
+
+    def __init__(self, out: Path, task: str, config: NetworkedConfig, overwrite: bool, what: str):
+        from dgtd.run.owner import Owner
+
+        self.record = {"task": task, **{k: v for k, v in asdict(config).items() if v is not None}}
+        self.owner, self.out, self.overwrite, self.what = Owner(out, what, overwrite), out, overwrite, what
+
+    def __enter__(self):
+        import tomli_w
+
+        from dgtd.run.atomic import atomic_write
+        from dgtd.run.results import refuse_other_results
+
+        self.owner.__enter__()
+        try:
+            if not self.overwrite:
+                refuse_other_results(self.out, self.record, self.what)
+            text = "# dgtd networked: the options of this run\n" + tomli_w.dumps({"networked": self.record})
+            atomic_write(self.out / CONFIG, text.encode())
+        except BaseException:
+            self.owner.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc):
+        return self.owner.__exit__(*exc)
+
+
+def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: bool) -> list:
+    """Numbers before pictures, each file atomically: summary.json, metrics.csv, policies.npz (one run), returns.png."""
+    import numpy as np
+
+    from dgtd.run.atomic import atomic_write, atomic_write_json
+    from dgtd.run.results import npz_bytes
+
+    record = {"task": task, **{k: v for k, v in asdict(config).items() if v is not None}}
+    summary = {"config": record, "learners": {}}
+    rows = ["learner,seed,episode,metric,value"]
+    for label, r in results.items():
+        summary["learners"][label] = {
+            "agents": r["agents"], "episodes": r["episodes"].tolist(), "return": r["return"].tolist(),
+            "return_last": r["return"][-1].tolist(), "seconds": r["seconds"],
+        }  # fmt: skip
+        for c, episode in enumerate(r["episodes"]):
+            rows += [f"{label},{b},{episode},return,{v!r}" for b, v in enumerate(r["return"][c])]
+    h = next(iter(results.values()))["heuristic"]
+    if h is not None:
+        summary["heuristic"] = {"return": h["return"].tolist(), "send": h["send"]}
+    atomic_write_json(out / "summary.json", summary)
+    atomic_write(out / "metrics.csv", ("\n".join(rows) + "\n").encode())
+    written = ["summary.json", "metrics.csv"]
+    if len(results) == 1:
+        atomic_write(out / "policies.npz", npz_bytes({"policies": np.asarray(results["scalable"]["policies"])}))
+        written.append("policies.npz")
+    if plots:
+        from dgtd.plots.learning import networked_figure
+
+        written.append(networked_figure(out / "returns.png", results, h, task))
+    return written
+
+
+def _report(results: dict) -> None:
+    import numpy as np
+
+    h = next(iter(results.values()))["heuristic"]
+    click.echo(f"{'learner':<24} {'start':>8} {'last (median over seeds)':>26} {'seeds range':>20}")
+    for label, r in results.items():
+        last = r["return"][-1]
+        click.echo(f"{label:<24} {np.median(r['return'][0]):8.4f} {np.median(last):26.4f} "
+                   f"{last.min():9.4f} to {last.max():.4f}")  # fmt: skip
+    if h is not None:
+        click.echo(f"{'heuristic (best of 20)':<24} {'':>8} {np.median(h['return']):26.4f} "
+                   f"(send probability {h['send']:.2f})")  # fmt: skip
+    click.echo("return: the mean per-agent discounted return over the horizon, (1/n) sum_i sum_{t<T} gamma^t r_i(t)")

@@ -1,0 +1,131 @@
+"""Learning runs on networked systems (agents with local states: `dgtd.problems.networked`, `dgtd.problems.wireless`):
+one typed configuration (`NetworkedConfig`, which makes `dgtd networked`'s options), the named tasks, the run of Qu,
+Wierman and Li's scalable actor-critic with its evaluation, and the comparison of networked learners (kappa hops),
+independent ones (0 hops: each critic its own state and action) and the task's heuristic, on the same keyed numbers."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+from dgtd.errors import DgtdInputError
+from dgtd.fields import option
+from dgtd.run.scalable import ScalableSteps, learn_scalable, rollout_return
+from dgtd.run.settings import check_count
+from dgtd.streams import seed_keys
+
+TASKS = {
+    "wireless-access": "Qu et al.'s wireless access: a grid of cells, 2 users a cell, 3 rows (--agents 24: 3 x 4)",
+    "random-networked": "a random networked MDP on a ring (--agents 10), 2 states and actions an agent",
+}
+SENDS = np.arange(20) / 20  # the ALOHA-like heuristics' send probabilities (their code's 20)
+
+
+@dataclass(frozen=True)
+class NetworkedConfig:
+    """Every setting of a networked learning run, with its option; defaults: the published wireless benchmark's."""
+
+    agents: int | None = field(default=None, metadata=option("Agents: wireless-access's users (a grid of 2 a cell and "
+                               "3 rows; default 24) or random-networked's ring (default 10)."))  # fmt: skip
+    hops: int = field(default=1, metadata=option("kappa: the hops of each critic's neighbourhood (0: independent "
+                      "learners, each critic its own state and action)."))  # fmt: skip
+    horizon: int = field(default=10, metadata=option("T: an episode's steps after its first."))
+    episodes: int = field(default=120_000, metadata=option("Episodes to learn for.", flags=("--episodes", "-T")))
+    seeds: int = field(default=1, metadata=option("Seeds, run at once (an array axis)."))
+    seed: int = field(default=0, metadata=option("The base seed every random number is keyed by."))
+    every: int = field(default=2_000, metadata=option("Episodes between evaluations of the policies."))
+    rollouts: int = field(default=400, metadata=option("Keyed rollouts an evaluation averages."))
+    critic_step: float = field(default=1.0, metadata=option("The critics' step h in h / (tau - 1 + t0)^p."))
+    critic_offset: float = field(default=1.0, metadata=option("The critics' step offset t0."))
+    critic_power: float = field(default=0.5, metadata=option("The critics' step power p."))
+    actor_step: float | None = field(default=None, metadata=option("The actors' step eta on the team's sum of values "
+                                     "(default 5 / n, their code's 5 on the mean)."))  # fmt: skip
+    restart: int = field(default=100, metadata=option("Episodes after which both steps start again, the critics' "
+                         "tables kept (their code's form); 0: tables from 0 each episode (the paper's)."))  # fmt: skip
+
+    def __post_init__(self):
+        for name in ("hops", "seed", "restart"):
+            check_count(name, getattr(self, name), 0)
+        for name in ("horizon", "episodes", "seeds", "every", "rollouts"):
+            check_count(name, getattr(self, name), 1)
+        if self.agents is not None:
+            check_count("agents", self.agents, 1)
+
+    def steps(self, n_agents: int) -> ScalableSteps:
+        """The scalable actor-critic's steps for ``n_agents``."""
+        actor = 5.0 / n_agents if self.actor_step is None else self.actor_step
+        return ScalableSteps(self.hops, self.horizon, self.critic_step, self.critic_offset, actor, self.critic_power,
+                             self.restart)  # fmt: skip
+
+
+def task_of(name: str, agents: int | None):
+    """The named task at ``agents`` agents (its default size where None)."""
+    if name == "wireless-access":
+        from dgtd.problems.wireless import grid
+
+        n = 24 if agents is None else agents
+        width = max(2, -(-n // 6))  # (3 rows of cells, 2 users a cell)
+        if n != 6 * width:
+            raise DgtdInputError(f"wireless-access has 2 users a cell in 3 rows: --agents a multiple of 6 from 12 "
+                                 f"(e.g. {6 * width}); got {n}")  # fmt: skip
+        return grid(3, width, 2)
+    if name == "random-networked":
+        from dgtd.graphs import topologies
+        from dgtd.problems.networked import random_networked
+
+        n = 10 if agents is None else agents
+        if n < 3:
+            raise DgtdInputError(f"random-networked is a ring: --agents 3 or more; got {n}")
+        return random_networked(topologies.ring(n).edges, n, gamma=0.7)
+    raise DgtdInputError(f"name a networked task: {', '.join(TASKS)}; got {name!r}")
+
+
+def uniform_policies(task) -> np.ndarray:
+    """(N, rows, A) each agent's uniform policy over its own actions."""
+    have = np.where(np.arange(int(task.actions.max()))[None, :] < task.actions[:, None], 1.0, 0.0)
+    return np.repeat((have / have.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
+
+
+def heuristic(task, config: NetworkedConfig) -> dict | None:
+    """The task's heuristic at its best (wireless access: the best of the 20 ALOHA-like policies, each from the same
+    keyed rollouts): {"return" (B,), "send"}; None where the task has none."""
+    if not hasattr(task, "aloha"):
+        return None
+    keys = seed_keys(config.seed, range(config.seeds))
+    values = [rollout_return(task, task.aloha(p), keys, config.rollouts, config.horizon) for p in SENDS]
+    best = int(np.argmax([v.mean() for v in values]))
+    return {"return": values[best], "send": float(SENDS[best])}
+
+
+def learn_networked(name: str, config: NetworkedConfig, progress=None) -> dict:
+    """A run of the scalable actor-critic on task ``name``: {"task", "agents", "episodes" (C + 1,), "return" (C + 1,
+    B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies",
+    "heuristic", "seconds"}."""
+    task = task_of(name, config.agents)
+    keys = seed_keys(config.seed, range(config.seeds))
+    start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
+    began = time.perf_counter()
+    out = learn_scalable(task, config.steps(task.n_agents), config.episodes, config.seeds, config.seed,
+                         max(1, config.episodes // config.every), config.rollouts, progress)  # fmt: skip
+    return {
+        "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
+        "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],
+        "policies": out["policies"], "heuristic": heuristic(task, config), "seconds": time.perf_counter() - began,
+    }  # fmt: skip
+
+
+def compare_networked(name: str, config: NetworkedConfig, progress=None) -> dict:
+    """{learner: `learn_networked`'s result}: networked learners (kappa = ``config.hops``, at least 1) and independent
+    ones (kappa 0), on the same keyed numbers (seeds, episodes, rollouts), with the task's heuristic."""
+    hops = max(1, config.hops)
+    runs = {f"networked (kappa {hops})": NetworkedConfig(**{**asdict(config), "hops": hops}),
+            "independent (kappa 0)": NetworkedConfig(**{**asdict(config), "hops": 0})}  # fmt: skip
+    return {label: learn_networked(name, c, progress) for label, c in runs.items()}
+
+
+def config_from(values: dict) -> NetworkedConfig:
+    """The configuration of the options given (None: not given)."""
+    names = {f.name for f in fields(NetworkedConfig)}
+    return NetworkedConfig(**{k: v for k, v in values.items() if k in names and v is not None})

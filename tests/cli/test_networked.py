@@ -1,0 +1,65 @@
+"""`dgtd networked TASK` and `dgtd compare TASK` on networked systems (`dgtd.cli.networked`)."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+from helpers import one_line_error
+
+SHORT = ("-T", 200, "--every", 100, "--rollouts", 20, "--no-progress", "--no-plots")
+
+
+def test_a_networked_run_writes_its_numbers(run_cli, tmp_path):
+    out = tmp_path / "w"
+    code, text, err = run_cli("networked", "wireless-access", *SHORT, "--seeds", 2, "--out", out)
+    assert code == 0, err
+    assert "24 agents" in text and "heuristic (best of 20)" in text
+    summary = json.loads((out / "summary.json").read_text())
+    run = summary["learners"]["scalable"]
+    assert run["episodes"] == [0, 100, 200] and np.shape(run["return"]) == (3, 2)
+    assert 0.01 < run["return"][0][0] < 0.035  # uniform policies: 0.020 (20 rollouts here)
+    assert 0.1 < summary["heuristic"]["return"][0] < 0.3
+    rows = (out / "metrics.csv").read_text().splitlines()
+    assert rows[0] == "learner,seed,episode,metric,value" and len(rows) == 1 + 3 * 2
+    with np.load(out / "policies.npz") as p:
+        assert p["policies"].shape == (2, 24, 4, 9)
+    saved = tomllib.loads((out / "config.toml").read_text())["networked"]
+    assert saved["task"] == "wireless-access" and saved["episodes"] == 200 and saved["hops"] == 1
+
+
+def test_the_comparison_runs_each_learner_on_the_same_numbers(run_cli, tmp_path):
+    """The networked learners of `dgtd compare` are `dgtd networked`'s run at the same options, to the bit; the
+    independent ones start from the same uniform return (the same rollouts)."""
+    code, _, err = run_cli("compare", "random-networked", "-T", 150, "--seeds", 2, "--no-progress", "--no-plots",
+                           "--out", tmp_path / "c")  # fmt: skip
+    assert code == 0, err
+    both = json.loads((tmp_path / "c" / "summary.json").read_text())["learners"]
+    assert set(both) == {"networked (kappa 1)", "independent (kappa 0)"}
+    one = both["networked (kappa 1)"]
+    code, _, err = run_cli("networked", "random-networked", "-T", 150, "--seeds", 2, "--every", 2000,
+                           "--no-progress", "--no-plots", "--out", tmp_path / "n")  # fmt: skip
+    assert code == 0, err
+    alone = json.loads((tmp_path / "n" / "summary.json").read_text())["learners"]["scalable"]
+    assert alone["return"] == one["return"]
+    assert both["independent (kappa 0)"]["return"][0] == one["return"][0]
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (("networked", "foo"), "name a networked task: wireless-access, random-networked; got 'foo'"),
+        (("networked",), "name a networked task"),
+        (("networked", "wireless-access", "--agents", 25), "a multiple of 6 from 12 (e.g. 30); got 25"),
+        (("networked", "random-networked", "--agents", 2), "--agents 3 or more"),
+        (("networked", "wireless-access", "--hops", -1), "hops must be >= 0"),
+        (("networked", "wireless-access", "-T", 0), "episodes must be >= 1"),
+        (("networked", "wireless-access", "--critic-power", 0), "steps, offset and power must be numbers > 0"),
+        (("compare", "wireless-access", "--loss", 0.2), "takes -T and --seeds; --loss"),
+        (("learn", "wireless-access"), "is a networked system, agents with local states: `dgtd networked"),
+    ],
+)
+def test_bad_input_is_one_line(run_cli, tmp_path, args, says):
+    one_line_error(*run_cli(*args, "--out", tmp_path / "x"), says)
