@@ -23,6 +23,7 @@ are those of the public code (NumPy's legacy generator seeded 0), deadline 2, ar
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -60,7 +61,7 @@ class WirelessAccess:
     def n_agents(self) -> int:
         return self.access.shape[0]
 
-    @property
+    @cached_property
     def points(self) -> list:
         """Each user's access points, ascending."""
         return [np.flatnonzero(row) for row in self.access]
@@ -79,11 +80,12 @@ class WirelessAccess:
     def state_values(self) -> int:
         return 2**self.deadline
 
-    @property
+    @cached_property
     def neighbourhoods(self) -> np.ndarray:
-        """(N, K) each user and those that share an access point with it, ascending after it, padded with -1."""
-        near = (self.access @ self.access.T) > 0
-        rows = [[i, *[int(j) for j in np.flatnonzero(near[i]) if j != i]] for i in range(self.n_agents)]
+        """(N, K) each user and those that share an access point with it, ascending after it, padded with -1 (from
+        each access point's users: O(N K), not O(N^2))."""
+        users = [np.flatnonzero(column) for column in self.access.T]
+        rows = [[i, *sorted({int(j) for y in ys for j in users[y]} - {i})] for i, ys in enumerate(self.points)]
         out = np.full((self.n_agents, max(len(r) for r in rows)), -1, dtype=np.int64)
         for i, r in enumerate(rows):
             out[i, : len(r)] = r
@@ -98,14 +100,21 @@ class WirelessAccess:
         """(B, N) each user's policy row: its own buffer."""
         return s
 
+    @cached_property
+    def point_table(self) -> np.ndarray:
+        """(N, P) each user's access points, ascending, padded with -1 (P the most a user has)."""
+        out = np.full((self.n_agents, max(len(ys) for ys in self.points)), -1, dtype=np.int64)
+        for i, ys in enumerate(self.points):
+            out[i, : len(ys)] = ys
+        return out
+
     def sends(self, a: np.ndarray) -> tuple:
         """(slot, access point) of every user's action ``a`` (B, N): slot k in 0 .. d - 1 (bit k of the buffer), the
         access point's index; (-1, -1) where it waits."""
-        counts = self.access.sum(axis=1)
-        order = np.argsort(~self.access, axis=1, kind="stable")  # each user's points first, ascending
+        counts = (self.point_table >= 0).sum(axis=1)
         k = np.maximum(a - 1, 0)
         slot, place = k // counts, k % counts
-        point = order[np.arange(self.n_agents)[None, :], place]
+        point = self.point_table[np.arange(self.n_agents)[None, :], place]
         waits = a == 0
         return np.where(waits, -1, slot), np.where(waits, -1, point)
 

@@ -73,9 +73,9 @@ class ScalableSteps:
 
 def kappa_hoods(mdp, kappa: int) -> np.ndarray:
     """(N, K) each agent's kappa-hop neighbourhood (the agent first, then the others ascending), padded with -1."""
-    reach = [{i} for i in range(mdp.n_agents)]
+    reach, near = [{i} for i in range(mdp.n_agents)], mdp.neighbourhoods
     for _ in range(kappa):
-        reach = [r | {int(j) for k in r for j in mdp.neighbourhoods[k] if j >= 0} for r in reach]
+        reach = [r | {int(j) for k in r for j in near[k] if j >= 0} for r in reach]
     K = max(len(r) for r in reach)
     out = np.full((mdp.n_agents, K), -1, dtype=np.int64)
     for i, r in enumerate(reach):
