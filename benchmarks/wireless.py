@@ -26,7 +26,8 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from dgtd.problems.wireless import grid  # noqa: E402
-from dgtd.run.scalable import ScalableSteps, learn_scalable, rollout_return  # noqa: E402
+from dgtd.run.networked import NetworkedConfig  # noqa: E402
+from dgtd.run.scalable import learn_scalable, rollout_return  # noqa: E402
 from dgtd.streams import seed_keys  # noqa: E402
 
 # Their published curve (yihenglin97/Networked-MARL, WirelessAccess/data/Tabular-Access-3-4-1.txt): the mean per-agent
@@ -41,12 +42,6 @@ PUBLISHED = (
 )  # fmt: skip
 
 
-def steps_for(n_agents: int) -> ScalableSteps:
-    """Their public code's steps (the actor's on the team's sum: 5 / n)."""
-    return ScalableSteps(kappa=1, horizon=10, critic_step=1.0, critic_offset=1.0, critic_power=0.5,
-                         actor_step=5.0 / n_agents, restart=100)  # fmt: skip
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=120_000)
@@ -59,7 +54,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("docs"))
     args = parser.parse_args()
     task = grid(args.height, args.width, args.users)
-    steps, keys = steps_for(task.n_agents), seed_keys(0, range(args.seeds))
+    steps, keys = NetworkedConfig().steps, seed_keys(0, range(args.seeds))  # (the published steps)
     uniform = np.where(np.arange(task.actions.max())[None, :] < task.actions[:, None], 1.0, 0.0)
     uniform = np.repeat((uniform / uniform.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
     start = rollout_return(task, uniform, keys, args.rollouts, steps.horizon)

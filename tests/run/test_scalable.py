@@ -93,3 +93,28 @@ def test_the_wireless_benchmark_learns_as_published():
     steps = ScalableSteps(kappa=1, horizon=10, critic_power=0.5, actor_step=5.0 / 24, restart=100)
     result = learn_scalable(task, steps, 20_000, seeds=1, checkpoints=2, evaluate=400)
     assert result["evaluated"][-1, 0] > 0.035, result["evaluated"]
+
+
+def test_forgetting_critics_hold_at_most_a_restarts_configurations(monkeypatch):
+    """With ``forget`` each critic's table starts from 0 at each restart: after 25 episodes of restarts every 10, the
+    hashed table holds at most the last 5 episodes' configurations; within the first restart, the numbers of tables
+    kept."""
+    from dgtd.problems.wireless import grid
+    from dgtd.run import scalable
+
+    task, tables = grid(2, 2, 2), []
+    original = scalable.Critics.clear
+
+    def clear(self):
+        original(self)
+        tables.append(self)
+
+    monkeypatch.setattr(scalable.Critics, "clear", clear)
+    steps = ScalableSteps(kappa=1, horizon=4, critic_power=0.5, restart=10, forget=True)
+    learn_scalable(task, steps, 25, seeds=1, checkpoints=1)
+    critics = tables[-1]
+    assert len(tables) == 1 + 3 and not critics.dense  # (made, then cleared at episodes 0, 10 and 20)
+    assert 0 < critics.table.count <= 5 * 5 * task.n_agents
+    kept = learn_scalable(task, ScalableSteps(kappa=1, horizon=4, critic_power=0.5, restart=10), 10, seeds=1)
+    forgot = learn_scalable(task, steps, 10, seeds=1)
+    assert np.array_equal(kept["policies"], forgot["policies"])

@@ -43,7 +43,7 @@ def networked(task, out, progress, plots, overwrite, **values):
     config = config_from(values)
     problem = task_of(task, config.agents)  # (its size checked before anything is written)
     out = Path(out) if out else Path("runs") / f"networked-{task}"
-    steps = config.steps(problem.n_agents)
+    steps = config.steps
     click.echo(
         f"{task}: {problem.n_agents} agents, gamma {problem.gamma:g}; scalable actor-critic, kappa {steps.kappa}, "
         f"horizon {steps.horizon}; {config.episodes:,} episodes x {config.seeds} seed(s), evaluated every "

@@ -40,10 +40,12 @@ class NetworkedConfig:
     critic_step: float = field(default=1.0, metadata=option("The critics' step h in h / (tau - 1 + t0)^p."))
     critic_offset: float = field(default=1.0, metadata=option("The critics' step offset t0."))
     critic_power: float = field(default=0.5, metadata=option("The critics' step power p."))
-    actor_step: float | None = field(default=None, metadata=option("The actors' step eta on the team's sum of values "
-                                     "(default 5 / n, their code's 5 on the mean)."))  # fmt: skip
+    actor_step: float = field(default=5.0 / 24, metadata=option("The actors' step eta on the sum of the values within "
+                              "kappa hops (their code's 5 on the mean of 24 users'; kept as n grows)."))  # fmt: skip
     restart: int = field(default=100, metadata=option("Episodes after which both steps start again, the critics' "
                          "tables kept (their code's form); 0: tables from 0 each episode (the paper's)."))  # fmt: skip
+    forget: bool = field(default=False, metadata=option("The critics' tables start from 0 at each restart too: they "
+                         "hold at most --restart episodes' configurations (many agents' memory)."))  # fmt: skip
 
     def __post_init__(self):
         for name in ("hops", "seed", "restart"):
@@ -53,11 +55,12 @@ class NetworkedConfig:
         if self.agents is not None:
             check_count("agents", self.agents, 1)
 
-    def steps(self, n_agents: int) -> ScalableSteps:
-        """The scalable actor-critic's steps for ``n_agents``."""
-        actor = 5.0 / n_agents if self.actor_step is None else self.actor_step
-        return ScalableSteps(self.hops, self.horizon, self.critic_step, self.critic_offset, actor, self.critic_power,
-                             self.restart)  # fmt: skip
+    @property
+    def steps(self) -> ScalableSteps:
+        """The scalable actor-critic's steps."""
+        c = self
+        return ScalableSteps(c.hops, c.horizon, c.critic_step, c.critic_offset, c.actor_step, c.critic_power, c.restart,
+                             c.forget)  # fmt: skip
 
 
 def task_of(name: str, agents: int | None):
@@ -107,7 +110,7 @@ def learn_networked(name: str, config: NetworkedConfig, progress=None) -> dict:
     keys = seed_keys(config.seed, range(config.seeds))
     start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
     began = time.perf_counter()
-    out = learn_scalable(task, config.steps(task.n_agents), config.episodes, config.seeds, config.seed,
+    out = learn_scalable(task, config.steps, config.episodes, config.seeds, config.seed,
                          max(1, config.episodes // config.every), config.rollouts, progress)  # fmt: skip
     return {
         "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],

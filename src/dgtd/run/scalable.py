@@ -42,7 +42,9 @@ class ScalableSteps:
     ``critic_offset``)^``critic_power`` at its t-th update of an episode (t = 1 .. T), tau = t, and the actor's eta_m =
     ``actor_step`` / sqrt(m + 1) (Qu et al.'s forms: each critic's table starts from 0 every episode). With
     ``restart`` R > 0 (their public code's form) each critic keeps its table over the episodes, and both steps start
-    again every R episodes: tau = (m mod R) T + t, eta_m = ``actor_step`` / sqrt(m mod R + 1)."""
+    again every R episodes: tau = (m mod R) T + t, eta_m = ``actor_step`` / sqrt(m mod R + 1); with ``forget`` the
+    tables start from 0 at each restart too, so that they hold at most R episodes' configurations (the memory of many
+    agents: 24 users learn as well either way, docs/control.md)."""
 
     kappa: int = 1
     horizon: int = 10
@@ -51,6 +53,7 @@ class ScalableSteps:
     actor_step: float = 1.0
     critic_power: float = 1.0
     restart: int = 0
+    forget: bool = False
 
     def __post_init__(self):
         if int(self.kappa) < 0 or int(self.horizon) < 1 or int(self.restart) < 0:
@@ -217,7 +220,7 @@ def _rollout(task, cdf: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
 def _critic(critics: Critics, states, actions, rewards, steps: ScalableSteps, m: int) -> np.ndarray:
     """Every agent's truncated critic moved along episode m by TD(0) (from 0 in the paper's form, else from what it
     learnt before: ``steps.restart``); returns Q^_j(z_j(t)) (T + 1, B, N) at the episode's end."""
-    if not steps.restart:
+    if not steps.restart or (steps.forget and m % steps.restart == 0):
         critics.clear()
     z = critics.rows(states, actions)  # (T + 1, B, N)
     Q, gamma = critics.values, critics.task.gamma
