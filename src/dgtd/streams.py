@@ -55,6 +55,8 @@ ACTION = 14  # agent i's action drawn from its own policy at a step, while it le
 GRAPH = 15  # a keyed random graph's chunk (entity: the chunk, or an agent's links; step: the number's place)
 DISCOUNTED_RESTART = 16  # a discounted visitation chain's restart at a sample (entity 0: u to restart, u for s ~ start)
 PROBLEM = 17  # a generated problem's numbers of agent i (entity i; step: the number's place)
+HOOD_LOSS = 18  # what agent i hears from the member in slot ``index`` of its kappa-hop neighbourhood at a step being
+# lost (entity i): u0 for its state and action, u1 for its truncated value
 
 PURPOSES = {
     "seed": SEED,
@@ -75,6 +77,7 @@ PURPOSES = {
     "graph": GRAPH,
     "discounted-restart": DISCOUNTED_RESTART,
     "problem": PROBLEM,
+    "hood-loss": HOOD_LOSS,
 }
 
 

@@ -154,9 +154,14 @@ def hood_index(hoods: np.ndarray, digits: np.ndarray, base: int) -> np.ndarray:
     """(B, n): for each neighbourhood of ``hoods`` (n, K; padded with -1) the number whose base-``base`` digits are
     its members' ``digits`` (B, N: one an agent), the first member the most significant."""
     valid = hoods >= 0
-    members = np.where(valid, digits[:, np.maximum(hoods, 0)], 0)  # (B, n, K)
+    return mixed_radix(np.where(valid, digits[:, np.maximum(hoods, 0)], 0), valid, base)
+
+
+def mixed_radix(members: np.ndarray, valid: np.ndarray, base: int) -> np.ndarray:
+    """(...): the number whose base-``base`` digits are ``members`` (..., n, K) where ``valid`` (n, K), the first the
+    most significant (`hood_index` of digits already gathered)."""
     places = np.maximum(np.cumsum(valid[:, ::-1], axis=1)[:, ::-1] - 1, 0)  # a member's place from the right
-    return (members * np.where(valid, base**places, 0)).sum(axis=-1)
+    return (np.where(valid, members, 0) * np.where(valid, base**places, 0)).sum(axis=-1)
 
 
 def neighbourhoods_of(edges: np.ndarray, n_agents: int) -> np.ndarray:

@@ -44,6 +44,13 @@ class NetworkedConfig:
                               "kappa hops (their code's 5 on the mean of 24 users'; kept as n grows)."))  # fmt: skip
     restart: int = field(default=100, metadata=option("Episodes after which both steps start again, the critics' "
                          "tables kept (their code's form); 0: tables from 0 each episode (the paper's)."))  # fmt: skip
+    loss: float = field(
+        default=0.0,
+        metadata=option(
+            "Each message an agent needs from another within kappa hops "
+            "(its state and action, its value) is lost with this probability, by its own keyed number."
+        ),
+    )
     forget: bool = field(default=False, metadata=option("The critics' tables start from 0 at each restart too: they "
                          "hold at most --restart episodes' configurations (many agents' memory)."))  # fmt: skip
 
@@ -111,7 +118,7 @@ def learn_networked(name: str, config: NetworkedConfig, progress=None) -> dict:
     start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
     began = time.perf_counter()
     out = learn_scalable(task, config.steps, config.episodes, config.seeds, config.seed,
-                         max(1, config.episodes // config.every), config.rollouts, progress)  # fmt: skip
+                         max(1, config.episodes // config.every), config.rollouts, progress, config.loss)  # fmt: skip
     return {
         "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
         "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],

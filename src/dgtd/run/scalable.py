@@ -32,8 +32,8 @@ import numpy as np
 from dgtd.algorithms.actor import actor_increment, policy
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
-from dgtd.problems.networked import NetworkedMDP, hood_index
-from dgtd.streams import ACTION, seed_keys, singles
+from dgtd.problems.networked import NetworkedMDP, hood_index, mixed_radix
+from dgtd.streams import ACTION, HOOD_LOSS, seed_keys, singles, uniforms
 
 
 @dataclass(frozen=True)
@@ -100,12 +100,13 @@ EVALUATION = 1 << 36  # the first episode number of the evaluation rollouts (the
 class Critics:
     """Every agent's truncated critic Q^_i over its kappa-hop neighbourhood's (state, action) pairs, for B seeds: one
     dense table where (S A)^K is small (`DENSE_MAX`), else rows given to the configurations met
-    (`dgtd.backends.compiled.table.FingerprintTable`); the same numbers either way."""
+    (`dgtd.backends.compiled.table.FingerprintTable`); the same numbers either way. Where messages may be lost
+    (``lossy``), a member not heard at a step is one more symbol of its digit."""
 
-    def __init__(self, task, hoods: np.ndarray, seeds: int):
+    def __init__(self, task, hoods: np.ndarray, seeds: int, lossy: bool = False):
         N, K = hoods.shape
         self.task, self.hoods, self.B = task, hoods, seeds
-        self.base = task.state_values * int(np.max(task.actions))
+        self.base = task.state_values * int(np.max(task.actions)) + int(lossy)
         self.dense = seeds * N * float(self.base) ** K <= DENSE_MAX
         self.clear()
 
@@ -119,31 +120,38 @@ class Critics:
 
             self.table = FingerprintTable()
 
-    def rows(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """(T + 1, B, N): each agent's row of its neighbourhood's configuration at each step of an episode."""
+    def rows(self, states: np.ndarray, actions: np.ndarray, heard=None) -> np.ndarray:
+        """(T + 1, B, N): each agent's row of its neighbourhood's configuration at each step of an episode; ``heard``
+        (T + 1, B, N, K) whether it heard each member's state and action (None: every one)."""
         B, N = states.shape[1:]
         owner = np.arange(B)[:, None] * N + np.arange(N)[None, :]  # (B, N)
         digits = states * int(np.max(self.task.actions)) + actions  # (T + 1, B, N)
-        if self.dense:
-            z = np.stack([hood_index(self.hoods, d, self.base) for d in digits])
-            return owner * self.base ** self.hoods.shape[1] + z
-        from dgtd.backends.compiled.table import fingerprints
-
         valid = self.hoods >= 0
         members = np.where(valid, digits[..., np.maximum(self.hoods, 0)], -1)  # (T + 1, B, N, K)
+        if heard is not None:
+            members = np.where(heard | ~valid, members, self.base - 1)  # (the symbol of a member not heard)
+        if self.dense:
+            return owner * self.base ** self.hoods.shape[1] + mixed_radix(members, valid, self.base)
+        from dgtd.backends.compiled.table import fingerprints
+
         rows = self.table.rows(fingerprints(owner, members))
         self.values = self.table.values
         return rows
 
 
 def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
-                   checkpoints: int = 20, evaluate: int = 0, progress=None) -> dict:  # fmt: skip
+                   checkpoints: int = 20, evaluate: int = 0, progress=None, loss: float = 0.0) -> dict:  # fmt: skip
     """Algorithm 1 of the module's docstring for ``iterations`` episodes on ``task`` (a `NetworkedMDP`, or any task
     of its form: `dgtd.problems.wireless.WirelessAccess`): {"iterations" (C,), "return" (C, B) the exact normalised
     J_gamma of the policies at each checkpoint (NaN where there is no joint table), "episode_return" (C, B) the mean
     normalised discounted team return of the episodes since the last checkpoint, "evaluated" (C, B) with ``evaluate``
     > 0 the mean of (1/n) sum_i sum_{t<T} gamma^t r_i(t) over that many rollouts of the policies at each checkpoint
-    (`rollout_return`; Qu et al.'s measure), "policies" (B, N, rows, A), "seconds"}."""
+    (`rollout_return`; Qu et al.'s measure), "policies" (B, N, rows, A), "seconds"}. With ``loss`` > 0 each message an
+    agent needs from another within kappa hops is lost with that probability (`heard`): a member's state and action
+    not heard at a step is a symbol of its own in the critic's configuration, a value not heard is left out of the
+    actor's sum."""
+    if not 0.0 <= loss < 1.0:
+        raise DgtdInputError(f"the messages' loss probability is in [0, 1), got {loss}")
     N, A = task.n_agents, int(np.max(task.actions))
     hoods = kappa_hoods(task, steps.kappa)
     theta = np.where(np.arange(A)[None, None, None, :] < task.actions[None, :, None, None], 0.0, -np.inf)
@@ -152,13 +160,14 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
     exact = getattr(task, "has_joint", False)
     out = {name: np.full((len(at), seeds), np.nan) for name in ("return", "episode_return", "evaluated")}
-    tally, critics = np.zeros(seeds), Critics(task, hoods, seeds)
+    tally, critics = np.zeros(seeds), Critics(task, hoods, seeds, lossy=loss > 0)
     for m in range(iterations):
         states, actions, rewards = _episode(task, theta, keys, m, steps.horizon)
-        q = _critic(critics, states, actions, rewards, steps, m)  # (T + 1, B, N): Q^_j(z_j(t)) at the episode's end
+        pairs, values = heard(hoods, keys, m, steps.horizon, loss)
+        q = _critic(critics, states, actions, rewards, steps, m, pairs)  # (T + 1, B, N): Q^_j(z_j(t)) at the end
         for t, r in enumerate(rewards):  # (a step at a time: each seed's sum in the same order for any seeds)
             tally += task.gamma**t * r.mean(axis=1)
-        theta = theta + steps.actor_rate(m) * _gradient(task, hoods, theta, states, actions, q)
+        theta = theta + steps.actor_rate(m) * _gradient(task, hoods, theta, states, actions, q, values)
         if m + 1 in at:
             c = int(np.searchsorted(at, m + 1))
             episodes = m + 1 - (at[c - 1] if c else 0)
@@ -217,12 +226,26 @@ def _rollout(task, cdf: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
     return tuple(np.stack(x) for x in zip(*samples))
 
 
-def _critic(critics: Critics, states, actions, rewards, steps: ScalableSteps, m: int) -> np.ndarray:
+def heard(hoods: np.ndarray, keys: np.ndarray, m: int, T: int, loss: float) -> tuple:
+    """(states and actions, values) each (T + 1, B, N, K) or None where nothing is lost: whether agent i heard at
+    step t of episode m the member in slot s of its kappa-hop neighbourhood (itself always), each message lost with
+    probability ``loss`` by its own number (HOOD_LOSS, step, entity i, index s: u0 the state and action, u1 the
+    value)."""
+    if not loss:
+        return None, None
+    N, K = hoods.shape
+    k = m * (T + 1) + np.arange(T + 1)
+    u = uniforms(keys[None, :, None, None], HOOD_LOSS, k[:, None, None, None], np.arange(N)[:, None], np.arange(K))
+    own = np.arange(K) == 0  # (slot 0: the agent itself)
+    return tuple((x >= loss) | own for x in u)
+
+
+def _critic(critics: Critics, states, actions, rewards, steps: ScalableSteps, m: int, heard=None) -> np.ndarray:
     """Every agent's truncated critic moved along episode m by TD(0) (from 0 in the paper's form, else from what it
     learnt before: ``steps.restart``); returns Q^_j(z_j(t)) (T + 1, B, N) at the episode's end."""
     if not steps.restart or (steps.forget and m % steps.restart == 0):
         critics.clear()
-    z = critics.rows(states, actions)  # (T + 1, B, N)
+    z = critics.rows(states, actions, heard)  # (T + 1, B, N)
     Q, gamma = critics.values, critics.task.gamma
     for t in range(1, z.shape[0]):  # (one agent's rows are its own: no two agents of a step share one)
         target = rewards[t - 1] + gamma * Q[z[t]]
@@ -230,12 +253,14 @@ def _critic(critics: Critics, states, actions, rewards, steps: ScalableSteps, m:
     return Q[z]
 
 
-def _gradient(task, hoods, theta, states, actions, q) -> np.ndarray:
+def _gradient(task, hoods, theta, states, actions, q, heard=None) -> np.ndarray:
     """n g_i = sum_t gamma^t sum_{j in N_i^kappa} Q^_j(z_j(t)) grad log zeta_i(a_i(t) | o_i(t)): the gradient of
-    the team's sum of returns, n times that of their mean, so that an agent's step does not shrink as n grows."""
+    the team's sum of returns, n times that of their mean, so that an agent's step does not shrink as n grows (the
+    values ``heard`` (T + 1, B, N, K) alone, where messages may be lost)."""
     valid = hoods >= 0
     into = np.zeros_like(theta)
     for t in range(states.shape[0]):
-        shared = np.where(valid, q[t][:, np.maximum(hoods, 0)], 0.0).sum(axis=-1)  # (B, N): n times theirs
+        kept = valid if heard is None else valid & heard[t]
+        shared = np.where(kept, q[t][:, np.maximum(hoods, 0)], 0.0).sum(axis=-1)  # (B, N): n times theirs
         actor_increment(theta, task.observe(states[t]), actions[t], task.gamma**t * shared, 1.0, into)
     return into
