@@ -8,7 +8,7 @@ beside it the best of their 20 ALOHA-like heuristics (send probability 0, 0.05, 
 their published curve (their repository's data file). Writes docs/wireless.png and benchmarks/results/wireless.json.
 
 Usage: python benchmarks/wireless.py [--episodes 120000] [--every 2000] [--rollouts 400] [--seeds 1]
-[--height 3 --width 4 --users 2] [--out docs]"""
+[--height 3 --width 4 --users 2] [--loss P] [--out docs] (a shorter or lossy run writes its numbers only)"""
 
 from __future__ import annotations
 
@@ -51,6 +51,7 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=3)
     parser.add_argument("--width", type=int, default=4)
     parser.add_argument("--users", type=int, default=2)
+    parser.add_argument("--loss", type=float, default=0.0, help="messages within kappa hops lost with this probability")
     parser.add_argument("--out", type=Path, default=Path("docs"))
     args = parser.parse_args()
     task = grid(args.height, args.width, args.users)
@@ -66,7 +67,7 @@ def main() -> None:
     with tqdm(total=args.episodes, unit="episode", mininterval=2.0) as bar:
         t0 = time.perf_counter()
         result = learn_scalable(task, steps, args.episodes, seeds=args.seeds, checkpoints=args.episodes // args.every,
-                                evaluate=args.rollouts, progress=bar.update)  # fmt: skip
+                                evaluate=args.rollouts, progress=bar.update, loss=args.loss)  # fmt: skip
         seconds = time.perf_counter() - t0
     curve = np.vstack([start, result["evaluated"]])  # (C + 1, B)
     episodes = np.r_[0, result["iterations"]]
@@ -76,12 +77,16 @@ def main() -> None:
     record = {
         "agents": task.n_agents, "episodes": episodes.tolist(), "return": curve.tolist(), "aloha": aloha,
         "aloha_best": aloha[best], "aloha_send": float(sends[best]), "seconds": seconds, "peak_mb": peak,
-        "seeds": args.seeds, "rollouts": args.rollouts,
+        "seeds": args.seeds, "rollouts": args.rollouts, "loss": args.loss,
     }  # fmt: skip
     results = Path(__file__).parent / "results"
     results.mkdir(exist_ok=True)
-    (results / f"wireless-{task.n_agents}.json").write_text(json.dumps(record, indent=1))
-    figure(episodes, curve, aloha[best], task.n_agents, args.out / f"wireless-{task.n_agents}.png")
+    name = f"wireless-{task.n_agents}" + (f"-loss{args.loss:g}" if args.loss else "")
+    if args.episodes != 120_000:
+        name += f"-{args.episodes}"
+    (results / f"{name}.json").write_text(json.dumps(record, indent=1))
+    if not args.loss and args.episodes == 120_000:
+        figure(episodes, curve, aloha[best], task.n_agents, args.out / f"{name}.png")
 
 
 def figure(episodes, curve, aloha: float, n: int, path: Path) -> None:
