@@ -63,3 +63,23 @@ def test_the_comparison_runs_each_learner_on_the_same_numbers(run_cli, tmp_path)
 )
 def test_bad_input_is_one_line(run_cli, tmp_path, args, says):
     one_line_error(*run_cli(*args, "--out", tmp_path / "x"), says)
+
+
+def test_a_run_cut_off_keeps_its_evaluations(run_cli, tmp_path, monkeypatch):
+    """Ctrl-C after the second evaluation (episode 100): metrics.csv holds the start's and that one's rows."""
+    import dgtd.cli.networked as cli_networked
+
+    calls, write = [], cli_networked._metrics
+
+    def cut(out, results):
+        write(out, results)
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_networked, "_metrics", cut)
+    code, _, err = run_cli("networked", "random-networked", *SHORT, "--out", tmp_path / "cut")
+    assert code == 130 and "interrupted" in err
+    rows = (tmp_path / "cut" / "metrics.csv").read_text().splitlines()[1:]
+    assert [row.split(",")[2] for row in rows] == ["0", "100"]
+    assert not (tmp_path / "cut" / "summary.json").exists()

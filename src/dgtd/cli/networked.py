@@ -50,7 +50,11 @@ def networked(task, out, progress, plots, overwrite, **values):
         f"{config.every:,} by {config.rollouts} rollouts"
     )
     with _claimed(out, task, config, overwrite, "networked learning run"):
-        result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar))
+
+        def so_far(episodes, returns):  # (each evaluation kept as it is made: a run cut off keeps them)
+            _metrics(out, {"scalable": {"episodes": episodes, "return": returns}})
+
+        result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar, so_far))
         written = _write(out, {"scalable": result}, task, config, plots)
     _report({"scalable": result})
     click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
@@ -125,20 +129,17 @@ def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: 
 
     record = {"task": task, **{k: v for k, v in asdict(config).items() if v is not None}}
     summary = {"config": record, "learners": {}}
-    rows = ["learner,seed,episode,metric,value"]
     for label, r in results.items():
         summary["learners"][label] = {
             "agents": r["agents"], "episodes": r["episodes"].tolist(), "return": r["return"].tolist(),
             "return_last": r["return"][-1].tolist(), "seconds": r["seconds"],
         }  # fmt: skip
-        for c, episode in enumerate(r["episodes"]):
-            rows += [f"{label},{b},{episode},return,{v!r}" for b, v in enumerate(r["return"][c])]
     h = next(iter(results.values()))["heuristic"]
     if h is not None:
         summary["heuristic"] = {"return": h["return"].tolist(), "send": h["send"]}
+    _metrics(out, results)
     atomic_write_json(out / "summary.json", summary)
-    atomic_write(out / "metrics.csv", ("\n".join(rows) + "\n").encode())
-    written = ["summary.json", "metrics.csv"]
+    written = ["metrics.csv", "summary.json"]
     if len(results) == 1:
         atomic_write(out / "policies.npz", npz_bytes({"policies": np.asarray(results["scalable"]["policies"])}))
         written.append("policies.npz")
@@ -147,6 +148,17 @@ def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: 
 
         written.append(networked_figure(out / "returns.png", results, h, task))
     return written
+
+
+def _metrics(out: Path, results: dict) -> None:
+    """metrics.csv (learner, seed, episode, metric, value) of each learner's evaluations, atomically."""
+    from dgtd.run.atomic import atomic_write
+
+    rows = ["learner,seed,episode,metric,value"]
+    for label, r in results.items():
+        for c, episode in enumerate(r["episodes"]):
+            rows += [f"{label},{b},{episode},return,{v!r}" for b, v in enumerate(r["return"][c])]
+    atomic_write(out / "metrics.csv", ("\n".join(rows) + "\n").encode())
 
 
 def _report(results: dict) -> None:

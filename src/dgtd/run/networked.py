@@ -109,16 +109,24 @@ def heuristic(task, config: NetworkedConfig) -> dict | None:
     return {"return": values[best], "send": float(SENDS[best])}
 
 
-def learn_networked(name: str, config: NetworkedConfig, progress=None) -> dict:
+def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measured=None) -> dict:
     """A run of the scalable actor-critic on task ``name``: {"task", "agents", "episodes" (C + 1,), "return" (C + 1,
     B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies",
-    "heuristic", "seconds"}."""
+    "heuristic", "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's first, as
+    each is made."""
     task = task_of(name, config.agents)
     keys = seed_keys(config.seed, range(config.seeds))
     start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
     began = time.perf_counter()
+
+    def measured(episodes, returns):
+        if on_measured is not None:
+            on_measured(np.r_[0, episodes], np.vstack([start, returns]))
+
+    measured(np.zeros(0, dtype=np.int64), np.zeros((0, config.seeds)))
     out = learn_scalable(task, config.steps, config.episodes, config.seeds, config.seed,
-                         max(1, config.episodes // config.every), config.rollouts, progress, config.loss)  # fmt: skip
+                         max(1, config.episodes // config.every), config.rollouts, progress, config.loss,
+                         measured)  # fmt: skip
     return {
         "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
         "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],

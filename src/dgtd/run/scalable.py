@@ -140,7 +140,8 @@ class Critics:
 
 
 def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
-                   checkpoints: int = 20, evaluate: int = 0, progress=None, loss: float = 0.0) -> dict:  # fmt: skip
+                   checkpoints: int = 20, evaluate: int = 0, progress=None, loss: float = 0.0,
+                   on_measured=None) -> dict:  # fmt: skip
     """Algorithm 1 of the module's docstring for ``iterations`` episodes on ``task`` (a `NetworkedMDP`, or any task
     of its form: `dgtd.problems.wireless.WirelessAccess`): {"iterations" (C,), "return" (C, B) the exact normalised
     J_gamma of the policies at each checkpoint (NaN where there is no joint table), "episode_return" (C, B) the mean
@@ -149,7 +150,8 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
     (`rollout_return`; Qu et al.'s measure), "policies" (B, N, rows, A), "seconds"}. With ``loss`` > 0 each message an
     agent needs from another within kappa hops is lost with that probability (`heard`): a member's state and action
     not heard at a step is a symbol of its own in the critic's configuration, a value not heard is left out of the
-    actor's sum."""
+    actor's sum. ``on_measured(episodes, evaluated)`` is called at each checkpoint with the episodes so far (c,) and
+    the evaluated returns there (c, B), so that what was measured is kept if the run is cut off."""
     if not 0.0 <= loss < 1.0:
         raise DgtdInputError(f"the messages' loss probability is in [0, 1), got {loss}")
     N, A = task.n_agents, int(np.max(task.actions))
@@ -177,6 +179,8 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
                 out["return"][c] = [exact_return(task, policy(theta[b])) for b in range(seeds)]
             if evaluate:
                 out["evaluated"][c] = rollout_return(task, policy(theta), keys, evaluate, steps.horizon, c)
+            if on_measured is not None:
+                on_measured(at[: c + 1], out["evaluated"][: c + 1])
         if progress is not None:
             progress(1)
     return {"iterations": at, **out, "policies": policy(theta), "seconds": time.perf_counter() - started}
