@@ -21,7 +21,7 @@ def test_a_networked_run_writes_its_numbers(run_cli, tmp_path):
     run = summary["learners"]["scalable"]
     assert run["episodes"] == [0, 100, 200] and np.shape(run["return"]) == (3, 2)
     assert 0.01 < run["return"][0][0] < 0.035  # uniform policies: 0.020 (20 rollouts here)
-    assert 0.1 < summary["heuristic"]["return"][0] < 0.3
+    assert 0.1 < summary["heuristic"]["return"][0] < 0.3 and summary["heuristic"]["of"] == 20
     rows = (out / "metrics.csv").read_text().splitlines()
     assert rows[0] == "learner,seed,episode,metric,value" and len(rows) == 1 + 3 * 2
     with np.load(out / "policies.npz") as p:
@@ -50,14 +50,14 @@ def test_the_comparison_runs_each_learner_on_the_same_numbers(run_cli, tmp_path)
 @pytest.mark.parametrize(
     "args, says",
     [
-        (("networked", "foo"), "name a networked task: wireless-access, random-networked; got 'foo'"),
+        (("networked", "foo"), "name a networked task: wireless-access, random-networked, epidemic; got 'foo'"),
         (("networked",), "name a networked task"),
         (("networked", "wireless-access", "--agents", 25), "a multiple of 6 from 12 (e.g. 30); got 25"),
         (("networked", "random-networked", "--agents", 2), "--agents 3 or more"),
         (("networked", "wireless-access", "--hops", -1), "hops must be >= 0"),
         (("networked", "wireless-access", "-T", 0), "episodes must be >= 1"),
         (("networked", "wireless-access", "--critic-power", 0), "steps, offset and power must be numbers > 0"),
-        (("compare", "wireless-access", "--loss", 0.2), "takes -T and --seeds; --loss"),
+        (("compare", "wireless-access", "--loss", 0.2), "takes -T, --seeds and --agents; --loss"),
         (("learn", "wireless-access"), "is a networked system, agents with local states: `dgtd networked"),
     ],
 )

@@ -62,15 +62,15 @@ def networked(task, out, progress, plots, overwrite, **values):
 
 def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: dict) -> None:
     """`dgtd compare TASK` on a networked task: networked learners, independent ones and the heuristic, -T episodes
-    each (the run options beside it refused)."""
+    each, at --agents (the run options beside them refused)."""
     from dgtd.run.networked import compare_networked, config_from, task_of
 
-    episodes = given.pop("iterations", None)
+    episodes, agents = given.pop("iterations", None), given.pop("agents", None)
     if given:
         names = ", ".join("--" + k.replace("_", "-") for k in sorted(given))
-        raise DgtdInputError(f"{task} is a networked task: `dgtd compare {task}` takes -T and --seeds; {names} are "
-                             f"`dgtd networked {task}`'s or not its (dgtd networked --help)")  # fmt: skip
-    config = config_from({"episodes": episodes, "seeds": seeds})
+        raise DgtdInputError(f"{task} is a networked task: `dgtd compare {task}` takes -T, --seeds and --agents; "
+                             f"{names} are `dgtd networked {task}`'s or not its (dgtd networked --help)")  # fmt: skip
+    config = config_from({"episodes": episodes, "seeds": seeds, "agents": agents})
     problem = task_of(task, config.agents)
     out = Path(out) if out else Path("runs") / f"compare-{task}"
     click.echo(f"{task}: {problem.n_agents} agents; networked and independent learners, {config.episodes:,} episodes x "
@@ -136,7 +136,7 @@ def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: 
         }  # fmt: skip
     h = next(iter(results.values()))["heuristic"]
     if h is not None:
-        summary["heuristic"] = {"return": h["return"].tolist(), "send": h["send"]}
+        summary["heuristic"] = {"return": h["return"].tolist(), "policy": h["policy"], "of": h["of"]}
     _metrics(out, results)
     atomic_write_json(out / "summary.json", summary)
     written = ["metrics.csv", "summary.json"]
@@ -171,6 +171,6 @@ def _report(results: dict) -> None:
         click.echo(f"{label:<24} {np.median(r['return'][0]):8.4f} {np.median(last):26.4f} "
                    f"{last.min():9.4f} to {last.max():.4f}")  # fmt: skip
     if h is not None:
-        click.echo(f"{'heuristic (best of 20)':<24} {'':>8} {np.median(h['return']):26.4f} "
-                   f"(send probability {h['send']:.2f})")  # fmt: skip
+        click.echo(f"{'heuristic (best of ' + str(h['of']) + ')':<24} {'':>8} {np.median(h['return']):26.4f} "
+                   f"({h['policy']})")  # fmt: skip
     click.echo("return: the mean per-agent discounted return over the horizon, (1/n) sum_i sum_{t<T} gamma^t r_i(t)")

@@ -138,7 +138,7 @@ def networked_figure(path: Path, results: dict, heuristic: dict | None, task: st
     for label, r in results.items():
         band(ax, np.asarray(r["episodes"]), np.asarray(r["return"]), label)
     if heuristic is not None:
-        ax.axhline(float(np.median(heuristic["return"])), color="g", label="heuristic (best of 20)")
+        ax.axhline(float(np.median(heuristic["return"])), color="g", label=f"heuristic: {heuristic['policy']}")
     ax.set(xlabel="episodes", ylabel="mean per-agent discounted return")
     ax.set_title(f"{task}, {next(iter(results.values()))['agents']} agents\n{BAND_WORDS}", fontsize=9)
     ax.legend(loc="lower right")

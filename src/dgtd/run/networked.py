@@ -19,6 +19,7 @@ from dgtd.streams import seed_keys
 TASKS = {
     "wireless-access": "Qu et al.'s wireless access: a grid of cells, 2 users a cell, 3 rows (--agents 24: 3 x 4)",
     "random-networked": "a random networked MDP on a ring (--agents 10), 2 states and actions an agent",
+    "epidemic": "an SIS epidemic on a 10-row torus grid (--agents 100, a multiple of 10), treat or wait",
 }
 SENDS = np.arange(20) / 20  # the ALOHA-like heuristics' send probabilities (their code's 20)
 
@@ -89,7 +90,21 @@ def task_of(name: str, agents: int | None):
         if n < 3:
             raise DgtdInputError(f"random-networked is a ring: --agents 3 or more; got {n}")
         return random_networked(topologies.ring(n).edges, n, gamma=0.7)
+    if name == "epidemic":
+        from dgtd.problems.epidemic import epidemic
+
+        n = 100 if agents is None else agents
+        if n % 10 or n < 30:
+            raise DgtdInputError(f"epidemic is a torus grid of 10 rows: --agents a multiple of 10 from 30; got {n}")
+        return epidemic(torus(10, n // 10), n)
     raise DgtdInputError(f"name a networked task: {', '.join(TASKS)}; got {name!r}")
+
+
+def torus(rows: int, columns: int) -> np.ndarray:
+    """(E, 2) the edges of a rows x columns grid whose ends wrap (agent r columns + c at row r, column c)."""
+    at = np.arange(rows * columns).reshape(rows, columns)
+    return np.concatenate([np.stack([at.ravel(), np.roll(at, -1, axis=1).ravel()], axis=1),
+                           np.stack([at.ravel(), np.roll(at, -1, axis=0).ravel()], axis=1)])  # fmt: skip
 
 
 def uniform_policies(task) -> np.ndarray:
@@ -98,15 +113,28 @@ def uniform_policies(task) -> np.ndarray:
     return np.repeat((have / have.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
 
 
-def heuristic(task, config: NetworkedConfig) -> dict | None:
-    """The task's heuristic at its best (wireless access: the best of the 20 ALOHA-like policies, each from the same
-    keyed rollouts): {"return" (B,), "send"}; None where the task has none."""
-    if not hasattr(task, "aloha"):
+def heuristics(name: str, task) -> dict:
+    """{its name: local policies} of the task's heuristics: wireless access's 20 ALOHA-like policies (their code's send
+    probabilities), the epidemic's never, always and while infected treatments; none for a random one."""
+    if name == "wireless-access":
+        return {f"ALOHA-like, send probability {p:.2f}": task.aloha(p) for p in SENDS}
+    if name == "epidemic":
+        from dgtd.problems.epidemic import heuristics as treatments
+
+        return treatments(task)
+    return {}
+
+
+def heuristic(name: str, task, config: NetworkedConfig) -> dict | None:
+    """The task's best heuristic, each one's return from the same keyed rollouts: {"return" (B,), "policy" its name,
+    "of" how many were tried}; None where the task has none."""
+    tried = heuristics(name, task)
+    if not tried:
         return None
     keys = seed_keys(config.seed, range(config.seeds))
-    values = [rollout_return(task, task.aloha(p), keys, config.rollouts, config.horizon) for p in SENDS]
-    best = int(np.argmax([v.mean() for v in values]))
-    return {"return": values[best], "send": float(SENDS[best])}
+    values = {label: rollout_return(task, p, keys, config.rollouts, config.horizon) for label, p in tried.items()}
+    best = max(values, key=lambda label: values[label].mean())
+    return {"return": values[best], "policy": best, "of": len(values)}
 
 
 def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measured=None) -> dict:
@@ -130,7 +158,7 @@ def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measur
     return {
         "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
         "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],
-        "policies": out["policies"], "heuristic": heuristic(task, config), "seconds": time.perf_counter() - began,
+        "policies": out["policies"], "heuristic": heuristic(name, task, config), "seconds": time.perf_counter() - began,
     }  # fmt: skip
 
 

@@ -101,12 +101,12 @@ class Critics:
     """Every agent's truncated critic Q^_i over its kappa-hop neighbourhood's (state, action) pairs, for B seeds: one
     dense table where (S A)^K is small (`DENSE_MAX`), else rows given to the configurations met
     (`dgtd.backends.compiled.table.FingerprintTable`); the same numbers either way. Where messages may be lost
-    (``lossy``), a member not heard at a step is one more symbol of its digit."""
+    (``unheard``), a member not heard at a step is one more symbol of its digit."""
 
-    def __init__(self, task, hoods: np.ndarray, seeds: int, lossy: bool = False):
+    def __init__(self, task, hoods: np.ndarray, seeds: int, unheard: bool = False):
         N, K = hoods.shape
         self.task, self.hoods, self.B = task, hoods, seeds
-        self.base = task.state_values * int(np.max(task.actions)) + int(lossy)
+        self.base = task.state_values * int(np.max(task.actions)) + int(unheard)
         self.dense = seeds * N * float(self.base) ** K <= DENSE_MAX
         self.clear()
 
@@ -162,7 +162,7 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
     exact = getattr(task, "has_joint", False)
     out = {name: np.full((len(at), seeds), np.nan) for name in ("return", "episode_return", "evaluated")}
-    tally, critics = np.zeros(seeds), Critics(task, hoods, seeds, lossy=loss > 0)
+    tally, critics = np.zeros(seeds), Critics(task, hoods, seeds, unheard=loss > 0)
     for m in range(iterations):
         states, actions, rewards = _episode(task, theta, keys, m, steps.horizon)
         pairs, values = heard(hoods, keys, m, steps.horizon, loss)
