@@ -83,3 +83,48 @@ def test_a_run_cut_off_keeps_its_evaluations(run_cli, tmp_path, monkeypatch):
     rows = (tmp_path / "cut" / "metrics.csv").read_text().splitlines()[1:]
     assert [row.split(",")[2] for row in rows] == ["0", "100"]
     assert not (tmp_path / "cut" / "summary.json").exists()
+
+
+def _save(path, **arrays):
+    np.savez(path, **arrays)
+    return path
+
+
+def test_a_networked_mdp_file_learns_as_the_same_task_named(run_cli, tmp_path):
+    """A file holding random-networked's arrays (a ring of 10) gives `dgtd networked random-networked`'s numbers."""
+    from dgtd.graphs import topologies
+    from dgtd.problems.networked import random_networked
+
+    mdp = random_networked(topologies.ring(10).edges, 10, gamma=0.7)
+    path = _save(tmp_path / "ring.npz", edges=topologies.ring(10).edges, P=mdp.P, R=mdp.R, gamma=0.7, start=mdp.start)
+    runs = {}
+    for name, given in {"file": ("--problem", path), "named": ("random-networked",)}.items():
+        code, text, err = run_cli("networked", *given, *SHORT, "--out", tmp_path / name)
+        assert code == 0, err
+        runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+    assert runs["file"]["learners"]["scalable"]["return"] == runs["named"]["learners"]["scalable"]["return"]
+    assert len(runs["file"]["config"]["problem_sha256"]) == 64
+
+
+def test_a_bad_networked_mdp_file_is_one_line(run_cli, tmp_path):
+    from dgtd.graphs import topologies
+    from dgtd.problems.networked import random_networked
+
+    mdp = random_networked(topologies.ring(4).edges, 4, gamma=0.7)
+    good = dict(edges=topologies.ring(4).edges, P=mdp.P, R=mdp.R, gamma=0.7)
+    nan = mdp.P.copy()
+    nan[0, 0, 0, 0] = np.nan
+    cases = {
+        "lacks": ({k: v for k, v in good.items() if k != "P"}, "lacks P"),
+        "nan": ({**good, "P": nan}, "is a probability distribution"),
+        "shape": ({**good, "P": mdp.P[:, :4]}, "needs P (N, S^K, A, S)"),
+        "edges": ({**good, "edges": np.array([[0, 7]])}, "edges name agents 0 .. 3 (R has 4); got 0 .. 7"),
+        "gamma": ({**good, "gamma": np.array([0.5, 0.5])}, "gamma must be one number"),
+        "discount": ({**good, "gamma": 1.0}, "gamma must be in [0, 1)"),
+    }
+    for name, (arrays, says) in cases.items():
+        path = _save(tmp_path / f"{name}.npz", **arrays)
+        one_line_error(*run_cli("networked", "--problem", path, "--out", tmp_path / name), says)
+    path = _save(tmp_path / "ok.npz", **good)
+    one_line_error(*run_cli("networked", "epidemic", "--problem", path, "--out", tmp_path / "x"), "one of them")
+    one_line_error(*run_cli("networked", "--problem", path, "--agents", 8, "--out", tmp_path / "y"), "--agents sizes")

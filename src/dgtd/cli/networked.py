@@ -32,30 +32,32 @@ def networked_options(command):
 @output_options("out", "progress", "plots", "overwrite")
 def networked(task, out, progress, plots, overwrite, **values):
     """Agents with local states learn by Qu, Wierman and Li's scalable actor-critic on a networked TASK
-    (wireless-access, the published benchmark by default; random-networked): each agent's policy on its own
+    (wireless-access, the published benchmark by default; epidemic; random-networked) or --problem FILE.npz (a
+    networked MDP file: edges, P, R, gamma, start; docs/control.md): each agent's policy on its own
     observation, its critic over its --hops neighbourhood; every --every episodes the policies' mean per-agent
     discounted return from --rollouts keyed rollouts, beside the task's heuristic. Writes config.toml, summary.json,
     metrics.csv, policies.npz and returns.png (docs/control.md, "The wireless-access benchmark")."""
     from dgtd.run.networked import config_from, learn_networked, task_of
 
-    if task not in TASKS:
+    if task not in TASKS and not (task is None and values.get("problem_file")):
         raise DgtdInputError(f"name a networked task: {', '.join(TASKS)}" + (f"; got {task!r}" if task else ""))
     config = config_from(values)
-    problem = task_of(task, config.agents)  # (its size checked before anything is written)
-    out = Path(out) if out else Path("runs") / f"networked-{task}"
+    problem = task_of(task, config.agents, config.problem_file)  # (its size checked before anything is written)
+    label = task or problem.name
+    out = Path(out) if out else Path("runs") / f"networked-{label}"
     steps = config.steps
     click.echo(
-        f"{task}: {problem.n_agents} agents, gamma {problem.gamma:g}; scalable actor-critic, kappa {steps.kappa}, "
+        f"{label}: {problem.n_agents} agents, gamma {problem.gamma:g}; scalable actor-critic, kappa {steps.kappa}, "
         f"horizon {steps.horizon}; {config.episodes:,} episodes x {config.seeds} seed(s), evaluated every "
         f"{config.every:,} by {config.rollouts} rollouts"
     )
-    with _claimed(out, task, config, overwrite, "networked learning run"):
+    with _claimed(out, label, config, overwrite, "networked learning run"):
 
         def so_far(episodes, returns):  # (each evaluation kept as it is made: a run cut off keeps them)
             _metrics(out, {"scalable": {"episodes": episodes, "return": returns}})
 
         result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar, so_far))
-        written = _write(out, {"scalable": result}, task, config, plots)
+        written = _write(out, {"scalable": result}, label, config, plots)
     _report({"scalable": result})
     click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
 
@@ -82,6 +84,16 @@ def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: d
     click.echo(f"wrote {out}/{', '.join(written)}")
 
 
+def record_of(task: str, config: NetworkedConfig) -> dict:
+    """What was asked: the task and every option set (a problem file's SHA-256 beside its path)."""
+    record = {"task": task, **{k: v for k, v in asdict(config).items() if v is not None}}
+    if config.problem_file is not None:
+        from dgtd.problems.io import file_digest
+
+        record["problem_sha256"] = file_digest(config.problem_file)
+    return record
+
+
 def _with_bar(total: int, progress: bool, work):
     from tqdm import tqdm
 
@@ -96,7 +108,7 @@ class _claimed:
     def __init__(self, out: Path, task: str, config: NetworkedConfig, overwrite: bool, what: str):
         from dgtd.run.owner import Owner
 
-        self.record = {"task": task, **{k: v for k, v in asdict(config).items() if v is not None}}
+        self.record = record_of(task, config)
         self.owner, self.out, self.overwrite, self.what = Owner(out, what, overwrite), out, overwrite, what
 
     def __enter__(self):
@@ -127,8 +139,7 @@ def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: 
     from dgtd.run.atomic import atomic_write, atomic_write_json
     from dgtd.run.results import npz_bytes
 
-    record = {"task": task, **{k: v for k, v in asdict(config).items() if v is not None}}
-    summary = {"config": record, "learners": {}}
+    summary = {"config": record_of(task, config), "learners": {}}
     for label, r in results.items():
         summary["learners"][label] = {
             "agents": r["agents"], "episodes": r["episodes"].tolist(), "return": r["return"].tolist(),

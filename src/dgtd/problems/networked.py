@@ -18,6 +18,7 @@ tables are the same in any network where its neighbourhood's size is. For a few 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -246,3 +247,32 @@ def truncation_bound(mdp: NetworkedMDP, kappa) -> np.ndarray:
     |r_i|)."""
     rbar = float(np.abs(mdp.R).max())
     return rbar * mdp.gamma ** (np.asarray(kappa, dtype=np.float64) + 1) / (1 - mdp.gamma)
+
+
+FILE_HELP = (
+    "a networked MDP file (.npz) holds edges (E, 2) the graph's agent pairs, R (N, S, A) r_i(s_i, a_i), P (N, S^K, A, "
+    "S) P_i(s_i' | s_N_i, a_i) over each agent's neighbourhood states (the agent first, then its neighbours ascending, "
+    "the first the most significant; K the largest neighbourhood), gamma, and optionally start (S,)"
+)
+
+
+def load_networked(path) -> NetworkedMDP:
+    """The networked MDP of an .npz file (`FILE_HELP`), every array checked with one line that names it."""
+    from dgtd.files import read_npz
+
+    fix = f"{FILE_HELP}; see docs/control.md"
+    a = read_npz(path, "networked MDP file", fix, required=("edges", "P", "R", "gamma"))
+    R, P, edges = np.asarray(a["R"], dtype=np.float64), np.asarray(a["P"], dtype=np.float64), np.asarray(a["edges"])
+    if R.ndim != 3:
+        raise DgtdInputError(f"networked MDP file {path}: R must be (N, S, A), got shape {R.shape}; {fix}")
+    N, S = R.shape[:2]
+    if edges.ndim != 2 or edges.shape[1] != 2 or not np.issubdtype(edges.dtype, np.integer):
+        raise DgtdInputError(f"networked MDP file {path}: edges must be whole numbers (E, 2), got {edges.shape}; {fix}")
+    if edges.size and (edges.min() < 0 or edges.max() >= N):
+        raise DgtdInputError(f"networked MDP file {path}: edges name agents 0 .. {N - 1} (R has {N}); got "
+                             f"{edges.min()} .. {edges.max()}")  # fmt: skip
+    gamma = np.asarray(a["gamma"], dtype=np.float64)
+    if gamma.shape != () or not np.isfinite(gamma):
+        raise DgtdInputError(f"networked MDP file {path}: gamma must be one number in [0, 1), got {a['gamma']!r}")
+    start = np.asarray(a["start"], dtype=np.float64) if "start" in a else np.full(S, 1.0 / S)
+    return NetworkedMDP(neighbourhoods_of(edges, N), P, R, float(gamma), start, Path(path).stem)

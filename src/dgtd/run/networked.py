@@ -28,6 +28,9 @@ SENDS = np.arange(20) / 20  # the ALOHA-like heuristics' send probabilities (the
 class NetworkedConfig:
     """Every setting of a networked learning run, with its option; defaults: the published wireless benchmark's."""
 
+    problem_file: str | None = field(default=None, metadata=option("A networked MDP file (.npz: edges, P, R, gamma, "
+                                     "start; docs/control.md) to learn on instead of a named task.",
+                                     flags=("--problem",), metavar="FILE.npz"))  # fmt: skip
     agents: int | None = field(default=None, metadata=option("Agents: wireless-access's users (a grid of 2 a cell and "
                                "3 rows; default 24) or random-networked's ring (default 10)."))  # fmt: skip
     hops: int = field(default=1, metadata=option("kappa: the hops of each critic's neighbourhood (0: independent "
@@ -71,8 +74,16 @@ class NetworkedConfig:
                              c.forget)  # fmt: skip
 
 
-def task_of(name: str, agents: int | None):
-    """The named task at ``agents`` agents (its default size where None)."""
+def task_of(name: str | None, agents: int | None, problem_file: str | None = None):
+    """The named task at ``agents`` agents (its default size where None), or a networked MDP file's."""
+    if (name is None) == (problem_file is None):
+        raise DgtdInputError(f"name a networked task ({', '.join(TASKS)}) or give --problem FILE.npz, one of them")
+    if problem_file is not None:
+        from dgtd.problems.networked import load_networked
+
+        if agents is not None:
+            raise DgtdInputError("--agents sizes a named task; a networked MDP file's agents are its arrays'")
+        return load_networked(problem_file)
     if name == "wireless-access":
         from dgtd.problems.wireless import grid
 
@@ -142,7 +153,7 @@ def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measur
     B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies",
     "heuristic", "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's first, as
     each is made."""
-    task = task_of(name, config.agents)
+    task = task_of(name, config.agents, config.problem_file)
     keys = seed_keys(config.seed, range(config.seeds))
     start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
     began = time.perf_counter()
