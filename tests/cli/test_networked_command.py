@@ -128,3 +128,43 @@ def test_a_bad_networked_mdp_file_is_one_line(run_cli, tmp_path):
     path = _save(tmp_path / "ok.npz", **good)
     one_line_error(*run_cli("networked", "epidemic", "--problem", path, "--out", tmp_path / "x"), "one of them")
     one_line_error(*run_cli("networked", "--problem", path, "--agents", 8, "--out", tmp_path / "y"), "--agents sizes")
+
+
+def test_a_run_cut_off_after_a_checkpoint_continues_to_the_uninterrupted_numbers(run_cli, tmp_path, monkeypatch):
+    import dgtd.cli.networked as cli_networked
+    from dgtd.run import checkpoint
+
+    command = ("networked", "random-networked", "-T", 300, "--every", 100, "--rollouts", 10, "--no-progress",
+               "--no-plots", "--checkpoint-every", 100)  # fmt: skip
+    assert run_cli(*command, "--out", tmp_path / "whole")[0] == 0
+    save = checkpoint.save_checkpoint
+
+    def cut(path, snapshot, record):
+        save(path, snapshot, record)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(checkpoint, "save_checkpoint", cut)
+    assert run_cli(*command, "--out", tmp_path / "cut")[0] == 130
+    monkeypatch.setattr(checkpoint, "save_checkpoint", save)
+    assert (tmp_path / "cut" / "checkpoint.npz").exists()
+    one_line_error(*run_cli(*command, "--seed", 3, "--out", tmp_path / "cut"), "checkpoint of another")
+    code, text, err = run_cli(*command, "--out", tmp_path / "cut")
+    assert code == 0 and "resuming" in text and "episode 100" in text, err
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("whole", "cut"))
+    assert a["learners"]["scalable"]["return"] == b["learners"]["scalable"]["return"]
+    assert (tmp_path / "cut" / "metrics.csv").read_text() == (tmp_path / "whole" / "metrics.csv").read_text()
+    assert not (tmp_path / "cut" / "checkpoint.npz").exists()
+    assert cli_networked.CHECKPOINT == "checkpoint.npz"
+
+
+def test_a_networked_folder_is_known_for_what_it_holds(run_cli, tmp_path):
+    """Run or compare again into their own folder: redone; another command's writer is refused in one line."""
+    compare = ("compare", "random-networked", "-T", 20, "--seeds", 1, "--no-progress", "--no-plots")
+    for _ in range(2):
+        code, _, err = run_cli(*compare, "--out", tmp_path / "c")
+        assert code == 0, err
+    for _ in range(2):
+        code, _, err = run_cli("networked", "random-networked", *SHORT, "--out", tmp_path / "n")
+        assert code == 0, err
+    one_line_error(*run_cli("run", "paper-example-1", "--out", tmp_path / "n"), "holds the results of a learning run")
+    one_line_error(*run_cli("networked", "random-networked", *SHORT, "--out", tmp_path / "c"), "of a comparison")

@@ -140,3 +140,24 @@ def test_lost_messages_are_keyed_and_cost_what_they_lose():
     assert not np.array_equal(clean["policies"], lossy["policies"])
     with pytest.raises(DgtdInputError, match="loss probability"):
         learn_scalable(mdp, steps, 1, loss=1.0)
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_a_run_resumed_from_a_checkpoint_ends_with_the_uninterrupted_numbers(monkeypatch, dense, tmp_path):
+    """Through the checkpoint file format, dense and hashed critics, tables kept over episodes."""
+    from dgtd.run import scalable
+    from dgtd.run.checkpoint import load_checkpoint, save_checkpoint
+
+    if not dense:
+        monkeypatch.setattr(scalable, "DENSE_MAX", 0)
+    mdp = random_networked(topologies.ring(6).edges, 6, gamma=0.7, seed=2)
+    steps = ScalableSteps(kappa=1, horizon=5, critic_power=0.5, restart=7)
+    whole = learn_scalable(mdp, steps, 30, seeds=2, checkpoints=3, evaluate=5)
+    snaps: list = []
+    learn_scalable(mdp, steps, 30, seeds=2, checkpoints=3, evaluate=5, checkpoint_every=13, on_checkpoint=snaps.append)
+    assert [s["m"] for s in snaps] == [13, 26]
+    save_checkpoint(tmp_path / "c.npz", snaps[0], {"x": 1})
+    resumed = learn_scalable(mdp, steps, 30, seeds=2, checkpoints=3, evaluate=5,
+                             resume=load_checkpoint(tmp_path / "c.npz")[0])  # fmt: skip
+    for name in ("policies", "episode_return", "evaluated", "return"):
+        assert np.array_equal(whole[name], resumed[name], equal_nan=True), name

@@ -14,7 +14,7 @@ from dgtd.config import field_types
 from dgtd.errors import DgtdInputError
 from dgtd.run.networked import TASKS, NetworkedConfig
 
-CONFIG = "config.toml"
+CONFIG, CHECKPOINT = "config.toml", "checkpoint.npz"
 
 
 def networked_options(command):
@@ -29,14 +29,16 @@ def networked_options(command):
 @click.command()
 @click.argument("task", required=False)
 @networked_options
-@output_options("out", "progress", "plots", "overwrite")
-def networked(task, out, progress, plots, overwrite, **values):
+@output_options("out", "progress", "plots", "overwrite", "checkpoint_every")
+def networked(task, out, progress, plots, overwrite, checkpoint_every, **values):
     """Agents with local states learn by Qu, Wierman and Li's scalable actor-critic on a networked TASK
     (wireless-access, the published benchmark by default; epidemic; random-networked) or --problem FILE.npz (a
     networked MDP file: edges, P, R, gamma, start; docs/control.md): each agent's policy on its own
     observation, its critic over its --hops neighbourhood; every --every episodes the policies' mean per-agent
     discounted return from --rollouts keyed rollouts, beside the task's heuristic. Writes config.toml, summary.json,
-    metrics.csv, policies.npz and returns.png (docs/control.md, "The wireless-access benchmark")."""
+    metrics.csv, policies.npz and returns.png (docs/control.md, "The wireless-access benchmark"). With
+    --checkpoint-every K (episodes) the run's state is kept, and the same command again continues it to the
+    uninterrupted numbers."""
     from dgtd.run.networked import config_from, learn_networked, task_of
 
     if task not in TASKS and not (task is None and values.get("problem_file")):
@@ -51,13 +53,24 @@ def networked(task, out, progress, plots, overwrite, **values):
         f"horizon {steps.horizon}; {config.episodes:,} episodes x {config.seeds} seed(s), evaluated every "
         f"{config.every:,} by {config.rollouts} rollouts"
     )
-    with _claimed(out, label, config, overwrite, "networked learning run"):
+    from dgtd.run.checkpoint import remove_checkpoint, save_checkpoint
+    from dgtd.run.settings import check_count
+
+    every = check_count("checkpoint_every", checkpoint_every or 0, 0)
+    with _claimed(out, label, config, overwrite, "learning run") as claim:
 
         def so_far(episodes, returns):  # (each evaluation kept as it is made: a run cut off keeps them)
             _metrics(out, {"scalable": {"episodes": episodes, "return": returns}})
 
-        result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar, so_far))
+        def keep(snapshot):
+            save_checkpoint(out / CHECKPOINT, snapshot, claim.record)
+
+        if claim.resume is not None:
+            click.echo(f"resuming {out} at episode {int(claim.resume['m']):,}")
+        saves = {"checkpoint_every": every, "on_checkpoint": keep, "resume": claim.resume}
+        result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar, so_far, **saves))
         written = _write(out, {"scalable": result}, label, config, plots)
+        remove_checkpoint(out / CHECKPOINT)  # (the numbers are complete)
     _report({"scalable": result})
     click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
 
@@ -110,6 +123,7 @@ class _claimed:
 
         self.record = record_of(task, config)
         self.owner, self.out, self.overwrite, self.what = Owner(out, what, overwrite), out, overwrite, what
+        self.resume: dict | None = None
 
     def __enter__(self):
         import tomli_w
@@ -121,7 +135,9 @@ class _claimed:
         try:
             if not self.overwrite:
                 refuse_other_results(self.out, self.record, self.what)
-            text = "# dgtd networked: the options of this run\n" + tomli_w.dumps({"networked": self.record})
+            self.resume = self._checkpoint()
+            kind = "comparison" if self.what == "comparison" else "run"
+            text = f"# dgtd networked {kind}: the options given\n" + tomli_w.dumps({"networked": self.record})
             atomic_write(self.out / CONFIG, text.encode())
         except BaseException:
             self.owner.__exit__(None, None, None)
@@ -130,6 +146,23 @@ class _claimed:
 
     def __exit__(self, *exc):
         return self.owner.__exit__(*exc)
+
+    def _checkpoint(self) -> dict | None:
+        """The snapshot of this very run cut off (its checkpoint, the same options), or None; another run's refused
+        unless --overwrite (which starts afresh)."""
+        import json
+
+        from dgtd.run.checkpoint import load_checkpoint
+        from dgtd.run.results import first_difference
+
+        path = self.out / CHECKPOINT
+        if self.overwrite or not path.exists():
+            return None
+        snapshot, saved = load_checkpoint(path)
+        if diff := first_difference(saved, json.loads(json.dumps(self.record))):
+            raise DgtdInputError(f"{self.out} holds the checkpoint of another {self.what} ({diff}); choose another "
+                                 "--out, or pass --overwrite")  # fmt: skip
+        return snapshot
 
 
 def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: bool) -> list:

@@ -148,11 +148,11 @@ def heuristic(name: str, task, config: NetworkedConfig) -> dict | None:
     return {"return": values[best], "policy": best, "of": len(values)}
 
 
-def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measured=None) -> dict:
+def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measured=None, **saves) -> dict:
     """A run of the scalable actor-critic on task ``name``: {"task", "agents", "episodes" (C + 1,), "return" (C + 1,
     B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies",
     "heuristic", "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's first, as
-    each is made."""
+    each is made; ``saves``: `learn_scalable`'s checkpoint arguments."""
     task = task_of(name, config.agents, config.problem_file)
     keys = seed_keys(config.seed, range(config.seeds))
     start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
@@ -165,7 +165,7 @@ def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measur
     measured(np.zeros(0, dtype=np.int64), np.zeros((0, config.seeds)))
     out = learn_scalable(task, config.steps, config.episodes, config.seeds, config.seed,
                          max(1, config.episodes // config.every), config.rollouts, progress, config.loss,
-                         measured)  # fmt: skip
+                         measured, **saves)  # fmt: skip
     return {
         "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
         "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],

@@ -27,11 +27,25 @@ def kind_of(out: Path) -> str | None:
         return "sweep"
     if (out / "agent_errors.npz").exists() or (out / "parts").is_dir():
         return "comparison"
+    header = _first_line(out / "config.toml")  # (a networked run's and comparison's say so: `dgtd.cli.networked`)
+    if header.startswith("# dgtd networked comparison"):
+        return "comparison"
+    if header.startswith("# dgtd networked") or header.startswith("# dgtd learn"):
+        return "learning run"
     if (out / "policies.npz").exists() or (out / "learning-checkpoint.npz").exists():
         return "learning run"
     if any((out / name).exists() for name in ("trajectory.npz", "checkpoint.npz", "summary.json", "config.toml")):
         return "run"
     return None
+
+
+def _first_line(path: Path) -> str:
+    """The first line of a text file ('' where there is none or it cannot be read)."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return f.readline()
+    except OSError:
+        return ""
 
 
 class Owner:

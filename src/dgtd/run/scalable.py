@@ -24,6 +24,7 @@ the episodes' own discounted returns estimate it, with their standard error.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass
 
@@ -120,6 +121,19 @@ class Critics:
 
             self.table = FingerprintTable()
 
+    def state(self) -> dict:
+        """What a checkpoint keeps of the critics."""
+        return {"values": self.values} if self.dense else {"table": self.table.state()}
+
+    def restore(self, state: dict) -> None:
+        if self.dense:
+            self.values = np.array(state["values"], dtype=np.float64)
+        else:
+            from dgtd.backends.compiled.table import FingerprintTable
+
+            self.table = FingerprintTable.restored(state["table"])
+            self.values = self.table.values
+
     def rows(self, states: np.ndarray, actions: np.ndarray, heard=None) -> np.ndarray:
         """(T + 1, B, N): each agent's row of its neighbourhood's configuration at each step of an episode; ``heard``
         (T + 1, B, N, K) whether it heard each member's state and action (None: every one)."""
@@ -141,7 +155,8 @@ class Critics:
 
 def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
                    checkpoints: int = 20, evaluate: int = 0, progress=None, loss: float = 0.0,
-                   on_measured=None) -> dict:  # fmt: skip
+                   on_measured=None, checkpoint_every: int = 0, on_checkpoint=None,
+                   resume: dict | None = None) -> dict:  # fmt: skip
     """Algorithm 1 of the module's docstring for ``iterations`` episodes on ``task`` (a `NetworkedMDP`, or any task
     of its form: `dgtd.problems.wireless.WirelessAccess`): {"iterations" (C,), "return" (C, B) the exact normalised
     J_gamma of the policies at each checkpoint (NaN where there is no joint table), "episode_return" (C, B) the mean
@@ -151,7 +166,9 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
     agent needs from another within kappa hops is lost with that probability (`heard`): a member's state and action
     not heard at a step is a symbol of its own in the critic's configuration, a value not heard is left out of the
     actor's sum. ``on_measured(episodes, evaluated)`` is called at each checkpoint with the episodes so far (c,) and
-    the evaluated returns there (c, B), so that what was measured is kept if the run is cut off."""
+    the evaluated returns there (c, B), so that what was measured is kept if the run is cut off. Every
+    ``checkpoint_every`` episodes ``on_checkpoint(snapshot)`` gets the run's state; ``resume`` (one) continues from it
+    to the uninterrupted run's numbers, bit for bit (every number is keyed by its episode)."""
     if not 0.0 <= loss < 1.0:
         raise DgtdInputError(f"the messages' loss probability is in [0, 1), got {loss}")
     N, A = task.n_agents, int(np.max(task.actions))
@@ -162,8 +179,12 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
     exact = getattr(task, "has_joint", False)
     out = {name: np.full((len(at), seeds), np.nan) for name in ("return", "episode_return", "evaluated")}
-    tally, critics = np.zeros(seeds), Critics(task, hoods, seeds, unheard=loss > 0)
-    for m in range(iterations):
+    tally, critics, first = np.zeros(seeds), Critics(task, hoods, seeds, unheard=loss > 0), 0
+    if resume is not None:
+        first, theta, tally = int(resume["m"]), np.array(resume["theta"]), np.array(resume["tally"])
+        out = {name: np.array(v) for name, v in resume["out"].items()}
+        critics.restore(resume["critics"])
+    for m in range(first, iterations):
         states, actions, rewards = _episode(task, theta, keys, m, steps.horizon)
         pairs, values = heard(hoods, keys, m, steps.horizon, loss)
         q = _critic(critics, states, actions, rewards, steps, m, pairs)  # (T + 1, B, N): Q^_j(z_j(t)) at the end
@@ -181,6 +202,9 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
                 out["evaluated"][c] = rollout_return(task, policy(theta), keys, evaluate, steps.horizon, c)
             if on_measured is not None:
                 on_measured(at[: c + 1], out["evaluated"][: c + 1])
+        if checkpoint_every and (m + 1) % checkpoint_every == 0 and on_checkpoint is not None:
+            state = {"m": m + 1, "theta": theta, "tally": tally, "out": out, "critics": critics.state()}
+            on_checkpoint(copy.deepcopy(state))  # (copies: the run goes on changing its arrays in place)
         if progress is not None:
             progress(1)
     return {"iterations": at, **out, "policies": policy(theta), "seconds": time.perf_counter() - started}

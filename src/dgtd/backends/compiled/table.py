@@ -62,6 +62,19 @@ class FingerprintTable:
         self.rows_of = np.zeros(self.slots.size, dtype=np.int64)
         _place(self.slots, self.rows_of, keys, rows)
 
+    def state(self) -> dict:
+        """What a checkpoint keeps of the table (`restored` makes it again)."""
+        return {"slots": self.slots, "rows": self.rows_of, "values": self.values[: self.count], "count": self.count}
+
+    @classmethod
+    def restored(cls, state: dict) -> FingerprintTable:
+        table = cls(capacity=int(np.asarray(state["slots"]).size))
+        table.slots, table.rows_of = np.array(state["slots"], dtype=np.uint64), np.array(state["rows"], dtype=np.int64)
+        table.count = int(state["count"])
+        table.values = np.zeros(max(table.slots.size // 2, table.count))
+        table.values[: table.count] = state["values"]
+        return table
+
     @property
     def nbytes(self) -> int:
         return self.slots.nbytes + self.rows_of.nbytes + self.values.nbytes
