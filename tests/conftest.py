@@ -127,3 +127,13 @@ def pytest_runtest_logstart(nodeid, location):
 def pytest_runtest_logfinish(nodeid, location):
     for heart in _HEARTBEAT:
         heart.finished(nodeid)
+
+
+@pytest.fixture
+def few_rollouts(monkeypatch):
+    """`dgtd compare` on a networked task with 10 rollouts an evaluation (its default 400 is the published measure,
+    slow for a test)."""
+    from dgtd.run import networked
+
+    config_from = networked.config_from
+    monkeypatch.setattr(networked, "config_from", lambda values: config_from({"rollouts": 10, **values}))

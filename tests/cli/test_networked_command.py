@@ -30,7 +30,7 @@ def test_a_networked_run_writes_its_numbers(run_cli, tmp_path):
     assert saved["task"] == "wireless-access" and saved["episodes"] == 200 and saved["hops"] == 1
 
 
-def test_the_comparison_runs_each_learner_on_the_same_numbers(run_cli, tmp_path):
+def test_the_comparison_runs_each_learner_on_the_same_numbers(run_cli, tmp_path, few_rollouts):
     """The networked learners of `dgtd compare` are `dgtd networked`'s run at the same options, to the bit; the
     independent ones start from the same uniform return (the same rollouts)."""
     code, _, err = run_cli("compare", "random-networked", "-T", 150, "--seeds", 2, "--no-progress", "--no-plots",
@@ -40,7 +40,7 @@ def test_the_comparison_runs_each_learner_on_the_same_numbers(run_cli, tmp_path)
     assert set(both) == {"networked (kappa 1)", "independent (kappa 0)"}
     one = both["networked (kappa 1)"]
     code, _, err = run_cli("networked", "random-networked", "-T", 150, "--seeds", 2, "--every", 2000,
-                           "--no-progress", "--no-plots", "--out", tmp_path / "n")  # fmt: skip
+                           "--rollouts", 10, "--no-progress", "--no-plots", "--out", tmp_path / "n")  # fmt: skip
     assert code == 0, err
     alone = json.loads((tmp_path / "n" / "summary.json").read_text())["learners"]["scalable"]
     assert alone["return"] == one["return"]
@@ -157,7 +157,7 @@ def test_a_run_cut_off_after_a_checkpoint_continues_to_the_uninterrupted_numbers
     assert cli_networked.CHECKPOINT == "checkpoint.npz"
 
 
-def test_a_networked_folder_is_known_for_what_it_holds(run_cli, tmp_path):
+def test_a_networked_folder_is_known_for_what_it_holds(run_cli, tmp_path, few_rollouts):
     """Run or compare again into their own folder: redone; another command's writer is refused in one line."""
     compare = ("compare", "random-networked", "-T", 20, "--seeds", 1, "--no-progress", "--no-plots")
     for _ in range(2):

@@ -42,7 +42,7 @@ def test_a_torus_grid():
     assert len(edges) == 24 and (degrees == 4).all()
 
 
-def test_the_epidemic_is_compared(run_cli, tmp_path):
+def test_the_epidemic_is_compared(run_cli, tmp_path, few_rollouts):
     code, text, err = run_cli("compare", "epidemic", "--agents", 30, "-T", 60, "--seeds", 1, "--no-progress",
                               "--no-plots", "--out", tmp_path / "c")  # fmt: skip
     assert code == 0 and "heuristic (best of 3)" in text, err
