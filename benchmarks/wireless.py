@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import time
 from pathlib import Path
 
 import matplotlib
@@ -26,9 +25,7 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from dgtd.problems.wireless import grid  # noqa: E402
-from dgtd.run.networked import NetworkedConfig  # noqa: E402
-from dgtd.run.scalable import learn_scalable, rollout_return  # noqa: E402
-from dgtd.streams import seed_keys  # noqa: E402
+from dgtd.run.networked import NetworkedConfig, heuristic, learn_networked  # noqa: E402
 
 # Their published curve (yihenglin97/Networked-MARL, WirelessAccess/data/Tabular-Access-3-4-1.txt): the mean per-agent
 # discounted return at episodes 0, 2 000, .., 120 000, each from 400 rollouts
@@ -55,28 +52,21 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("docs"))
     args = parser.parse_args()
     task = grid(args.height, args.width, args.users)
-    steps, keys = NetworkedConfig().steps, seed_keys(0, range(args.seeds))  # (the published steps)
-    uniform = np.where(np.arange(task.actions.max())[None, :] < task.actions[:, None], 1.0, 0.0)
-    uniform = np.repeat((uniform / uniform.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
-    start = rollout_return(task, uniform, keys, args.rollouts, steps.horizon)
-    sends = np.arange(20) / 20
-    aloha = [float(rollout_return(task, task.aloha(p), keys, args.rollouts, steps.horizon).mean()) for p in sends]
-    best = int(np.argmax(aloha))
-    print(f"{task.n_agents} agents: uniform policies {start.mean():.4f}; best ALOHA-like heuristic {aloha[best]:.4f} "
-          f"(send probability {sends[best]:.2f})", flush=True)  # fmt: skip
+    config = NetworkedConfig(episodes=args.episodes, seeds=args.seeds, every=args.every, rollouts=args.rollouts,
+                             loss=args.loss)  # (the published steps: the config's defaults)  # fmt: skip
+    best = heuristic("wireless-access", task, config)
+    aloha = list(best["tried"].values())
+    print(f"{task.n_agents} agents: best ALOHA-like heuristic {float(best['return'].mean()):.4f} "
+          f"({best['policy']})", flush=True)  # fmt: skip
     with tqdm(total=args.episodes, unit="episode", mininterval=2.0) as bar:
-        t0 = time.perf_counter()
-        result = learn_scalable(task, steps, args.episodes, seeds=args.seeds, checkpoints=args.episodes // args.every,
-                                evaluate=args.rollouts, progress=bar.update, loss=args.loss)  # fmt: skip
-        seconds = time.perf_counter() - t0
-    curve = np.vstack([start, result["evaluated"]])  # (C + 1, B)
-    episodes = np.r_[0, result["iterations"]]
+        result = learn_networked(task, config, bar.update)
+    curve, episodes, seconds = result["return"], result["episodes"], result["seconds"]  # (C + 1, B): the start first
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MB (Linux: kB)
     print(f"learnt: {curve[0].mean():.4f} -> {curve[-1].mean():.4f} in {args.episodes:,} episodes, {seconds:.0f} s, "
           f"peak {peak:.0f} MB")  # fmt: skip
     record = {
         "agents": task.n_agents, "episodes": episodes.tolist(), "return": curve.tolist(), "aloha": aloha,
-        "aloha_best": aloha[best], "aloha_send": float(sends[best]), "seconds": seconds, "peak_mb": peak,
+        "aloha_best": float(best["return"].mean()), "aloha_send": best["policy"], "seconds": seconds, "peak_mb": peak,
         "seeds": args.seeds, "rollouts": args.rollouts, "loss": args.loss,
     }  # fmt: skip
     results = Path(__file__).parent / "results"
@@ -86,7 +76,7 @@ def main() -> None:
         name += f"-{args.episodes}"
     (results / f"{name}.json").write_text(json.dumps(record, indent=1))
     if not args.loss and args.episodes == 120_000:
-        figure(episodes, curve, aloha[best], task.n_agents, args.out / f"{name}.png")
+        figure(episodes, curve, float(best["return"].mean()), task.n_agents, args.out / f"{name}.png")
 
 
 def figure(episodes, curve, aloha: float, n: int, path: Path) -> None:

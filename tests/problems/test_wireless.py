@@ -8,7 +8,7 @@ import pytest
 
 from dgtd.errors import DgtdInputError
 from dgtd.problems.wireless import WirelessAccess, grid, published
-from dgtd.run.scalable import rollout_return
+from dgtd.run.scalable import own_actions, rollout_return, uniform_policies
 from dgtd.streams import seed_keys
 
 
@@ -57,7 +57,7 @@ def test_the_aloha_policies_send_the_earliest_packet():
     task = published()
     pi = task.aloha(0.4)
     assert np.allclose(pi.sum(axis=-1), 1.0)
-    absent = np.broadcast_to(np.arange(9)[None, None, :] >= task.actions[:, None, None], pi.shape)
+    absent = np.broadcast_to(~own_actions(task)[:, None, :], pi.shape)
     assert (pi[absent] == 0).all()  # (no action a user does not have)
     assert pi[:, 0, 0].tolist() == [1.0] * 24  # nothing held: wait
     assert np.allclose(pi[:, 3, 0], 0.6)  # both slots held: send the earliest (slot 0) with probability 0.4
@@ -71,8 +71,7 @@ def test_the_published_settings_returns():
     rollout's per-agent return has a standard deviation below 0.03, so 400 of them a standard error below 0.0015;
     0.005 allowed."""
     task, keys = published(), seed_keys(0, range(1))
-    uniform = np.where(np.arange(9)[None, :] < task.actions[:, None], 1.0, 0.0)
-    uniform = np.repeat((uniform / uniform.sum(axis=1, keepdims=True))[:, None], 4, axis=1)
+    uniform = uniform_policies(task)
     assert rollout_return(task, uniform, keys, 400, 10)[0] == pytest.approx(0.0201, abs=0.005)
     assert rollout_return(task, task.aloha(0.4), keys, 400, 10)[0] == pytest.approx(0.18, abs=0.01)
 

@@ -8,7 +8,7 @@ import pytest
 from dgtd.errors import DgtdInputError
 from dgtd.graphs import topologies
 from dgtd.problems.networked import random_networked
-from dgtd.run.scalable import ScalableSteps, exact_return, kappa_hoods, learn_scalable, pair_index
+from dgtd.run.scalable import Critics, ScalableSteps, exact_return, kappa_hoods, learn_scalable
 
 
 def test_kappa_hop_neighbourhoods_of_a_path():
@@ -23,7 +23,9 @@ def test_a_neighbourhoods_state_action_index_puts_its_first_member_first():
     mdp = random_networked(topologies.path(3).edges, 3, n_states=3, n_actions=2)
     hoods = kappa_hoods(mdp, 1)
     s, a = np.array([[2, 1, 0]]), np.array([[1, 0, 1]])
-    z = pair_index(hoods, s, a, 3, 2)
+    critics = Critics(mdp, hoods, seeds=1)
+    assert critics.dense
+    z = critics.rows(s[None], a[None])[0] - np.arange(3) * 6**3  # (each agent's rows after the agents' before it)
     assert z[0, 1] == (1 * 2 + 0) * 36 + (2 * 2 + 1) * 6 + (0 * 2 + 1)
     assert z[0, 0] == (2 * 2 + 1) * 6 + (1 * 2 + 0)  # agent 0: (0, 1), padded
 

@@ -294,7 +294,7 @@ def _extended(run: PreparedRun, out: Path, snapshot: dict, saved: dict, record: 
     config.toml rewritten with it, so that --resume continues the extension if it is cut off), or finished."""
     _refuse_changed_files(run, out, saved, record)
     fraction = float(record["tail_fraction"])
-    if extension(out, snapshot, saved, record, "run", blocker=lambda a, b: tail_blocker(a, b, fraction)) is None:
+    if extension(out, saved, record, "run", blocker=lambda a, b: tail_blocker(a, b, fraction)) is None:
         run.finished = True
         return run
     run.snapshot, run.extends = snapshot, int(snapshot["k"])

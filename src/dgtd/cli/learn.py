@@ -407,8 +407,8 @@ def _claim(out: Path, job, overwrite: bool, held: list, output: dict, resuming) 
             raise DgtdInputError(f"{out} has no checkpoint to resume from; start the run with --checkpoint-every K")
         if resume is None:
             remove_logs(out)
-        if resume is None or resume["k"] < job.settings.iterations:  # (an extension: --resume goes on to its -T)
-            atomic_write(out / CONFIG, config_toml(job.record, output).encode())
+        # (afresh, and also resumed: an extension's -T is what --resume goes on to, should it be cut off)
+        atomic_write(out / CONFIG, config_toml(job.record, output).encode())
     except BaseException:
         owner.__exit__(None, None, None)
         raise
@@ -447,7 +447,7 @@ def _checkpoint(out: Path, job, overwrite: bool, resuming: bool) -> dict | None:
     if saved["k"] == there["iterations"] and (out / "summary.json").exists():  # a finished run's state at its end
         if not resuming:
             return None
-        extends = extension(out, saved, there, record, "learning run", blocker=lambda a, b: _warmup_blocker(job, a, b))
+        extends = extension(out, there, record, "learning run", blocker=lambda a, b: _warmup_blocker(job, a, b))
         return saved if extends is not None else None
     if diff := first_difference(there, record):
         raise DgtdInputError(

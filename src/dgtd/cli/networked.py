@@ -39,7 +39,7 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, **values)
     metrics.csv, policies.npz and returns.png (docs/control.md, "The wireless-access benchmark"). With
     --checkpoint-every K (episodes) the run's state is kept, and the same command again continues it to the
     uninterrupted numbers."""
-    from dgtd.run.networked import config_from, learn_networked, task_of
+    from dgtd.run.networked import config_from, heuristic, learn_networked, task_of
 
     if task not in TASKS and not (task is None and values.get("problem_file")):
         raise DgtdInputError(f"name a networked task: {', '.join(TASKS)}" + (f"; got {task!r}" if task else ""))
@@ -68,17 +68,22 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, **values)
         if claim.resume is not None:
             click.echo(f"resuming {out} at episode {int(claim.resume['m']):,}")
         saves = {"checkpoint_every": every, "on_checkpoint": keep, "resume": claim.resume}
-        result = _with_bar(config.episodes, progress, lambda bar: learn_networked(task, config, bar, so_far, **saves))
-        written = _write(out, {"scalable": result}, label, config, plots)
+
+        def work(bar):
+            return learn_networked(problem, config, bar, so_far, **saves)
+
+        result = _with_bar(config.episodes, progress, work)
+        best = heuristic(task, problem, config)
+        written = _write(out, {"scalable": result}, best, claim.record, plots)
         remove_checkpoint(out / CHECKPOINT)  # (the numbers are complete)
-    _report({"scalable": result})
+    _report({"scalable": result}, best)
     click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
 
 
 def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: dict) -> None:
     """`dgtd compare TASK` on a networked task: networked learners, independent ones and the heuristic, -T episodes
     each, at --agents (the run options beside them refused)."""
-    from dgtd.run.networked import compare_networked, config_from, task_of
+    from dgtd.run.networked import compare_networked, config_from, heuristic, task_of
 
     episodes, agents = given.pop("iterations", None), given.pop("agents", None)
     if given:
@@ -90,10 +95,11 @@ def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: d
     out = Path(out) if out else Path("runs") / f"compare-{task}"
     click.echo(f"{task}: {problem.n_agents} agents; networked and independent learners, {config.episodes:,} episodes x "
                f"{config.seeds} seed(s) each, and the heuristic, on the same keyed numbers")  # fmt: skip
-    with _claimed(out, task, config, overwrite, "comparison"):
-        results = _with_bar(2 * config.episodes, progress, lambda bar: compare_networked(task, config, bar))
-        written = _write(out, results, task, config, plots)
-    _report(results)
+    with _claimed(out, task, config, overwrite, "comparison") as claim:
+        results = _with_bar(2 * config.episodes, progress, lambda bar: compare_networked(problem, config, bar))
+        best = heuristic(task, problem, config)
+        written = _write(out, results, best, claim.record, plots)
+    _report(results, best)
     click.echo(f"wrote {out}/{', '.join(written)}")
 
 
@@ -165,20 +171,20 @@ class _claimed:
         return snapshot
 
 
-def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: bool) -> list:
-    """Numbers before pictures, each file atomically: summary.json, metrics.csv, policies.npz (one run), returns.png."""
+def _write(out: Path, results: dict, h: dict | None, record: dict, plots: bool) -> list:
+    """Numbers before pictures, each file atomically: summary.json (``record`` what was asked, ``h`` the best
+    heuristic), metrics.csv, policies.npz (one run), returns.png."""
     import numpy as np
 
     from dgtd.run.atomic import atomic_write, atomic_write_json
     from dgtd.run.results import npz_bytes
 
-    summary = {"config": record_of(task, config), "learners": {}}
+    summary = {"config": record, "learners": {}}
     for label, r in results.items():
         summary["learners"][label] = {
             "agents": r["agents"], "episodes": r["episodes"].tolist(), "return": r["return"].tolist(),
             "return_last": r["return"][-1].tolist(), "seconds": r["seconds"],
         }  # fmt: skip
-    h = next(iter(results.values()))["heuristic"]
     if h is not None:
         summary["heuristic"] = {"return": h["return"].tolist(), "policy": h["policy"], "of": h["of"]}
     _metrics(out, results)
@@ -190,7 +196,7 @@ def _write(out: Path, results: dict, task: str, config: NetworkedConfig, plots: 
     if plots:
         from dgtd.plots.learning import networked_figure
 
-        written.append(networked_figure(out / "returns.png", results, h, task))
+        written.append(networked_figure(out / "returns.png", results, h, record["task"]))
     return written
 
 
@@ -205,10 +211,9 @@ def _metrics(out: Path, results: dict) -> None:
     atomic_write(out / "metrics.csv", ("\n".join(rows) + "\n").encode())
 
 
-def _report(results: dict) -> None:
+def _report(results: dict, h: dict | None) -> None:
     import numpy as np
 
-    h = next(iter(results.values()))["heuristic"]
     click.echo(f"{'learner':<24} {'start':>8} {'last (median over seeds)':>26} {'seeds range':>20}")
     for label, r in results.items():
         last = r["return"][-1]

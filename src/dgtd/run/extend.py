@@ -16,21 +16,14 @@ STEPS = "iterations"
 
 
 def extension(
-    out: Path,
-    snapshot: dict,
-    saved: dict,
-    record: dict,
-    what: str,
-    ended_at: int | None = None,
-    blocker: Callable[[int, int], str] = lambda T1, T2: "",
+    out: Path, saved: dict, record: dict, what: str, blocker: Callable[[int, int], str] = lambda T1, T2: ""
 ) -> int | None:
-    """Where ``snapshot`` (with the config ``saved``) is the state a run in ``out`` kept at its end (its step its
-    -T, or ``ended_at``) and ``record`` asks for more steps: the step it ended at, to go on from. None where the
-    snapshot is not a finished run's (a run cut off resumes as always) or asks for no more steps than it has (a
+    """Where a run in ``out`` of the config ``saved`` kept its state at its end (its step its -T: the caller knows it)
+    and ``record`` asks for more steps: the step it ended at, to go on from; None where it asks for no more (a
     finished run). Refused in one line: fewer steps than it took, another option changed beside -T, or what
     ``blocker(T1, T2)`` names (a reason the state kept does not allow it, '' where it does)."""
-    T1, T2 = int(saved.get(STEPS, -1)), int(record[STEPS])
-    if int(snapshot["k"]) != (T1 if ended_at is None else ended_at) or T2 == T1:
+    T1, T2 = int(saved[STEPS]), int(record[STEPS])
+    if T2 == T1:
         return None
     if T2 < T1:
         raise DgtdInputError(

@@ -12,7 +12,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option
-from dgtd.run.scalable import ScalableSteps, learn_scalable, rollout_return
+from dgtd.run.scalable import ScalableSteps, learn_scalable, rollout_return, uniform_policies
 from dgtd.run.settings import check_count
 from dgtd.streams import seed_keys
 
@@ -118,13 +118,7 @@ def torus(rows: int, columns: int) -> np.ndarray:
                            np.stack([at.ravel(), np.roll(at, -1, axis=0).ravel()], axis=1)])  # fmt: skip
 
 
-def uniform_policies(task) -> np.ndarray:
-    """(N, rows, A) each agent's uniform policy over its own actions."""
-    have = np.where(np.arange(int(task.actions.max()))[None, :] < task.actions[:, None], 1.0, 0.0)
-    return np.repeat((have / have.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
-
-
-def heuristics(name: str, task) -> dict:
+def heuristics(name: str | None, task) -> dict:
     """{its name: local policies} of the task's heuristics: wireless access's 20 ALOHA-like policies (their code's send
     probabilities), the epidemic's never, always and while infected treatments; none for a random one."""
     if name == "wireless-access":
@@ -136,24 +130,24 @@ def heuristics(name: str, task) -> dict:
     return {}
 
 
-def heuristic(name: str, task, config: NetworkedConfig) -> dict | None:
+def heuristic(name: str | None, task, config: NetworkedConfig) -> dict | None:
     """The task's best heuristic, each one's return from the same keyed rollouts: {"return" (B,), "policy" its name,
-    "of" how many were tried}; None where the task has none."""
+    "of" how many were tried, "tried" {name: mean return}}; None where the task has none."""
     tried = heuristics(name, task)
     if not tried:
         return None
     keys = seed_keys(config.seed, range(config.seeds))
     values = {label: rollout_return(task, p, keys, config.rollouts, config.horizon) for label, p in tried.items()}
     best = max(values, key=lambda label: values[label].mean())
-    return {"return": values[best], "policy": best, "of": len(values)}
+    tried_means = {label: float(v.mean()) for label, v in values.items()}
+    return {"return": values[best], "policy": best, "of": len(values), "tried": tried_means}
 
 
-def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measured=None, **saves) -> dict:
-    """A run of the scalable actor-critic on task ``name``: {"task", "agents", "episodes" (C + 1,), "return" (C + 1,
+def learn_networked(task, config: NetworkedConfig, progress=None, on_measured=None, **saves) -> dict:
+    """A run of the scalable actor-critic on ``task`` (`task_of`'s): {"agents", "episodes" (C + 1,), "return" (C + 1,
     B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies",
-    "heuristic", "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's first, as
-    each is made; ``saves``: `learn_scalable`'s checkpoint arguments."""
-    task = task_of(name, config.agents, config.problem_file)
+    "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's first, as each is made;
+    ``saves``: `learn_scalable`'s checkpoint arguments."""
     keys = seed_keys(config.seed, range(config.seeds))
     start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
     began = time.perf_counter()
@@ -167,19 +161,19 @@ def learn_networked(name: str, config: NetworkedConfig, progress=None, on_measur
                          max(1, config.episodes // config.every), config.rollouts, progress, config.loss,
                          measured, **saves)  # fmt: skip
     return {
-        "task": name, "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
+        "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
         "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],
-        "policies": out["policies"], "heuristic": heuristic(name, task, config), "seconds": time.perf_counter() - began,
+        "policies": out["policies"], "seconds": time.perf_counter() - began,
     }  # fmt: skip
 
 
-def compare_networked(name: str, config: NetworkedConfig, progress=None) -> dict:
+def compare_networked(task, config: NetworkedConfig, progress=None) -> dict:
     """{learner: `learn_networked`'s result}: networked learners (kappa = ``config.hops``, at least 1) and independent
-    ones (kappa 0), on the same keyed numbers (seeds, episodes, rollouts), with the task's heuristic."""
+    ones (kappa 0) on ``task``, on the same keyed numbers (seeds, episodes, rollouts)."""
     hops = max(1, config.hops)
     runs = {f"networked (kappa {hops})": NetworkedConfig(**{**asdict(config), "hops": hops}),
             "independent (kappa 0)": NetworkedConfig(**{**asdict(config), "hops": 0})}  # fmt: skip
-    return {label: learn_networked(name, c, progress) for label, c in runs.items()}
+    return {label: learn_networked(task, c, progress) for label, c in runs.items()}
 
 
 def config_from(values: dict) -> NetworkedConfig:

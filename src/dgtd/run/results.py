@@ -30,9 +30,10 @@ def first_difference(a: dict, b: dict) -> str:
 def saved_config(summary: Path) -> dict:
     """The config a finished run's summary.json records ({} where there is none, or it cannot be read)."""
     try:
-        return dict(read_json(summary, "results file", "").get("config", {}))
-    except (DgtdInputError, AttributeError, OSError):
+        config = read_json(summary, "results file", "").get("config", {})
+    except (DgtdInputError, OSError):
         return {}
+    return dict(config) if isinstance(config, dict) else {}
 
 
 def refuse_other_results(out: Path, record: dict, what: str, ignore=()) -> None:
@@ -41,11 +42,7 @@ def refuse_other_results(out: Path, record: dict, what: str, ignore=()) -> None:
     summary = Path(out) / "summary.json"
     if not summary.is_file():
         return
-    try:
-        saved = read_json(summary, "results file", "").get("config", {})
-    except DgtdInputError:
-        return
-    saved = {k: v for k, v in saved.items() if k not in ignore}
+    saved = {k: v for k, v in saved_config(summary).items() if k not in ignore}
     diff = first_difference(saved, record) if saved else ""
     if diff:
         raise DgtdInputError(

@@ -33,7 +33,7 @@ import numpy as np
 from dgtd.algorithms.actor import actor_increment, policy
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
-from dgtd.problems.networked import NetworkedMDP, hood_index, mixed_radix
+from dgtd.problems.networked import NetworkedMDP, mixed_radix
 from dgtd.streams import ACTION, HOOD_LOSS, seed_keys, singles, uniforms
 
 
@@ -88,10 +88,15 @@ def kappa_hoods(mdp, kappa: int) -> np.ndarray:
     return out
 
 
-def pair_index(hoods: np.ndarray, s: np.ndarray, a: np.ndarray, S: int, A: int) -> np.ndarray:
-    """(B, N): each agent's index of its neighbourhood's (state, action) pairs, the first member the most
-    significant, in every agent's states and actions (B, N): `hood_index` of the digits s A + a."""
-    return hood_index(hoods, s * A + a, S * A)
+def own_actions(task) -> np.ndarray:
+    """(N, A_max): whether each agent has each action (agents of fewer actions than the most)."""
+    return np.arange(int(np.max(task.actions)))[None, :] < np.asarray(task.actions)[:, None]
+
+
+def uniform_policies(task) -> np.ndarray:
+    """(N, rows, A_max) each agent's uniform policy over its own actions, in every row."""
+    have = own_actions(task).astype(np.float64)
+    return np.repeat((have / have.sum(axis=1, keepdims=True))[:, None], task.observations, axis=1)
 
 
 DENSE_MAX = 1 << 24  # numbers of the critics' dense tables (seeds x agents x (S A)^K) beyond which they are hashed
@@ -99,7 +104,8 @@ EVALUATION = 1 << 36  # the first episode number of the evaluation rollouts (the
 
 
 class Critics:
-    """Every agent's truncated critic Q^_i over its kappa-hop neighbourhood's (state, action) pairs, for B seeds: one
+    """Every agent's truncated critic Q^_i over its kappa-hop neighbourhood's (state, action) pairs (digit s A + a of
+    each member, the agent's own the most significant: `dgtd.problems.networked.mixed_radix`), for B seeds: one
     dense table where (S A)^K is small (`DENSE_MAX`), else rows given to the configurations met
     (`dgtd.backends.compiled.table.FingerprintTable`); the same numbers either way. Where messages may be lost
     (``unheard``), a member not heard at a step is one more symbol of its digit."""
@@ -173,7 +179,7 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
         raise DgtdInputError(f"the messages' loss probability is in [0, 1), got {loss}")
     N, A = task.n_agents, int(np.max(task.actions))
     hoods = kappa_hoods(task, steps.kappa)
-    theta = np.where(np.arange(A)[None, None, None, :] < task.actions[None, :, None, None], 0.0, -np.inf)
+    theta = np.where(own_actions(task)[None, :, None, :], 0.0, -np.inf)  # (uniform policies)
     theta = np.broadcast_to(theta, (seeds, N, task.observations, A)).copy()
     keys, started = seed_keys(seed, range(seeds)), time.perf_counter()
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
