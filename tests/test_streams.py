@@ -17,6 +17,8 @@ from dgtd.streams import (
     PURPOSES,
     REWARD,
     SHARED_STATE,
+    edge_uniforms,
+    link_keys,
     philox4x32,
     seed_key,
     seed_keys,
@@ -87,7 +89,7 @@ def test_a_seed_key_depends_on_the_base_seed_and_its_index_only():
 
 def test_the_model_streams_are_the_keyed_numbers():
     """Every uniform of a block is the keyed number of its purpose, entity and step: any agent or rank can draw it."""
-    a = Streams(9, [0, 4], 3, 3, 2, mode="iid", reward_noise=True, random_edges=True)
+    a = Streams(9, [0, 4], 3, 3, [[0, 1], [1, 2]], mode="iid", reward_noise=True, random_edges=True)
     a.draw(5)
     U = a.draw(4)  # steps 5 .. 8
     keys = seed_keys(9, [0, 4])
@@ -97,9 +99,9 @@ def test_the_model_streams_are_the_keyed_numbers():
                 s_u, sa_u = uniforms(keys[b], AGENT_STATE, k, o)
                 assert (U["state"][t, b, o, 0], U["state"][t, b, o, 1]) == (s_u, sa_u)
                 assert U["reward"][t, b, o] == uniforms(keys[b], REWARD, k, o // 2)[o % 2]  # agents in pairs
-            for e in range(2):
-                assert U["edge"][t, b, e] == uniforms(keys[b], EDGE_UP, k, 0)[e]  # edges 0 and 1: one call
-    shared = Streams(9, [0], 1, 3, 2, mode="iid", reward_noise=False, random_edges=False).draw(1)
+            for e, (i, j) in enumerate(((0, 1), (1, 2))):  # each edge by the agents it joins
+                assert U["edge"][t, b, e] == uniforms(link_keys(keys[b], i, j), EDGE_UP, k, 0)[0]
+    shared = Streams(9, [0], 1, 3, [[0, 1], [1, 2]], mode="iid", reward_noise=False, random_edges=False).draw(1)
     assert shared["state"][0, 0, 0, 1] == uniforms(keys[0], SHARED_STATE, 0, 0)[1]
     assert set(shared) == {"state"}
 
@@ -115,7 +117,8 @@ def test_singles_pair_entities_and_any_subset_gives_the_same_numbers():
 
 
 def test_both_ends_of_a_link_draw_its_losses_alone():
-    """A lossy link's two arcs take the pair keyed by their edge and the step: what either end computes by itself."""
+    """A lossy link's arcs each take the number keyed by its ordered pair of agents and the step: what either end
+    computes by itself, wherever the edge is listed."""
     ring = topologies.ring(5)
     arcs = Arcs.of(ring.edges, ring.n_nodes)
     channel = Lossy(np.full(arcs.n_arcs, 0.5))
@@ -126,6 +129,25 @@ def test_both_ends_of_a_link_draw_its_losses_alone():
     assert int(state.step[0]) == 7
     step, keys = 6, seed_keys(11, range(3))
     for b in range(3):
-        for e in range(arcs.n_arcs // 2):
-            u0, u1 = uniforms(keys[b], ARC_LOSS, step, e)
-            assert (kept[b, 2 * e], kept[b, 2 * e + 1]) == (u0 >= 0.5, u1 >= 0.5)
+        for a in range(arcs.n_arcs):
+            u0, u1 = uniforms(link_keys(keys[b], arcs.src[a], arcs.dst[a]), ARC_LOSS, step, 0)
+            u = u0 if arcs.dst[a] < arcs.src[a] else u1  # the arc into the smaller id takes u0
+            assert kept[b, a] == (u >= 0.5)
+
+
+def test_links_are_keyed_by_the_agents_they_join_not_by_their_place():
+    """The same edges listed in another order, or a part of them, draw the same numbers (what lets a rank make only
+    its part of the graph); two different edges draw different ones."""
+    keys = seed_keys(4, range(3))
+    edges = np.array([[0, 1], [1, 2], [2, 7], [3, 9], [0, 9]])
+    steps = np.arange(5, dtype=np.uint64)[:, None, None]
+    every = edge_uniforms(keys, steps, edges)
+    order = np.array([4, 2, 0, 3, 1])
+    assert_array_equal(edge_uniforms(keys, steps, edges[order]), every[:, :, order])
+    assert_array_equal(edge_uniforms(keys, steps, edges[order][:, ::-1]), every[:, :, order])  # either end first
+    assert_array_equal(edge_uniforms(keys, steps, edges[[3]]), every[:, :, [3]])
+    assert len(np.unique(every)) == every.size
+    assert link_keys(keys[0], 2, 7) == link_keys(keys[0], 7, 2) != link_keys(keys[0], 2, 8)
+    assert link_keys(keys[0], 2, 7) == link_keys(keys[:1, None], np.array([2]), np.array([7]))[0, 0]
+    many = link_keys(keys[:, None], np.arange(1000) % 40, np.arange(1000) // 40 + 40)  # 3 000 distinct links
+    assert len(np.unique(many)) == many.size

@@ -12,11 +12,17 @@ A seed's numbers are laid out so that anyone can draw their own, in any order, o
 - the key (64 bits) is the seed's: seed k of base seed s has the key `seed_key`(s, k), the first two words of
   Philox(counter = (k mod 2^32, k div 2^32, 0, 0), key = (s mod 2^32, s div 2^32));
 - the counter (128 bits) is (step mod 2^32, step div 2^32, entity, purpose * 2^24 + index): the step of the run,
-  the entity the number is for (an agent, an observation, an edge, an arc), the purpose (`PURPOSES`) and the index of
-  the call among those of one (purpose, entity, step) (a message of many numbers);
+  the entity the number is for (an agent, an observation), the purpose (`PURPOSES`) and the index of the call among
+  those of one (purpose, entity, step) (a message of many numbers);
+- a link's numbers are keyed by the agents it joins, not by its place in any list, so that whoever holds the link
+  (either end; a rank that made only its part of the graph) draws them: the link {i, j}, i < j, has the key
+  `link_keys` (its seed's key, i, j), the first two words of Philox(counter = (i, j, 0, LINK * 2^24), key = the
+  seed's key), and its numbers the counter (step mod 2^32, step div 2^32, side, purpose * 2^24 + index) under that
+  key; of its two arcs (a message's way), the one into i (the smaller id) is side 0 and the one into j side 1, and
+  where each arc needs one number a step, the arc into i takes u0 of side 0's call and the arc into j its u1;
 - a call gives two doubles in [0, 1) of 53 bits each: words (x1 x0) and (x3 x2) read as 64-bit integers, their top
-  53 bits times 2^-53 (`uniforms`). Where an entity needs one number a step (an edge up, an agent's reward noise
-  or wake), entities 2j and 2j + 1 share call j (entity j), the first taking u0 and the second u1 (`singles`): half
+  53 bits times 2^-53 (`uniforms`). Where an agent needs one number a step (its reward noise, wake or action),
+  entities 2j and 2j + 1 share call j (entity j), the first taking u0 and the second u1 (`singles`): half
   the calls, and still a pure function of the entity.
 
 `philox4x32` is written once in plain arithmetic on unsigned 64-bit values: NumPy runs it on arrays (the readable
@@ -43,12 +49,12 @@ AGENT_STATE = 2  # agent i's own trajectory's (s, a, s') at a step (entity i), a
 SHARED_START = 3  # the shared trajectory's first state s_0 ~ d (step 0, entity 0)
 AGENT_START = 4  # agent i's first state s_0 ~ d (step 0, entity i)
 REWARD = 5  # agent i's reward noise at a step (paired: `singles`)
-EDGE_UP = 6  # edge e being up at a step (paired: `singles`; the undirected edge: both ends draw the same number)
-ARC_LOSS = 7  # the losses (or burst moves) of edge e's two arcs at a step: u0 for arc 2e, u1 for arc 2e + 1
-ARC_BURST_START = 8  # the first states of edge e's two arcs' burst chains (step 0), as ARC_LOSS
+EDGE_UP = 6  # a link being up at a step (u0 under its key: both ends draw the same number)
+ARC_LOSS = 7  # the losses (or burst moves) of a link's two arcs at a step: u0 the arc into i's, u1 the arc into j's
+ARC_BURST_START = 8  # the first states of the arcs' burst chains (step 0), as ARC_LOSS
 WAKE = 9  # agent i being awake at a step (paired: `singles`)
-DELAY = 10  # how late the messages on edge e's arcs are at a step, as ARC_LOSS
-ROUNDING = 11  # the stochastic rounding of arc a's numbers at a step: index j gives numbers 2j and 2j + 1
+DELAY = 10  # how late the messages on an arc are at a step, as ARC_LOSS
+ROUNDING = 11  # the stochastic rounding of an arc's numbers at a step (entity: its side): index j gives 2j and 2j + 1
 ORDER = 12  # the order of a recording's rows for a seed (step 0, entity = row)
 SIMULATOR = 13  # the seeds of a simulator's episodes and its policy's generator (entity = episode, step 0)
 ACTION = 14  # agent i's action drawn from its own policy at a step, while it learns (paired: `singles`)
@@ -57,6 +63,7 @@ DISCOUNTED_RESTART = 16  # a discounted visitation chain's restart at a sample (
 PROBLEM = 17  # a generated problem's numbers of agent i (entity i; step: the number's place)
 HOOD_LOSS = 18  # what agent i hears from the member in slot ``index`` of its kappa-hop neighbourhood at a step being
 # lost (entity i): u0 for its state and action, u1 for its truncated value
+LINK = 19  # a link's key (`link_keys`): its seed's key's numbers at counter (i, j, 0, LINK * 2^24)
 
 PURPOSES = {
     "seed": SEED,
@@ -78,6 +85,7 @@ PURPOSES = {
     "discounted-restart": DISCOUNTED_RESTART,
     "problem": PROBLEM,
     "hood-loss": HOOD_LOSS,
+    "link": LINK,
 }
 
 
@@ -134,6 +142,30 @@ def seed_key(seed: int, k: int) -> int:
 def seed_keys(seed: int, seed_ids) -> np.ndarray:
     """The keys (B,) uint64 of seeds ``seed_ids`` of base seed ``seed``."""
     return np.array([seed_key(seed, k) for k in seed_ids], dtype=np.uint64).reshape(-1)
+
+
+def link_keys(keys, i, j) -> np.ndarray:
+    """The 64-bit keys of the links joining agents ``i`` and ``j`` (whole numbers < 2^32, ids in the whole network,
+    either end first) under seeds' keys ``keys``, broadcast against each other (keys (B, 1) and agents (E,) give
+    (B, E))."""
+    key = np.asarray(keys, dtype=np.uint64)
+    i, j = np.asarray(i, dtype=np.int64), np.asarray(j, dtype=np.int64)
+    lo, hi = np.minimum(i, j).astype(np.uint64), np.maximum(i, j).astype(np.uint64)
+    x0, x1, _, _ = philox4x32(lo, hi, np.uint64(0), np.uint64(LINK << 24), key & _LOW, key >> _32)
+    return x0 | (x1 << _32)
+
+
+def arc_side(senders, receivers) -> np.ndarray:
+    """Each arc's side of its link (0: into the smaller id, 1: into the larger; `link_keys`), as uint8."""
+    return (np.asarray(receivers) > np.asarray(senders)).astype(np.uint8)
+
+
+def edge_uniforms(keys, steps, edges) -> np.ndarray:
+    """One uniform (..., B, E) for each link of ``edges`` (E, 2) of agents at each of ``steps`` (shaped to broadcast
+    against (B, E), as (T, 1, 1)), seeds' keys ``keys`` (B,): whether it is up (EDGE_UP)."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    keys = link_keys(np.asarray(keys, dtype=np.uint64).reshape(-1, 1), edges[:, 0], edges[:, 1])
+    return uniforms(keys, EDGE_UP, steps, 0)[0]
 
 
 def entity_seed(key: int, purpose: int, entity: int, step: int = 0) -> int:

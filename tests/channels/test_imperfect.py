@@ -302,7 +302,7 @@ def test_late_messages_are_the_newest_arrived_of_everything_in_flight(D):
     sent_at = [np.where(h == 1, r[..., 0], -1.0) for r, h in at_once]  # (B, A): the step an arc carried, or -1
     from dgtd.channels.lossy import arc_uniforms
 
-    keys = channel.init(2, arcs, seed=3).keys
+    keys = channel.init(2, arcs, seed=3).keys  # (each arc's delay keyed by its agents: `arc_uniforms`)
     copies = np.full((2, arcs.n_arcs), -1.0)
     src = np.broadcast_to(np.arange(5)[arcs.src], (2, arcs.n_arcs))
     in_flight = []  # (arrives, sent, b, a)

@@ -333,3 +333,29 @@ def test_the_mean_metropolis_mixing_is_the_average_over_every_pattern_of_deliver
             expected += weight * (np.diag(W.sum(axis=1)) - W)
     assert_allclose(mean_metropolis(net, loss, arcs), expected, atol=1e-15)
     assert_allclose(mean_metropolis(net, loss, arcs, sparse=True).toarray(), expected, atol=1e-15)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_links_numbers_do_not_depend_on_where_its_edge_is_listed(backend):
+    """The same ring listed in another order draws the same edges up and the same messages lost (each link keyed by
+    the agents it joins): the same counts, and the same iterates to the rounding of sums taken in another order."""
+    from dgtd.graphs.topologies import Graph
+
+    sc = dgtd.scenario("paper-example-1")
+    ring = topologies.ring(5)
+    shuffled = Graph(5, ring.edges[[3, 0, 4, 2, 1]], name="ring")
+    alg = make_algorithm("dgtd", alpha0=0.5, beta=100.0)
+    runs = [
+        dgtd.evaluate(
+            sc.problem,
+            random_edges(g, 0.7),
+            alg,
+            iterations=600,
+            seeds=2,
+            backend=backend,
+            channel=Lossy(np.full(10, 0.3)),
+        )
+        for g in (ring, shuffled)
+    ]
+    assert_allclose(runs[0].w_last, runs[1].w_last, rtol=1e-12, atol=1e-12)
+    assert_array_equal(runs[0].info["counts"]["messages"], runs[1].info["counts"]["messages"])

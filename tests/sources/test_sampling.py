@@ -50,8 +50,9 @@ def test_alias_pick_frequencies(rng):
 
 
 def test_streams_do_not_depend_on_block_size():
-    a = Streams(7, [0, 3], 2, 4, 5, mode="iid", reward_noise=True, random_edges=True)
-    b = Streams(7, [0, 3], 2, 4, 5, mode="iid", reward_noise=True, random_edges=True)
+    edges = [[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]]
+    a = Streams(7, [0, 3], 2, 4, edges, mode="iid", reward_noise=True, random_edges=True)
+    b = Streams(7, [0, 3], 2, 4, edges, mode="iid", reward_noise=True, random_edges=True)
     whole = a.draw(12)
     parts = [b.draw(5), b.draw(7)]
     for key in whole:
@@ -59,8 +60,8 @@ def test_streams_do_not_depend_on_block_size():
 
 
 def test_seed_stream_does_not_depend_on_other_seeds():
-    one = Streams(7, [3], 1, 2, 1, mode="iid", reward_noise=False, random_edges=True).draw(4)
-    many = Streams(7, [0, 1, 2, 3], 1, 2, 1, mode="iid", reward_noise=False, random_edges=True).draw(4)
+    one = Streams(7, [3], 1, 2, [[0, 1]], mode="iid", reward_noise=False, random_edges=True).draw(4)
+    many = Streams(7, [0, 1, 2, 3], 1, 2, [[0, 1]], mode="iid", reward_noise=False, random_edges=True).draw(4)
     assert_array_equal(one["state"][:, 0], many["state"][:, 3])
     assert_array_equal(one["edge"][:, 0], many["edge"][:, 3])
 

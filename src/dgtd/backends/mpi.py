@@ -614,8 +614,8 @@ class Ranks:
 
     def init_channel(self, channel, seeds: int, seed: int):
         """The channel's state over the arcs this rank draws (`arc_ids`), as the whole network's run begins it."""
-        none = np.zeros(len(self.arc_ids), np.int64)
-        return channel.init(seeds, Arcs(0, none, none, self.arc_ids), seed)
+        whole, ids = self.ctx.arcs, self.arc_ids  # (each arc's draws keyed by its agents: `dgtd.streams.link_keys`)
+        return channel.init(seeds, Arcs(whole.n_agents, whole.src[ids], whole.dst[ids], ids), seed)
 
     def whole(self, x: np.ndarray, axis: int = 1) -> np.ndarray:
         """Every agent's rows of ``x`` (this rank's own on ``axis``) on rank 0; its own rows on the others."""

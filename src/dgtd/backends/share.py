@@ -2,13 +2,13 @@
 links of its agents (and, for Metropolis weights, of its ghosts) as edges, the channel and the problem cut to them.
 
 The compiled driver (`dgtd.backends.compiled.driver`) runs it as it runs a whole network, drawing every number by
-the entity's id in the whole network (``agent_ids``, ``edge_ids``: `dgtd.streams`), so that a rank's samples and
-events are the whole run's, and counting only the arcs into the rank's own agents (``counted``). Its rows are its own
-agents, its ghosts and, with a halo, the ghosts' other neighbours, in the order of the whole run's storage rows
-(`dgtd.backends.compiled.graph.storage_order`), and stored so: each agent's neighbours then come in the whole run's
-order, and its sums add in the same order, bit for bit. A local edge keeps its ends' order in the whole network
-(the arcs 2e and 2e + 1 of local edge e are the arcs 2g and 2g + 1 of its edge g there), even where that puts the
-larger row first.
+the entity's id in the whole network (``agent_ids``; a link by the agents it joins: `dgtd.streams`), so that a
+rank's samples and events are the whole run's, and counting only the arcs into the rank's own agents (``counted``).
+Its rows are its own agents, its ghosts and, with a halo, the ghosts' other neighbours, in the order of the whole
+run's storage rows (`dgtd.backends.compiled.graph.storage_order`), and stored so: each agent's neighbours then come
+in the whole run's order, and its sums add in the same order, bit for bit. A local edge keeps its ends' order in the
+whole network (the arcs 2e and 2e + 1 of local edge e are the arcs 2g and 2g + 1 of its edge g there), even where
+that puts the larger row first.
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ class Share:
             n_states=ctx.n_states,
             n_agents=len(rows),
             # the kernels' numbers of each row and edge (`dgtd.backends.compiled.sampling.entity_ids`) ...
-            entity_ids=entities(np.zeros(1, np.int64) if shared else rows, rows, edges, counted, shared),
+            entity_ids=entities(np.zeros(1, np.int64) if shared else rows, rows, counted, shared),
             # ... and the rows kept in this order (no reordering of its own: `storage_order`)
             _numba_cache={"order": None},
         )

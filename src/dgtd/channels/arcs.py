@@ -8,6 +8,7 @@ from functools import cached_property
 import numpy as np
 
 from dgtd.samples import namespace
+from dgtd.streams import arc_side, link_keys, uniforms
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,6 +50,33 @@ class Arcs:
     def agent_ids(self) -> np.ndarray:
         """Each row's agent in the whole network (N,)."""
         return np.arange(self.n_agents) if self.agents is None else self.agents
+
+    @cached_property
+    def ends(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each arc's sender and receiver in the whole network ((2E,) each): the agents its link joins."""
+        agents = self.agent_ids
+        return agents[self.src], agents[self.dst]
+
+    @cached_property
+    def side(self) -> np.ndarray:
+        """Each arc's side of its link (2E,): 0 into the smaller id, 1 into the larger (`dgtd.streams.arc_side`)."""
+        return arc_side(*self.ends)
+
+    def link_keys(self, keys: np.ndarray) -> np.ndarray:
+        """Each arc's link's key (B, 2E) under seeds' keys (B,), the key of the agents it joins
+        (`dgtd.streams.link_keys`), kept for the last keys asked (a run asks with the same ones at every step)."""
+        keys = np.asarray(keys, dtype=np.uint64).reshape(-1)
+        kept = self.__dict__.get("_link_keys")
+        if kept is None or not np.array_equal(kept[0], keys):
+            kept = (keys.copy(), link_keys(keys[:, None], *self.ends))
+            self.__dict__["_link_keys"] = kept
+        return kept[1]
+
+    def uniforms(self, keys: np.ndarray, purpose: int, step: int) -> np.ndarray:
+        """One uniform per arc (B, 2E) for ``purpose`` at ``step``: its link's call's u0 for the arc into the smaller
+        id, u1 for the other, so that either end draws both of its link's arcs' numbers (`dgtd.streams`)."""
+        u0, u1 = uniforms(self.link_keys(keys), purpose, step, 0)
+        return np.where(self.side == 0, u0, u1)
 
     def of_arcs(self, x: np.ndarray) -> np.ndarray:
         """A quantity of every arc of the whole network (2E,) for these arcs."""

@@ -118,8 +118,9 @@ class Imperfect:
             u = arc_uniforms(keys, DELAY, step, arcs)
             late = np.minimum(np.floor(u * (self.delay + 1)).astype(np.int64), self.delay)
         rounding = None
-        if self.bits < BITS_PER_NUMBER:  # arc a's numbers 2j and 2j + 1 from its call j
-            u0, u1 = uniforms(keys[:, None, None], ROUNDING, step, arcs.arc_ids[:, None], np.arange((Q + 1) // 2))
+        if self.bits < BITS_PER_NUMBER:  # an arc's numbers 2j and 2j + 1 from its call j (entity: its side)
+            link = arcs.link_keys(keys)[:, :, None]
+            u0, u1 = uniforms(link, ROUNDING, step, arcs.side[:, None], np.arange((Q + 1) // 2))
             rounding = np.stack([u0, u1], axis=-1).reshape(B, arcs.n_arcs, -1)[:, :, :Q]
         sends = carried & awake[:, arcs.src]
         value = x[:, arcs.src]

@@ -25,17 +25,13 @@ from dgtd.channels.base import counted
 from dgtd.channels.inbox import Inbox
 from dgtd.errors import DgtdInputError
 from dgtd.files import text_of
-from dgtd.streams import ARC_BURST_START, ARC_LOSS, seed_keys, uniforms
+from dgtd.streams import ARC_BURST_START, ARC_LOSS, seed_keys
 
 
 def arc_uniforms(keys: np.ndarray, purpose: int, step: int, arcs: Arcs) -> np.ndarray:
-    """One uniform per arc (B, 2E) of each seed (``keys`` (B,)) at ``step``: arcs 2e and 2e + 1 of the whole network
-    take the pair keyed by their edge e (`dgtd.streams`), so either end of the edge can draw both."""
-    if arcs.ids is None:  # the whole network: each edge's pair once
-        u0, u1 = uniforms(keys[:, None], purpose, step, np.arange(arcs.n_arcs // 2))
-        return np.stack([u0, u1], axis=-1).reshape(keys.shape[0], arcs.n_arcs)
-    u0, u1 = uniforms(keys[:, None], purpose, step, arcs.ids // 2)
-    return np.where(arcs.ids % 2 == 0, u0, u1)
+    """One uniform per arc (B, 2E) of each seed (``keys`` (B,)) at ``step``, keyed by the agents its link joins
+    (`Arcs.uniforms`), so that whoever holds the arc draws it."""
+    return arcs.uniforms(keys, purpose, step)
 
 
 class LinkState(NamedTuple):

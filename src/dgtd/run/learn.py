@@ -69,7 +69,7 @@ from dgtd.run.settings import check_count, kept_steps
 from dgtd.run.state import AGENTS, held, restore, snapshot
 from dgtd.samples import Sample
 from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
-from dgtd.streams import ACTION, EDGE_UP, seed_keys, singles
+from dgtd.streams import ACTION, edge_uniforms, seed_keys, singles
 
 ACTORS = ("networked", "independent", "centralised")
 VALUES = ("state", "action")
@@ -588,7 +588,7 @@ def _draws(keys: np.ndarray, network, steps: range) -> tuple:
     is always up (a model's next states are its own: `dgtd.sources.team_env.ModelEnv`)."""
     k = np.arange(steps.start, steps.stop, dtype=np.uint64)[:, None, None]
     action = singles(keys[None, :, None], ACTION, k, np.arange(network.n_nodes))
-    up = None if network.fixed else singles(keys[None, :, None], EDGE_UP, k, np.arange(network.n_edges)) < network.p
+    up = None if network.fixed else edge_uniforms(keys, k, network.base.edges) < network.p
     return action, up
 
 

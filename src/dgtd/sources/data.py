@@ -32,7 +32,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError
 from dgtd.files import open_npz, present
 from dgtd.samples import Block, SampleTable
-from dgtd.streams import EDGE_UP, ORDER, seed_key, seed_keys, singles, uniforms
+from dgtd.streams import ORDER, edge_uniforms, seed_key, seed_keys, uniforms
 
 KEYS = ("seed", "episode", "step", "agent")
 GROUPS = 8  # the reference's groups of episodes, without independent recordings
@@ -352,7 +352,7 @@ class DataSource:
         if self.network is None or self.network.fixed:
             return None
         steps = (self.k - T + np.arange(T, dtype=np.uint64))[:, None, None]  # (next_block has moved k on)
-        u = singles(self.keys[None, :, None], EDGE_UP, steps, np.arange(self.network.n_edges))
+        u = edge_uniforms(self.keys, steps, self.network.base.edges)
         return u < self.network.p
 
     def get_state(self) -> dict:

@@ -30,7 +30,7 @@ import numpy as np
 from dgtd.errors import DgtdInputError, call_user, user_error, user_numbers
 from dgtd.samples import Block, SampleTable
 from dgtd.sources.gym import PARALLEL_API, api_checked
-from dgtd.streams import EDGE_UP, SIMULATOR, entity_seed, seed_key, singles
+from dgtd.streams import SIMULATOR, edge_uniforms, entity_seed, seed_key
 
 
 def random_policy(agent: str, observation, space, rng: np.random.Generator):
@@ -185,7 +185,7 @@ class EnvSource:
         for b, (env, gen, spaces) in enumerate(zip(self.envs, self.gens, self.spaces)):
             if self.positions is None:  # the links' draws do not depend on the env: all T steps at once
                 steps = (self.step + np.arange(T, dtype=np.uint64))[:, None]
-                up[:, b] = singles(np.uint64(self.keys[b]), EDGE_UP, steps, np.arange(E)) < self.network.p
+                up[:, b] = edge_uniforms(self.keys[b : b + 1], steps[:, :, None], self.edges)[:, 0] < self.network.p
             for t in range(T):
                 obs = env._dgtd_last_obs
                 actions = {

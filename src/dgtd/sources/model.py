@@ -25,6 +25,7 @@ from dgtd.streams import (
     REWARD,
     SHARED_START,
     SHARED_STATE,
+    link_keys,
     seed_keys,
     singles,
     uniforms,
@@ -130,7 +131,7 @@ class Streams:
         seed_ids,
         n_obs: int,
         n_agents: int,
-        n_edges: int,
+        edges: np.ndarray,
         *,
         mode: str,
         reward_noise: bool,
@@ -141,20 +142,29 @@ class Streams:
         self.width = 2 if mode == "iid" or restart_uniform else 1  # state uniforms per observation and step
         self.seed_ids = np.asarray(seed_ids, dtype=np.int64)
         self.keys = seed_keys(self.seed, self.seed_ids)
-        self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, n_edges
+        self.pairs = np.asarray(edges, dtype=np.int64).reshape(-1, 2)  # each edge's agents: what its draws are keyed by
+        self.n_obs, self.n_agents, self.n_edges = n_obs, n_agents, len(self.pairs)
         self.mode, self.reward_noise, self.random_edges = mode, reward_noise, random_edges
         # one observation is the trajectory every agent sees; else observation o is agent o's own
         self.shared = n_obs == 1
         self.state_purpose = SHARED_STATE if self.shared else AGENT_STATE
-        self.obs_ids, self.agent_ids, self.edge_ids = np.arange(n_obs), np.arange(n_agents), np.arange(n_edges)
+        self.obs_ids, self.agent_ids, self.edge_ids = np.arange(n_obs), np.arange(n_agents), np.arange(self.n_edges)
+        self.edge_keys = self._edge_keys() if random_edges else None
         self.step = 0
 
     def restrict(self, agents: np.ndarray, edges: np.ndarray) -> None:
         """Draw only the numbers of ``agents`` and ``edges`` (ids in the whole network): their states (or the shared
         trajectory's), rewards and links, each the number the whole network's streams give it."""
         self.agent_ids, self.edge_ids = np.asarray(agents, np.int64), np.asarray(edges, np.int64)
+        if self.edge_keys is not None:
+            self.edge_keys = self._edge_keys()
         self.obs_ids = self.obs_ids if self.shared else self.agent_ids
         self.n_obs, self.n_agents, self.n_edges = len(self.obs_ids), len(self.agent_ids), len(self.edge_ids)
+
+    def _edge_keys(self) -> np.ndarray:
+        """The keys (B, E) of the links drawn (`dgtd.streams.link_keys`)."""
+        pairs = self.pairs[self.edge_ids]
+        return link_keys(self.keys[:, None], pairs[:, 0], pairs[:, 1])
 
     def initial_uniforms(self) -> np.ndarray:
         """Uniforms (B, n_obs) for the initial states s_0 ~ d of Markovian trajectories."""
@@ -171,7 +181,7 @@ class Streams:
         if self.reward_noise:
             out["reward"] = singles(keys, REWARD, steps, self.agent_ids)
         if self.random_edges:
-            out["edge"] = singles(keys, EDGE_UP, steps, self.edge_ids)
+            out["edge"] = uniforms(self.edge_keys[None], EDGE_UP, steps, 0)[0]  # (each keyed by its agents)
         self.step += T
         return out
 
@@ -266,7 +276,7 @@ class ModelSource:
             seed_ids,
             self.n_obs,
             N,
-            network.n_edges,
+            network.base.edges,
             mode=sampling.mode,
             reward_noise=problem.reward_noise not in ("none", "transition"),
             random_edges=not network.fixed,

@@ -37,6 +37,7 @@ from dgtd.backends.compiled.sampling import (
     _step_observations,
     channel_draws,
     entity_ids,
+    link_keys_of,
     sample_args,
 )
 from dgtd.backends.compiled.step import CompiledStep, Features, Samples, step_of
@@ -351,7 +352,8 @@ def _run_held(ctx, compiled, args, buffers, alphas, blk, channel, t0=0, t1=None,
         q,
         np.ascontiguousarray(ctx.arcs.src, np.int64),
         np.ascontiguousarray(src_row, np.int64),
-        *entity_ids(ctx)[1:4],
+        *entity_ids(ctx)[1:3],
+        *link_keys_of(ctx, sampler.rng[:, 0]).values(),
     )
     state = Held(
         channel.copies.copy(),

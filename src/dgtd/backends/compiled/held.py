@@ -20,8 +20,9 @@ from dgtd.streams import DELAY, ROUNDING, WAKE
 class Links(NamedTuple):
     """What `carry` reads of the channel: ``wake`` (N,) each agent's probability of being awake (empty: always),
     ``delay`` D, ``bits`` B, ``top_k`` K (0: none), ``feedback`` (1 with error feedback), ``width`` q (the numbers
-    of each message), each arc's sender as an agent (``src``) and as a storage row (``src_row``), and the ids of the
-    agents and edges in the whole network and the arcs counted (`dgtd.backends.compiled.sampling.entity_ids`)."""
+    of each message), each arc's sender as an agent (``src``) and as a storage row (``src_row``), the ids of the
+    agents in the whole network and the arcs counted (`dgtd.backends.compiled.sampling.entity_ids`), and each edge's
+    key (B, E) and arc's side (2E,), which its delays and roundings are drawn by (`sampling.link_keys_of`)."""
 
     wake: np.ndarray
     delay: int
@@ -32,8 +33,9 @@ class Links(NamedTuple):
     src: np.ndarray
     src_row: np.ndarray
     agent_ids: np.ndarray
-    edge_ids: np.ndarray
     counted: np.ndarray
+    edge_keys: np.ndarray
+    arc_side: np.ndarray
 
 
 class Held(NamedTuple):
@@ -60,7 +62,7 @@ def carry(links, held, b, t, rng, up_t, sent, N, scratch):
     M, q = sent.shape[0], links.width
     key = rng[b, 0]  # the seed's key (`dgtd.streams`): each number keyed by its agent or arc and the step t
     _draw_awake(links, key, t, N, awake)
-    _draw_delays_and_rounding(links, key, t, A, D, held.copies.shape[2], late, rounding)
+    _draw_delays_and_rounding(links, links.edge_keys[b], t, A, D, held.copies.shape[2], late, rounding)
     now = t % (D + 1)
     n = 0
     for a in range(A):
@@ -92,18 +94,19 @@ def _draw_awake(links, key, t, N, awake):
 
 
 @njit(cache=True, inline="always")
-def _draw_delays_and_rounding(links, key, t, A, D, Q, late, rounding):
-    """Each arc's delay at step t (uniform in 0..D) and the uniforms of its stochastic rounding, where drawn."""
+def _draw_delays_and_rounding(links, keys, t, A, D, Q, late, rounding):
+    """Each arc's delay at step t (uniform in 0..D) and the uniforms of its stochastic rounding, where drawn, by its
+    link's key (``keys`` (E,)) and its side (`dgtd.streams`)."""
+    side = links.arc_side
     if D > 0:
         for e in range(A // 2):
-            u0, u1 = keyed_pair(key, DELAY, t, e if links.edge_ids.shape[0] == 0 else links.edge_ids[e], 0)
-            late[2 * e] = min(np.int64(np.floor(u0 * (D + 1))), D)
-            late[2 * e + 1] = min(np.int64(np.floor(u1 * (D + 1))), D)
+            u0, u1 = keyed_pair(keys[e], DELAY, t, 0, 0)
+            for a in range(2 * e, 2 * e + 2):
+                late[a] = min(np.int64(np.floor((u0 if side[a] == 0 else u1) * (D + 1))), D)
     if links.bits < 64:
         for a in range(A):
-            arc = a if links.edge_ids.shape[0] == 0 else 2 * links.edge_ids[a >> 1] + (a & 1)
             for f in range(0, Q, 2):
-                u0, u1 = keyed_pair(key, ROUNDING, t, arc, f // 2)
+                u0, u1 = keyed_pair(keys[a >> 1], ROUNDING, t, side[a], f // 2)
                 rounding[a, f] = u0
                 if f + 1 < Q:
                     rounding[a, f + 1] = u1

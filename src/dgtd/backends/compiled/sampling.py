@@ -15,7 +15,7 @@ from dgtd.backends.compiled.cache import load_quickly
 from dgtd.backends.compiled.graph import per_run
 from dgtd.backends.compiled.rng import keyed_pair
 from dgtd.samples import Block, Draws
-from dgtd.streams import AGENT_STATE, ARC_LOSS, EDGE_UP, REWARD, SHARED_STATE
+from dgtd.streams import AGENT_STATE, ARC_LOSS, EDGE_UP, REWARD, SHARED_STATE, arc_side, link_keys
 
 NOISE_CODES = {"none": 0, "bernoulli": 1, "uniform": 2, "transition": 0}  # a transition's reward: deterministic
 
@@ -137,7 +137,8 @@ def block_from_uniforms(problem, network, tables, U: dict, current, agents=None,
         r=r,
         up=up,
         n_up=np.zeros(B, np.int64),
-        **_ids(entities(*(np.zeros(0, np.int64),) * 4, shared=n_obs < N)),
+        **_ids(entities(*(np.zeros(0, np.int64),) * 3, shared=n_obs < N)),
+        **_no_keys(B),
     )
     _sample_kernel(
         np.ascontiguousarray(U["state"]),
@@ -175,8 +176,9 @@ class Sampler(NamedTuple):
     n_up: np.ndarray  # (B,) int64: how many arcs delivered, as the kernels count them
     obs_ids: np.ndarray  # the entities' ids in the whole network (`entity_ids`): empty where each index is its id
     agent_ids: np.ndarray
-    edge_ids: np.ndarray
     counted: np.ndarray  # (2E,) uint8: 1 for each arc the counts count; empty: every arc
+    edge_keys: np.ndarray  # (B, E) uint64: each edge's key (`dgtd.streams.link_keys`) where its links are drawn
+    arc_side: np.ndarray  # (2E,) uint8: each arc's side of its link, the number of the call it takes (`arc_side`)
     purpose: int  # the states' stream: one trajectory for all agents or one each (`dgtd.streams`)
 
 
@@ -249,38 +251,26 @@ def _edges(sampler, b, row, t, up_t):
     from the pair of uniforms of each edge's two arcs at the step, as `dgtd.channels.Lossy` draws them). ``loss`` is
     empty on a perfect channel, else row 0 holds each arc's loss probability (i.i.d. losses) or, with bursts, the
     probability that its chain enters its losing state, and row 1 that it leaves it; ``links`` [b, a] is 1 while arc
-    a's chain is losing. Each edge draws by its id ``edge_ids`` [e] in the whole network. Returns how many arcs
-    deliver of those ``counted`` (two per edge up, without loss, in a whole network)."""
-    loss, links, edge_ids, counted, p_edge = (
-        sampler.loss,
-        sampler.links,
-        sampler.edge_ids,
-        sampler.counted,
-        sampler.p_edge,
-    )
+    a's chain is losing. Each edge draws by its key (``edge_keys``: the agents it joins), its arcs by their sides.
+    Returns how many arcs deliver of those ``counted`` (two per edge up, without loss, in a whole network)."""
+    loss, links, counted, p_edge = sampler.loss, sampler.links, sampler.counted, sampler.p_edge
     if loss.shape[0] == 0:
         return _edges_up(sampler, b, row, t, up_t)
     E = loss.shape[1] // 2
     bursty = loss.shape[0] == 2
     fused = sampler.fused
     drawn = fused and p_edge.shape[0] == E  # random edges drawn here; a fixed graph draws nothing
-    key, step = sampler.rng[b, 0], sampler.rng[b, 1] + np.uint64(t)
+    step = sampler.rng[b, 1] + np.uint64(t)
     n = 0
-    u_even = u_odd = 0.0
-    pair = -1
     for e in range(E):
         up = True
-        edge = e if edge_ids.shape[0] == 0 else edge_ids[e]
-        if drawn:  # edges 2j and 2j + 1 share call j (`dgtd.streams.singles`)
-            if edge >> 1 != pair:
-                pair = edge >> 1
-                u_even, u_odd = keyed_pair(key, EDGE_UP, step, pair, 0)
-            up = (u_even if edge & 1 == 0 else u_odd) < p_edge[e]
+        if drawn:
+            up = keyed_pair(sampler.edge_keys[b, e], EDGE_UP, step, 0, 0)[0] < p_edge[e]
         elif not fused and sampler.up.shape[0] > 0:
             up = sampler.up[t, b, e]
-        u0, u1 = keyed_pair(key, ARC_LOSS, step, edge, 0)
+        u0, u1 = keyed_pair(sampler.edge_keys[b, e], ARC_LOSS, step, 0, 0)
         for a in range(2 * e, 2 * e + 2):
-            u = u0 if a == 2 * e else u1
+            u = u0 if sampler.arc_side[a] == 0 else u1
             if bursty:
                 losing = u >= loss[1, a] if links[b, a] == 1 else u < loss[0, a]
                 links[b, a] = 1 if losing else 0
@@ -297,27 +287,12 @@ def _edges_up(sampler, b, row, t, up_t):
     """Each edge up at step t into row ``row`` of up_t (a perfect channel's `_step_edges`); returns how many of
     their arcs ``counted`` counts (2 per edge up in a whole network)."""
     E = up_t.shape[1]
-    p_edge, edge_ids, counted, fused, up_blk = (
-        sampler.p_edge,
-        sampler.edge_ids,
-        sampler.counted,
-        sampler.fused,
-        sampler.up,
-    )
-    if fused and p_edge.shape[0] == E:  # random edges drawn here; a fixed graph draws nothing
-        key, step = sampler.rng[b, 0], sampler.rng[b, 1] + np.uint64(t)
-        if edge_ids.shape[0] == 0:  # the whole network: edges 2j and 2j + 1 from call j, a loop LLVM vectorises
-            for j in range(E >> 1):
-                u0, u1 = keyed_pair(key, EDGE_UP, step, j, 0)
-                up_t[row, 2 * j] = u0 < p_edge[2 * j]
-                up_t[row, 2 * j + 1] = u1 < p_edge[2 * j + 1]
-            if E & 1:
-                up_t[row, E - 1] = keyed_pair(key, EDGE_UP, step, E >> 1, 0)[0] < p_edge[E - 1]
-        else:  # a rank's share: each edge by its id
-            for e in range(E):
-                edge = edge_ids[e]
-                u0, u1 = keyed_pair(key, EDGE_UP, step, edge >> 1, 0)
-                up_t[row, e] = (u0 if edge & 1 == 0 else u1) < p_edge[e]
+    p_edge, counted, fused, up_blk = sampler.p_edge, sampler.counted, sampler.fused, sampler.up
+    if fused and p_edge.shape[0] == E:  # random edges drawn here, each by its link key; a fixed graph draws nothing
+        step = sampler.rng[b, 1] + np.uint64(t)
+        keys = sampler.edge_keys[b]
+        for e in range(E):  # (a loop LLVM vectorises)
+            up_t[row, e] = keyed_pair(keys[e], EDGE_UP, step, 0, 0)[0] < p_edge[e]
     elif not fused and up_blk.shape[0] > 0:
         for e in range(E):
             up_t[row, e] = up_blk[t, b, e]
@@ -375,6 +350,7 @@ def sample_args(ctx, blk, B: int, channel=None) -> Sampler:
             links["links"] = np.array(channel.links, dtype=np.uint8, order="C")
         links["loss"] = frozen(loss, np.float64)
         rng = channel_cursor(channel, rng, fused)
+    keyed = link_keys_of(ctx, rng[:, 0]) if (fused and p_edge.shape[0] > 0) or channel_draws(ctx) else _no_keys(B)
     return Sampler(
         fused=fused,
         rng=rng,
@@ -386,7 +362,29 @@ def sample_args(ctx, blk, B: int, channel=None) -> Sampler:
         **samples,
         n_up=np.zeros(B, np.int64),
         **_ids(entity_ids(ctx)),
+        **keyed,
     )
+
+
+def link_keys_of(ctx, keys: np.ndarray) -> dict:
+    """The `Sampler`'s ``edge_keys`` (B, E) under seeds' keys (B,), each edge's the key of the agents it joins in the
+    whole network (`dgtd.streams.link_keys`; a rank's rows name theirs in `entity_ids`), and ``arc_side`` (2E,);
+    computed once per run and keys."""
+
+    def build():
+        agents = entity_ids(ctx)[1]
+        senders, receivers = ctx.arcs.src, ctx.arcs.dst
+        if agents.shape[0]:
+            senders, receivers = agents[senders], agents[receivers]
+        edge_keys = link_keys(keys[:, None], senders[0::2], receivers[0::2])  # arcs 2e and 2e + 1: edge e's
+        return dict(edge_keys=frozen(edge_keys, np.uint64), arc_side=frozen(arc_side(senders, receivers), np.uint8))
+
+    return per_run(ctx, f"link keys {keys.tobytes().hex()}", build)
+
+
+def _no_keys(B: int) -> dict:
+    """The `Sampler`'s link keys where the kernels draw no links."""
+    return dict(edge_keys=frozen(np.zeros((B, 0)), np.uint64), arc_side=frozen(np.zeros(0), np.uint8))
 
 
 def _model(tables, problem, markov: bool, rewards=None) -> dict:
@@ -420,25 +418,25 @@ def _no_loss(B: int) -> dict:
 
 def _ids(ids: tuple) -> dict:
     """`entity_ids` as the `Sampler`'s fields."""
-    return dict(zip(("obs_ids", "agent_ids", "edge_ids", "counted", "purpose"), ids))
+    return dict(zip(("obs_ids", "agent_ids", "counted", "purpose"), ids))
 
 
 def entity_ids(ctx) -> tuple:
-    """(each observation's and each row's agent, each edge's id in the whole network, 1 for each arc the counts count,
-    the states' purpose: `dgtd.streams`): none for a whole network (each index is its id, every arc counts), a rank's
-    share's where it is one (`dgtd.backends.share`)."""
+    """(each observation's and each row's agent in the whole network, 1 for each arc the counts count, the states'
+    purpose: `dgtd.streams`; a link's draws are keyed by its agents, `link_keys_of`): none for a whole network (each
+    index is its id, every arc counts), a rank's share's where it is one (`dgtd.backends.share`)."""
 
     def whole():  # no ids: each entity's index is its id, and every arc counts
         none = np.zeros(0, np.int64)
         shared = ctx.sampling.shared or ctx.network.n_nodes == 1  # one observation: the trajectory every agent sees
-        return entities(none, none, none, none, shared)
+        return entities(none, none, none, shared)
 
     return getattr(ctx, "entity_ids", None) or per_run(ctx, "entity_ids", whole)
 
 
-def entities(obs_ids, agent_ids, edge_ids, counted, shared: bool) -> tuple:
+def entities(obs_ids, agent_ids, counted, shared: bool) -> tuple:
     """`entity_ids` as the kernels take them."""
-    ids = (obs_ids, agent_ids, edge_ids)
+    ids = (obs_ids, agent_ids)
     return (*(frozen(x, np.int64) for x in ids), frozen(counted, np.uint8), SHARED_STATE if shared else AGENT_STATE)
 
 
