@@ -180,8 +180,8 @@ class Streams:
         out = {"state": np.stack([u_s, u_sa], axis=-1) if self.width == 2 else u_sa[..., None]}
         if self.reward_noise:
             out["reward"] = singles(keys, REWARD, steps, self.agent_ids)
-        if self.random_edges:
-            out["edge"] = uniforms(self.edge_keys[None], EDGE_UP, steps, 0)[0]  # (each keyed by its agents)
+        if self.edge_keys is not None:  # (random edges: each keyed by its agents)
+            out["edge"] = uniforms(self.edge_keys[None], EDGE_UP, steps, 0)[0]
         self.step += T
         return out
 
