@@ -475,7 +475,7 @@ def _network(graph: str, n_agents: int, edge_prob: float, shape: dict | None = N
         base = chunked.whole(
             chunked.ChunkedGraph(chunked.NAMES[graph], n_agents, **chunked_shape(graph, n_agents, shape or {}))
         )
-        return random_edges(topologies.from_edges(n_agents, base.edges, graph), edge_prob)
+        return random_edges(topologies.from_edges(n_agents, base.edges, graph, base.near), edge_prob)
     if given:
         raise DgtdInputError(f"{', '.join(given)} shape a small-world, sparse-random or geometric graph, not {graph!r}")
     if graph in topologies.TOPOLOGIES:

@@ -225,6 +225,27 @@ def test_numba_relabelled_rows_match_numpy(layout, name, monkeypatch):
     assert order is not None and not np.array_equal(order[0], np.arange(12))  # the rows really were reordered
 
 
+@pytest.mark.parametrize("kind", ["small-world", "geometric"])
+def test_a_graph_numbered_near_by_its_generator_keeps_its_numbering_without_a_search(kind, monkeypatch):
+    """A chunked small-world's or geometric graph's agents are numbered near their neighbours by construction (a
+    ring, cells): the run keeps that numbering (the ranks' blocks are its own) without reverse Cuthill-McKee over the
+    whole graph, which kept it anyway (checked: the search, asked, keeps the identity too)."""
+    import scipy.sparse.csgraph
+
+    from dgtd.backends.compiled import graph as numba_graph
+    from dgtd.config import _network
+
+    net = _network(kind, 20_000, 0.9)
+    assert net.base.near and numba_graph._rcm_order(dataclasses.replace(net.base, near=False)) is None
+
+    def refused(*args, **kwargs):
+        raise AssertionError("reverse Cuthill-McKee was run")
+
+    monkeypatch.setattr(scipy.sparse.csgraph, "reverse_cuthill_mckee", refused)
+    assert numba_graph.storage_order(type("Ctx", (), {"network": net})()) is None
+    assert not _network("sparse-random", 500, 0.9).base.near  # (a random graph's numbering is not near)
+
+
 def test_agents_are_reordered_only_where_that_makes_more_edges_local():
     """A ring with random chords is local as numbered (its ring edges) and stays so; the same graph with its agents
     numbered at random is reordered, and its reordering makes most edges local again."""

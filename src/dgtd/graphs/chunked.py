@@ -89,6 +89,7 @@ NAMES = {
     "sparse-random": "erdos-renyi",
     "geometric": "geometric",
 }  # as --graph names them -> their kind
+NUMBERED_NEAR = ("small-world", "geometric")  # kinds whose agents' numbering puts neighbours near (a ring, cells)
 
 
 def _block(g: ChunkedGraph, b: int) -> tuple[int, int]:
@@ -177,7 +178,7 @@ def whole(g: ChunkedGraph):
     """The whole graph, a `dgtd.graphs.topologies.Graph`: `edges_touching` every agent."""
     from dgtd.graphs.topologies import Graph
 
-    return Graph(g.n_agents, edges_touching(g, range(g.n_agents)), g.kind)
+    return Graph(g.n_agents, edges_touching(g, range(g.n_agents)), g.kind, near=g.kind in NUMBERED_NEAR)
 
 
 def _sorted_unique(edges: np.ndarray, n: int) -> np.ndarray:

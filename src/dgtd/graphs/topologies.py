@@ -12,11 +12,14 @@ from dgtd.files import text_of
 
 @dataclass(frozen=True, eq=False)
 class Graph:
-    """An undirected graph on nodes 0..n_nodes-1; ``edges`` (E, 2) with edges[e, 0] < edges[e, 1]."""
+    """An undirected graph on nodes 0..n_nodes-1; ``edges`` (E, 2) with edges[e, 0] < edges[e, 1]. ``near``: its
+    numbering puts neighbours near each other by construction (a chunked small-world's ring, a geometric graph's
+    cells), so that runs keep it and seek no other (`dgtd.backends.compiled.graph.storage_order`)."""
 
     n_nodes: int
     edges: np.ndarray
     name: str = "graph"
+    near: bool = False
 
     @property
     def n_edges(self) -> int:
@@ -61,8 +64,8 @@ def all_reachable(adj: np.ndarray) -> bool:
     return bool(seen.all())
 
 
-def from_edges(n_nodes: int, edges, name: str = "edges") -> Graph:
-    """Graph from any iterable of (i, j) pairs; duplicates and orientation are normalised."""
+def from_edges(n_nodes: int, edges, name: str = "edges", near: bool = False) -> Graph:
+    """Graph from any iterable of (i, j) pairs; duplicates and orientation are normalised (``near``: `Graph`'s)."""
     if int(n_nodes) < 1:
         raise DgtdInputError(f"a graph needs at least one node, got {n_nodes}")
     e = np.asarray(list(edges) if not isinstance(edges, np.ndarray) else edges, dtype=np.int64).reshape(-1, 2)
@@ -72,7 +75,7 @@ def from_edges(n_nodes: int, edges, name: str = "edges") -> Graph:
         raise DgtdInputError("self-loops are not allowed in a communication graph")
     e = unique_edges(np.sort(e, axis=1), int(n_nodes))
     e.setflags(write=False)
-    return Graph(int(n_nodes), e, name)
+    return Graph(int(n_nodes), e, name, near)
 
 
 def unique_ints(x: np.ndarray) -> np.ndarray:
