@@ -8,7 +8,11 @@ beside it the best of their 20 ALOHA-like heuristics (send probability 0, 0.05, 
 their published curve (their repository's data file). Writes docs/wireless.png and benchmarks/results/wireless.json.
 
 Usage: python benchmarks/wireless.py [--episodes 120000] [--every 2000] [--rollouts 400] [--seeds 1]
-[--height 3 --width 4 --users 2] [--loss P] [--out docs] (a shorter or lossy run writes its numbers only)"""
+[--height 3 --width 4 --users 2] [--loss P] [--forget] [--out docs] (a shorter or lossy run writes its numbers only)
+
+Under ``mpiexec -n R`` the agents are spread over the ranks (`dgtd.run.layout.learner_layout`; the numbers are one
+process's) and each rank's peak memory is reported: a rank's memory as the ranks grow at a fixed number of agents a
+rank (docs/control.md)."""
 
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+from dgtd.backends import mpi  # noqa: E402
 from dgtd.problems.wireless import grid  # noqa: E402
 from dgtd.run.networked import NetworkedConfig, heuristic, learn_networked  # noqa: E402
 
@@ -49,31 +54,38 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=4)
     parser.add_argument("--users", type=int, default=2)
     parser.add_argument("--loss", type=float, default=0.0, help="messages within kappa hops lost with this probability")
+    parser.add_argument("--forget", action="store_true", help="the critics' tables from 0 at each restart")
     parser.add_argument("--out", type=Path, default=Path("docs"))
     args = parser.parse_args()
     task = grid(args.height, args.width, args.users)
     config = NetworkedConfig(episodes=args.episodes, seeds=args.seeds, every=args.every, rollouts=args.rollouts,
-                             loss=args.loss)  # (the published steps: the config's defaults)  # fmt: skip
+                             loss=args.loss, forget=args.forget)  # (the published steps: the defaults)  # fmt: skip
     best = heuristic("wireless-access", task, config)
     aloha = list(best["tried"].values())
-    print(f"{task.n_agents} agents: best ALOHA-like heuristic {float(best['return'].mean()):.4f} "
-          f"({best['policy']})", flush=True)  # fmt: skip
-    with tqdm(total=args.episodes, unit="episode", mininterval=2.0) as bar:
+    if mpi.rank() == 0:
+        print(f"{task.n_agents} agents: best ALOHA-like heuristic {float(best['return'].mean()):.4f} "
+              f"({best['policy']})", flush=True)  # fmt: skip
+    with tqdm(total=args.episodes, unit="episode", mininterval=2.0, disable=mpi.rank() > 0) as bar:
         result = learn_networked(task, config, bar.update)
     curve, episodes, seconds = result["return"], result["episodes"], result["seconds"]  # (C + 1, B): the start first
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MB (Linux: kB)
+    peaks = mpi.world().gather(peak, root=0) if mpi.spread() else [peak]  # (each rank's)
+    if mpi.rank() > 0:
+        return
     print(f"learnt: {curve[0].mean():.4f} -> {curve[-1].mean():.4f} in {args.episodes:,} episodes, {seconds:.0f} s, "
-          f"peak {peak:.0f} MB")  # fmt: skip
+          f"peak {max(peaks):.0f} MB a rank ({', '.join(f'{p:.0f}' for p in peaks)}) on {len(peaks)}")  # fmt: skip
     record = {
         "agents": task.n_agents, "episodes": episodes.tolist(), "return": curve.tolist(), "aloha": aloha,
         "aloha_best": float(best["return"].mean()), "aloha_send": best["policy"], "seconds": seconds, "peak_mb": peak,
-        "seeds": args.seeds, "rollouts": args.rollouts, "loss": args.loss,
+        "seeds": args.seeds, "rollouts": args.rollouts, "loss": args.loss, "ranks": len(peaks), "peaks_mb": peaks,
+        "forget": args.forget,
     }  # fmt: skip
     results = Path(__file__).parent / "results"
     results.mkdir(exist_ok=True)
     name = f"wireless-{task.n_agents}" + (f"-loss{args.loss:g}" if args.loss else "")
     if args.episodes != 120_000:
         name += f"-{args.episodes}"
+    name += f"-ranks{len(peaks)}" if len(peaks) > 1 else ""
     (results / f"{name}.json").write_text(json.dumps(record, indent=1))
     if not args.loss and args.episodes == 120_000:
         figure(episodes, curve, float(best["return"].mean()), task.n_agents, args.out / f"{name}.png")

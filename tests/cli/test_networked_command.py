@@ -24,6 +24,8 @@ def test_a_networked_run_writes_its_numbers(run_cli, tmp_path):
     assert 0.1 < summary["heuristic"]["return"][0] < 0.3 and summary["heuristic"]["of"] == 20
     rows = (out / "metrics.csv").read_text().splitlines()
     assert rows[0] == "learner,seed,episode,metric,value" and len(rows) == 1 + 3 * 2
+    values = [float(row.split(",")[-1]) for row in rows[1:]]  # (numbers: it wrote NumPy's repr, np.float64(...))
+    assert values == [v for c in run["return"] for v in c]
     with np.load(out / "policies.npz") as p:
         assert p["policies"].shape == (2, 24, 4, 9)
     saved = tomllib.loads((out / "config.toml").read_text())["networked"]

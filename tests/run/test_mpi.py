@@ -394,14 +394,14 @@ def test_what_the_runtime_does_not_run_is_one_line_and_exit_2_on_every_rank(tmp_
     assert len(errors) == 1 and words in errors[0]  # rank 0's line only
 
 
-def test_only_run_and_learn_spread_over_ranks(tmp_path):
+def test_only_run_learn_and_networked_spread_over_ranks(tmp_path):
     """Another command under mpiexec would run once on every rank, each writing the same files: refused."""
     cmd = [MPIEXEC, "-n", "2", *DGTD, "compare", "paper-example-1", "-T", "100", "--out", str(tmp_path / "c")]
     done = subprocess.run(cmd, env=env(), capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert [line for line in done.stderr.splitlines() if line.startswith("dgtd:")] == [
-        "dgtd: error: under mpiexec only `dgtd run` and `dgtd learn` spread their agents over the ranks; run `dgtd "
-        "compare` in one process"
+        "dgtd: error: under mpiexec only `dgtd run`, `dgtd learn` and `dgtd networked` spread their agents over the "
+        "ranks; run `dgtd compare` in one process"
     ]
 
 
@@ -453,6 +453,17 @@ def test_more_ranks_than_agents_is_refused(tmp_path):
     assert "6 ranks for 5 agents" in done.stderr
 
 
+def _one_process_bytes_on_2_and_3_ranks(tmp_path, run: list) -> None:
+    """``run`` in one process, then with --ranks 2 and 3: metrics.csv and policies.npz the same, byte for byte."""
+    base = alone(*run, "--out", tmp_path / "one")
+    assert base.returncode == 0, base.stderr
+    for ranks in (2, 3):
+        done = alone(*run, "--ranks", ranks, "--out", tmp_path / f"r{ranks}")
+        assert done.returncode == 0, done.stderr
+        for name in ("metrics.csv", "policies.npz"):
+            assert (tmp_path / f"r{ranks}" / name).read_bytes() == (tmp_path / "one" / name).read_bytes(), (ranks, name)
+
+
 LEARN = ["learn", "pull-away", "--seeds", 2, "--loss", 0.2, "--no-plots", "--no-progress"]
 
 
@@ -471,13 +482,7 @@ def test_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, extra):
     one rank holds two); their actions, messages and rows gathered in agent order, the policies and metrics are one
     process's, byte for byte, on 2 and 3 ranks, over links that lose 20 % of messages (compiled, and NumPy)."""
     run = [*LEARN, "-T", 800, *extra]
-    base = alone(*run, "--out", tmp_path / "one")
-    assert base.returncode == 0, base.stderr
-    for ranks in (2, 3):
-        done = alone(*run, "--ranks", ranks, "--out", tmp_path / f"r{ranks}")
-        assert done.returncode == 0, done.stderr
-        for name in ("metrics.csv", "policies.npz"):
-            assert (tmp_path / f"r{ranks}" / name).read_bytes() == (tmp_path / "one" / name).read_bytes(), (ranks, name)
+    _one_process_bytes_on_2_and_3_ranks(tmp_path, run)
 
 
 @pytest.mark.parametrize("again_on", [2, 3])
@@ -495,3 +500,20 @@ def test_learners_interrupted_on_2_ranks_resume_to_the_uninterrupted_numbers(tmp
     whole = alone(*run, "--out", tmp_path / "whole")
     assert whole.returncode == 0, whole.stderr
     assert (out / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()
+
+
+NETWORKED = ["networked", "--seeds", 2, "--every", 100, "--rollouts", 10, "--no-plots", "--no-progress"]
+
+
+@pytest.mark.parametrize(
+    "task",
+    [["wireless-access", "-T", 300, "--loss", 0.2], ["random-networked", "-T", 200, "--hops", 2]],
+)
+def test_networked_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, task):
+    """`dgtd networked --ranks R`: each rank holds its agents' actors and critics and draws their actions; the
+    actions of a step and the values of an episode gathered, metrics.csv (every evaluation) and policies.npz are one
+    process's, byte for byte, on 2 and 3 ranks (24 users over lossy messages; a ring of 10 agents, two hops)."""
+    run = [*NETWORKED, *task]
+    _one_process_bytes_on_2_and_3_ranks(tmp_path, run)
+    refused = alone(*run, "--ranks", 2, "--checkpoint-every", 50, "--out", tmp_path / "cp")
+    assert refused.returncode == 2 and "keeps no checkpoint yet" in refused.stderr

@@ -4,6 +4,7 @@ and `dgtd compare TASK` on one: networked, independent and the task's heuristic 
 from __future__ import annotations
 
 import sys
+from contextlib import ExitStack
 from dataclasses import asdict, fields
 from pathlib import Path
 
@@ -30,7 +31,10 @@ def networked_options(command):
 @click.argument("task", required=False)
 @networked_options
 @output_options("out", "progress", "plots", "overwrite", "checkpoint_every")
-def networked(task, out, progress, plots, overwrite, checkpoint_every, **values):
+@click.option("--ranks", type=int, default=None, help="Spread the agents over R processes: starts the mpi extra's "
+              "mpiexec -n R (each holds its agents' actors and critics; the numbers are one process's, bit for "
+              "bit).")  # fmt: skip
+def networked(task, out, progress, plots, overwrite, checkpoint_every, ranks, **values):
     """Agents with local states learn by Qu, Wierman and Li's scalable actor-critic on a networked TASK
     (wireless-access, the published benchmark by default; epidemic; random-networked) or --problem FILE.npz (a
     networked MDP file: edges, P, R, gamma, start; docs/control.md): each agent's policy on its own
@@ -39,12 +43,23 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, **values)
     metrics.csv, policies.npz and returns.png (docs/control.md, "The wireless-access benchmark"). With
     --checkpoint-every K (episodes) the run's state is kept, and the same command again continues it to the
     uninterrupted numbers."""
+    from dgtd.run import runtime
+    from dgtd.run.checkpoint import remove_checkpoint
     from dgtd.run.networked import config_from, heuristic, learn_networked, task_of
+    from dgtd.run.settings import check_count
 
     if task not in TASKS and not (task is None and values.get("problem_file")):
         raise DgtdInputError(f"name a networked task: {', '.join(TASKS)}" + (f"; got {task!r}" if task else ""))
     config = config_from(values)
     problem = task_of(task, config.agents, config.problem_file)  # (its size checked before anything is written)
+    every = check_count("checkpoint_every", checkpoint_every or 0, 0)
+    if every and (ranks is not None or runtime.ranks() > 1):
+        raise DgtdInputError("a networked run over ranks keeps no checkpoint yet: leave out --checkpoint-every, or "
+                             "run in one process")  # fmt: skip
+    if ranks is not None:
+        from dgtd.cli.launch import ARGV, launch
+
+        raise SystemExit(launch(ranks, None, ARGV))
     label = task or problem.name
     out = Path(out) if out else Path("runs") / f"networked-{label}"
     steps = config.steps
@@ -52,32 +67,41 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, **values)
         f"{label}: {problem.n_agents} agents, gamma {problem.gamma:g}; scalable actor-critic, kappa {steps.kappa}, "
         f"horizon {steps.horizon}; {config.episodes:,} episodes x {config.seeds} seed(s), evaluated every "
         f"{config.every:,} by {config.rollouts} rollouts"
+        + (f", over {runtime.ranks()} ranks" if runtime.ranks() > 1 else "")
     )
-    from dgtd.run.checkpoint import remove_checkpoint, save_checkpoint
-    from dgtd.run.settings import check_count
-
-    every = check_count("checkpoint_every", checkpoint_every or 0, 0)
-    with _claimed(out, label, config, overwrite, "learning run") as claim:
-
-        def so_far(episodes, returns):  # (each evaluation kept as it is made: a run cut off keeps them)
-            _metrics(out, {"scalable": {"episodes": episodes, "return": returns}})
-
-        def keep(snapshot):
-            save_checkpoint(out / CHECKPOINT, snapshot, claim.record)
-
-        if claim.resume is not None:
-            click.echo(f"resuming {out} at episode {int(claim.resume['m']):,}")
-        saves = {"checkpoint_every": every, "on_checkpoint": keep, "resume": claim.resume}
-
-        def work(bar):
-            return learn_networked(problem, config, bar, so_far, **saves)
-
-        result = _with_bar(config.episodes, progress, work)
+    with ExitStack() as stack:
+        claim = runtime.claimed(
+            lambda: stack.enter_context(_claimed(out, label, config, overwrite, "learning run")), lambda: None
+        )  # (the process that writes holds the folder; the others learn their agents and write nothing)
+        saves = _saves(out, claim, every)
+        result = _with_bar(config.episodes, progress and claim is not None,
+                           lambda bar: learn_networked(problem, config, bar, saves.pop("so_far"), **saves))  # fmt: skip
+        if claim is None:
+            return
         best = heuristic(task, problem, config)
         written = _write(out, {"scalable": result}, best, claim.record, plots)
         remove_checkpoint(out / CHECKPOINT)  # (the numbers are complete)
     _report({"scalable": result}, best)
     click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
+
+
+def _saves(out: Path, claim, every: int) -> dict:
+    """`learn_networked`'s callbacks of the process that writes (``claim`` its `_claimed`; None elsewhere): each
+    evaluation written as it is made (a run cut off keeps them), and every ``every`` episodes the run's state."""
+    if claim is None:
+        return {"so_far": None}
+    if claim.resume is not None:
+        click.echo(f"resuming {out} at episode {int(claim.resume['m']):,}")
+
+    def so_far(episodes, returns):
+        _metrics(out, {"scalable": {"episodes": episodes, "return": returns}})
+
+    def keep(snapshot):
+        from dgtd.run.checkpoint import save_checkpoint
+
+        save_checkpoint(out / CHECKPOINT, snapshot, claim.record)
+
+    return {"so_far": so_far, "checkpoint_every": every, "on_checkpoint": keep, "resume": claim.resume}
 
 
 def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: dict) -> None:
@@ -203,12 +227,11 @@ def _write(out: Path, results: dict, h: dict | None, record: dict, plots: bool) 
 def _metrics(out: Path, results: dict) -> None:
     """metrics.csv (learner, seed, episode, metric, value) of each learner's evaluations, atomically."""
     from dgtd.run.atomic import atomic_write
+    from dgtd.run.results import rows_csv
 
-    rows = ["learner,seed,episode,metric,value"]
-    for label, r in results.items():
-        for c, episode in enumerate(r["episodes"]):
-            rows += [f"{label},{b},{episode},return,{v!r}" for b, v in enumerate(r["return"][c])]
-    atomic_write(out / "metrics.csv", ("\n".join(rows) + "\n").encode())
+    rows = [(label, b, int(episode), "return", float(v)) for label, r in results.items()
+            for c, episode in enumerate(r["episodes"]) for b, v in enumerate(r["return"][c])]  # fmt: skip
+    atomic_write(out / "metrics.csv", rows_csv(rows, "learner", "episode"))
 
 
 def _report(results: dict, h: dict | None) -> None:

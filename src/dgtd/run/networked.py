@@ -12,6 +12,7 @@ import numpy as np
 
 from dgtd.errors import DgtdInputError
 from dgtd.fields import option
+from dgtd.run.layout import learner_layout
 from dgtd.run.scalable import ScalableSteps, learn_scalable, rollout_return, uniform_policies
 from dgtd.run.settings import check_count
 from dgtd.streams import seed_keys
@@ -145,11 +146,13 @@ def heuristic(name: str | None, task, config: NetworkedConfig) -> dict | None:
 
 def learn_networked(task, config: NetworkedConfig, progress=None, on_measured=None, **saves) -> dict:
     """A run of the scalable actor-critic on ``task`` (`task_of`'s): {"agents", "episodes" (C + 1,), "return" (C + 1,
-    B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies",
-    "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's first, as each is made;
-    ``saves``: `learn_scalable`'s checkpoint arguments."""
+    B) the evaluated return (episode 0: the uniform starting policies), "episode_return" (C, B), "policies" (on the
+    process that writes), "seconds"}; ``on_measured(episodes, returns)`` with the evaluations so far, the start's
+    first, as each is made; ``saves``: `learn_scalable`'s checkpoint arguments. Under mpiexec the agents are spread
+    over the ranks (`dgtd.run.layout.learner_layout`), every number one process's."""
     keys = seed_keys(config.seed, range(config.seeds))
-    start = rollout_return(task, uniform_policies(task), keys, config.rollouts, config.horizon)
+    layout = learner_layout(task.n_agents)
+    start = rollout_return(task, uniform_policies(task)[layout.local], keys, config.rollouts, config.horizon, 0, layout)
     began = time.perf_counter()
 
     def measured(episodes, returns):
@@ -159,7 +162,7 @@ def learn_networked(task, config: NetworkedConfig, progress=None, on_measured=No
     measured(np.zeros(0, dtype=np.int64), np.zeros((0, config.seeds)))
     out = learn_scalable(task, config.steps, config.episodes, config.seeds, config.seed,
                          max(1, config.episodes // config.every), config.rollouts, progress, config.loss,
-                         measured, **saves)  # fmt: skip
+                         measured, layout=layout, **saves)  # fmt: skip
     return {
         "agents": task.n_agents, "episodes": np.r_[0, out["iterations"]],
         "return": np.vstack([start, out["evaluated"]]), "episode_return": out["episode_return"],

@@ -148,12 +148,13 @@ def metrics_csv(result: RunResult, algorithm: str) -> bytes:
     return rows_csv(metrics_rows(result, algorithm))
 
 
-def rows_csv(rows, column: str = "algorithm") -> bytes:
+def rows_csv(rows, column: str = "algorithm", step: str = "step") -> bytes:
     """metrics.csv of long-format ``rows`` (label, seed, step, metric, value), a run's or a learning run's (the
-    label's column named ``column``): the one writer of every metrics.csv."""
+    label's column named ``column``, the step's ``step``: a networked run's are episodes): the one writer of every
+    metrics.csv."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow([column, "seed", "step", "metric", "value"])
+    w.writerow([column, "seed", step, "metric", "value"])
     w.writerows(rows)
     return buf.getvalue().encode()
 

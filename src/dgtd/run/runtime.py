@@ -15,6 +15,7 @@ from dgtd.errors import DgtdInputError
 from dgtd.run.checkpoint import save_checkpoint
 
 T = TypeVar("T")
+SPREAD = ("run", "learn", "networked")  # the commands whose agents spread over the ranks of an mpiexec job
 
 
 def in_job() -> bool:
@@ -27,18 +28,23 @@ def writes() -> bool:
     return mpi.rank() == 0
 
 
+def ranks() -> int:
+    """How many processes the job has (1 outside mpiexec): a learning run's agents spread over them where more."""
+    return mpi.size()
+
+
 def speaks() -> bool:
     """Whether this process prints: the job says each thing once, from the process that writes."""
     return not in_job() or writes()
 
 
 def check_command(command: str | None) -> None:
-    """Under mpiexec with more than one rank, `dgtd run` and `dgtd learn` spread their agents over the ranks; any
-    other command would run once on every rank and write the same files from each: one line."""
-    if in_job() and mpi.spread() and command not in (None, "run", "learn"):
+    """Under mpiexec with more than one rank, `dgtd run`, `dgtd learn` and `dgtd networked` spread their agents over
+    the ranks; any other command would run once on every rank and write the same files from each: one line."""
+    if in_job() and mpi.spread() and command not in (None, *SPREAD):
         raise DgtdInputError(
-            f"under mpiexec only `dgtd run` and `dgtd learn` spread their agents over the ranks; run `dgtd {command}` "
-            "in one process"
+            "under mpiexec only `dgtd run`, `dgtd learn` and `dgtd networked` spread their agents over the ranks; run "
+            f"`dgtd {command}` in one process"
         )
 
 

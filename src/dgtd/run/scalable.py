@@ -16,7 +16,10 @@ purpose, step m (T + 1) + t, agent)):
             its mean times n, so that a step's size does not fall as the network grows).
 
 An agent's work a step is its kappa-hop neighbourhood's, not the network's: it reads its neighbours' states and
-actions and the truncated values of the agents within kappa hops (what its links would carry). The objective is the
+actions and the truncated values of the agents within kappa hops (what its links would carry). Over the ranks of an
+mpiexec job (`dgtd.run.layout.learner_layout`) each rank holds its agents' actors and critics and draws their actions;
+the actions of a step and the values of an episode are gathered in agent order (the joint step, cheap beside the
+critics, is every rank's), so that every number is one process's, bit for bit. The objective is the
 discounted return, (1/n) sum_i E sum_t gamma^t r_i(t) from the start; where the joint table can be built (a few
 agents, `NetworkedMDP.joint`) every checkpoint measures the exact normalised J_gamma of the current policies, else
 the episodes' own discounted returns estimate it, with their standard error.
@@ -34,6 +37,7 @@ from dgtd.algorithms.actor import actor_increment, policy
 from dgtd.errors import DgtdInputError
 from dgtd.problems import team
 from dgtd.problems.networked import NetworkedMDP, mixed_radix
+from dgtd.run.layout import AllAgents
 from dgtd.streams import ACTION, HOOD_LOSS, seed_keys, singles, uniforms
 
 
@@ -111,7 +115,7 @@ class Critics:
     (``unheard``), a member not heard at a step is one more symbol of its digit."""
 
     def __init__(self, task, hoods: np.ndarray, seeds: int, unheard: bool = False):
-        N, K = hoods.shape
+        N, K = hoods.shape  # (the agents held here: a rank's, or every one)
         self.task, self.hoods, self.B = task, hoods, seeds
         self.base = task.state_values * int(np.max(task.actions)) + int(unheard)
         self.dense = seeds * N * float(self.base) ** K <= DENSE_MAX
@@ -141,10 +145,11 @@ class Critics:
             self.values = self.table.values
 
     def rows(self, states: np.ndarray, actions: np.ndarray, heard=None) -> np.ndarray:
-        """(T + 1, B, N): each agent's row of its neighbourhood's configuration at each step of an episode; ``heard``
-        (T + 1, B, N, K) whether it heard each member's state and action (None: every one)."""
-        B, N = states.shape[1:]
-        owner = np.arange(B)[:, None] * N + np.arange(N)[None, :]  # (B, N)
+        """(T + 1, B, n): each agent's row of its neighbourhood's configuration at each step of an episode, from every
+        agent's ``states`` and ``actions`` (T + 1, B, N); ``heard`` (T + 1, B, n, K) whether it heard each member's
+        state and action (None: every one)."""
+        B, n = states.shape[1], self.hoods.shape[0]
+        owner = np.arange(B)[:, None] * n + np.arange(n)[None, :]  # (B, n): the agents held here
         digits = states * int(np.max(self.task.actions)) + actions  # (T + 1, B, N)
         valid = self.hoods >= 0
         members = np.where(valid, digits[..., np.maximum(self.hoods, 0)], -1)  # (T + 1, B, N, K)
@@ -162,25 +167,27 @@ class Critics:
 def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, seed: int = 0,
                    checkpoints: int = 20, evaluate: int = 0, progress=None, loss: float = 0.0,
                    on_measured=None, checkpoint_every: int = 0, on_checkpoint=None,
-                   resume: dict | None = None) -> dict:  # fmt: skip
+                   resume: dict | None = None, layout=None) -> dict:  # fmt: skip
     """Algorithm 1 of the module's docstring for ``iterations`` episodes on ``task`` (a `NetworkedMDP`, or any task
     of its form: `dgtd.problems.wireless.WirelessAccess`): {"iterations" (C,), "return" (C, B) the exact normalised
     J_gamma of the policies at each checkpoint (NaN where there is no joint table), "episode_return" (C, B) the mean
     normalised discounted team return of the episodes since the last checkpoint, "evaluated" (C, B) with ``evaluate``
     > 0 the mean of (1/n) sum_i sum_{t<T} gamma^t r_i(t) over that many rollouts of the policies at each checkpoint
-    (`rollout_return`; Qu et al.'s measure), "policies" (B, N, rows, A), "seconds"}. With ``loss`` > 0 each message an
-    agent needs from another within kappa hops is lost with that probability (`heard`): a member's state and action
-    not heard at a step is a symbol of its own in the critic's configuration, a value not heard is left out of the
-    actor's sum. ``on_measured(episodes, evaluated)`` is called at each checkpoint with the episodes so far (c,) and
-    the evaluated returns there (c, B), so that what was measured is kept if the run is cut off. Every
-    ``checkpoint_every`` episodes ``on_checkpoint(snapshot)`` gets the run's state; ``resume`` (one) continues from it
-    to the uninterrupted run's numbers, bit for bit (every number is keyed by its episode)."""
+    (`rollout_return`; Qu et al.'s measure), "policies" (B, N, rows, A; over ranks, on rank 0 alone), "seconds"}.
+    With ``loss`` > 0 each message an agent needs from another within kappa hops is lost with that probability
+    (`heard`): a member's state and action not heard at a step is a symbol of its own in the critic's configuration,
+    a value not heard is left out of the actor's sum. ``on_measured(episodes, evaluated)`` is called at each
+    checkpoint with the episodes so far (c,) and the evaluated returns there (c, B), so that what was measured is kept
+    if the run is cut off. Every ``checkpoint_every`` episodes ``on_checkpoint(snapshot)`` gets the run's state;
+    ``resume`` (one) continues from it to the uninterrupted run's numbers, bit for bit (every number is keyed by its
+    episode). ``layout``: where the agents are held (`dgtd.run.layout.learner_layout`; None: all here)."""
     if not 0.0 <= loss < 1.0:
         raise DgtdInputError(f"the messages' loss probability is in [0, 1), got {loss}")
-    N, A = task.n_agents, int(np.max(task.actions))
-    hoods = kappa_hoods(task, steps.kappa)
-    theta = np.where(own_actions(task)[None, :, None, :], 0.0, -np.inf)  # (uniform policies)
-    theta = np.broadcast_to(theta, (seeds, N, task.observations, A)).copy()
+    layout = AllAgents(task.n_agents) if layout is None else layout
+    own, A = layout.local, int(np.max(task.actions))
+    hoods = kappa_hoods(task, steps.kappa)[own]
+    theta = np.where(own_actions(task)[None, own, None, :], 0.0, -np.inf)  # (uniform policies)
+    theta = np.broadcast_to(theta, (seeds, len(own), task.observations, A)).copy()
     keys, started = seed_keys(seed, range(seeds)), time.perf_counter()
     at = np.unique(np.linspace(0, iterations, checkpoints + 1).round().astype(int)[1:])
     exact = getattr(task, "has_joint", False)
@@ -191,21 +198,23 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
         out = {name: np.array(v) for name, v in resume["out"].items()}
         critics.restore(resume["critics"])
     for m in range(first, iterations):
-        states, actions, rewards = _episode(task, theta, keys, m, steps.horizon)
-        pairs, values = heard(hoods, keys, m, steps.horizon, loss)
-        q = _critic(critics, states, actions, rewards, steps, m, pairs)  # (T + 1, B, N): Q^_j(z_j(t)) at the end
+        states, actions, rewards = _rollout(task, np.cumsum(policy(theta), axis=-1), keys, m, steps.horizon, layout)
+        pairs, values = heard(hoods, keys, m, steps.horizon, loss, own)
+        q = _critic(critics, states, actions, rewards[..., own], steps, m, pairs)  # (T + 1, B, n): Q^_j(z_j(t))
         for t, r in enumerate(rewards):  # (a step at a time: each seed's sum in the same order for any seeds)
             tally += task.gamma**t * r.mean(axis=1)
-        theta = theta + steps.actor_rate(m) * _gradient(task, hoods, theta, states, actions, q, values)
+        every = np.moveaxis(layout.gather(np.moveaxis(q, 2, 1)), 1, 2)  # (T + 1, B, N): what the links would carry
+        theta = theta + steps.actor_rate(m) * _gradient(task, hoods, theta, states, actions, every, values, own)
         if m + 1 in at:
             c = int(np.searchsorted(at, m + 1))
             episodes = m + 1 - (at[c - 1] if c else 0)
             out["episode_return"][c] = (1 - task.gamma) * tally / episodes
             tally[:] = 0.0
             if exact:
-                out["return"][c] = [exact_return(task, policy(theta[b])) for b in range(seeds)]
+                whole = layout.gather(policy(theta))
+                out["return"][c] = [exact_return(task, whole[b]) for b in range(seeds)]
             if evaluate:
-                out["evaluated"][c] = rollout_return(task, policy(theta), keys, evaluate, steps.horizon, c)
+                out["evaluated"][c] = rollout_return(task, policy(theta), keys, evaluate, steps.horizon, c, layout)
             if on_measured is not None:
                 on_measured(at[: c + 1], out["evaluated"][: c + 1])
         if checkpoint_every and (m + 1) % checkpoint_every == 0 and on_checkpoint is not None:
@@ -213,7 +222,8 @@ def learn_scalable(task, steps: ScalableSteps, iterations: int, seeds: int = 2, 
             on_checkpoint(copy.deepcopy(state))  # (copies: the run goes on changing its arrays in place)
         if progress is not None:
             progress(1)
-    return {"iterations": at, **out, "policies": policy(theta), "seconds": time.perf_counter() - started}
+    policies = layout.gather_root(policy(theta))
+    return {"iterations": at, **out, "policies": policies, "seconds": time.perf_counter() - started}
 
 
 def exact_return(mdp: NetworkedMDP, policies) -> float:
@@ -223,53 +233,54 @@ def exact_return(mdp: NetworkedMDP, policies) -> float:
     return team.discounted_return(joint, list(joint.policies or ()))
 
 
-def rollout_return(task, policies: np.ndarray, keys: np.ndarray, episodes: int, T: int, at: int = 0) -> np.ndarray:
-    """(B,) the mean over ``episodes`` rollouts of (1/n) sum_i sum_{t<T} gamma^t r_i(t) under ``policies`` (B, N,
-    rows, A) (or one set (N, rows, A) for every seed), each rollout's numbers keyed by its own episode number (from
-    `EVALUATION` + ``at`` x ``episodes``: apart from learning's, the same for every policy evaluated at ``at``)."""
+def rollout_return(task, policies: np.ndarray, keys: np.ndarray, episodes: int, T: int, at: int = 0,
+                   layout=None) -> np.ndarray:  # fmt: skip
+    """(B,) the mean over ``episodes`` rollouts of (1/n) sum_i sum_{t<T} gamma^t r_i(t) under ``policies`` (B, n,
+    rows, A) (or one set (n, rows, A) for every seed) of the agents ``layout`` holds (None: all of them), each
+    rollout's numbers keyed by its own episode number (from `EVALUATION` + ``at`` x ``episodes``: apart from
+    learning's, the same for every policy evaluated at ``at``)."""
     B = len(keys)
     policies = np.broadcast_to(policies, (B, *policies.shape[-3:]))
     cdf = np.cumsum(policies, axis=-1)
     total = np.zeros(B)
     for e in range(episodes):
         m = EVALUATION + at * episodes + e
-        states, actions, rewards = _rollout(task, cdf, keys, m, T)
+        states, actions, rewards = _rollout(task, cdf, keys, m, T, layout)
         total += sum(task.gamma**t * r.mean(axis=1) for t, r in enumerate(rewards[:T]))
     return total / episodes
 
 
-def _episode(task, theta: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
-    """Episode m under the policies of ``theta``: (states, actions, rewards), each (T + 1, B, N)."""
-    return _rollout(task, np.cumsum(policy(theta), axis=-1), keys, m, T)
-
-
-def _rollout(task, cdf: np.ndarray, keys: np.ndarray, m: int, T: int) -> tuple:
-    """Episode m of T + 1 steps under the policies' cumulative tables ``cdf`` (B, N, rows, A): step k = m (T + 1) + t,
-    each agent's action by its own number (ACTION, k, agent)."""
-    B, N = cdf.shape[:2]
-    every = np.arange(N)
-    b, i = np.arange(B)[:, None], every[None, :]
+def _rollout(task, cdf: np.ndarray, keys: np.ndarray, m: int, T: int, layout=None) -> tuple:
+    """Episode m of T + 1 steps under the policies' cumulative tables ``cdf`` (B, n, rows, A) of the agents
+    ``layout`` holds (None: all): step k = m (T + 1) + t, each agent's action by its own number (ACTION, k, agent),
+    every agent's gathered; (states, actions, rewards), each (T + 1, B, N), every agent's."""
+    layout = AllAgents(task.n_agents) if layout is None else layout
+    B, own = cdf.shape[0], layout.local
+    b, i = np.arange(B)[:, None], np.arange(len(own))[None, :]
     s = task.first_states(keys, m)
     samples = []
     for t in range(T + 1):
         k = m * (T + 1) + t
-        a = team.draw(cdf[b, i, task.observe(s)], singles(keys[:, None], ACTION, k, every))
+        mine = team.draw(cdf[b, i, task.observe(s)[:, own]], singles(keys[:, None], ACTION, k, own))
+        a = layout.gather(mine)
         s_next, r = task.step(s, a, keys, k)
         samples.append((s, a, r))
         s = s_next
     return tuple(np.stack(x) for x in zip(*samples))
 
 
-def heard(hoods: np.ndarray, keys: np.ndarray, m: int, T: int, loss: float) -> tuple:
-    """(states and actions, values) each (T + 1, B, N, K) or None where nothing is lost: whether agent i heard at
+def heard(hoods: np.ndarray, keys: np.ndarray, m: int, T: int, loss: float, agents=None) -> tuple:
+    """(states and actions, values) each (T + 1, B, n, K) or None where nothing is lost: whether agent i (of
+    ``agents``, the rows of ``hoods``; None: every agent) heard at
     step t of episode m the member in slot s of its kappa-hop neighbourhood (itself always), each message lost with
     probability ``loss`` by its own number (HOOD_LOSS, step, entity i, index s: u0 the state and action, u1 the
     value)."""
     if not loss:
         return None, None
     N, K = hoods.shape
+    agents = np.arange(N) if agents is None else agents
     k = m * (T + 1) + np.arange(T + 1)
-    u = uniforms(keys[None, :, None, None], HOOD_LOSS, k[:, None, None, None], np.arange(N)[:, None], np.arange(K))
+    u = uniforms(keys[None, :, None, None], HOOD_LOSS, k[:, None, None, None], agents[:, None], np.arange(K))
     own = np.arange(K) == 0  # (slot 0: the agent itself)
     return tuple((x >= loss) | own for x in u)
 
@@ -287,14 +298,18 @@ def _critic(critics: Critics, states, actions, rewards, steps: ScalableSteps, m:
     return Q[z]
 
 
-def _gradient(task, hoods, theta, states, actions, q, heard=None) -> np.ndarray:
+def _gradient(task, hoods, theta, states, actions, q, heard=None, agents=None) -> np.ndarray:
     """n g_i = sum_t gamma^t sum_{j in N_i^kappa} Q^_j(z_j(t)) grad log zeta_i(a_i(t) | o_i(t)): the gradient of
     the team's sum of returns, n times that of their mean, so that an agent's step does not shrink as n grows (the
-    values ``heard`` (T + 1, B, N, K) alone, where messages may be lost)."""
+    values ``heard`` (T + 1, B, n, K) alone, where messages may be lost), for the agents ``agents`` (the rows of
+    ``hoods`` and ``theta``; None: every agent) from every agent's states, actions and values ``q`` (T + 1, B, N)."""
+    agents = slice(None) if agents is None else agents
     valid = hoods >= 0
     into = np.zeros_like(theta)
     for t in range(states.shape[0]):
         kept = valid if heard is None else valid & heard[t]
         shared = np.where(kept, q[t][:, np.maximum(hoods, 0)], 0.0).sum(axis=-1)  # (B, N): n times theirs
-        actor_increment(theta, task.observe(states[t]), actions[t], task.gamma**t * shared, 1.0, into)
+        actor_increment(
+            theta, task.observe(states[t])[:, agents], actions[t][:, agents], task.gamma**t * shared, 1.0, into
+        )
     return into
