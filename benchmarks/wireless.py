@@ -60,9 +60,9 @@ def main() -> None:
     task = grid(args.height, args.width, args.users)
     config = NetworkedConfig(episodes=args.episodes, seeds=args.seeds, every=args.every, rollouts=args.rollouts,
                              loss=args.loss, forget=args.forget)  # (the published steps: the defaults)  # fmt: skip
-    best = heuristic("wireless-access", task, config)
-    aloha = list(best["tried"].values())
-    if mpi.rank() == 0:
+    if mpi.rank() == 0:  # (the heuristics' rollouts once, by the process that reports them)
+        best = heuristic("wireless-access", task, config)
+        aloha = list(best["tried"].values())
         print(f"{task.n_agents} agents: best ALOHA-like heuristic {float(best['return'].mean()):.4f} "
               f"({best['policy']})", flush=True)  # fmt: skip
     with tqdm(total=args.episodes, unit="episode", mininterval=2.0, disable=mpi.rank() > 0) as bar:

@@ -53,7 +53,8 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, ranks, **
     config = config_from(values)
     problem = task_of(task, config.agents, config.problem_file)  # (its size checked before anything is written)
     every = check_count("checkpoint_every", checkpoint_every or 0, 0)
-    if every and (ranks is not None or runtime.ranks() > 1):
+    spread = runtime.ranks() > 1  # (under mpiexec: the agents over the job's ranks)
+    if every and (ranks is not None or spread):
         raise DgtdInputError("a networked run over ranks keeps no checkpoint yet: leave out --checkpoint-every, or "
                              "run in one process")  # fmt: skip
     if ranks is not None:
@@ -66,16 +67,15 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, ranks, **
     click.echo(
         f"{label}: {problem.n_agents} agents, gamma {problem.gamma:g}; scalable actor-critic, kappa {steps.kappa}, "
         f"horizon {steps.horizon}; {config.episodes:,} episodes x {config.seeds} seed(s), evaluated every "
-        f"{config.every:,} by {config.rollouts} rollouts"
-        + (f", over {runtime.ranks()} ranks" if runtime.ranks() > 1 else "")
+        f"{config.every:,} by {config.rollouts} rollouts" + (f", over {runtime.ranks()} ranks" if spread else "")
     )
     with ExitStack() as stack:
         claim = runtime.claimed(
             lambda: stack.enter_context(_claimed(out, label, config, overwrite, "learning run")), lambda: None
         )  # (the process that writes holds the folder; the others learn their agents and write nothing)
-        saves = _saves(out, claim, every)
+        so_far, saves = _saves(out, claim, every)
         result = _with_bar(config.episodes, progress and claim is not None,
-                           lambda bar: learn_networked(problem, config, bar, saves.pop("so_far"), **saves))  # fmt: skip
+                           lambda bar: learn_networked(problem, config, bar, so_far, **saves))  # fmt: skip
         if claim is None:
             return
         best = heuristic(task, problem, config)
@@ -85,11 +85,11 @@ def networked(task, out, progress, plots, overwrite, checkpoint_every, ranks, **
     click.echo(f"wrote {out}/{', '.join(written)} ({result['seconds']:.1f} s)")
 
 
-def _saves(out: Path, claim, every: int) -> dict:
-    """`learn_networked`'s callbacks of the process that writes (``claim`` its `_claimed`; None elsewhere): each
-    evaluation written as it is made (a run cut off keeps them), and every ``every`` episodes the run's state."""
+def _saves(out: Path, claim, every: int) -> tuple:
+    """`learn_networked`'s callbacks of the process that writes (``claim`` its `_claimed`; None elsewhere): (each
+    evaluation written as it is made, so that a run cut off keeps them; every ``every`` episodes the run's state)."""
     if claim is None:
-        return {"so_far": None}
+        return None, {}
     if claim.resume is not None:
         click.echo(f"resuming {out} at episode {int(claim.resume['m']):,}")
 
@@ -101,7 +101,7 @@ def _saves(out: Path, claim, every: int) -> dict:
 
         save_checkpoint(out / CHECKPOINT, snapshot, claim.record)
 
-    return {"so_far": so_far, "checkpoint_every": every, "on_checkpoint": keep, "resume": claim.resume}
+    return so_far, {"checkpoint_every": every, "on_checkpoint": keep, "resume": claim.resume}
 
 
 def compare_networked_cli(task, seeds, out, progress, plots, overwrite, given: dict) -> None:

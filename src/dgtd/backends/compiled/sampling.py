@@ -291,7 +291,7 @@ def _edges_up(sampler, b, row, t, up_t):
     if fused and p_edge.shape[0] == E:  # random edges drawn here, each by its link key; a fixed graph draws nothing
         step = sampler.rng[b, 1] + np.uint64(t)
         keys = sampler.edge_keys[b]
-        for e in range(E):  # (a loop LLVM vectorises)
+        for e in range(E):
             up_t[row, e] = keyed_pair(keys[e], EDGE_UP, step, 0, 0)[0] < p_edge[e]
     elif not fused and up_blk.shape[0] > 0:
         for e in range(E):
