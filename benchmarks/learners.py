@@ -1,7 +1,7 @@
-"""Learners on the NumPy and the compiled backends (`dgtd learn --backend numpy|numba`): seconds a step, measured in
-interleaved pairs (this machine is shared: each round times both backends back to back, the range over rounds is
-quoted), after one warm-up run that compiles (or loads) the kernels. Every run is what `dgtd learn` runs.
-Usage: python benchmarks/learners.py [--rounds 3]"""
+"""Learners on the NumPy, compiled and JAX backends (`dgtd learn --backend numpy|numba|jax`): seconds a step,
+measured interleaved (this machine is shared: each round times every backend back to back, the range over rounds is
+quoted), after one warm-up run a backend that compiles (or loads) its kernels. Every run is what `dgtd learn` runs.
+Usage: python benchmarks/learners.py [--rounds 3] [--backends numpy,numba,jax]"""
 
 from __future__ import annotations
 
@@ -46,19 +46,24 @@ def seconds_a_step(job, backend: str) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--backends", default="numpy,numba", help="the first is the one the others are compared with")
     args = parser.parse_args()
-    print(f"{'run':<30}{'numpy ms/step':>16}{'numba ms/step':>16}{'speed-up':>14}")
+    backends = args.backends.split(",")
+    columns = "".join(f"{b + ' ms/step':>18}" for b in backends)
+    speed_ups = "".join(f"{b + ' speed-up':>16}" for b in backends[1:])
+    print(f"{'run':<30}{columns}{speed_ups}")
     for label, task, options in CASES:
         job = resolve_learning(task, options)
         short = SimpleNamespace(**{**vars(job), "settings": dataclasses.replace(job.settings, iterations=2)})
-        seconds_a_step(short, "numba")  # the kernels compiled or loaded, once
-        pairs = [(seconds_a_step(job, "numpy"), seconds_a_step(job, "numba")) for _ in range(args.rounds)]
-        numpy = [p[0] * 1e3 for p in pairs]
-        numba = [p[1] * 1e3 for p in pairs]
-        ratios = [a / b for a, b in pairs]
+        for backend in backends[1:]:
+            seconds_a_step(short, backend)  # the kernels compiled or loaded, once
+        rounds = [[seconds_a_step(job, b) * 1e3 for b in backends] for _ in range(args.rounds)]
+        times = list(zip(*rounds))
+        ratios = [[r[0] / r[i] for r in rounds] for i in range(1, len(backends))]
         print(
-            f"{label:<30}{f'{min(numpy):.3g}-{max(numpy):.3g}':>16}{f'{min(numba):.3g}-{max(numba):.3g}':>16}"
-            f"{f'{min(ratios):.2g}-{max(ratios):.2g}x':>14}",
+            f"{label:<30}"
+            + "".join(f"{f'{min(t):.3g}-{max(t):.3g}':>18}" for t in times)
+            + "".join(f"{f'{min(x):.2g}-{max(x):.2g}x':>16}" for x in ratios),
             flush=True,
         )
 

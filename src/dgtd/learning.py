@@ -203,6 +203,10 @@ def resolve_learning(task: str | None, values: dict) -> SimpleNamespace:
         backend=_given(values, "backend", "numba" if env is None else "numpy"),
     )
     settings, chen = _scheme(own, values, settings, channel, env)
+    if settings.backend == "jax" and env is None and chen is None:
+        from dgtd.backends import jax as on_jax
+
+        on_jax.check_supported(channel)  # (JAX missing, or links it does not run: before the header, in one line)
     record = {"task": task, **{k: v for k, v in {**values, **own}.items() if v is not None}}
     if file is not None:
         from dgtd.problems.io import file_digest

@@ -21,6 +21,15 @@ def namespace(x):
     return np
 
 
+def added(into, index, values):
+    """``into`` with ``values`` added at ``index`` (positions that do not repeat): in place for a NumPy array, a new
+    array for a JAX one (whose arrays do not change), so that one definition serves both."""
+    if namespace(into) is np:
+        into[index] += values
+        return into
+    return into.at[index].add(values)
+
+
 class Sample(NamedTuple):
     """One step's data for every seed and agent, as an algorithm's ``update`` reads it.
 

@@ -67,3 +67,41 @@ def test_the_regressions_step_normalises_by_the_features_norm():
     f = np.full(N, np.sqrt(2.0))  # |f|^2 = N |g|^2 = 8
     lam = regression_step(nu, r, 0.0) * f
     assert lam @ f == pytest.approx(r / np.sqrt(1 + k / 100), rel=1e-14)
+
+
+def test_the_actors_step_the_advantage_and_the_regression_run_on_jax_as_on_numpy():
+    """`actor_increment`, `action_advantage` on `own_values`, and the team-reward regression's `estimate` and
+    `add_regression` (both forms of g) take JAX arrays as NumPy ones (their scatter-adds by `dgtd.samples.added`): the
+    same numbers to 1e-15 (the same operations in the same order; JAX may fuse a multiply-add). NumPy's adds land in
+    the array given, JAX's in a new one."""
+    from dgtd.algorithms.actor import action_advantage, actor_increment, own_values
+    from dgtd.algorithms.team_reward import add_regression, estimate
+
+    jax = pytest.importorskip("jax")
+    jax.config.update("jax_enable_x64", True)
+    jnp = jax.numpy
+    rng = np.random.default_rng(6)
+    B, N, S, A, m = 3, 4, 5, 3, 2
+    theta = rng.normal(size=(B, N, S, A))
+    theta[:, 1, :, 2] = -np.inf  # agent 1 has two actions
+    s, a, delta = rng.integers(S, size=B), rng.integers(2, size=(B, N)), rng.normal(size=(B, N))
+    lam, W, g = rng.normal(size=(B, N, N * A * S)), rng.normal(size=(B, N, N * S * A)), rng.normal(size=(B, m))
+    agents = np.arange(N)
+    pi = policy(theta[np.arange(B)[:, None], agents[None, :], s[:, None]])
+
+    def both(f, *args):
+        return f(*args), np.asarray(f(*(jnp.asarray(x) if isinstance(x, np.ndarray) else x for x in args)))
+
+    pairs = [
+        both(lambda t, s, a, d: actor_increment(t, s, a, d, 0.7, None, 0.2), theta, s, a, delta),
+        both(lambda w, s, p, a: action_advantage(own_values(w, agents, s, S, A), p, a), W, s, pi, a),
+        both(lambda lam, a, s: estimate(lam, a, s, A), lam, a, s),
+        both(lambda lam, a, s, d: add_regression(lam * 1.0, a, s, A, d), lam, a, s, delta),
+        both(lambda lam, a, g: estimate(lam, a, g, A), lam[..., : N * A * m], a, g),
+        both(lambda lam, a, g, d: add_regression(lam * 1.0, a, g, A, d), lam[..., : N * A * m], a, g, delta),
+    ]
+    for on_numpy, on_jax in pairs:
+        assert np.abs(on_numpy).sum() > 0
+        np.testing.assert_allclose(on_jax, on_numpy, rtol=1e-15, atol=1e-15)
+    into = np.zeros_like(theta)
+    assert actor_increment(theta, s, a, delta, 0.7, into) is into and np.abs(into).sum() > 0

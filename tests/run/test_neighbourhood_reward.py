@@ -75,17 +75,19 @@ def run(backend: str, iterations: int = 600, batch: int = 1, loss: float = 0.0, 
 
 
 @pytest.mark.parametrize("batch, loss", [(1, 0.3), (3, 0.0)])
-def test_compiled_learners_with_the_neighbourhood_estimate_are_the_numpy_ones(batch, loss):
-    """The estimate's arithmetic is NumPy's on both backends; the critics' and actors' steps the kernel's: 1e-12
-    relative to 1 + |x| (as `test_learn.test_compiled_learners_are_the_numpy_learners`)."""
-    numpy, numba = (run(b, batch=batch, loss=loss) for b in ("numpy", "numba"))
+def test_compiled_and_jax_learners_with_the_neighbourhood_estimate_are_the_numpy_ones(batch, loss):
+    """The estimate's arithmetic is NumPy's on every backend; the critics' and actors' steps the kernel's (numba) or
+    JAX's: 1e-12 relative to 1 + |x| (as `test_learn.test_compiled_and_jax_learners_are_the_numpy_learners`)."""
+    pytest.importorskip("jax")
+    numpy, *others = (run(b, batch=batch, loss=loss) for b in ("numpy", "numba", "jax"))
     close = lambda x, y: np.testing.assert_array_less(np.abs(x - y) / (1 + np.abs(x)), 1e-12)  # noqa: E731
-    close(numpy.policies, numba.policies)
-    close(numpy.critic, numba.critic)
-    for name, values in numpy.metrics.items():
-        finite = np.isfinite(values)
-        close(values[finite], numba.metrics[name][finite])
-    assert (numpy.bits == numba.bits).all() and (numpy.bits > 0).all()
+    for other in others:
+        close(numpy.policies, other.policies)
+        close(numpy.critic, other.critic)
+        for name, values in numpy.metrics.items():
+            finite = np.isfinite(values)
+            close(values[finite], other.metrics[name][finite])
+        assert (numpy.bits == other.bits).all() and (numpy.bits > 0).all()
 
 
 def test_networked_learners_of_their_neighbourhood_find_the_teams_best_action():

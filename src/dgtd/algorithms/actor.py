@@ -29,6 +29,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from dgtd.errors import DgtdInputError
+from dgtd.samples import added, namespace
 
 FLOOR = 1e-6  # the least probability a starting policy's action keeps
 WARMUP = 2000  # the actor's default warm-up: at most this many steps, and a tenth of the run
@@ -133,7 +134,7 @@ def timescales(actor: SoftmaxActor, critic, T: int) -> str:
 
 def policy(theta: np.ndarray) -> np.ndarray:
     """pi (..., A_max) of theta (..., A_max): the softmax of each row, stable (its largest entry subtracted)."""
-    z = np.exp(theta - theta.max(axis=-1, keepdims=True))
+    z = namespace(theta).exp(theta - theta.max(axis=-1, keepdims=True))
     return z / z.sum(axis=-1, keepdims=True)
 
 
@@ -162,19 +163,34 @@ def actor_increment(
 ):
     """beta delta psi, the actor step of one sample, added to ``into`` (a new zero array of theta's shape if None):
     row s_b of every agent of seed b gets `score_step` on each action, ``s`` (B,) (or each agent's own row, (B, N)),
-    ``a`` and ``delta`` (B, N). An action an agent does not have (-inf) gets nothing."""
+    ``a`` and ``delta`` (B, N). An action an agent does not have (-inf) gets nothing. NumPy's ``into`` is added to in
+    place; JAX's is returned new (`dgtd.samples.added`)."""
+    xp = namespace(theta)
     B, N = a.shape
     b, i = np.arange(B)[:, None], np.arange(N)[None, :]
     s = s[:, None] if s.ndim == 1 else s
     rows = theta[b, i, s]  # (B, N, A_max)
     pi = policy(rows)
-    log_pi = np.log(pi[b, i, a])[:, :, None] if tau else 0.0  # (without a bonus, no 0 x log 0)
-    taken = np.zeros_like(pi)
-    taken[b, i, a] = 1.0
+    log_pi = xp.log(pi[b, i, a])[:, :, None] if tau else 0.0  # (without a bonus, no 0 x log 0)
+    taken = added(xp.zeros_like(pi), (b, i, a), 1.0)
     step = score_step(beta, delta[:, :, None], log_pi, tau, taken, pi)
-    into = np.zeros_like(theta) if into is None else into
-    into[b, i, s] += np.where(np.isfinite(rows), step, 0.0)
-    return into
+    into = xp.zeros_like(theta) if into is None else into
+    return added(into, (b, i, s), xp.where(xp.isfinite(rows), step, 0.0))
+
+
+def own_values(W, agents: np.ndarray, s, n_states: int, n_actions: int):
+    """Q_i(s, .) (B, n, A) of each agent i of ``agents`` (n,) under the action-value critic's additive features
+    (`dgtd.run.learn`, Zhang et al.'s Algorithm 1): agent i's own block of its weights W (B, n, N S A) at each seed's
+    state ``s`` (B,), w_i[i, s, .]."""
+    at = (agents[None, :, None] * n_states + s[:, None, None]) * n_actions + np.arange(n_actions)
+    return namespace(W).take_along_axis(W, at, axis=2)
+
+
+def action_advantage(q, pi, a):
+    """A_i = Q_i(s, a_i) - sum_c pi_i(c | s) Q_i(s, c) (B, n): ``q`` `own_values`, ``pi`` the agents' policies at s
+    (B, n, A), ``a`` their actions (B, n); an action an agent does not have (probability 0) adds nothing."""
+    xp = namespace(q)
+    return xp.take_along_axis(q, a[:, :, None], axis=2)[:, :, 0] - (pi * xp.where(pi > 0, q, 0.0)).sum(-1)
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from dgtd.samples import added, namespace
+
 
 def mean_step(k):
     """1 / sqrt(1 + k / 100): the step at k of the running averages (the average objective's mu_i) and, over |f|^2,
@@ -56,25 +58,27 @@ def mean_update(step, x, mean):
 def estimate(lam: np.ndarray, a: np.ndarray, g: np.ndarray, n_actions: int) -> np.ndarray:
     """rhat (B, n) = lambda_i^T f(s, a) of every agent held here: ``lam`` (B, n, N A m) in blocks (agent j, its
     action, m), ``a`` (B, N) every agent's action, ``g`` (B,) the index of a one-hot g(s) or (B, m) the features."""
+    xp = namespace(lam)
     B, n, N = lam.shape[0], lam.shape[1], a.shape[1]
     if g.ndim == 1:
         at = positions(a, g, n_actions, lam.shape[2] // (N * n_actions))
-        return np.take_along_axis(lam, np.broadcast_to(at[:, None, :], (B, n, N)), axis=-1).sum(-1)
+        return xp.take_along_axis(lam, xp.broadcast_to(at[:, None, :], (B, n, N)), axis=-1).sum(-1)
     b, i, j = np.arange(B)[:, None, None], np.arange(n)[None, :, None], np.arange(N)[None, None, :]
     picked = lam.reshape(B, n, N, n_actions, -1)[b, i, j, a[:, None, :]]  # (B, n, N, m): each agent's block
     return (picked * g[:, None, None, :]).sum(axis=(2, 3))
 
 
 def add_regression(into: np.ndarray, a: np.ndarray, g: np.ndarray, n_actions: int, step: np.ndarray) -> np.ndarray:
-    """``into`` (B, n, N A m) plus step_bi f(s, a) for every agent held here (``step`` (B, n): `regression_step`)."""
+    """``into`` (B, n, N A m) plus step_bi f(s, a) for every agent held here (``step`` (B, n): `regression_step`);
+    NumPy's in place, JAX's new (`dgtd.samples.added`)."""
     B, n, N = into.shape[0], into.shape[1], a.shape[1]
     b, i = np.arange(B)[:, None, None], np.arange(n)[None, :, None]
     if g.ndim == 1:
-        into[b, i, positions(a, g, n_actions, into.shape[2] // (N * n_actions))[:, None, :]] += step[:, :, None]
-        return into
-    blocks = into.reshape(B, n, N, n_actions, -1)  # (a view)
-    blocks[b, i, np.arange(N)[None, None, :], a[:, None, :]] += step[:, :, None, None] * g[:, None, None, :]
-    return into
+        ones = positions(a, g, n_actions, into.shape[2] // (N * n_actions))[:, None, :]
+        return added(into, (b, i, ones), step[:, :, None])
+    blocks = into.reshape(B, n, N, n_actions, -1)  # (NumPy's a view: added to in place)
+    own = (b, i, np.arange(N)[None, None, :], a[:, None, :])
+    return added(blocks, own, step[:, :, None, None] * g[:, None, None, :]).reshape(into.shape)
 
 
 def positions(a: np.ndarray, s: np.ndarray, n_actions: int, m: int) -> np.ndarray:

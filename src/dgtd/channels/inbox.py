@@ -73,3 +73,18 @@ class Inbox:
     def total(self, name: str) -> np.ndarray:
         """sum_j x_j over the messages i heard, (B, N, q)."""
         return self.arcs.into(self._arrived(name) * self.heard[:, :, None])
+
+
+class HeldRows:
+    """What the agents ``local`` heard (a learning run's agents held in this process): an `Inbox` of every agent,
+    its aggregates' rows ``local``, ``awake`` theirs."""
+
+    def __init__(self, inbox: Inbox, local):
+        self.inbox, self.local = inbox, local
+        self.awake = None if inbox.awake is None else inbox.awake[:, local]
+
+    def laplacian(self, name: str):
+        return self.inbox.laplacian(name)[:, self.local]
+
+    def metropolis(self, name: str):
+        return self.inbox.metropolis(name)[:, self.local]

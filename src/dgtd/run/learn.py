@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from dgtd.algorithms import ALGORITHMS
-from dgtd.algorithms.actor import SoftmaxActor, policy, td_error, two_timescales
+from dgtd.algorithms.actor import SoftmaxActor, action_advantage, own_values, policy, td_error, two_timescales
 from dgtd.algorithms.stepsizes import step_sizes
 from dgtd.algorithms.team_reward import (
     add_regression,
@@ -58,6 +58,7 @@ from dgtd.algorithms.team_reward import (
 )
 from dgtd.channels import Arcs, Perfect
 from dgtd.channels.base import BITS_PER_NUMBER
+from dgtd.channels.inbox import HeldRows
 from dgtd.errors import DgtdInputError
 from dgtd.graphs.random import as_network
 from dgtd.problems import team
@@ -76,7 +77,7 @@ VALUES = ("state", "action")
 TEAM_REWARDS = ("regression", "neighbourhood")  # networked agents' estimate of the team's reward (`team_reward`)
 SCHEMES = ("zhang", "chen")  # Zhang et al.'s actor-critic (here), or Chen et al.'s Algorithm 1 (`dgtd.run.chen`)
 OBJECTIVES = ("average", "discounted")  # what the actors ascend and J, J* measure (`dgtd.problems.team`)
-LEARN_BACKENDS = ("numpy", "numba")  # the NumPy arithmetic below, or the agents' part compiled (equal to 1e-12)
+LEARN_BACKENDS = ("numpy", "numba", "jax")  # the NumPy arithmetic below, or the agents' part compiled or on JAX
 DISTRIBUTED = tuple(name for name, cls in ALGORITHMS.items() if not cls.centralised)  # the critics agents can have
 METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", "bits")
 
@@ -84,10 +85,11 @@ METRICS = ("return", "critic_error", "entropy", "best_probability", "messages", 
 @dataclass(frozen=True)
 class LearnSettings:
     """How long and how many: ``iterations`` steps of ``seeds`` seeds of base seed ``seed``, ``checkpoints`` of them
-    measured; ``actor`` one of `ACTORS`; ``backend`` one of `LEARN_BACKENDS` (the agents' arithmetic in NumPy, or
-    compiled: `dgtd.backends.compiled.learner`, the same numbers to rounding); ``batch`` the steps of a round (Zhang
-    et al.'s Algorithm 2 in mini-batches, the baseline of Chen, Zhou, Chen and Zou 2022, whose own Algorithm 1 is
-    `dgtd.run.chen`: the agents communicate and move once a round, by the mean of its samples; 1 by default);
+    measured; ``actor`` one of `ACTORS`; ``backend`` one of `LEARN_BACKENDS` (the agents' arithmetic in NumPy,
+    compiled, `dgtd.backends.compiled.learner`, or on JAX, `dgtd.backends.jax_learner`: the same numbers to
+    rounding); ``batch`` the steps of a round (Zhang et al.'s Algorithm 2 in mini-batches, the baseline of Chen, Zhou,
+    Chen and Zou 2022, whose own Algorithm 1 is `dgtd.run.chen`: the agents communicate and move once a round, by the
+    mean of its samples; 1 by default);
     ``values`` what the critics evaluate: "state" values V with a consensus estimate of the team's
     reward (Zhang et al.'s Algorithm 2, the default) or "action" values Q on the additive features f(s, a) (their
     Algorithm 1); ``objective`` what the actors ascend and J, J* measure: "average", the long-run average team reward
@@ -110,7 +112,7 @@ class LearnSettings:
 
     def __post_init__(self):
         if self.backend not in LEARN_BACKENDS:
-            raise DgtdInputError(f"learners run on the {' or '.join(LEARN_BACKENDS)} backend, not {self.backend!r}")
+            raise DgtdInputError(f"learners run on the {', '.join(LEARN_BACKENDS)} backend, not {self.backend!r}")
         if self.actor not in ACTORS:
             raise DgtdInputError(f"unknown actor {self.actor!r}; choose one of {', '.join(ACTORS)}")
         if self.objective not in OBJECTIVES:
@@ -193,7 +195,7 @@ class LearnPlan:
     at: np.ndarray
     rows: Any  # where the agents are held: `dgtd.run.layout.learner_layout`
     env: Any
-    kernels: Any = None  # the compiled agents' arithmetic (`dgtd.backends.compiled.learner.LearnerKernels`), or None
+    kernels: Any = None  # the agents' arithmetic compiled (`LearnerKernels`) or on JAX (`JaxLearners`), or None
     slots: Any = None  # the neighbourhood estimate's (members, arcs, valid) of the agents held here, or None
 
 
@@ -341,8 +343,15 @@ def _env(mdp, network, settings: LearnSettings, keys):
 
 
 def _kernels(backend: str, critic, channel, arcs, local):
-    """The compiled agents' arithmetic where asked and able (`LearnSettings.backend`); None: NumPy's, as for a run
-    the compiled kernels cannot take (`fallback`)."""
+    """The agents' arithmetic compiled (numba) or on JAX where asked (`LearnSettings.backend`; the same numbers to
+    1e-12); None: NumPy's, as for a run the compiled kernels cannot take (`fallback`). JAX refuses, in one line, what
+    it cannot run (JAX missing, links that hold copies), as `dgtd run --backend jax` does."""
+    if backend == "jax":
+        from dgtd.backends import jax as on_jax
+        from dgtd.backends.jax_learner import JaxLearners
+
+        on_jax.check_supported(channel)
+        return JaxLearners(critic, arcs, local)
     if backend == "numpy" or fallback(critic, channel) is not None:
         return None
     from dgtd.backends.compiled.learner import LearnerKernels
@@ -524,17 +533,10 @@ def _action_values(plan: LearnPlan, run: Learners, s, a, s_next, W) -> tuple:
     A_i = Q_i(s, a) - sum_b pi_i(b | s) Q_i(s, b, a_-i), which on additive features is agent i's own block:
     w_i[i, s, a_i] - sum_b pi_i(b | s) w_i[i, s, b]. ``W`` and the advantage the agents held here (`plan.rows`)."""
     B, n, S, A = run.theta.shape
-    N, local = a.shape[1], plan.rows.local
     b, mine = np.arange(B)[:, None], np.arange(n)[None, :]
     phi, phi_next = _action_rows(plan, run, s, a, s_next)
-    block = np.arange(N)[None, :, None] * S * A + np.arange(A)[None, None, :]  # (1, N, A): agent j's block, state 0
-    w = np.broadcast_to(W, (B, n, N * S * A))
-    own = np.take_along_axis(w, block[:, local] + (s * A)[:, None, None], axis=2)  # (B, n, A): w_i[i, s, .]
-    here = policy(run.theta[b, mine, s[:, None]])
-    mine_a = a[:, local]
-    advantage = np.take_along_axis(own, mine_a[:, :, None], axis=2)[:, :, 0] - (
-        here * np.where(here > 0, own, 0.0)
-    ).sum(-1)
+    own = own_values(np.broadcast_to(W, (B, n, phi.shape[-1])), plan.rows.local, s, S, A)  # w_i[i, s, .]
+    advantage = action_advantage(own, policy(run.theta[b, mine, s[:, None]]), a[:, plan.rows.local])
     return phi, phi_next, advantage
 
 
@@ -559,7 +561,7 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
             run.lam = run.lam - plan.kernels.mixed(inbox, inbox.sent["team"], True) + pending.pop("lam") / n
         run.theta = run.theta + pending.pop("theta") / n
         return
-    here = Held(inbox, rows.local)
+    here = HeldRows(inbox, rows.local)
     new = critic.moved(run.critic, tuple(x / n for x in pending.pop("d")), here, plan.alphas[k])
     if here.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
         new = new._make(np.where(here.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
@@ -567,20 +569,6 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
     if run.lam is not None and plan.slots is None:
         run.lam = run.lam - metropolis(inbox, plan.arcs, "team")[:, rows.local] + pending.pop("lam") / n
     run.theta = run.theta + pending.pop("theta") / n
-
-
-class Held:
-    """What the agents held here heard: an `Inbox` of every agent, its aggregates' rows ``local``."""
-
-    def __init__(self, inbox, local: np.ndarray):
-        self.inbox, self.local = inbox, local
-        self.awake = None if inbox.awake is None else inbox.awake[:, local]
-
-    def laplacian(self, name: str) -> np.ndarray:
-        return self.inbox.laplacian(name)[:, self.local]
-
-    def metropolis(self, name: str) -> np.ndarray:
-        return self.inbox.metropolis(name)[:, self.local]
 
 
 def _draws(keys: np.ndarray, network, steps: range) -> tuple:
@@ -639,7 +627,7 @@ def _result(plan: LearnPlan, run: Learners, best: tuple, seconds: float) -> Lear
     if plan.env.estimated:
         info |= {"backend": "numpy", "agents": plan.env.agents, "estimated": True}
     else:
-        info |= {"backend": "numpy" if plan.kernels is None else "numba"}
+        info |= {"backend": "numpy" if plan.kernels is None else plan.settings.backend}
     return LearnResult(
         plan.at, run.metrics, theta if plan.env.estimated else policy(theta),
         plan.rows.gather(plan.critic.estimate(run.critic)), best[0], best[1], run.links.messages, run.links.bits,
