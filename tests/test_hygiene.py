@@ -206,3 +206,34 @@ def test_one_checkpoint_writer():
 def test_the_writer_check_sees_a_second_writer(tmp_path):
     (tmp_path / "keep.py").write_text("def keep(out, b):\n    atomic_write(out / CHECKPOINT, b)\n")
     assert checkpoint_writers([tmp_path / "keep.py"]) == ["keep.py:2"]
+
+
+def rank_layouts(path) -> dict:
+    """{class: whether it builds the run's `Partition`} of the classes in ``path`` that say which agents a rank
+    holds (an attribute ``local`` or ``agents`` set in ``__init__``)."""
+    found = {}
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ClassDef):
+            init = next((f for f in node.body if isinstance(f, ast.FunctionDef) and f.name == "__init__"), None)
+            if init is None:
+                continue
+            text = ast.unparse(init)
+            if "self.local =" in text or "self.agents" in text:
+                found[node.name] = "Partition.of(" in text or "partition(ctx)" in text
+    return found
+
+
+def test_one_rank_layout():
+    """Agents are spread over ranks one way, the run's `dgtd.backends.mpi.Partition` (contiguous blocks, ghosts by
+    a halo exchange): the run's layout and the learners' both build it, and no module splits the agents another way
+    (the learners once split them by np.array_split and gathered every agent's messages on every rank)."""
+    layouts = rank_layouts(SRC / "dgtd" / "backends" / "mpi.py")
+    assert set(layouts) == {"Ranks", "LearnerRanks"} and all(layouts.values()), layouts
+    assert [p.name for p in (SRC / "dgtd").rglob("*.py") if "array_split(" in p.read_text()] == []
+
+
+def test_the_layout_check_sees_a_second_layout(tmp_path):
+    (tmp_path / "mine.py").write_text(
+        "class Mine:\n    def __init__(self, n, R, r):\n        self.local = np.array_split(np.arange(n), R)[r]\n"
+    )
+    assert rank_layouts(tmp_path / "mine.py") == {"Mine": False}

@@ -114,6 +114,8 @@ def test_singles_pair_entities_and_any_subset_gives_the_same_numbers():
     u0, u1 = uniforms(keys, EDGE_UP, 17, np.arange(6))
     assert_array_equal(every[:, 0::2], u0[:, :6])
     assert_array_equal(every[:, 1::2], u1[:, :5])
+    for first, last in ((3, 9), (4, 9), (3, 10), (5, 5)):  # a rank's range of agents, from odd or even ids
+        assert_array_equal(singles(keys, EDGE_UP, 17, np.arange(first, last + 1)), every[:, first : last + 1])
 
 
 def test_both_ends_of_a_link_draw_its_losses_alone():

@@ -118,13 +118,15 @@ def uniforms(key, purpose, step, entity, index=0):
 
 def singles(key, purpose, step, ids):
     """One uniform for each entity of ``ids`` (whole numbers): entities 2j and 2j + 1 take the two doubles of the call
-    of entity j. Broadcast as `uniforms`, ``ids`` along the last axis; the numbers of ids 0 .. n - 1 take n / 2
-    calls."""
+    of entity j. Broadcast as `uniforms`, ``ids`` along the last axis; the numbers of a range of ids (a rank's
+    agents) take one call for each pair of them."""
     ids = np.asarray(ids, dtype=np.int64)
     n = ids.shape[-1]
-    if ids.ndim == 1 and n and ids[0] == 0 and (n == 1 or np.all(np.diff(ids) == 1)):  # 0 .. n - 1: each call once
-        u0, u1 = uniforms(key, purpose, step, np.arange((n + 1) // 2))
-        return np.stack([u0, u1], axis=-1).reshape(u0.shape[:-1] + (2 * u0.shape[-1],))[..., :n]
+    if ids.ndim == 1 and n and (n == 1 or np.all(np.diff(ids) == 1)):  # first .. first + n - 1: each call once
+        first = int(ids[0])
+        u0, u1 = uniforms(key, purpose, step, np.arange(first >> 1, ((first + n - 1) >> 1) + 1))
+        both = np.stack([u0, u1], axis=-1).reshape(u0.shape[:-1] + (2 * u0.shape[-1],))
+        return both[..., first & 1 : (first & 1) + n]
     u0, u1 = uniforms(key, purpose, step, ids >> 1)
     return np.where(ids & 1 == 0, u0, u1)
 

@@ -132,6 +132,21 @@ def test_dgtd_learn_writes_the_last_policies_and_their_exact_return(run_cli, tmp
     assert "exact return J of the last policies" in text and (tmp_path / "metrics.csv").read_text().count("\n") > 8
 
 
+def test_many_agents_policies_are_in_policies_npz_alone(run_cli, tmp_path, monkeypatch):
+    """Beyond `POLICY_JSON` numbers (seeds x agents x states x actions: 200 000, a JSON text of tens of megabytes at
+    40 000 agents, the largest thing rank 0 held) summary.json's policy_last is null and the policies are those of
+    policies.npz, whose last J return_last still is."""
+    import dgtd.run.learn as learning
+
+    monkeypatch.setattr(learning, "POLICY_JSON", 47)  # pull-away's 2 x 4 x 3 x 2 = 48 numbers
+    code, _, err = run_cli("learn", "pull-away", "-T", 200, "--no-progress", "--no-plots", "--out", tmp_path)
+    assert code == 0, err
+    s = json.loads((tmp_path / "summary.json").read_text())
+    policies = np.load(tmp_path / "policies.npz")["policies"]
+    assert s["policy_last"] is None and policies.shape == (2, 4, 3, 2)
+    assert s["return_last"][1] == pytest.approx(exact_return(team.pull_away(), policies[1]), abs=1e-12)
+
+
 def test_a_seeds_numbers_are_its_own():
     """Every random number is keyed by (seed, purpose, agent, step): seed 0 of a 2-seed run is a 1-seed run, bit for
     bit, and the same run twice is the same."""

@@ -485,13 +485,30 @@ def test_learners_on_ranks_are_one_process_bit_for_bit(tmp_path, extra):
     _one_process_bytes_on_2_and_3_ranks(tmp_path, run)
 
 
-@pytest.mark.parametrize("again_on", [2, 3])
-def test_learners_interrupted_on_2_ranks_resume_to_the_uninterrupted_numbers(tmp_path, again_on):
+SPARSE = ["learn", "factored", "--agents", 12, "--seeds", 2, "--loss", 0.2, "--burst", 3, "--no-plots", "--no-progress"]
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [[], ["--algorithm", "td-tracking", "--backend", "numpy"], ["--backend", "jax", "--batch", 2]],
+)
+def test_learners_on_a_sparse_graph_hear_by_the_halo_bit_for_bit(tmp_path, extra):
+    """12 agents on a ring (sparse: a rank's share is its agents, a ghost each side): each rank delivers only the
+    arcs into its agents, its ghosts' messages by the run's halo exchange (`dgtd.backends.mpi.Partition`), their
+    counts for Metropolis weights from the draws of the arcs into them (td-tracking's mix, Zhang et al.'s regression),
+    each link's bursty losses keyed by its agents: the policies and metrics one process's, byte for byte, on 2 and 3
+    ranks (compiled, NumPy, JAX)."""
+    _one_process_bytes_on_2_and_3_ranks(tmp_path, [*SPARSE, "-T", 400, *extra])
+
+
+@pytest.mark.parametrize("again_on, task", [(2, LEARN), (3, LEARN), (3, SPARSE)])
+def test_learners_interrupted_on_2_ranks_resume_to_the_uninterrupted_numbers(tmp_path, again_on, task):
     """Ctrl-C to a `dgtd learn --ranks 2` job after a checkpoint: every process ends, every rank's shard of the
     checkpoint is whole (the run's checkpoint format); the same command again, on 2 ranks or on 3 (each takes its
-    agents' rows by id from whichever shard holds them), resumes and ends with the uninterrupted one-process run's
-    metrics, byte for byte."""
-    run = [*LEARN, "-T", 30000, "--checkpoint-every", 1000]
+    agents' rows, and the links' states of the arcs into them, by id from whichever shard holds them), resumes and
+    ends with the uninterrupted one-process run's metrics, byte for byte (on the sparse ring, bursty losses: each
+    link's state is its own)."""
+    run = [*task, "-T", 30000, "--checkpoint-every", 1000]
     out = tmp_path / "cut"
     code, err = _interrupted([*DGTD, *map(str, run), "--ranks", "2", "--out", str(out)], out, "learning-checkpoint.npz")
     assert code == 130 and not (out / "summary.json").exists(), err

@@ -43,12 +43,14 @@ def jax_fallback(critic, channel) -> str | None:
 
 
 class JaxLearners:
-    """The JAX arithmetic of one learning run: its critic's, over its arcs, for the agents held here (``local``)."""
+    """The JAX arithmetic of one learning run: its critic's, over its arcs, for the agents held here (``local``, their
+    ids; ``rows``, theirs in what they hear, over which ``arcs`` run: `dgtd.run.layout`)."""
 
-    def __init__(self, critic, arcs, local: np.ndarray):
+    def __init__(self, critic, arcs, local: np.ndarray, rows: np.ndarray):
         self.critic, self.arcs = critic, arcs
         self.jnp = _jax().numpy
         self.local = self.jnp.asarray(np.asarray(local, np.int64))
+        self.rows = self.jnp.asarray(np.asarray(rows, np.int64))
         self._sample, self._mixed, self._move = _compiled(critic, arcs)
 
     def sample(self, state, pending: dict, theta, lam, rows, s, a, r, r_critic, r_actor, scal, baseline, rhat) -> None:
@@ -72,21 +74,27 @@ class JaxLearners:
     def mixed(self, inbox, x: np.ndarray, metropolis: bool) -> np.ndarray:
         """(B, n, q): every agent held here's aggregate of ``x`` (every agent's, (B, N, q)) over the arcs heard."""
         jnp = self.jnp
-        weights = None if inbox.weights is None else jnp.asarray(inbox.weights)
-        return np.asarray(self._mixed(jnp.asarray(x), jnp.asarray(inbox.heard), weights, self.local, metropolis))
+        heard = jnp.asarray(inbox.heard)
+        return np.asarray(self._mixed(jnp.asarray(x), heard, *_counts(jnp, inbox), self.rows, metropolis))
 
     def move(self, state, inbox, D: np.ndarray, alpha: float):
         """The critics' new state at a round's end: the mean of the round's directions ``D`` (terms, B, n, q) and what
         they heard (``inbox``, every agent's: `dgtd.channels.Inbox`)."""
         jnp = self.jnp
         sent = {m: jnp.asarray(inbox.sent[m]) for m in self.critic.messages}
-        weights = None if inbox.weights is None else jnp.asarray(inbox.weights)
-        new = self._move(_on(jnp, state), jnp.asarray(D), sent, jnp.asarray(inbox.heard), weights, self.local, alpha)
+        heard = jnp.asarray(inbox.heard)
+        new = self._move(_on(jnp, state), jnp.asarray(D), sent, heard, *_counts(jnp, inbox), self.rows, alpha)
         return type(state)(*(np.array(x) for x in new))
 
 
 def _on(jnp, state):
     return type(state)(*(jnp.asarray(x) for x in state))
+
+
+def _counts(jnp, inbox) -> tuple:
+    """(the arcs' weights, the agents' counts of what they heard where the inbox holds them: a rank's, whose ghosts'
+    counts come from elsewhere), each None where the inbox has none."""
+    return tuple(None if x is None else jnp.asarray(x) for x in (inbox.weights, inbox.degrees))
 
 
 @lru_cache(maxsize=16)
@@ -112,12 +120,12 @@ def _compiled(critic, arcs) -> tuple:
         d = critic.directions(state, Sample(phi, phi_next, r_critic, jnp.ones((B, 1)), gamma))
         return jnp.stack(d), actor_increment(theta, s, mine, delta, beta, None, tau), dlam, rhat
 
-    def mixed(x, heard, weights, local, metropolis):
-        inbox = Inbox(arcs, {"x": x}, heard, weights=weights)
-        return (inbox.metropolis("x") if metropolis else inbox.laplacian("x"))[:, local]
+    def mixed(x, heard, weights, degrees, rows, metropolis):
+        inbox = Inbox(arcs, {"x": x}, heard, weights=weights, degrees=degrees)
+        return (inbox.metropolis("x") if metropolis else inbox.laplacian("x"))[:, rows]
 
-    def move(state, D, sent, heard, weights, local, alpha):
-        here = HeldRows(Inbox(arcs, sent, heard, weights=weights), local)
+    def move(state, D, sent, heard, weights, degrees, rows, alpha):
+        here = HeldRows(Inbox(arcs, sent, heard, weights=weights, degrees=degrees), rows)
         return critic.moved(state, tuple(D), here, alpha)
 
     return (

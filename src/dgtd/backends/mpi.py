@@ -379,6 +379,12 @@ def _counting(state):
     return state._replace(messages=np.zeros(B), bits=np.zeros(B))
 
 
+def channel_over(channel, whole: Arcs, ids: np.ndarray, seeds: int, seed: int):
+    """``channel``'s state over the arcs ``ids`` of the network ``whole``, as the whole network's run begins it (each
+    arc's draws keyed by its agents: `dgtd.streams.link_keys`)."""
+    return channel.init(seeds, Arcs(whole.n_agents, whole.src[ids], whole.dst[ids], ids), seed)
+
+
 def _split(state, n: int):
     """A channel state over the arcs [into own agents (n), into ghosts (the halo)] as the two, the first counting
     from zero."""
@@ -396,6 +402,23 @@ def _joined(head, tail):
         for name in a | b
     }
     return head._replace(**both)
+
+
+def heard(P: Partition, channel, mine, around, sent: dict, up, zeros: dict | None = None) -> tuple:
+    """(what the own agents of this rank's share ``P`` heard: an `Inbox` over ``P.arcs``, the channel's state over
+    those arcs, over the halo's) at one step, from ``sent`` (name -> (B, local rows, q), the ghosts' rows their owners'
+    values) and the edges ``up`` this rank draws (``P.edges``). Where agents weigh what they hear by how much their
+    neighbours heard (Metropolis weights: ``P.halo``), the ghosts' counts come from the draws of the arcs into them,
+    whose values are not used (``zeros``, a dict kept by the caller, is filled once)."""
+    inbox, mine = channel.deliver(mine, P.arcs, sent, up)
+    if P.halo is not None:
+        zeros = {} if zeros is None else zeros
+        if not zeros:
+            zeros.update({name: np.zeros((x.shape[0], P.halo.n_agents, x.shape[2])) for name, x in sent.items()})
+        heard_around, around = channel.deliver(around, P.halo, zeros, up)
+        own = inbox.count()[:, : len(P.own)]
+        inbox.degrees = np.concatenate([own, heard_around.count()[:, P.halo_ghosts]], axis=1)
+    return inbox, mine, around
 
 
 def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool = False, staleness: int | None = None):
@@ -419,9 +442,8 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         ghosts = {name: np.array(x) for name, x in algorithm.sends(local).items()}
         P.exchange(ghosts)  # each ghost holds its owner's messages at the block start, until newer ones arrive
         mail = Mailbox(P, ghosts, len(alphas), staleness, WATCHDOG.beat)
-    halo = P.halo
     channel_state = copied(channel_state)  # (the channel updates its messages in flight in place)
-    mine, around = _split(channel_state, P.arcs.n_arcs) if halo is not None else (_counting(channel_state), None)
+    mine, around = _split(channel_state, P.arcs.n_arcs) if P.halo is not None else (_counting(channel_state), None)
     zeros: dict = {}  # the messages on the halo's arcs: their values are not used, made once a block
     for t in range(len(alphas)):
         t0 = clock()
@@ -435,12 +457,7 @@ def run_block(ctx, state, channel_state, w_sum, alphas, blk, asynchronous: bool 
         WATCHDOG.beat()
         t2 = clock()
         up = None if blk.up is None else (blk.up[t] if restricted else blk.up[t][:, P.edges])
-        inbox, mine = channel.deliver(mine, P.arcs, sent, up)
-        if halo is not None:  # what the ghosts heard, from the draws of the arcs into them (their values unused)
-            zeros = zeros or {name: np.zeros((x.shape[0], halo.n_agents, x.shape[2])) for name, x in sent.items()}
-            heard_around, around = channel.deliver(around, halo, zeros, up)
-            own = inbox.count()[:, :n]
-            inbox.degrees = np.concatenate([own, heard_around.count()[:, P.halo_ghosts]], axis=1)
+        inbox, mine, around = heard(P, channel, mine, around, sent, up, zeros)
         sample = blk.sample(t, Phi, ratio, ctx.gamma, continuing)
         sample = sample if restricted else local_sample(sample, P.local)
         t3 = clock()
@@ -614,8 +631,7 @@ class Ranks:
 
     def init_channel(self, channel, seeds: int, seed: int):
         """The channel's state over the arcs this rank draws (`arc_ids`), as the whole network's run begins it."""
-        whole, ids = self.ctx.arcs, self.arc_ids  # (each arc's draws keyed by its agents: `dgtd.streams.link_keys`)
-        return channel.init(seeds, Arcs(whole.n_agents, whole.src[ids], whole.dst[ids], ids), seed)
+        return channel_over(channel, self.ctx.arcs, self.arc_ids, seeds, seed)
 
     def whole(self, x: np.ndarray, axis: int = 1) -> np.ndarray:
         """Every agent's rows of ``x`` (this rank's own on ``axis``) on rank 0; its own rows on the others."""
@@ -711,20 +727,58 @@ WATCHDOG = Watchdog()
 
 
 class LearnerRanks:
-    """The agents of a learning run (`dgtd.run.learn`) spread over the ranks of the job in contiguous blocks, agent
-    order kept: each rank holds its agents' rows of every per-agent array (actors, critics, reward estimates) and
-    steps them; what every agent needs of the others (their actions, for the joint transition; what they send; at a
-    checkpoint, every row) is gathered in agent order, so that each rank's rows are the numbers one process computes
-    for them, bit for bit. The state, the links and the metrics are the whole run's on every rank."""
+    """The agents of a learning run (`dgtd.run.learn`, `dgtd.run.networked`) spread over the ranks as a run's are, by
+    the run's `Partition` (contiguous blocks in the agents' own numbering): each rank holds its agents' rows of every
+    per-agent array (actors, critics, reward estimates) and steps them; they hear what is sent over the arcs into them
+    (``arcs``: the rank's share, its rows its own agents then its ghosts), the ghosts' messages by the halo exchange
+    and every link's draws the whole network's (`hear`), the channel's state over those arcs alone; what every agent
+    needs of the others (the joint action on a shared state; at a checkpoint, every row on rank 0) is gathered in
+    agent order. Every number is one process's, bit for bit. ``halo``: the agents weigh what they hear by their
+    neighbours' counts (Metropolis weights), which the rank draws for its ghosts' arcs too. On a dense graph
+    (`Arcs.dense`: a rank's ghosts are nearly every agent) every rank takes every agent's messages by one allgather
+    and hears over the whole network's arcs, summing as one process does (`dgtd.run.learn.metropolis`'s dense mix)."""
 
-    def __init__(self, n_agents: int):
+    def __init__(self, n_agents: int, arcs: Arcs | None = None, halo: bool = False):
         comm = world()
         R = comm.Get_size()
         if R > n_agents:
             raise DgtdInputError(f"{R} ranks for {n_agents} agents: give at most one rank per agent")
-        self.comm = comm
-        self.local = np.array_split(np.arange(n_agents), R)[comm.Get_rank()]
-        self.root = comm.Get_rank() == 0
+        whole = Arcs.of(np.zeros((0, 2)), n_agents) if arcs is None else arcs
+        self.partition = P = Partition.of(whole, comm, None, halo)
+        self.comm, self.root, self.whole_arcs = comm, comm.Get_rank() == 0, whole
+        self.local = P.own  # the agents held here (ids)
+        self.dense = whole.dense
+        if self.dense:  # every agent's rows and every arc, as in one process
+            self.arcs, self.edges, self.own_rows = whole, np.arange(whole.n_arcs // 2), P.own
+            self.arc_ids = np.arange(whole.n_arcs)
+            self.counted = np.isin(whole.dst, P.own)
+            return
+        self.arcs, self.edges = P.arcs, P.edges  # the arcs into them over this rank's rows; the edges it draws
+        self.own_rows = np.arange(len(P.own))  # the rows of the agents held here in what they hear
+        halo_ids = [] if P.halo is None else [P.halo.arc_ids]
+        self.arc_ids = np.concatenate([P.arcs.arc_ids, *halo_ids])  # the arcs whose channel state this rank keeps
+        self.counted = np.arange(len(self.arc_ids)) < P.arcs.n_arcs  # of which its own: those it saves
+
+    def init_channel(self, channel, seeds: int, seed: int):
+        """The channel's state over the arcs this rank draws, as the whole network's run begins it."""
+        return channel_over(channel, self.whole_arcs, self.arc_ids, seeds, seed)
+
+    def hear(self, channel, links, sent: dict, up):
+        """(an `Inbox` of what the agents held here heard, over ``arcs``; the channel's new state) from what they
+        ``sent`` (name -> (B, n, q)) and the edges up (B, edges: this rank's, ``edges``); the counts of messages and
+        bits those of every rank's agents."""
+        P = self.partition
+        if self.dense:
+            return channel.deliver(links, self.arcs, {name: self.gather(x) for name, x in sent.items()}, up)
+        rows = {name: _placed(x, slice(0, len(P.own)), len(P.local)) for name, x in sent.items()}
+        P.exchange(rows)
+        mine, around = _split(links, P.arcs.n_arcs) if P.halo is not None else (_counting(links), None)
+        inbox, mine, around = heard(P, channel, mine, around, rows, up)
+        return inbox, P.counts(links, mine if around is None else _joined(mine, around))
+
+    def reported(self, x: np.ndarray) -> np.ndarray:
+        """The entries of the arcs into this rank's own agents of a per-arc array (B, arc_ids, ...)."""
+        return x[:, self.counted]
 
     def gather(self, x: np.ndarray) -> np.ndarray:
         """Every agent's rows (B, N, ...) of what each rank holds of them (B, n, ...), in agent order, on every rank."""
@@ -741,5 +795,6 @@ class LearnerRanks:
         return np.logical_and.reduce(self.comm.allgather(np.asarray(x, bool)))
 
     def shard(self) -> dict:
-        """The ids of the agents whose rows this rank's checkpoint shard holds (`dgtd.run.checkpoint.assemble`)."""
-        return {"agents": self.local}
+        """The ids of the agents and arcs whose rows this rank's checkpoint shard holds
+        (`dgtd.run.checkpoint.assemble`)."""
+        return {"agents": self.local, "arcs": self.arc_ids[self.counted]}

@@ -42,6 +42,12 @@ class Arcs:
         return self.src.shape[0]
 
     @property
+    def dense(self) -> bool:
+        """Whether the graph is dense: N^2 <= 4 x its arcs (mean degree N / 4 and more), where a dense N x N mix
+        costs less than sums over the arcs, and an agent's neighbours are nearly every agent."""
+        return self.n_agents * self.n_agents <= 4 * self.n_arcs
+
+    @property
     def arc_ids(self) -> np.ndarray:
         """Each arc's id in the whole network (2E,)."""
         return np.arange(self.n_arcs) if self.ids is None else self.ids

@@ -140,12 +140,28 @@ def kernel_for(backend: str, algorithm, channel=None):
 
 
 class AllAgents:
-    """Every agent of a learning run in this process: its rows are all of them, and gathering them is nothing."""
+    """Every agent of a learning run in this process: its rows are all of them, gathering them is nothing, and they
+    hear over the whole network's arcs (``arcs``; None: none)."""
 
     root = True
+    arc_ids = None  # (every arc's channel state, in order)
 
-    def __init__(self, n_agents: int):
-        self.local = np.arange(n_agents)
+    def __init__(self, n_agents: int, arcs=None):
+        from dgtd.channels import Arcs
+
+        self.local = self.own_rows = np.arange(n_agents)
+        self.arcs = Arcs.of(np.zeros((0, 2)), n_agents) if arcs is None else arcs
+        self.edges = np.arange(self.arcs.n_arcs // 2)  # every edge's draws
+
+    def init_channel(self, channel, seeds: int, seed: int):
+        return channel.init(seeds, self.arcs, seed)
+
+    def hear(self, channel, links, sent: dict, up):
+        """(an `Inbox` of what every agent heard, the channel's new state): `dgtd.channels.Channel.deliver`."""
+        return channel.deliver(links, self.arcs, sent, up)
+
+    def reported(self, x: np.ndarray) -> np.ndarray:
+        return x
 
     def gather(self, x: np.ndarray) -> np.ndarray:
         return x
@@ -163,9 +179,10 @@ class AllAgents:
         return {}
 
 
-def learner_layout(n_agents: int):
-    """Where a learning run's agents are held: spread over the ranks of an mpiexec job of more than one rank
-    (`dgtd.backends.mpi.LearnerRanks`), else all here (`AllAgents`)."""
+def learner_layout(n_agents: int, arcs=None, halo: bool = False):
+    """Where a learning run's agents are held, and the arcs ``arcs`` (the whole network's; None: none) they hear
+    over: spread over the ranks of an mpiexec job of more than one rank (`dgtd.backends.mpi.LearnerRanks`, the run's
+    partition; ``halo`` where agents weigh what they hear by their neighbours' counts), else all here (`AllAgents`)."""
     from dgtd.backends import mpi
 
-    return mpi.LearnerRanks(n_agents) if mpi.spread() else AllAgents(n_agents)
+    return mpi.LearnerRanks(n_agents, arcs, halo) if mpi.spread() else AllAgents(n_agents, arcs)

@@ -67,7 +67,7 @@ from dgtd.run.layout import AllAgents, learner_layout
 from dgtd.run.results import metrics_rows as run_rows
 from dgtd.run.results import rows_csv
 from dgtd.run.settings import check_count, kept_steps
-from dgtd.run.state import AGENTS, held, restore, snapshot
+from dgtd.run.state import AGENTS, ARCS, held, restore, snapshot
 from dgtd.samples import Sample
 from dgtd.sources.team_env import BLOCK, EnvTask, ModelEnv, SimulatorEnv
 from dgtd.streams import ACTION, edge_uniforms, seed_keys, singles
@@ -168,7 +168,7 @@ class Learners:
     theta: Any = held(AGENTS, 1)
     lam: Any = held(AGENTS, 1)
     critic: Any = held(AGENTS, 1)  # the critic's NamedTuple state
-    links: Any = held()  # the channel's state: the whole run's, on every rank
+    links: Any = held(ARCS, 1)  # the channel's state over the arcs into the agents held here
     metrics: Any = held(per_checkpoint=True)  # {name: (C, B)}
     pending: Any = held(saved=False)  # a round's sums so far: empty at every checkpoint (a round's end)
     means: Any = held(AGENTS, 1)
@@ -197,6 +197,7 @@ class LearnPlan:
     env: Any
     kernels: Any = None  # the agents' arithmetic compiled (`LearnerKernels`) or on JAX (`JaxLearners`), or None
     slots: Any = None  # the neighbourhood estimate's (members, arcs, valid) of the agents held here, or None
+    block: int = BLOCK  # the steps of a block of the learners' draws (`_block_of`)
 
 
 def learn(
@@ -236,14 +237,16 @@ def learn(
     plan = replace(plan, at=kept_steps(plan.at, settings.iterations, resume))  # (a finished run extended: its own)
     run = _start(plan)
     if resume is not None:  # (its agents' rows taken by id, from whichever rank's shard holds them)
-        rows = assemble(resume, plan.env.n_agents, plan.arcs.n_arcs, plan.rows.local, state=Learners)
+        whole_arcs = 2 * network.n_edges
+        rows = assemble(resume, plan.env.n_agents, whole_arcs, plan.rows.local, plan.rows.arc_ids, state=Learners)
         run = restore(run, rows)
         run.steps = plan.at
     draws: tuple = ()
     saves = Saves(checkpoint_every, 0.0 if plan.env.estimated else checkpoint_seconds, settings.batch)
     for k in range(run.k, settings.iterations):
-        if not draws or k % BLOCK == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
-            draws = _draws(plan.keys, network, range(k - k % BLOCK, min(k - k % BLOCK + BLOCK, settings.iterations)))
+        if not draws or k % plan.block == 0:  # a block's numbers at once: each a pure function of (seed, purpose, step)
+            first = k - k % plan.block
+            draws = _draws(plan.keys, network, range(first, min(first + plan.block, settings.iterations)), plan.rows)
         _step(plan, run, draws, k)
         if k + 1 in plan.at:
             c = int(np.searchsorted(plan.at, k + 1))
@@ -299,13 +302,15 @@ def _plan(mdp, network, critic, actor, settings, channel) -> LearnPlan:
         raise DgtdInputError(f"the network has {network.n_nodes} agents, the team MDP {env.n_agents}")
     T, N = settings.iterations, env.n_agents
     channel = channel if channel is not None else Perfect()
-    arcs, rows = Arcs.of(network.base.edges, N), learner_layout(N) if not env.estimated else AllAgents(N)
-    kernels = None if env.estimated else _kernels(settings.backend, critic, channel, arcs, rows.local)
+    whole = Arcs.of(network.base.edges, N)
+    rows = AllAgents(N, whole) if env.estimated else learner_layout(N, whole, _weighs_by_counts(critic, settings))
+    arcs = rows.arcs  # (the arcs into the agents held here, over the rows of what they hear)
+    kernels = None if env.estimated else _kernels(settings.backend, critic, channel, arcs, rows)
     return LearnPlan(
         mdp, network, critic, env.actor(actor), settings, channel, arcs, keys,
         step_sizes(critic.schedule, critic.alpha0, critic.beta, 0, T), actor.steps(0, T),
         np.unique(np.linspace(0, T, settings.checkpoints + 1).round().astype(int)[1:]), rows, env, kernels,
-        _slots(settings, channel, arcs, rows.local),
+        _slots(settings, channel, arcs, rows.own_rows), _block_of(settings.seeds, rows, network),
     )  # fmt: skip
 
 
@@ -331,6 +336,13 @@ def neighbourhood_links(channel) -> None:
         )
 
 
+def _weighs_by_counts(critic, settings: LearnSettings) -> bool:
+    """Whether the agents weigh what they hear by their neighbours' counts (Metropolis weights): the critic's mixing,
+    or Zhang et al.'s team-reward regression, mixed so."""
+    regression = settings.actor == "networked" and settings.values == "state" and settings.team_reward == "regression"
+    return critic.mixing == "metropolis" or regression
+
+
 def _env(mdp, network, settings: LearnSettings, keys):
     """What the agents act in: a model's steps, or a simulator's (`dgtd.sources.team_env`)."""
     if not isinstance(mdp, EnvTask):
@@ -342,7 +354,7 @@ def _env(mdp, network, settings: LearnSettings, keys):
     return SimulatorEnv(mdp, network, settings.seed, settings.seeds)
 
 
-def _kernels(backend: str, critic, channel, arcs, local):
+def _kernels(backend: str, critic, channel, arcs, rows):
     """The agents' arithmetic compiled (numba) or on JAX where asked (`LearnSettings.backend`; the same numbers to
     1e-12); None: NumPy's, as for a run the compiled kernels cannot take (`fallback`). JAX refuses, in one line, what
     it cannot run (JAX missing, links that hold copies), as `dgtd run --backend jax` does."""
@@ -351,12 +363,12 @@ def _kernels(backend: str, critic, channel, arcs, local):
         from dgtd.backends.jax_learner import JaxLearners
 
         on_jax.check_supported(channel)
-        return JaxLearners(critic, arcs, local)
+        return JaxLearners(critic, arcs, rows.local, rows.own_rows)
     if backend == "numpy" or fallback(critic, channel) is not None:
         return None
     from dgtd.backends.compiled.learner import LearnerKernels
 
-    return LearnerKernels(critic, arcs, local)
+    return LearnerKernels(critic, arcs, rows.local, rows.own_rows)
 
 
 def fallback(critic, channel) -> str | None:
@@ -394,7 +406,7 @@ def _start(plan: LearnPlan) -> Learners:
         lam = np.zeros((B, n, env.regression_size(A)))
     return Learners(
         0, env.start(), np.ascontiguousarray(theta[:, local]), lam,
-        plan.critic.init(B, n, q), plan.channel.init(B, plan.arcs, settings.seed),
+        plan.critic.init(B, n, q), plan.rows.init_channel(plan.channel, B, settings.seed),
         {name: np.full((len(plan.at), B), np.nan) for name in (*METRICS, *estimated)},
         {}, np.zeros((B, n, 2)) if settings.objective == "average" else None,
         np.zeros((B, len(TALLY))) if env.estimated else None, np.full(B, -1, dtype=np.int64), plan.at,
@@ -409,7 +421,7 @@ def _step(plan: LearnPlan, run: Learners, draws: tuple, k: int) -> None:
     env, critic, kind, local = plan.env, plan.critic, plan.settings.actor, plan.rows.local
     B = run.theta.shape[0]
     pi = plan.actor.probabilities(run.theta, run.s)  # (B, n, A): the agents held here
-    a_here = np.minimum(team.draw(np.cumsum(pi, axis=-1), draws[0][k % BLOCK][:, local]), env.actions[local] - 1)
+    a_here = np.minimum(team.draw(np.cumsum(pi, axis=-1), draws[0][k % plan.block]), env.actions[local] - 1)
     a = plan.rows.gather(a_here)  # (B, N): every agent's action moves the state
     step = env.step(run.s, a, k)
     r = step.rewards[:, local]  # each agent's own reward
@@ -507,9 +519,9 @@ def _end_of(plan: LearnPlan, run: Learners, draws: tuple, k: int, seen) -> None:
     """Step k done: what the actors see next; at a round's end, `round_end` with the links up at step k."""
     run.s, run.k = seen, k + 1
     if run.k % plan.settings.batch == 0 or run.k == plan.settings.iterations:
-        up = None if draws[1] is None else draws[1][k % BLOCK]
+        up = None if draws[1] is None else draws[1][k % plan.block]
         if plan.settings.actor == "independent":
-            up = np.zeros((run.theta.shape[0], plan.network.n_edges), bool)  # they send nothing
+            up = np.zeros((run.theta.shape[0], len(plan.rows.edges)), bool)  # they send nothing
         round_end(plan, run, up, k)
 
 
@@ -550,7 +562,7 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
         sent["reward"] = np.stack([x[-1] for x in pending["slots"]], axis=-1)
     elif run.lam is not None:
         sent["team"] = run.lam
-    inbox, run.links = plan.channel.deliver(run.links, plan.arcs, {m: rows.gather(x) for m, x in sent.items()}, up)
+    inbox, run.links = rows.hear(plan.channel, run.links, sent, up)
     if run.means is not None:
         run.means = run.means + pending.pop("means") / n
     if plan.slots is not None:
@@ -561,23 +573,36 @@ def round_end(plan: LearnPlan, run: Learners, up, k: int) -> None:
             run.lam = run.lam - plan.kernels.mixed(inbox, inbox.sent["team"], True) + pending.pop("lam") / n
         run.theta = run.theta + pending.pop("theta") / n
         return
-    here = HeldRows(inbox, rows.local)
+    here = HeldRows(inbox, rows.own_rows)
     new = critic.moved(run.critic, tuple(x / n for x in pending.pop("d")), here, plan.alphas[k])
     if here.awake is not None:  # an asleep agent keeps its state, as in `dgtd run`
         new = new._make(np.where(here.awake[:, :, None], x, old) for x, old in zip(new, run.critic))
     run.critic = new
     if run.lam is not None and plan.slots is None:
-        run.lam = run.lam - metropolis(inbox, plan.arcs, "team")[:, rows.local] + pending.pop("lam") / n
+        run.lam = run.lam - metropolis(inbox, plan.arcs, "team")[:, rows.own_rows] + pending.pop("lam") / n
     run.theta = run.theta + pending.pop("theta") / n
 
 
-def _draws(keys: np.ndarray, network, steps: range) -> tuple:
-    """The uniforms of ``steps``: each agent's action (T, B, N), and the links up (T, B, E) or None where every link
-    is always up (a model's next states are its own: `dgtd.sources.team_env.ModelEnv`)."""
+def _draws(keys: np.ndarray, network, steps: range, rows) -> tuple:
+    """The uniforms of ``steps``: the action of each agent held here (``rows``: `learner_layout`) (T, B, n), and the
+    links up of the edges drawn here (T, B, E') or None where every link is always up (a model's next states are its
+    own: `ModelEnv`)."""
     k = np.arange(steps.start, steps.stop, dtype=np.uint64)[:, None, None]
-    action = singles(keys[None, :, None], ACTION, k, np.arange(network.n_nodes))
-    up = None if network.fixed else edge_uniforms(keys, k, network.base.edges) < network.p
+    action = singles(keys[None, :, None], ACTION, k, rows.local)
+    up = None if network.fixed else edge_uniforms(keys, k, network.base.edges[rows.edges]) < network.p
     return action, up
+
+
+DRAWS_BUDGET = 1 << 18  # numbers (2 MB; their draws' working arrays some times that) a block of the learners' draws may
+# hold: fewer steps where agents are many
+
+
+def _block_of(seeds: int, rows, network) -> int:
+    """The steps of a block of the learners' draws (`_draws`): `BLOCK`, fewer where a block of the numbers of the
+    agents held here and of the edges drawn here (``rows``: `learner_layout`) would pass `DRAWS_BUDGET` (every
+    number is keyed by its step: any block draws the same)."""
+    width = len(rows.local) + (0 if network.fixed else len(rows.edges))
+    return int(min(BLOCK, max(1, DRAWS_BUDGET // (seeds * width))))
 
 
 TALLY = ("reward", "entropy", "steps", "returns", "episodes", "episode")  # a simulator's sums between checkpoints
@@ -641,7 +666,7 @@ def metropolis(inbox, arcs: Arcs, name: str) -> np.ndarray:
     of (B, 2E, q) numbers costs more. Where the channel changed what arrived (late or compressed copies), or the graph
     is sparse, the inbox's own."""
     B, N = inbox.heard.shape[0], arcs.n_agents
-    if name in inbox.received or N * N > 4 * arcs.n_arcs:  # (sparse graphs: the arcs' own sums are the cheaper)
+    if name in inbox.received or not arcs.dense:  # (sparse graphs: the arcs' own sums are the cheaper)
         return inbox.metropolis(name)
     d = inbox.count()
     weights = inbox.heard / (1.0 + np.maximum(d[:, arcs.dst], d[:, arcs.src]))  # W_ij of each arc j -> i heard
@@ -724,14 +749,20 @@ def _reward_spread(mdp, policies) -> float:
     return float(np.mean((weights * (R - J) ** 2).sum(axis=1)))
 
 
+POLICY_JSON = 200_000  # the most numbers of the last policies (seeds x agents x states x actions) summary.json holds
+
+
 def summary(result: LearnResult, mdp, record: dict) -> dict:
     """summary.json of a learning run: what was asked, the exact best J* where computed, and per seed the last
-    policies (`policy_last`: [seeds][agents] arrays (S, A_i) of action probabilities), their exact return
+    policies (`policy_last`: [seeds][agents] arrays (S, A_i) of action probabilities; None beyond `POLICY_JSON`
+    numbers, a JSON text of hundreds of megabytes: they are in policies.npz, as always), their exact return
     (`return_last`, J of exactly those policies), the last critics' error and the counts of what was sent; in a
     simulator (``mdp`` an `EnvTask`), the estimated returns instead (`_estimated_summary`)."""
     if isinstance(mdp, EnvTask):
         return _estimated_summary(result, mdp, record)
-    policies = [[p.tolist() for p in local_policies(mdp, result.policies[b])] for b in range(len(result.policies))]
+    policies = None  # (beyond `POLICY_JSON`: in policies.npz alone)
+    if result.policies.size <= POLICY_JSON:
+        policies = [[p.tolist() for p in local_policies(mdp, pi)] for pi in result.policies]
     return {
         "task": mdp.name,
         "n_states": mdp.n_states,

@@ -218,20 +218,22 @@ def learner_fallback(critic, channel) -> str | None:
 
 
 class LearnerKernels:
-    """The compiled kernels of one learning run: its critic's and its arcs into the agents held here (``local``),
-    grouped by receiver in the order of the arcs (as `dgtd.channels.Arcs.into` adds them)."""
+    """The compiled kernels of one learning run: its critic's, and the arcs ``arcs`` into the agents held here
+    (``local``, their ids; ``rows`` theirs in what they hear, over which ``arcs`` run: `dgtd.run.layout`), grouped by
+    receiver in the order of the arcs (as `dgtd.channels.Arcs.into` adds them)."""
 
-    def __init__(self, critic, arcs, local: np.ndarray):
+    def __init__(self, critic, arcs, local: np.ndarray, rows: np.ndarray):
         self.critic = critic
         self.sample_block, self.move_block = _kernels(critic)
         self.own_names = tuple(f for f in critic.init(1, 1, 1)._fields if f not in critic.messages)
         order = np.argsort(arcs.dst, kind="stable")
-        mine = np.isin(arcs.dst[order], local)
+        mine = np.isin(arcs.dst[order], rows)
         self.arcs_in = np.ascontiguousarray(order[mine], np.int64)
-        counts = np.bincount(np.searchsorted(local, arcs.dst[self.arcs_in]), minlength=len(local))
+        counts = np.bincount(np.searchsorted(rows, arcs.dst[self.arcs_in]), minlength=len(rows))
         self.indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self.src = np.ascontiguousarray(arcs.src, np.int64)
         self.local = np.ascontiguousarray(local, np.int64)
+        self.rows = np.ascontiguousarray(rows, np.int64)
         self.p = critic.params()
 
     def stacks(self, state) -> tuple[np.ndarray, np.ndarray]:
@@ -273,16 +275,17 @@ class LearnerKernels:
         return cls.coefficients(self.p, (1.0,) * len(cls.reads), 1.0, 1.0, 1.0)
 
     def mixed(self, inbox, x: np.ndarray, metropolis: bool) -> np.ndarray:
-        """(B, n, q): every agent held here's aggregate of ``x`` (every agent's, (B, N, q)) over the arcs heard."""
+        """(B, n, q): every agent held here's aggregate of ``x`` (every row's of what they hear, (B, rows, q)) over
+        the arcs heard."""
         B, q = x.shape[0], x.shape[2]
-        out = np.zeros((B * len(self.local), q))
+        out = np.zeros((B * len(self.rows), q))
         weights = np.ones(self.src.shape[0]) if inbox.weights is None else np.asarray(inbox.weights, np.float64)
         degrees = np.ascontiguousarray(inbox.count(), np.float64) if metropolis else np.zeros((B, 0))
         aggregates(
             np.ascontiguousarray(x, np.float64), np.ascontiguousarray(inbox.heard), weights, degrees, metropolis,
-            self.indptr, self.arcs_in, self.src, self.local, out,
+            self.indptr, self.arcs_in, self.src, self.rows, out,
         )  # fmt: skip
-        return out.reshape(B, len(self.local), q)
+        return out.reshape(B, len(self.rows), q)
 
     def move(self, state, inbox, D: np.ndarray, alpha: float):
         """The critics' new state at a round's end (`_move_block`): the mean of the round's directions ``D`` (terms,
@@ -294,7 +297,7 @@ class LearnerKernels:
             len(self.critic.messages), B * n, -1
         ) if self.critic.messages else np.zeros((0, B * n, sent.shape[3]))  # fmt: skip
         D = np.ascontiguousarray(D)
-        awake = np.ones((B, n), bool) if inbox.awake is None else np.ascontiguousarray(inbox.awake[:, self.local])
+        awake = np.ones((B, n), bool) if inbox.awake is None else np.ascontiguousarray(inbox.awake[:, self.rows])
         out = np.empty_like(sent)
         self.move_block(self.p, own, sent, out, L, D, awake, float(alpha))
         return self.state_of(state, own, out)
