@@ -490,14 +490,18 @@ SPARSE = ["learn", "factored", "--agents", 12, "--seeds", 2, "--loss", 0.2, "--b
 
 @pytest.mark.parametrize(
     "extra",
-    [[], ["--algorithm", "td-tracking", "--backend", "numpy"], ["--backend", "jax", "--batch", 2]],
+    [
+        [],
+        ["--algorithm", "td-tracking", "--backend", "numpy", "--edge-prob", 0.7],
+        ["--backend", "jax", "--batch", 2],
+    ],
 )
 def test_learners_on_a_sparse_graph_hear_by_the_halo_bit_for_bit(tmp_path, extra):
     """12 agents on a ring (sparse: a rank's share is its agents, a ghost each side): each rank delivers only the
     arcs into its agents, its ghosts' messages by the run's halo exchange (`dgtd.backends.mpi.Partition`), their
     counts for Metropolis weights from the draws of the arcs into them (td-tracking's mix, Zhang et al.'s regression),
-    each link's bursty losses keyed by its agents: the policies and metrics one process's, byte for byte, on 2 and 3
-    ranks (compiled, NumPy, JAX)."""
+    each link's bursty losses keyed by its agents, and (--edge-prob) the edges up those it draws, each with its own
+    probability: the policies and metrics one process's, byte for byte, on 2 and 3 ranks (compiled, NumPy, JAX)."""
     _one_process_bytes_on_2_and_3_ranks(tmp_path, [*SPARSE, "-T", 400, *extra])
 
 

@@ -139,13 +139,13 @@ class LearnResult:
     """``steps`` (C,) of the checkpoints; ``metrics`` {name: (C, B)}, checkpoints by seeds as a run's (`METRICS`:
     the exact return, the critics' error, the mean entropy, the least probability on the team's best action, the
     messages and bits delivered so far); ``policies`` (B, N, S, A_max) at the end; ``critic`` the critics' estimates
-    (B, N or 1, q) at the end; ``return_best`` J* and ``best_action`` (S,) the team's best joint action where
-    computed; ``messages`` and ``bits`` (B,) delivered."""
+    (B, N or 1, q) at the end (both None on the ranks that do not write); ``return_best`` J* and ``best_action``
+    (S,) the team's best joint action where computed; ``messages`` and ``bits`` (B,) delivered."""
 
     steps: np.ndarray
     metrics: dict
-    policies: np.ndarray
-    critic: np.ndarray
+    policies: Any  # (B, N, S, A_max), or None
+    critic: Any  # (B, N or 1, q), or None
     return_best: float | None
     best_action: np.ndarray | None
     messages: np.ndarray
@@ -589,8 +589,10 @@ def _draws(keys: np.ndarray, network, steps: range, rows) -> tuple:
     own: `ModelEnv`)."""
     k = np.arange(steps.start, steps.stop, dtype=np.uint64)[:, None, None]
     action = singles(keys[None, :, None], ACTION, k, rows.local)
-    up = None if network.fixed else edge_uniforms(keys, k, network.base.edges[rows.edges]) < network.p
-    return action, up
+    if network.fixed:
+        return action, None
+    p = np.asarray(network.p)
+    return action, edge_uniforms(keys, k, network.base.edges[rows.edges]) < (p if p.ndim == 0 else p[rows.edges])
 
 
 DRAWS_BUDGET = 1 << 18  # numbers (2 MB; their draws' working arrays some times that) a block of the learners' draws may
@@ -644,8 +646,9 @@ def _record(plan: LearnPlan, run: Learners, c: int, best_action) -> None:
 
 
 def _result(plan: LearnPlan, run: Learners, best: tuple, seconds: float) -> LearnResult:
-    """A finished run's `LearnResult`: the policies (a simulator's: its actors' weights), the critics, J*."""
-    theta = plan.rows.gather(run.theta)
+    """A finished run's `LearnResult`: the policies (a simulator's: its actors' weights), the critics, J*; over
+    ranks, every agent's on the rank that writes (None on the others)."""
+    theta = plan.rows.gather_root(run.theta)
     info: dict = {"objective": plan.settings.objective, "diverged_at": run.diverged_at.tolist()}
     if run.k < plan.settings.iterations:  # (every seed diverged)
         info["stopped_at"] = run.k
@@ -654,8 +657,8 @@ def _result(plan: LearnPlan, run: Learners, best: tuple, seconds: float) -> Lear
     else:
         info |= {"backend": "numpy" if plan.kernels is None else plan.settings.backend}
     return LearnResult(
-        plan.at, run.metrics, theta if plan.env.estimated else policy(theta),
-        plan.rows.gather(plan.critic.estimate(run.critic)), best[0], best[1], run.links.messages, run.links.bits,
+        plan.at, run.metrics, theta if plan.env.estimated or theta is None else policy(theta),
+        plan.rows.gather_root(plan.critic.estimate(run.critic)), best[0], best[1], run.links.messages, run.links.bits,
         seconds, info,
     )  # fmt: skip
 
