@@ -353,7 +353,9 @@ def true_value_error(m: Moments, W: np.ndarray) -> np.ndarray:
     reward, which the features may not represent (then even w* has a floor, |Phi w* - J|_d / |J|_d)."""
     p = m.problem
     J = value_function(m)
-    err = W @ p.Phi.T - J  # (..., N, S): only for the final estimates, not at every checkpoint
+    # (..., N, S), only for the final estimates; each entry summed over the features in one order whatever rows W
+    # holds (BLAS gives the rows at a block's edge other bits: a rank's agents would differ from one process's)
+    err = np.einsum("...q,sq->...s", W, p.Phi) - J
     return np.sqrt((m.d * err**2).sum(-1)) / max(float(np.sqrt((m.d * J**2).sum())), 1e-300)
 
 
