@@ -29,17 +29,7 @@ from dgtd.backends.jax import _jax
 from dgtd.channels.inbox import HeldRows, Inbox
 from dgtd.samples import Sample
 
-__all__ = ["JaxLearners", "jax_fallback"]
-
-
-def jax_fallback(critic, channel) -> str | None:
-    """Why learners with ``critic`` over ``channel`` cannot run on JAX (one line), or None."""
-    if channel.holds:
-        return (
-            f"learners on JAX run perfect and lossy links, not {channel.describe()}: use --backend numba or numpy "
-            "for late, asleep or compressed messages"
-        )
-    return None
+__all__ = ["JaxLearners"]
 
 
 class JaxLearners:

@@ -188,6 +188,13 @@ class Partition:
         """The ids of the arcs into this rank's own agents, in the global order."""
         return self.arcs.arc_ids
 
+    def drawn_arcs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the ids of the arcs whose events this rank draws: into its own agents, then, for Metropolis weights, into
+        its ghosts, as `heard` delivers them; which of them are its own to count and save)."""
+        halo = [] if self.halo is None else [self.halo.arc_ids]
+        ids = np.concatenate([self.arcs.arc_ids, *halo])
+        return ids, np.arange(len(ids)) < self.arcs.n_arcs
+
     @classmethod
     def of(cls, arcs: Arcs, comm, order: np.ndarray | None = None, halo: bool = False) -> Partition:
         """Rank r's share: the agents order[bounds[r]:bounds[r + 1]] of the storage ``order`` (the compiled kernels'
@@ -404,17 +411,17 @@ def _joined(head, tail):
     return head._replace(**both)
 
 
-def heard(P: Partition, channel, mine, around, sent: dict, up, zeros: dict | None = None) -> tuple:
+def heard(P: Partition, channel, mine, around, sent: dict, up, zeros: dict) -> tuple:
     """(what the own agents of this rank's share ``P`` heard: an `Inbox` over ``P.arcs``, the channel's state over
     those arcs, over the halo's) at one step, from ``sent`` (name -> (B, local rows, q), the ghosts' rows their owners'
     values) and the edges ``up`` this rank draws (``P.edges``). Where agents weigh what they hear by how much their
     neighbours heard (Metropolis weights: ``P.halo``), the ghosts' counts come from the draws of the arcs into them,
-    whose values are not used (``zeros``, a dict kept by the caller, is filled once)."""
+    whose values are not used (``zeros``, a dict the caller keeps from call to call)."""
     inbox, mine = channel.deliver(mine, P.arcs, sent, up)
     if P.halo is not None:
-        zeros = {} if zeros is None else zeros
-        if not zeros:
-            zeros.update({name: np.zeros((x.shape[0], P.halo.n_agents, x.shape[2])) for name, x in sent.items()})
+        for name, x in sent.items():  # (made once; again where a message's size changed: a shorter last round)
+            if name not in zeros or zeros[name].shape[::2] != x.shape[::2]:
+                zeros[name] = np.zeros((x.shape[0], P.halo.n_agents, x.shape[2]))
         heard_around, around = channel.deliver(around, P.halo, zeros, up)
         own = inbox.count()[:, : len(P.own)]
         inbox.degrees = np.concatenate([own, heard_around.count()[:, P.halo_ghosts]], axis=1)
@@ -542,10 +549,8 @@ class Ranks:
         if ctx.__dict__["_mpi"].get("compiled"):
             S = share(ctx)
             self.arc_ids, self.counted = S.arc_ids, S.counted.astype(bool)
-        else:  # the arcs into its own agents, then (Metropolis weights) into its ghosts: `run_block`'s order
-            halo = [] if P.halo is None else [P.halo.arc_ids]
-            self.arc_ids = np.concatenate([P.arcs.arc_ids, *halo])
-            self.counted = np.arange(len(self.arc_ids)) < P.arcs.n_arcs
+        else:
+            self.arc_ids, self.counted = P.drawn_arcs()
 
     @classmethod
     def of(cls, ctx, backend: str, asynchronous: bool, staleness: int | None, resume: dict | None = None) -> Ranks:
@@ -755,9 +760,8 @@ class LearnerRanks:
             return
         self.arcs, self.edges = P.arcs, P.edges  # the arcs into them over this rank's rows; the edges it draws
         self.own_rows = np.arange(len(P.own))  # the rows of the agents held here in what they hear
-        halo_ids = [] if P.halo is None else [P.halo.arc_ids]
-        self.arc_ids = np.concatenate([P.arcs.arc_ids, *halo_ids])  # the arcs whose channel state this rank keeps
-        self.counted = np.arange(len(self.arc_ids)) < P.arcs.n_arcs  # of which its own: those it saves
+        self.arc_ids, self.counted = P.drawn_arcs()  # the arcs whose channel state this rank keeps; its own
+        self.zeros: dict = {}  # the messages on the halo's arcs (values unused), made at the first round
 
     def init_channel(self, channel, seeds: int, seed: int):
         """The channel's state over the arcs this rank draws, as the whole network's run begins it."""
@@ -773,12 +777,10 @@ class LearnerRanks:
         rows = {name: _placed(x, slice(0, len(P.own)), len(P.local)) for name, x in sent.items()}
         P.exchange(rows)
         mine, around = _split(links, P.arcs.n_arcs) if P.halo is not None else (_counting(links), None)
-        inbox, mine, around = heard(P, channel, mine, around, rows, up)
+        inbox, mine, around = heard(P, channel, mine, around, rows, up, self.zeros)
         return inbox, P.counts(links, mine if around is None else _joined(mine, around))
 
-    def reported(self, x: np.ndarray) -> np.ndarray:
-        """The entries of the arcs into this rank's own agents of a per-arc array (B, arc_ids, ...)."""
-        return x[:, self.counted]
+    reported = Ranks.reported
 
     def gather(self, x: np.ndarray) -> np.ndarray:
         """Every agent's rows (B, N, ...) of what each rank holds of them (B, n, ...), in agent order, on every rank."""
